@@ -1,0 +1,102 @@
+"""Independent tabular Q-learning, B environments x U agents at once.
+
+Each (environment, UAV) pair owns its own table (S, 16) and its own
+Generator; nothing is shared between agents. The same class drives the
+in-process trainer (B x U agents) and one swarm agent process (1 x 1).
+
+Exploration is epsilon-greedy; epsilon decays exponentially from
+epsilon_start to epsilon_end over epsilon_decay_fraction of the episodes,
+then stays. The per-step exploration draws of an episode are made up front
+from each agent's generator (fixed shapes), so results do not depend on the
+batch an agent is trained in.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from truav.config import LearnerConfig
+from world.uavs import N_ACTIONS
+
+
+def epsilon_at(episode: int, lc: LearnerConfig) -> float:
+    """Exploration rate of an episode."""
+    horizon = max(lc.epsilon_decay_fraction * lc.episodes, 1.0)
+    if episode >= horizon:
+        return lc.epsilon_end
+    if lc.epsilon_end <= 0.0 or lc.epsilon_start <= 0.0:
+        return lc.epsilon_start + (lc.epsilon_end - lc.epsilon_start) * episode / horizon
+    return float(lc.epsilon_start * (lc.epsilon_end / lc.epsilon_start) ** (episode / horizon))
+
+
+class QLearners:
+    """Tables q (B, U, S, 16) and per-agent generators (B*U of them, row-major)."""
+
+    def __init__(self, lc: LearnerConfig, n_states: int, rngs: list[np.random.Generator],
+                 batch: int, n_agents: int, q: np.ndarray | None = None):
+        if len(rngs) != batch * n_agents:
+            raise ValueError(f"need {batch * n_agents} generators, got {len(rngs)}")
+        self.lc = lc
+        self.batch, self.n_agents, self.n_states = batch, n_agents, n_states
+        self.rngs = list(rngs)
+        if q is None:
+            q = np.stack([rng.random((n_states, N_ACTIONS)) * lc.q_init_scale for rng in self.rngs])
+        self.q = np.ascontiguousarray(q, dtype=np.float64).reshape(batch, n_agents, n_states, N_ACTIONS)
+        self.epsilon = lc.epsilon_start
+        self._explore_u = np.zeros((0, batch, n_agents))
+        self._random_a = np.zeros((0, batch, n_agents), np.int64)
+
+    def begin_episode(self, episode: int, steps: int, greedy: bool = False) -> None:
+        """Set epsilon for the episode and draw its exploration randomness."""
+        self.epsilon = 0.0 if greedy else epsilon_at(episode, self.lc)
+        u = [rng.random(steps) for rng in self.rngs]
+        a = [rng.integers(0, N_ACTIONS, steps) for rng in self.rngs]
+        shape = (steps, self.batch, self.n_agents)
+        self._explore_u = np.stack(u, axis=1).reshape(shape)
+        self._random_a = np.stack(a, axis=1).reshape(shape)
+
+    def greedy(self, states: np.ndarray) -> np.ndarray:
+        """argmax_a Q(s, a), (B, U)."""
+        return _greedy(self.q, states)
+
+    def act(self, states: np.ndarray, t: int) -> np.ndarray:
+        """Epsilon-greedy actions (B, U) for step t of the episode."""
+        return _act(self.q, states, self._explore_u[t], self._random_a[t], self.epsilon)
+
+    def update(self, s: np.ndarray, a: np.ndarray, r: np.ndarray, s_next: np.ndarray,
+               terminal: bool) -> None:
+        """One Q-learning update per agent: Q(s,a) += lr (r + g max Q(s',.) - Q(s,a)).
+        The last step of an episode is treated as terminal (no bootstrap)."""
+        _update(self.q, s, a, np.asarray(r, np.float64), s_next, bool(terminal),
+                self.lc.learning_rate, self.lc.discount)
+
+
+@njit(cache=True)
+def _greedy(q, states):
+    n_env, n_agent = states.shape
+    out = np.empty((n_env, n_agent), np.int64)
+    for b in range(n_env):
+        for u in range(n_agent):
+            out[b, u] = np.argmax(q[b, u, states[b, u]])
+    return out
+
+
+@njit(cache=True)
+def _act(q, states, explore_u, random_a, epsilon):
+    out = _greedy(q, states)
+    for b in range(out.shape[0]):
+        for u in range(out.shape[1]):
+            if explore_u[b, u] < epsilon:
+                out[b, u] = random_a[b, u]
+    return out
+
+
+@njit(cache=True)
+def _update(q, s, a, r, s_next, terminal, lr, discount):
+    for b in range(s.shape[0]):
+        for u in range(s.shape[1]):
+            target = r[b, u]
+            if not terminal:
+                target += discount * np.max(q[b, u, s_next[b, u]])
+            q[b, u, s[b, u], a[b, u]] += lr * (target - q[b, u, s[b, u], a[b, u]])

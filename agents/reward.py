@@ -1,0 +1,43 @@
+"""The paper's local reward, eq. (1):
+
+    r_i = alpha R_relay + beta R_cov - gamma R_eng - delta R_ov
+
+with each term normalised to be O(1) (the paper gives the weights, not the
+normalisation):
+
+- R_relay = packets UAV i relayed this step / its fair share of the packets
+  generated per step (packet_rate * n_vehicles * dt / n_uavs);
+- R_cov = vehicles UAV i serves / its fair share (n_vehicles / n_uavs);
+- R_eng = energy above hover this step / the propulsion energy above hover
+  at the reference speed ((P_move - P_hover) dt), so flying at v_ref costs 1;
+- R_ov = sum over heard neighbours of the coverage-disc overlap fraction
+  (see agents.state.neighbour_features).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from truav.config import Config
+
+
+class Reward:
+    """Computes r_i (B, U) from a UAV's own step outcome and its overlap."""
+
+    def __init__(self, cfg: Config):
+        sc, lc, e = cfg.scenario, cfg.learner, cfg.energy
+        self.relay_norm = max(cfg.traffic.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
+        self.cov_norm = sc.n_vehicles / sc.n_uavs
+        self.hover_j = e.hover_w * sc.step_s
+        self.eng_norm = max((e.move_w - e.hover_w) * sc.step_s, 1e-9)
+        self.w = (lc.w_relay, lc.w_coverage, lc.w_energy, lc.w_overlap)
+
+    def terms(self, relayed, covered, energy_j, overlap) -> tuple[np.ndarray, ...]:
+        """The four normalised terms (R_relay, R_cov, R_eng, R_ov)."""
+        return (relayed / self.relay_norm, covered / self.cov_norm,
+                np.maximum(energy_j - self.hover_j, 0.0) / self.eng_norm, overlap)
+
+    def __call__(self, relayed, covered, energy_j, overlap) -> np.ndarray:
+        relay, cov, eng, ov = self.terms(relayed, covered, energy_j, overlap)
+        a, b, g, d = self.w
+        return a * relay + b * cov - g * eng - d * ov

@@ -1,0 +1,122 @@
+"""Local state of a TRUAV agent, discretised to one table index.
+
+The paper's four locally observable categories plus a fine spatial grid:
+
+- grid cell of the UAV (grid_cells x grid_cells over the area),
+- vehicle density in range (ordinal level, `density_edges`),
+- packets queued at the connected vehicles (`queue_edges`),
+- distance to the nearest neighbour UAV, from beacons (`neighbour_edges_m`),
+- distance to the nearest RSU, RSU sites being known a priori (`rsu_edges_m`).
+
+A level is the number of edges <= the value, so k edges give k+1 levels.
+Everything here uses only what one UAV senses itself or hears in beacons.
+Kernels are numba-compiled loops over (B, U) agents.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from truav.config import Config
+from world.network import rsu_positions
+
+
+@njit(cache=True)
+def neighbour_features(own, peers, heard, comm_range_m):
+    """Nearest heard neighbour distance (m, inf if none) and coverage overlap.
+
+    own (B, U, 2); peers (B, U, M, 2) positions from beacons; heard (B, U, M)
+    which of them were heard. Overlap is the sum over heard neighbours of the
+    lens area two coverage discs of radius R share, as a fraction of one disc
+    (0 beyond 2R apart, 1 when co-located). Returns two (B, U) arrays."""
+    n_env, n_uav, n_peer = heard.shape
+    nearest = np.full((n_env, n_uav), np.inf)
+    overlap = np.zeros((n_env, n_uav))
+    for b in range(n_env):
+        for u in range(n_uav):
+            for m in range(n_peer):
+                if not heard[b, u, m]:
+                    continue
+                d = np.sqrt((peers[b, u, m, 0] - own[b, u, 0]) ** 2 + (peers[b, u, m, 1] - own[b, u, 1]) ** 2)
+                nearest[b, u] = min(nearest[b, u], d)
+                x = min(d / (2.0 * comm_range_m), 1.0)
+                overlap[b, u] += (2.0 / np.pi) * (np.arccos(x) - x * np.sqrt(1.0 - x * x))
+    return nearest, overlap
+
+
+def all_peers(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every UAV of an env hears every other: peers (B, U, U, 2), heard (B, U, U)."""
+    b, u, _ = pos.shape
+    return np.repeat(pos[:, None, :, :], u, axis=1), _others_mask(b, u)
+
+
+@functools.lru_cache(maxsize=16)
+def _others_mask(b: int, u: int) -> np.ndarray:
+    mask = np.repeat(~np.eye(u, dtype=np.bool_)[None], b, axis=0)
+    mask.flags.writeable = False
+    return mask
+
+
+class StateParams(NamedTuple):
+    cells: int
+    cell_m: float
+    density_edges: np.ndarray
+    queue_edges: np.ndarray
+    neighbour_edges: np.ndarray
+    rsu_edges: np.ndarray
+    rsu: np.ndarray  # (K, 2)
+
+
+@njit(cache=True)
+def _level(edges, value):
+    level = 0
+    for e in edges:
+        if value >= e:
+            level += 1
+    return level
+
+
+@njit(cache=True)
+def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, p):
+    """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
+    n_env, n_uav = vehicles_in_range.shape
+    out = np.empty((n_env, n_uav), np.int64)
+    for b in range(n_env):
+        for u in range(n_uav):
+            x, y = pos[b, u, 0], pos[b, u, 1]
+            cx = min(max(int(x // p.cell_m), 0), p.cells - 1)
+            cy = min(max(int(y // p.cell_m), 0), p.cells - 1)
+            rsu_d = np.inf
+            for k in range(p.rsu.shape[0]):
+                rsu_d = min(rsu_d, np.sqrt((x - p.rsu[k, 0]) ** 2 + (y - p.rsu[k, 1]) ** 2))
+            index = cx * p.cells + cy
+            index = index * (p.density_edges.size + 1) + _level(p.density_edges, vehicles_in_range[b, u])
+            index = index * (p.queue_edges.size + 1) + _level(p.queue_edges, queued[b, u])
+            index = index * (p.neighbour_edges.size + 1) + _level(p.neighbour_edges, nearest_neighbour_m[b, u])
+            out[b, u] = index * (p.rsu_edges.size + 1) + _level(p.rsu_edges, rsu_d)
+    return out
+
+
+class StateEncoder:
+    """Maps local features to a state index in [0, n_states)."""
+
+    def __init__(self, cfg: Config):
+        lc, sc = cfg.learner, cfg.scenario
+        self.params = StateParams(lc.grid_cells, sc.area_m / lc.grid_cells, np.array(lc.density_edges),
+                                  np.array(lc.queue_edges), np.array(lc.neighbour_edges_m),
+                                  np.array(lc.rsu_edges_m), rsu_positions(sc.area_m))
+        p = self.params
+        self.levels = (p.cells * p.cells, p.density_edges.size + 1, p.queue_edges.size + 1,
+                       p.neighbour_edges.size + 1, p.rsu_edges.size + 1)
+        self.n_states = int(np.prod(self.levels))
+
+    def encode(self, pos: np.ndarray, vehicles_in_range: np.ndarray, queued: np.ndarray,
+               nearest_neighbour_m: np.ndarray) -> np.ndarray:
+        """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
+        return encode_states(np.ascontiguousarray(pos, dtype=np.float64),
+                             np.asarray(vehicles_in_range, np.float64), np.asarray(queued, np.float64),
+                             np.asarray(nearest_neighbour_m, np.float64), self.params)

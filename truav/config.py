@@ -1,0 +1,365 @@
+"""Every parameter of a TRUAV run, with the paper's Table "Simulation
+Parameters" as defaults.
+
+One frozen dataclass per section; a docstring under each field says what it
+is and, where the paper is silent, which source the default comes from.
+`load_config` reads TOML (sections named like the dataclass fields of
+`Config`), rejects unknown keys and out-of-range values with a one-line
+`ConfigError` naming the key, and `to_toml` prints the effective config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+
+class ConfigError(ValueError):
+    """A user mistake in a config file or override: the message names the key."""
+
+
+def param(default: Any, lo: float | None = None, hi: float | None = None):
+    """A config field with an inclusive valid range checked on load."""
+    return field(default=default, metadata={"range": (lo, hi)})
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """The environment block of the paper's Table."""
+
+    area_m: float = param(5000.0, 100.0, 1e6)
+    """Side of the square urban area (m). Paper: 5000 x 5000 m."""
+    n_vehicles: int = param(200, 1, 100_000)
+    """Ground vehicles. Paper: 200."""
+    n_uavs: int = param(5, 1, 1024)
+    """UAV relays, one learning agent each. Paper: 5."""
+    uav_altitude_m: float = param(100.0, 1.0, 1000.0)
+    """Fixed flight level (m). Paper: 100 m."""
+    uav_speed_mps: float = param(15.0, 0.1, 100.0)
+    """Maximum UAV horizontal speed (m/s); the paper sweeps 5-25 m/s."""
+    comm_range_m: float = param(500.0, 1.0, 1e5)
+    """UAV-to-vehicle link range (m), horizontal; defines coverage. Paper: 500 m."""
+    step_s: float = param(1.0, 0.01, 60.0)
+    """Duration of one simulation step (s). The paper: 100 steps = 100 s."""
+    steps_per_episode: int = param(100, 1, 1_000_000)
+    """Steps per episode. Paper: 100."""
+    rsu_height_m: float = param(10.0, 0.0, 200.0)
+    """RSU antenna height (m); RSUs sit at the four corners (paper), on masts of
+    typical roadside height (5-10 m; 3GPP TR 37.885 uses 5 m RSU antennas)."""
+    uav_start: str = param("random")
+    """Where UAVs start each episode: "random" (uniform over the area, drawn from
+    the world's seeded generator) or "center"."""
+
+
+@dataclass(frozen=True)
+class RoadConfig:
+    """Grid road network and turning behaviour (the paper says only "regular
+    grid of two-lane roads", "turning probabilities typical of urban areas" and
+    "higher vehicle densities near major intersections")."""
+
+    block_m: float = param(500.0, 50.0, 1e5)
+    """Distance between parallel roads (m). 500 m gives an 11 x 11 grid over
+    5 km, in the range of Manhattan-grid studies (ETSI TR 101 112 uses 250 m
+    blocks for a 1 km city; larger blocks keep 200 vehicles per 5 km sparse)."""
+    p_straight: float = param(0.5, 0.0, 1.0)
+    """Turning probabilities of the Manhattan mobility model (ETSI TR 101 112,
+    UMTS 30.03): straight 0.5, left 0.25, right 0.25."""
+    p_left: float = param(0.25, 0.0, 1.0)
+    """Probability of turning left at an intersection (see p_straight)."""
+    p_right: float = param(0.25, 0.0, 1.0)
+    """Probability of turning right at an intersection (see p_straight)."""
+    p_attract: float = param(0.6, 0.0, 1.0)
+    """Probability that a driver, at an intersection, takes the turn that brings
+    it closest to its home major intersection instead of a Manhattan draw.
+    This gravity-style attraction (cf. the activity-based "hotspot" mobility of
+    Kim et al., Infocom 2006) produces the clustering near major intersections
+    that the paper describes."""
+    major_intersections: tuple[tuple[int, int], ...] = param(
+        ((2, 3), (7, 2), (5, 6), (8, 8), (2, 8))
+    )
+    """Grid indices (i, j) of the city's major intersections (a fixed map).
+    Each vehicle has one as its home; traffic clusters around them."""
+    turn_speed_mps: float = param(5.5, 0.5, 50.0)
+    """Speed for turning and for crossing a major (signalised) intersection
+    (~20 km/h, the usual urban turning speed in SUMO's junction model)."""
+    warmup_steps: int = param(200, 0, 100_000)
+    """Mobility-only steps run at the first reset so traffic starts clustered."""
+
+
+@dataclass(frozen=True)
+class IDMConfig:
+    """Intelligent Driver Model constants (Treiber, Hennecke & Helbing 2000);
+    city-traffic values of Treiber & Kesting, "Traffic Flow Dynamics", Tab. 11.2."""
+
+    desired_speed_mps: float = param(15.0, 0.5, 60.0)
+    """v0: desired speed, 54 km/h (urban limit 50-60 km/h)."""
+    time_headway_s: float = param(1.0, 0.1, 5.0)
+    """T: safe time headway (city traffic: 1.0 s)."""
+    max_accel: float = param(1.0, 0.1, 10.0)
+    """a: maximum acceleration (m/s^2)."""
+    comfort_decel: float = param(1.5, 0.1, 10.0)
+    """b: comfortable deceleration (m/s^2)."""
+    min_gap_m: float = param(2.0, 0.0, 50.0)
+    """s0: jam distance (m)."""
+    exponent: float = param(4.0, 1.0, 10.0)
+    """delta: acceleration exponent."""
+    vehicle_length_m: float = param(5.0, 1.0, 30.0)
+    """Vehicle length (m)."""
+
+
+@dataclass(frozen=True)
+class TrafficConfig:
+    """Packets generated at vehicles for relaying to an RSU."""
+
+    packet_rate_hz: float = param(1.0, 0.0, 1000.0)
+    """Mean Poisson packet rate per vehicle (1/s): 1 Hz, the lowest CAM
+    generation rate of ETSI EN 302 637-2."""
+    packet_bytes: int = param(300, 1, 1_000_000)
+    """Packet size (bytes): a typical CAM is 200-400 bytes (ETSI EN 302 637-2)."""
+    queue_limit: int = param(20, 1, 100_000)
+    """Per-vehicle queue bound (packets); arrivals beyond it are dropped."""
+    deadline_steps: int = param(10, 1, 1000)
+    """Packets not delivered within this many steps (10 s) expire, as in
+    delay-tolerant vehicular data collection."""
+
+
+@dataclass(frozen=True)
+class ChannelConfig:
+    """Air-to-ground and air-to-air links (paper: 20 MHz, noise 1e-9 W,
+    vehicle 0.1 W, UAV 1.0 W; LoS model after Al-Hourani et al., IEEE WCL 2014)."""
+
+    carrier_hz: float = param(5.9e9, 1e8, 1e11)
+    """Carrier frequency (Hz): 5.9 GHz, IEEE 802.11p (paper)."""
+    bandwidth_hz: float = param(20e6, 1e3, 1e10)
+    """Channel bandwidth (Hz). Paper: 20 MHz."""
+    noise_w: float = param(1e-9, 1e-20, 1.0)
+    """Noise power (W). Paper: 1e-9 W."""
+    vehicle_tx_w: float = param(0.1, 1e-6, 100.0)
+    """Vehicle transmit power (W). Paper: 0.1 W."""
+    uav_tx_w: float = param(1.0, 1e-6, 100.0)
+    """UAV transmit power to UAVs and RSUs (W). Paper: 1.0 W."""
+    antenna_gain_dbi: float = param(0.0, -20.0, 40.0)
+    """Sum of transmit and receive antenna gains (dBi); omni antennas."""
+    los_a: float = param(9.61, 0.0, 100.0)
+    """Al-Hourani 'a' for the urban environment (9.61)."""
+    los_b: float = param(0.16, 0.0, 10.0)
+    """Al-Hourani 'b' for the urban environment (0.16)."""
+    eta_los_db: float = param(1.0, 0.0, 100.0)
+    """Excess loss on LoS links (dB), urban: 1 dB."""
+    eta_nlos_db: float = param(20.0, 0.0, 100.0)
+    """Excess loss on NLoS links (dB), urban: 20 dB."""
+    a2a_los_probability: float = param(1.0, 0.0, 1.0)
+    """UAV-to-UAV LoS probability: both ends fly above the rooftops, so air-to-air
+    links are modelled as LoS (Mozaffari et al., IEEE COMST 2019)."""
+
+
+@dataclass(frozen=True)
+class EnergyConfig:
+    """Mode-dependent UAV power profile (paper: hover 200 W, move 250 W)."""
+
+    hover_w: float = param(200.0, 0.0, 1e5)
+    """Power to stay aloft (W). Paper: 200 W."""
+    move_w: float = param(250.0, 0.0, 1e5)
+    """Power when cruising at move_ref_speed_mps (W). Paper: 250 W."""
+    move_ref_speed_mps: float = param(25.0, 0.1, 100.0)
+    """Speed at which move_w applies; propulsion above hover grows linearly with
+    speed up to it (the paper: energy rises roughly linearly with speed)."""
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    """Tabular Q-learning (paper's RL block) plus the reward and state design."""
+
+    learning_rate: float = param(0.1, 0.0, 1.0)
+    """Q-learning step size. Paper: 0.1."""
+    discount: float = param(0.95, 0.0, 1.0)
+    """Discount factor. Paper: 0.95."""
+    epsilon_start: float = param(1.0, 0.0, 1.0)
+    """Initial exploration rate. Paper: 1.0."""
+    epsilon_end: float = param(0.05, 0.0, 1.0)
+    """Final exploration rate. Paper: 0.05."""
+    epsilon_decay_fraction: float = param(0.8, 0.01, 1.0)
+    """Exploration decays exponentially from start to end over this fraction
+    of the episodes, then stays at epsilon_end."""
+    episodes: int = param(5000, 1, 10_000_000)
+    """Training episodes. Paper: 5000."""
+    q_init_scale: float = param(0.01, 0.0, 10.0)
+    """Q-tables start uniform in [0, q_init_scale) ("small random values")."""
+    w_relay: float = param(1.0, -100.0, 100.0)
+    """alpha, weight of the relay term. Paper: 1.0."""
+    w_coverage: float = param(0.25, -100.0, 100.0)
+    """beta, weight of the coverage term. Paper: 0.25."""
+    w_energy: float = param(0.15, -100.0, 100.0)
+    """gamma, weight of the energy penalty. Paper: 0.15."""
+    w_overlap: float = param(0.20, -100.0, 100.0)
+    """delta, weight of the overlap penalty. Paper: 0.20."""
+    grid_cells: int = param(10, 1, 1000)
+    """Cells per side of the state's spatial grid (10 -> 500 m cells)."""
+    density_edges: tuple[float, ...] = param((1.0, 5.0, 15.0))
+    """Vehicles in range: level = number of edges <= count."""
+    queue_edges: tuple[float, ...] = param((1.0, 10.0, 30.0))
+    """Packets queued at connected vehicles: level edges."""
+    neighbour_edges_m: tuple[float, ...] = param((1000.0, 2000.0))
+    """Nearest neighbour UAV distance (m): < 2R overlaps, < 4R near, else far."""
+    rsu_edges_m: tuple[float, ...] = param((1000.0, 2500.0))
+    """Nearest RSU distance (m): level edges."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole effective configuration of a run."""
+
+    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
+    roads: RoadConfig = field(default_factory=RoadConfig)
+    idm: IDMConfig = field(default_factory=IDMConfig)
+    traffic: TrafficConfig = field(default_factory=TrafficConfig)
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
+    energy: EnergyConfig = field(default_factory=EnergyConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+
+    def replace(self, **sections: Mapping[str, Any]) -> "Config":
+        """A copy with some keys changed, validated: replace(scenario={"n_uavs": 3})."""
+        data = to_dict(self)
+        for name, values in sections.items():
+            data[name] = {**data.get(name, {}), **values}
+        return config_from_dict(data)
+
+
+def to_dict(cfg: Config) -> dict[str, dict[str, Any]]:
+    """Plain nested dict of the config (tuples kept)."""
+    return {f.name: dataclasses.asdict(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+
+
+def _coerce(section: str, f: dataclasses.Field, value: Any) -> Any:
+    key = f"{section}.{f.name}"
+    default = f.default
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+    elif isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: must be finite, got {value!r}")
+    elif isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+    elif isinstance(default, tuple):
+        value = _coerce_tuple(key, default, value)
+    lo, hi = f.metadata.get("range", (None, None))
+    if lo is not None and value < lo or hi is not None and value > hi:
+        raise ConfigError(f"{key}: {value!r} is outside [{lo}, {hi}]")
+    return value
+
+
+def _coerce_tuple(key: str, default: tuple, value: Any) -> tuple:
+    if not isinstance(value, (list, tuple)) or len(value) == 0:
+        raise ConfigError(f"{key}: expected a non-empty list, got {value!r}")
+    if default and isinstance(default[0], tuple):  # list of integer pairs
+        pairs = []
+        for item in value:
+            if (not isinstance(item, (list, tuple)) or len(item) != 2
+                    or not all(isinstance(v, int) and not isinstance(v, bool) for v in item)):
+                raise ConfigError(f"{key}: expected a list of [i, j] integer pairs, got {item!r}")
+            pairs.append((int(item[0]), int(item[1])))
+        return tuple(pairs)
+    numbers = []
+    for item in value:
+        if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
+            raise ConfigError(f"{key}: expected finite numbers, got {item!r}")
+        numbers.append(float(item))
+    if any(b <= a for a, b in zip(numbers, numbers[1:])):
+        raise ConfigError(f"{key}: bin edges must increase strictly, got {numbers}")
+    return tuple(numbers)
+
+
+def config_from_dict(data: Mapping[str, Any]) -> Config:
+    """Build and validate a Config from nested mappings; missing keys keep defaults."""
+    sections = {}
+    for sec in dataclasses.fields(Config):
+        sections[sec.name] = sec.default_factory  # type: ignore[misc]
+    unknown = set(data) - set(sections)
+    if unknown:
+        raise ConfigError(f"unknown section '{sorted(unknown)[0]}' (known: {', '.join(sections)})")
+    built = {}
+    for name, factory in sections.items():
+        values = data.get(name, {})
+        if not isinstance(values, Mapping):
+            raise ConfigError(f"section '{name}' must be a table")
+        cls = type(factory())
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        bad = set(values) - set(fields)
+        if bad:
+            raise ConfigError(f"unknown key '{name}.{sorted(bad)[0]}'")
+        built[name] = cls(**{k: _coerce(name, fields[k], v) for k, v in values.items()})
+    cfg = Config(**built)
+    _check_consistency(cfg)
+    return cfg
+
+
+def _check_consistency(cfg: Config) -> None:
+    r, s = cfg.roads, cfg.scenario
+    if abs(r.p_straight + r.p_left + r.p_right - 1.0) > 1e-9:
+        raise ConfigError("roads.p_straight + p_left + p_right must sum to 1")
+    if s.uav_start not in ("random", "center"):
+        raise ConfigError(f"scenario.uav_start: {s.uav_start!r} is not 'random' or 'center'")
+    n_roads = n_grid_roads(cfg)
+    if n_roads < 2:
+        raise ConfigError("roads.block_m: the area must hold at least two roads per axis")
+    for i, j in r.major_intersections:
+        if not (0 <= i < n_roads and 0 <= j < n_roads):
+            raise ConfigError(f"roads.major_intersections: ({i}, {j}) is outside the {n_roads}x{n_roads} grid")
+    if cfg.idm.desired_speed_mps * s.step_s >= r.block_m:
+        raise ConfigError("idm.desired_speed_mps: a vehicle must not cross a whole block in one step")
+    if cfg.learner.epsilon_end > cfg.learner.epsilon_start:
+        raise ConfigError("learner.epsilon_end must not exceed learner.epsilon_start")
+
+
+def n_grid_roads(cfg: Config) -> int:
+    """Roads per axis: one every block_m, including both borders."""
+    return int(math.floor(cfg.scenario.area_m / cfg.roads.block_m + 1e-9)) + 1
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Defaults, then a TOML file, then overrides ({"scenario": {...}})."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"config file not found: {p}")
+        try:
+            data = tomllib.loads(p.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    for name, values in (overrides or {}).items():
+        data[name] = {**data.get(name, {}), **values}
+    return config_from_dict(data)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def to_toml(cfg: Config) -> str:
+    """The effective config as TOML that load_config reads back unchanged."""
+    lines = []
+    for name, values in to_dict(cfg).items():
+        lines.append(f"[{name}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in values.items())
+        lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,71 @@
+"""Per-vehicle bounded packet queues with a delivery deadline, as counts.
+
+A queue is a ring of D = deadline_steps age slots per vehicle, shape
+(B, N, D): slot (t % D) receives the packets born at step t. At the end of a
+step the slot about to turn D steps old is emptied (those packets expire)
+and becomes the arrival slot of the next step; nothing is shifted. Service
+is FIFO, oldest slot first. Totals per vehicle are kept alongside, so no
+step sums over D. The per-vehicle operations are numba functions called by
+the world's step kernel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+
+@dataclass
+class Queues:
+    """Packet counts: slots (B, N, D) int64 and totals (B, N) int64."""
+
+    slots: np.ndarray
+    total: np.ndarray
+
+    @classmethod
+    def empty(cls, batch: int, n: int, deadline_steps: int) -> "Queues":
+        return cls(np.zeros((batch, n, deadline_steps), np.int64), np.zeros((batch, n), np.int64))
+
+    def clear(self) -> np.ndarray:
+        """Empty all queues; returns how many packets were dropped per env (B,)."""
+        left = self.total.sum(axis=-1)
+        self.slots[:] = 0
+        self.total[:] = 0
+        return left
+
+
+@njit(cache=True)
+def arrive(slots, queued, t, count, limit):
+    """Enqueue `count` packets born at step t into a queue holding `queued`,
+    up to the bound; returns how many were accepted."""
+    accepted = min(count, limit - queued)
+    slots[t % slots.size] += accepted
+    return accepted
+
+
+@njit(cache=True)
+def serve(slots, t, want):
+    """Remove up to `want` packets, oldest first. Returns (served, sum of their
+    ages in steps)."""
+    depth = slots.size
+    served, age_sum = 0, 0
+    for age in range(depth - 1, -1, -1):  # age a lives in slot (t - a) % depth
+        if served >= want:
+            break
+        slot = (t - age) % depth
+        take = min(slots[slot], want - served)
+        slots[slot] -= take
+        served += take
+        age_sum += take * age
+    return served, age_sum
+
+
+@njit(cache=True)
+def expire(slots, t):
+    """End of step t: drop the packets reaching the deadline; returns how many."""
+    slot = (t + 1) % slots.size
+    dropped = slots[slot]
+    slots[slot] = 0
+    return dropped

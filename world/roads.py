@@ -1,0 +1,283 @@
+"""Grid road network and car-following mobility, batched over environments.
+
+Every array has a leading batch axis B (independent environments) and a
+vehicle axis N. A vehicle drives on one lane of a two-lane road: its
+`heading` (0:+x, 1:+y, 2:-x, 3:-y) fixes the axis and direction, `road` the
+index of the road (fixed coordinate = road * block_m), `s` the coordinate
+along the road. Lanes of opposite directions do not interact.
+
+Longitudinal motion is the Intelligent Driver Model (Treiber et al. 2000)
+behind the leader on the same lane; drivers slow to the turning speed before
+an intersection where they will turn or that is major (signalised). At an
+intersection a driver takes the turn chosen when it entered the block: with
+probability p_attract the one that brings it closest to its home major
+intersection, otherwise a Manhattan draw (straight/left/right). A turner
+whose landing spot on the new lane is taken goes straight instead, or waits
+at the road end, so no lane ever holds overlapping vehicles.
+
+The step is a numba kernel, parallel over environments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from truav.config import Config, n_grid_roads
+
+STRAIGHT, LEFT, RIGHT = 0, 1, 2
+# Unit steps of the four headings on the grid of intersections.
+HEADING_DI = np.array([1, 0, -1, 0])
+HEADING_DJ = np.array([0, 1, 0, -1])
+HEADING_DIR = np.array([1.0, 1.0, -1.0, -1.0])
+# Heading after going straight / left / right (headings run counter-clockwise).
+TURN_OFFSET = np.array([0, 1, 3])
+MAX_BRAKE = 9.0  # m/s^2, physical emergency braking bound on IDM decelerations
+
+
+@dataclass
+class Vehicles:
+    """Vehicle state, all arrays (B, N)."""
+
+    heading: np.ndarray  # int64
+    road: np.ndarray  # int64
+    s: np.ndarray  # float64, m along the road
+    v: np.ndarray  # float64, m/s
+    home: np.ndarray  # int64, index into the major intersections
+    next_turn: np.ndarray  # int64, STRAIGHT/LEFT/RIGHT at the next intersection
+
+    FIELDS = ("heading", "road", "s", "v", "home", "next_turn")
+
+    def xy(self, block_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Planar positions (x, y), each (B, N)."""
+        along_x = (self.heading & 1) == 0
+        fixed = self.road * block_m
+        return np.where(along_x, self.s, fixed), np.where(along_x, fixed, self.s)
+
+    @classmethod
+    def concat(cls, parts: list["Vehicles"]) -> "Vehicles":
+        return cls(*(np.ascontiguousarray(np.concatenate([getattr(p, f) for p in parts])) for f in cls.FIELDS))
+
+
+class MobilityParams(NamedTuple):
+    """Everything the mobility kernel needs, in numba-friendly form."""
+
+    block: float
+    n_roads: int
+    extent: float
+    length: float
+    v0: float
+    headway: float
+    accel: float
+    decel: float
+    jam_gap: float
+    exponent: float
+    turn_speed: float
+    p_attract: float
+    p_straight: float
+    p_left: float
+    p_right: float
+    is_major: np.ndarray  # (n_roads, n_roads) bool
+    major_i: np.ndarray  # (n_major,) int64
+    major_j: np.ndarray
+
+
+@njit(cache=True)
+def next_intersection(h, road, s, block):
+    """Along-road index k of the next intersection at or ahead of s, and its
+    grid coordinates (i, j)."""
+    x = s / block
+    k = int(np.ceil(x - 1e-9)) if h < 2 else int(np.floor(x + 1e-9))
+    if (h & 1) == 0:
+        return k, k, road
+    return k, road, k
+
+
+@njit(cache=True)
+def choose_turn(h, road, s, home, u_attract, u_pick, p):
+    """Turn (STRAIGHT/LEFT/RIGHT) to take at the next intersection ahead."""
+    _, i, j = next_intersection(h, road, s, p.block)
+    probs = (p.p_straight, p.p_left, p.p_right)
+    best, best_score, total = -1, np.inf, 0.0
+    feasible = np.zeros(3, np.bool_)
+    for c in range(3):
+        hc = (h + TURN_OFFSET[c]) & 3
+        ni, nj = i + HEADING_DI[hc], j + HEADING_DJ[hc]
+        if 0 <= ni < p.n_roads and 0 <= nj < p.n_roads:
+            feasible[c] = True
+            # Ties prefer straight, then left, then right.
+            score = abs(ni - p.major_i[home]) + abs(nj - p.major_j[home]) + 0.1 * c
+            if score < best_score:
+                best, best_score = c, score
+            total += probs[c]
+    if u_attract < p.p_attract or total <= 0.0:
+        return best
+    x, acc = u_pick * total, 0.0
+    for c in range(3):
+        if feasible[c] and probs[c] > 0.0:
+            acc += probs[c]
+            if x < acc:
+                return c
+    return best
+
+
+@njit(cache=True)
+def _lane_sort(h, road, s, p):
+    span = 4.0 * (p.extent + 1.0)
+    key = np.empty(s.size)
+    for i in range(s.size):
+        key[i] = (h[i] * p.n_roads + road[i]) * span + HEADING_DIR[h[i]] * s[i]
+    order = np.argsort(key)
+    return order, key
+
+
+@njit(cache=True)
+def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
+    n = s.size
+    same_lane = 2.0 * p.extent + 1.0
+    order, key = _lane_sort(h, road, s, p)
+    gap = np.full(n, np.inf)
+    v_lead = np.zeros(n)
+    for k in range(n - 1):
+        a, c = order[k], order[k + 1]
+        if key[c] - key[a] < same_lane:
+            gap[a] = key[c] - key[a] - p.length
+            v_lead[a] = v[c]
+
+    old_h, old_road = h.copy(), road.copy()
+    s_int = np.empty(n)
+    s_lane = np.empty(n)
+    v_new = np.empty(n)
+    crossing = np.zeros(n, np.bool_)
+    active = np.zeros(n, np.bool_)
+    straight_ok = np.zeros(n, np.bool_)
+    brake_term = 1.0 / (2.0 * np.sqrt(p.accel * p.decel))
+    for x in range(n):
+        direction = HEADING_DIR[h[x]]
+        k, i, j = next_intersection(h[x], road[x], s[x], p.block)
+        s_int[x] = k * p.block
+        v0 = p.v0
+        if next_turn[x] != STRAIGHT or p.is_major[i, j]:
+            d_int = direction * (s_int[x] - s[x])
+            v0 = min(v0, np.sqrt(p.turn_speed ** 2 + 2.0 * p.decel * d_int))
+        vx = v[x]
+        s_star = p.jam_gap + max(0.0, vx * p.headway + vx * (vx - v_lead[x]) * brake_term)
+        interaction = (s_star / max(gap[x], 0.1)) ** 2 if gap[x] < np.inf else 0.0
+        ratio = vx / v0
+        free = ratio * ratio * ratio * ratio if p.exponent == 4.0 else ratio ** p.exponent
+        acc = max(p.accel * (1.0 - free - interaction), -MAX_BRAKE)
+        vn = max(vx + acc * dt, 0.0)
+        ds = min(0.5 * (vx + vn) * dt, max(gap[x], 0.0))  # never into the leader's old rear
+        vn = min(vn, 2.0 * ds / dt)
+        s_lane[x] = s[x] + direction * ds
+        v_new[x] = vn
+        overshoot = direction * (s_lane[x] - s_int[x])
+        crossing[x] = overshoot > 0.0
+        ni, nj = i + HEADING_DI[h[x]], j + HEADING_DJ[h[x]]
+        straight_ok[x] = 0 <= ni < p.n_roads and 0 <= nj < p.n_roads
+        if crossing[x] and next_turn[x] != STRAIGHT:
+            ht = (h[x] + TURN_OFFSET[next_turn[x]]) & 3
+            s[x] = road[x] * p.block + HEADING_DIR[ht] * overshoot
+            road[x] = k
+            h[x] = ht
+            v[x] = min(vn, p.turn_speed)
+            active[x] = True
+        else:
+            s[x] = s_lane[x]
+            v[x] = vn
+
+    # A turner may land on a taken spot; put it back (straight, or waiting at
+    # a road end) until no lane holds overlapping vehicles. Only turners can
+    # overlap anyone: within a lane, the IDM step above keeps every gap >= 0.
+    waiting = np.zeros(n, np.bool_)
+    turners = np.flatnonzero(active)
+    changed = turners.size > 0
+    while changed:
+        changed = False
+        for x in turners:
+            if not active[x]:
+                continue
+            for y in range(n):
+                if y != x and h[y] == h[x] and road[y] == road[x] and abs(s[y] - s[x]) < p.length:
+                    active[x] = False
+                    changed = True
+                    h[x], road[x] = old_h[x], old_road[x]
+                    if straight_ok[x]:
+                        s[x], v[x] = s_lane[x], v_new[x]
+                    else:
+                        s[x], v[x] = s_int[x], 0.0
+                        waiting[x] = True
+                    break
+    for x in range(n):
+        if crossing[x] and not waiting[x]:
+            next_turn[x] = choose_turn(h[x], road[x], s[x], home[x], u[x, 0], u[x, 1], p)
+
+
+@njit(cache=True)
+def mobility_step(heading, road, s, v, home, next_turn, u_turn, dt, p):
+    """Advance all vehicles (B, N) by dt in place; u_turn (B, N, 2) uniforms."""
+    for b in range(s.shape[0]):
+        _mobility_env(heading[b], road[b], s[b], v[b], home[b], next_turn[b], u_turn[b], dt, p)
+
+
+@njit(cache=True)
+def choose_turns(heading, road, s, home, u, p):
+    """choose_turn for flat arrays; u (N, 2)."""
+    out = np.empty(s.size, np.int64)
+    for x in range(s.size):
+        out[x] = choose_turn(heading[x], road[x], s[x], home[x], u[x, 0], u[x, 1], p)
+    return out
+
+
+class RoadGrid:
+    """Static geometry of the grid; spawns vehicles and steps them."""
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        self.block = cfg.roads.block_m
+        self.n_roads = n_grid_roads(cfg)
+        self.extent = (self.n_roads - 1) * self.block
+        majors = np.array(cfg.roads.major_intersections, dtype=np.int64).reshape(-1, 2)
+        is_major = np.zeros((self.n_roads, self.n_roads), dtype=np.bool_)
+        is_major[majors[:, 0], majors[:, 1]] = True
+        r, idm = cfg.roads, cfg.idm
+        self.params = MobilityParams(
+            float(self.block), int(self.n_roads), float(self.extent), idm.vehicle_length_m,
+            idm.desired_speed_mps, idm.time_headway_s, idm.max_accel, idm.comfort_decel, idm.min_gap_m,
+            idm.exponent, r.turn_speed_mps, r.p_attract, r.p_straight, r.p_left, r.p_right,
+            is_major, majors[:, 0].copy(), majors[:, 1].copy())
+
+    def spawn(self, rng: np.random.Generator, n: int) -> Vehicles:
+        """N vehicles on distinct 25 m slots of random lanes, at rest, one env
+        (arrays shaped (1, N)); homes uniform over the major intersections."""
+        slot_m = 25.0
+        slots_per_lane = int(self.extent // slot_m)
+        n_lanes = 4 * self.n_roads
+        if n > n_lanes * slots_per_lane:
+            raise ValueError(f"{n} vehicles do not fit on the road grid")
+        pick = rng.choice(n_lanes * slots_per_lane, size=n, replace=False)
+        lane, slot = np.divmod(pick, slots_per_lane)
+        heading, road = np.divmod(lane, self.n_roads)
+        s = (slot + 0.5) * slot_m
+        home = rng.integers(0, len(self.params.major_i), size=n)
+        turn = choose_turns(heading, road, s, home, rng.random((n, 2)), self.params)
+        return Vehicles(heading[None], road[None], s[None], np.zeros((1, n)), home[None], turn[None])
+
+    def step(self, veh: Vehicles, dt: float, u_turn: np.ndarray) -> None:
+        """Advance all vehicles by dt in place; u_turn (B, N, 2) uniforms."""
+        mobility_step(veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
+                      np.ascontiguousarray(u_turn), float(dt), self.params)
+
+    def lane_gaps(self, veh: Vehicles) -> np.ndarray:
+        """Bumper gap of every vehicle to its leader on the same lane, +inf if
+        none; (B, N). Negative would mean a collision."""
+        out = np.full(veh.s.shape, np.inf)
+        for b in range(veh.s.shape[0]):
+            order, key = _lane_sort(veh.heading[b], veh.road[b], veh.s[b], self.params)
+            ks = key[order]
+            d = ks[1:] - ks[:-1]
+            out[b, order[:-1]] = np.where(d < 2 * self.extent + 1, d - self.cfg.idm.vehicle_length_m, np.inf)
+        return out
