@@ -67,7 +67,8 @@ class QLearners:
     def update(self, s: np.ndarray, a: np.ndarray, r: np.ndarray, s_next: np.ndarray,
                terminal: bool) -> None:
         """One Q-learning update per agent: Q(s,a) += lr (r + g max Q(s',.) - Q(s,a)).
-        The last step of an episode is treated as terminal (no bootstrap)."""
+        `terminal` drops the bootstrap; episode ends are time limits of a
+        continuing task, so drivers pass False there (Pardo et al., ICML 2018)."""
         _update(self.q, s, a, np.asarray(r, np.float64), s_next, bool(terminal),
                 self.lc.learning_rate, self.lc.discount)
 

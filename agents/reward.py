@@ -8,8 +8,8 @@ normalisation):
 - R_relay = packets UAV i relayed this step / its fair share of the packets
   generated per step (packet_rate * n_vehicles * dt / n_uavs);
 - R_cov = vehicles UAV i serves / its fair share (n_vehicles / n_uavs);
-- R_eng = energy above hover this step / the propulsion energy above hover
-  at the reference speed ((P_move - P_hover) dt), so flying at v_ref costs 1;
+- R_eng = energy spent this step / the energy of cruising at P_move for the
+  step (P_move dt): hovering costs P_hover/P_move = 0.8, cruising at v_ref 1;
 - R_ov = sum over heard neighbours of the coverage-disc overlap fraction
   (see agents.state.neighbour_features).
 """
@@ -28,14 +28,13 @@ class Reward:
         sc, lc, e = cfg.scenario, cfg.learner, cfg.energy
         self.relay_norm = max(cfg.traffic.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
         self.cov_norm = sc.n_vehicles / sc.n_uavs
-        self.hover_j = e.hover_w * sc.step_s
-        self.eng_norm = max((e.move_w - e.hover_w) * sc.step_s, 1e-9)
+        self.eng_norm = max(e.move_w * sc.step_s, 1e-9)
         self.w = (lc.w_relay, lc.w_coverage, lc.w_energy, lc.w_overlap)
 
     def terms(self, relayed, covered, energy_j, overlap) -> tuple[np.ndarray, ...]:
         """The four normalised terms (R_relay, R_cov, R_eng, R_ov)."""
         return (relayed / self.relay_norm, covered / self.cov_norm,
-                np.maximum(energy_j - self.hover_j, 0.0) / self.eng_norm, overlap)
+                energy_j / self.eng_norm, overlap)
 
     def __call__(self, relayed, covered, energy_j, overlap) -> np.ndarray:
         relay, cov, eng, ov = self.terms(relayed, covered, energy_j, overlap)

@@ -108,7 +108,7 @@ class StateEncoder:
         lc, sc = cfg.learner, cfg.scenario
         self.params = StateParams(lc.grid_cells, sc.area_m / lc.grid_cells, np.array(lc.density_edges),
                                   np.array(lc.queue_edges), np.array(lc.neighbour_edges_m),
-                                  np.array(lc.rsu_edges_m), rsu_positions(sc.area_m))
+                                  np.array(lc.rsu_edges_m), rsu_positions(cfg))
         p = self.params
         self.levels = (p.cells * p.cells, p.density_edges.size + 1, p.queue_edges.size + 1,
                        p.neighbour_edges.size + 1, p.rsu_edges.size + 1)

@@ -18,7 +18,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from truav.config import Config  # noqa: E402
-from truav.trainer import run_truav, train_parallel  # noqa: E402
+from truav.trainer import run_chunk, run_parallel  # noqa: E402
 
 
 def steps_per_second(batch: int, episodes: int) -> float:
@@ -26,7 +26,7 @@ def steps_per_second(batch: int, episodes: int) -> float:
     # Time from the end of the first episode to the end of the last: excludes
     # set-up (Q-table init, spawn) but includes every per-episode cost.
     stamps: list[float] = []
-    run_truav(cfg, list(range(batch)), episodes=episodes + 1,
+    run_chunk("truav", cfg, list(range(batch)), episodes + 1,
               on_episode=lambda e, m: stamps.append(time.perf_counter()))
     elapsed = stamps[-1] - stamps[0]
     return batch * episodes * cfg.scenario.steps_per_episode / elapsed
@@ -45,7 +45,7 @@ def main() -> None:
     if args.full:
         cfg = Config()
         t0 = time.perf_counter()
-        train_parallel(cfg, list(range(10)), workers=args.workers)
+        run_parallel("truav", cfg, list(range(10)), cfg.learner.episodes, workers=args.workers)
         elapsed = time.perf_counter() - t0
         n = 10 * cfg.learner.episodes * cfg.scenario.steps_per_episode
         print(f"full run: 10 seeds x {cfg.learner.episodes} episodes x {cfg.scenario.steps_per_episode} steps "

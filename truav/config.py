@@ -18,6 +18,9 @@ from pathlib import Path
 from typing import Any, Mapping
 
 
+UAV_STARTS = ("random", "persist", "center")
+
+
 class ConfigError(ValueError):
     """A user mistake in a config file or override: the message names the key."""
 
@@ -47,12 +50,19 @@ class ScenarioConfig:
     """Duration of one simulation step (s). The paper: 100 steps = 100 s."""
     steps_per_episode: int = param(100, 1, 1_000_000)
     """Steps per episode. Paper: 100."""
+    rsu_intersections: tuple[tuple[int, int], ...] = param(((4, 4), (16, 4), (4, 16), (16, 16)))
+    """Grid indices (i, j) of the intersections with an RSU. The paper places
+    its 4 RSUs "near the corners" and at "selected intersections and major
+    corridors": here the major intersections nearest each corner."""
     rsu_height_m: float = param(10.0, 0.0, 200.0)
     """RSU antenna height (m); RSUs sit at the four corners (paper), on masts of
     typical roadside height (5-10 m; 3GPP TR 37.885 uses 5 m RSU antennas)."""
     uav_start: str = param("random")
-    """Where UAVs start each episode: "random" (uniform over the area, drawn from
-    the world's seeded generator) or "center"."""
+    """Where UAVs start an episode: "random" (uniform over the area, a fresh
+    deployment each episode, so agents learn to reposition from anywhere),
+    "persist" (where the last episode ended: a swarm serving the city
+    continuously; random at the very first reset) or "center". Random draws
+    come from the world's generator."""
 
 
 @dataclass(frozen=True)
@@ -61,10 +71,9 @@ class RoadConfig:
     grid of two-lane roads", "turning probabilities typical of urban areas" and
     "higher vehicle densities near major intersections")."""
 
-    block_m: float = param(500.0, 50.0, 1e5)
-    """Distance between parallel roads (m). 500 m gives an 11 x 11 grid over
-    5 km, in the range of Manhattan-grid studies (ETSI TR 101 112 uses 250 m
-    blocks for a 1 km city; larger blocks keep 200 vehicles per 5 km sparse)."""
+    block_m: float = param(250.0, 50.0, 1e5)
+    """Distance between parallel roads (m): 250 m, the block of the Manhattan
+    grid of ETSI TR 101 112 (UMTS 30.03); 21 x 21 roads over 5 km."""
     p_straight: float = param(0.5, 0.0, 1.0)
     """Turning probabilities of the Manhattan mobility model (ETSI TR 101 112,
     UMTS 30.03): straight 0.5, left 0.25, right 0.25."""
@@ -72,17 +81,19 @@ class RoadConfig:
     """Probability of turning left at an intersection (see p_straight)."""
     p_right: float = param(0.25, 0.0, 1.0)
     """Probability of turning right at an intersection (see p_straight)."""
-    p_attract: float = param(0.6, 0.0, 1.0)
+    p_attract: float = param(0.8, 0.0, 1.0)
     """Probability that a driver, at an intersection, takes the turn that brings
     it closest to its home major intersection instead of a Manhattan draw.
     This gravity-style attraction (cf. the activity-based "hotspot" mobility of
     Kim et al., Infocom 2006) produces the clustering near major intersections
-    that the paper describes."""
+    that the paper describes. 0.8 makes it as strong as the paper's figures
+    imply (~90% of vehicles within 500 m of five points); 0.6 is milder."""
     major_intersections: tuple[tuple[int, int], ...] = param(
-        ((2, 3), (7, 2), (5, 6), (8, 8), (2, 8))
+        ((4, 4), (16, 4), (4, 16), (16, 16), (10, 10))
     )
-    """Grid indices (i, j) of the city's major intersections (a fixed map).
-    Each vehicle has one as its home; traffic clusters around them."""
+    """Grid indices (i, j) of the city's major intersections (a fixed map):
+    the four RSU sites near the corners and the city centre. Each vehicle has
+    one as its home; traffic clusters around them."""
     turn_speed_mps: float = param(5.5, 0.5, 50.0)
     """Speed for turning and for crossing a major (signalised) intersection
     (~20 km/h, the usual urban turning speed in SUMO's junction model)."""
@@ -115,9 +126,9 @@ class IDMConfig:
 class TrafficConfig:
     """Packets generated at vehicles for relaying to an RSU."""
 
-    packet_rate_hz: float = param(1.0, 0.0, 1000.0)
-    """Mean Poisson packet rate per vehicle (1/s): 1 Hz, the lowest CAM
-    generation rate of ETSI EN 302 637-2."""
+    packet_rate_hz: float = param(0.2, 0.0, 1000.0)
+    """Mean Poisson packet rate per vehicle (1/s): one report every 5 s, within
+    the 1-10 s reporting intervals of floating-car-data collection."""
     packet_bytes: int = param(300, 1, 1_000_000)
     """Packet size (bytes): a typical CAM is 200-400 bytes (ETSI EN 302 637-2)."""
     queue_limit: int = param(20, 1, 100_000)
@@ -310,14 +321,16 @@ def _check_consistency(cfg: Config) -> None:
     r, s = cfg.roads, cfg.scenario
     if abs(r.p_straight + r.p_left + r.p_right - 1.0) > 1e-9:
         raise ConfigError("roads.p_straight + p_left + p_right must sum to 1")
-    if s.uav_start not in ("random", "center"):
-        raise ConfigError(f"scenario.uav_start: {s.uav_start!r} is not 'random' or 'center'")
+    if s.uav_start not in UAV_STARTS:
+        raise ConfigError(f"scenario.uav_start: {s.uav_start!r} is not one of {', '.join(UAV_STARTS)}")
     n_roads = n_grid_roads(cfg)
     if n_roads < 2:
         raise ConfigError("roads.block_m: the area must hold at least two roads per axis")
-    for i, j in r.major_intersections:
-        if not (0 <= i < n_roads and 0 <= j < n_roads):
-            raise ConfigError(f"roads.major_intersections: ({i}, {j}) is outside the {n_roads}x{n_roads} grid")
+    for key, sites in (("roads.major_intersections", r.major_intersections),
+                       ("scenario.rsu_intersections", s.rsu_intersections)):
+        for i, j in sites:
+            if not (0 <= i < n_roads and 0 <= j < n_roads):
+                raise ConfigError(f"{key}: ({i}, {j}) is outside the {n_roads}x{n_roads} grid")
     if cfg.idm.desired_speed_mps * s.step_s >= r.block_m:
         raise ConfigError("idm.desired_speed_mps: a vehicle must not cross a whole block in one step")
     if cfg.learner.epsilon_end > cfg.learner.epsilon_start:

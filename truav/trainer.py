@@ -1,91 +1,71 @@
-"""The fast in-process driver: B seeds x U independent Q-learning agents,
-stepped as one batch. Pure computation; files and progress bars live in the
-CLI. `run_truav` trains or evaluates; `train_parallel` spreads seeds over
-worker processes (a batch of seeds gives exactly what each seed gives alone,
-so the split does not change any number).
+"""Train and evaluate controllers over many seeds, using every core.
+
+Seeds are split into contiguous chunks, one worker process per chunk, each
+running `driver.run_episodes` on its chunk as one batch. A batch of seeds
+gives exactly what each seed gives alone, so the split changes no number.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
+import queue as queue_mod
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from agents.qlearning import QLearners
-from agents.reward import Reward
-from agents.state import StateEncoder, all_peers, neighbour_features
-from truav import seeding
+from agents.controller import TruavController
+from agents.policies import HoverController, RandomController
 from truav.config import Config
-from world.env import EPISODE_FIELDS, World
+from truav.driver import run_episodes
 
-EpisodeCallback = Callable[[int, dict[str, np.ndarray]], None]
-"""Called after each episode with (episode index, metrics of shape (B,))."""
+CONTROLLERS = ("truav", "random", "hover")
+LIVE_METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j")
 
-METRIC_FIELDS = EPISODE_FIELDS + ("reward", "epsilon")
+ProgressCallback = Callable[[int, dict[str, float]], None]
+"""on_progress(env-episodes just finished, live metric means) in the caller's process."""
 
 
 @dataclass
 class RunResult:
-    """Per-episode metrics {name: (E, B)} and final Q-tables (B, U, S, 16)."""
+    """Per-episode metrics {name: (E, B)} and, for TRUAV, Q-tables (B, U, S, 16)."""
 
     seeds: list[int]
     metrics: dict[str, np.ndarray]
-    q: np.ndarray
+    q: np.ndarray | None
 
 
-def make_learners(cfg: Config, seeds: list[int], encoder: StateEncoder, q: np.ndarray | None = None) -> QLearners:
-    U = cfg.scenario.n_uavs
-    rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(U)]
-    return QLearners(cfg.learner, encoder.n_states, rngs, len(seeds), U, q=q)
+def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np.ndarray | None):
+    if kind == "truav":
+        return TruavController(cfg, seeds, train=train, q=q)
+    if kind == "random":
+        return RandomController(cfg, seeds)
+    if kind == "hover":
+        return HoverController(cfg, seeds)
+    raise ValueError(f"unknown controller {kind!r} (known: {', '.join(CONTROLLERS)})")
 
 
-def run_truav(cfg: Config, seeds: list[int], episodes: int | None = None, train: bool = True,
-              q: np.ndarray | None = None, on_episode: EpisodeCallback | None = None) -> RunResult:
-    """Train (or, with train=False, run greedily) TRUAV agents for each seed."""
-    episodes = cfg.learner.episodes if episodes is None else episodes
-    world = World(cfg, len(seeds))
-    encoder, reward = StateEncoder(cfg), Reward(cfg)
-    learners = make_learners(cfg, seeds, encoder, q)
-    R = cfg.scenario.comm_range_m
-    history: dict[str, list[np.ndarray]] = {k: [] for k in METRIC_FIELDS}
-
-    obs = world.reset([seeding.world_rng(s) for s in seeds])
-    for episode in range(episodes):
-        if episode:
-            obs = world.start_episode()
-        learners.begin_episode(episode, cfg.scenario.steps_per_episode, greedy=not train)
-        nearest, _ = neighbour_features(obs.pos, *all_peers(obs.pos), R)
-        state = encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest)
-        reward_sum = np.zeros(len(seeds))
-        done, t = False, 0
-        while not done:
-            action = learners.act(state, t)
-            obs, _, done = world.step(action)
-            nearest, overlap = neighbour_features(obs.pos, *all_peers(obs.pos), R)
-            r = reward(obs.relayed, obs.covered, obs.energy_j, overlap)
-            next_state = encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest)
-            if train:
-                learners.update(state, action, r, next_state, done)
-            reward_sum += r.mean(axis=1)
-            state, t = next_state, t + 1
-        summary = world.episode_summary()
-        summary["reward"] = reward_sum
-        summary["epsilon"] = np.full(len(seeds), learners.epsilon)
-        for k in METRIC_FIELDS:
-            history[k].append(summary[k])
-        if on_episode is not None:
-            on_episode(episode, summary)
-    return RunResult(list(seeds), {k: np.stack(v) for k, v in history.items()}, learners.q)
+def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bool = True,
+              q: np.ndarray | None = None, on_episode=None) -> RunResult:
+    """One batch of seeds in this process."""
+    controller = make_controller(kind, cfg, seeds, train, q)
+    metrics = run_episodes(cfg, seeds, controller, episodes, on_episode)
+    table = controller.learners.q if isinstance(controller, TruavController) else None
+    return RunResult(list(seeds), metrics, table)
 
 
-def _worker(cfg, seeds, episodes, train, q, queue):
-    def report(episode, summary):
-        queue.put(("episode", os.getpid(), episode, {k: summary[k].tolist() for k in ("coverage_pct", "pdr", "delay_ms", "energy_j")}, len(seeds)))
-    result = run_truav(cfg, seeds, episodes, train, q, report)
-    queue.put(("done", os.getpid(), result))
+def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
+    return {k: float(np.nanmean(summary[k])) if np.isfinite(summary[k]).any() else float("nan")
+            for k in LIVE_METRICS}
+
+
+def _worker(index, kind, cfg, seeds, episodes, train, q, out):
+    try:
+        result = run_chunk(kind, cfg, seeds, episodes, train, q,
+                           lambda e, m: out.put(("episode", index, len(seeds), _live(m))))
+        out.put(("done", index, result))
+    except BaseException as exc:  # report, then let the process end
+        out.put(("error", index, f"{type(exc).__name__}: {exc}"))
 
 
 def split(seq: list, parts: int) -> list[list]:
@@ -95,46 +75,44 @@ def split(seq: list, parts: int) -> list[list]:
     return [seq[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
-def train_parallel(cfg: Config, seeds: list[int], workers: int, episodes: int | None = None,
-                   train: bool = True, q: np.ndarray | None = None,
-                   on_progress: Callable[[int, dict], None] | None = None) -> RunResult:
-    """run_truav over seed chunks in `workers` processes; results in seed order.
-
-    on_progress(n_env_episodes_done, latest metrics) is called in this process."""
+def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, workers: int = 1,
+                 train: bool = True, q: np.ndarray | None = None,
+                 on_progress: ProgressCallback | None = None) -> RunResult:
+    """run_chunk over seed chunks in `workers` processes; results in seed order."""
     chunks = split(list(seeds), workers)
     if len(chunks) == 1:
-        def report(episode, summary):
-            if on_progress:
-                on_progress(len(seeds), {k: float(np.nanmean(summary[k])) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j")})
-        return run_truav(cfg, list(seeds), episodes, train, q, report)
+        return run_chunk(kind, cfg, list(seeds), episodes, train, q,
+                         None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)))
     ctx = mp.get_context("fork")
-    queue = ctx.Queue()
-    offsets = np.cumsum([0] + [len(c) for c in chunks])
-    procs = []
-    for c, lo, hi in zip(chunks, offsets[:-1], offsets[1:]):
-        qc = None if q is None else q[lo:hi]
-        p = ctx.Process(target=_worker, args=(cfg, c, episodes, train, qc, queue), daemon=True)
+    out = ctx.Queue()
+    bounds = np.cumsum([0] + [len(c) for c in chunks])
+    procs = [ctx.Process(target=_worker, daemon=True,
+                         args=(i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi], out))
+             for i, (c, lo, hi) in enumerate(zip(chunks, bounds[:-1], bounds[1:]))]
+    for p in procs:
         p.start()
-        procs.append(p)
-    by_pid: dict[int, RunResult] = {}
+    results: dict[int, RunResult] = {}
     try:
-        while len(by_pid) < len(procs):
+        while len(results) < len(procs):
             try:
-                msg = queue.get(timeout=5.0)
-            except Exception:
-                dead = [p for p in procs if not p.is_alive() and p.pid not in by_pid]
-                if dead and queue.empty():
-                    raise RuntimeError(f"training worker {dead[0].pid} died (exit code {dead[0].exitcode})")
+                msg = out.get(timeout=2.0)
+            except queue_mod.Empty:
+                dead = [p for i, p in enumerate(procs) if i not in results and not p.is_alive()]
+                if dead:
+                    raise RuntimeError(f"worker {dead[0].pid} died with exit code {dead[0].exitcode}")
                 continue
-            if msg[0] == "episode" and on_progress:
-                on_progress(msg[4], {k: float(np.nanmean(v)) for k, v in msg[3].items()})
+            if msg[0] == "episode" and on_progress is not None:
+                on_progress(msg[2], msg[3])
             elif msg[0] == "done":
-                by_pid[msg[1]] = msg[2]
+                results[msg[1]] = msg[2]
+            elif msg[0] == "error":
+                raise RuntimeError(f"worker {msg[1]} failed: {msg[2]}")
     finally:
         for p in procs:
             if p.is_alive():
                 p.terminate()
             p.join(timeout=5)
-    results = [by_pid[p.pid] for p in procs]
-    metrics = {k: np.concatenate([r.metrics[k] for r in results], axis=1) for k in results[0].metrics}
-    return RunResult(list(seeds), metrics, np.concatenate([r.q for r in results]))
+    ordered = [results[i] for i in range(len(procs))]
+    metrics = {k: np.concatenate([r.metrics[k] for r in ordered], axis=1) for k in ordered[0].metrics}
+    q_all = None if ordered[0].q is None else np.concatenate([r.q for r in ordered])
+    return RunResult(list(seeds), metrics, q_all)

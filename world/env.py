@@ -148,9 +148,14 @@ class World:
         sc, T, N, U = self.cfg.scenario, self.cfg.scenario.steps_per_episode, self.n_vehicles, self.n_uavs
         lam = self.cfg.traffic.packet_rate_hz * sc.step_s
         arrivals, turns, starts = [], [], []
-        for rng in self.rngs:
-            if sc.uav_start == "random":
-                starts.append(rng.random((U, 2)) * sc.area_m)
+        first = self.episode < 0
+        for b, rng in enumerate(self.rngs):
+            # Drawn every episode whatever the mode, so streams never depend on it.
+            drawn = rng.random((U, 2)) * sc.area_m
+            if sc.uav_start == "random" or (sc.uav_start == "persist" and first):
+                starts.append(drawn)
+            elif sc.uav_start == "persist":
+                starts.append(self.uav_pos[b].copy())
             else:
                 starts.append(np.full((U, 2), sc.area_m / 2.0))
             arrivals.append(rng.poisson(lam, (T, N)))

@@ -8,15 +8,13 @@ Per step and environment (`relay_step`, a numba kernel parallel over envs):
 3. Each UAV's route to an RSU is the min-time path over UAV-UAV and UAV-RSU
    links (Bellman-Ford over the UAVs), the per-packet time of a hop being
    transmission (bits / rate) plus propagation.
-4. A UAV's radio time in a step is shared equally among its associated
-   vehicles that have packets (TDMA); each such vehicle sends
-   floor(share / c_v) packets, oldest first, c_v = uplink time + route time,
-   capped by its queue. (Unused shares are not redistributed, and transit
-   packets do not use the airtime of intermediate UAVs: both keep the step
-   cheap; they favour no scheme over another.)
-5. Relay delay of a packet = its own c_v plus its wait in the UAV's frame;
-   with the frame's busy time S and n packets in arbitrary order the mean
-   wait is (S - c)/2, so a UAV's delay sum is S (1 + n) / 2.
+4. A UAV's radio time in a step (dt) is shared round-robin (TDMA) among
+   its associated vehicles with packets: each round, each of them sends one
+   packet (oldest first) costing c_v = uplink time + route time, while the
+   UAV has time left. (Transit packets do not use the airtime of
+   intermediate UAVs; this keeps the step cheap and favours no scheme.)
+5. Relay delay of a packet = its completion time within the UAV's frame:
+   the time of the packets sent before it plus its own c_v.
 6. Packets reaching the deadline expire.
 7. Transmit airtime (for energy) is charged to every UAV along a route.
 """
@@ -53,9 +51,9 @@ class RelayParams(NamedTuple):
     uplink_rate: np.ndarray  # vehicle->UAV rate sampled every TABLE_RESOLUTION_M
 
 
-def rsu_positions(area_m: float) -> np.ndarray:
-    """The four corner RSUs (paper: 'corner-mounted backhaul nodes'), (4, 2)."""
-    return np.array([[0.0, 0.0], [area_m, 0.0], [0.0, area_m], [area_m, area_m]])
+def rsu_positions(cfg: Config) -> np.ndarray:
+    """RSU sites (K, 2) in metres: the configured intersections near the corners."""
+    return np.array(cfg.scenario.rsu_intersections, dtype=np.float64).reshape(-1, 2) * cfg.roads.block_m
 
 
 def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
@@ -67,7 +65,7 @@ def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
     table = a2g_rate(samples, sc.uav_altitude_m, ch.vehicle_tx_w, cp)
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
                        cfg.roads.block_m, sc.uav_altitude_m - sc.rsu_height_m, ch.uav_tx_w,
-                       rsu_positions(sc.area_m), table)
+                       rsu_positions(cfg), table)
 
 
 @njit(cache=True)
@@ -143,28 +141,33 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
 
     if serve_packets:
         route_time, next_hop, hop_time = routes(uav_pos, p, ch)
-        n_active = np.zeros(n_uav)
+        cost = np.zeros(n)
         for i in range(n):
-            if nearest[i] >= 0 and total[i] > 0:
-                n_active[nearest[i]] += 1.0
-        busy = np.zeros(n_uav)
-        for i in range(n):
-            u = nearest[i]
-            if u < 0 or total[i] == 0:
-                continue
-            cost = p.bits / uplink_rate(p, dist[i]) + route_time[u]
-            want = min(total[i], int(p.dt / n_active[u] / cost))
-            served, age_sum = packets.serve(slots[i], t, want)
-            total[i] -= served
-            out_uav[u, RELAYED] += served
-            busy[u] += served * cost
-            out_env[E_WAIT_STEPS] += age_sum
+            if nearest[i] >= 0:
+                cost[i] = p.bits / uplink_rate(p, dist[i]) + route_time[nearest[i]]
+        # Round-robin TDMA: each round, every associated vehicle with packets
+        # sends one (oldest first) while its UAV has radio time left this step.
+        clock = np.zeros(n_uav)
+        start = t % n  # rotate who goes first, so no vehicle is favoured
+        served_any = True
+        while served_any:
+            served_any = False
+            for k in range(n):
+                i = (start + k) % n
+                u = nearest[i]
+                if u < 0 or total[i] == 0 or clock[u] + cost[i] > p.dt:
+                    continue
+                served, age = packets.serve(slots[i], t, 1)
+                total[i] -= served
+                clock[u] += cost[i]
+                out_uav[u, RELAYED] += 1.0
+                out_env[E_DELAY_S] += clock[u]  # its completion time in the frame
+                out_env[E_WAIT_STEPS] += age
+                served_any = True
         flow = np.zeros(n_uav)
         for u in range(n_uav):
-            relayed = out_uav[u, RELAYED]
-            out_env[E_DELIVERED] += relayed
-            out_env[E_DELAY_S] += busy[u] * (1.0 + relayed) / 2.0
-            flow[u] = relayed
+            out_env[E_DELIVERED] += out_uav[u, RELAYED]
+            flow[u] = out_uav[u, RELAYED]
         for _ in range(n_uav):  # each hop's sender pays its transmit airtime
             forwarded = np.zeros(n_uav)
             for u in range(n_uav):

@@ -108,8 +108,9 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
         ni, nj = i + HEADING_DI[hc], j + HEADING_DJ[hc]
         if 0 <= ni < p.n_roads and 0 <= nj < p.n_roads:
             feasible[c] = True
-            # Ties prefer straight, then left, then right.
-            score = abs(ni - p.major_i[home]) + abs(nj - p.major_j[home]) + 0.1 * c
+            # Euclidean, so that past its home a driver turns back around the
+            # block instead of driving straight on; ties prefer straight, left, right.
+            score = (ni - p.major_i[home]) ** 2 + (nj - p.major_j[home]) ** 2 + 0.1 * c
             if score < best_score:
                 best, best_score = c, score
             total += probs[c]

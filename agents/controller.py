@@ -1,0 +1,60 @@
+"""TRUAV as a controller of the in-process driver: B x U independent agents.
+
+Per step each agent encodes its local state (own observation + neighbours'
+beacon positions), picks an epsilon-greedy action, and after the step
+computes its reward and updates its own table. The swarm's agent process
+runs the same `AgentStep` logic for one agent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.qlearning import QLearners
+from agents.reward import Reward
+from agents.state import StateEncoder, all_peers, neighbour_features
+from truav import seeding
+from truav.config import Config
+from world.env import LocalObs
+
+
+class TruavController:
+    """Independent tabular Q-learning agents, one per UAV and seed."""
+
+    def __init__(self, cfg: Config, seeds: list[int], train: bool = True, q: np.ndarray | None = None):
+        self.cfg, self.train = cfg, train
+        self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
+        U = cfg.scenario.n_uavs
+        rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(U)]
+        self.learners = QLearners(cfg.learner, self.encoder.n_states, rngs, len(seeds), U, q=q)
+        self.state = np.zeros((len(seeds), U), np.int64)
+        self.action = np.zeros((len(seeds), U), np.int64)
+        self._reward_sum = np.zeros(len(seeds))
+        self._steps = 0
+
+    def _features(self, obs: LocalObs):
+        nearest, overlap = neighbour_features(obs.pos, *all_peers(obs.pos), self.cfg.scenario.comm_range_m)
+        return self.encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest), overlap
+
+    def begin_episode(self, episode: int, obs: LocalObs) -> None:
+        self.learners.begin_episode(episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
+        self.state, _ = self._features(obs)
+        self._reward_sum[:] = 0.0
+        self._steps = 0
+
+    def act(self, t: int) -> np.ndarray:
+        self.action = self.learners.act(self.state, t)
+        return self.action
+
+    def observe(self, obs: LocalObs, done: bool) -> None:
+        next_state, overlap = self._features(obs)
+        r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap)
+        if self.train:
+            self.learners.update(self.state, self.action, r, next_state, False)
+        self._reward_sum += r.mean(axis=1)
+        self._steps += 1
+        self.state = next_state
+
+    def episode_stats(self) -> dict[str, np.ndarray]:
+        n = len(self._reward_sum)
+        return {"reward": self._reward_sum / max(self._steps, 1), "epsilon": np.full(n, self.learners.epsilon)}

@@ -1,0 +1,209 @@
+"""`truav`: train, evaluate and inspect TRUAV runs.
+
+    truav train                      # the paper's run at 15 m/s: 10 seeds x 5000 x 100 steps
+    truav train --speed 25 --episodes 500 --seeds 4 --out runs/quick
+    truav evaluate runs/train-15mps --against random hover
+    truav config show --set scenario.n_uavs=8
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from truav import runio
+from truav.config import Config, ConfigError, load_config, to_toml
+
+EVAL_SEED_OFFSET = 10_000
+"""Evaluation runs on held-out traffic: world seed = training seed + this."""
+
+SUMMARY_METRICS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0),
+                   ("delay_ms", "delay ms", 1.0), ("energy_j", "energy kJ/UAV", 1e-3))
+
+
+class UsageError(ValueError):
+    """A user mistake on the command line."""
+
+
+# -- shared helpers -----------------------------------------------------------
+def parse_sets(items: list[str]) -> dict[str, dict[str, Any]]:
+    """--set section.key=value (value in TOML syntax; bare words are strings)."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise UsageError(f"--set expects section.key=value, got {item!r}")
+        dotted, raw = item.split("=", 1)
+        section, key = dotted.strip().split(".", 1)
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out.setdefault(section, {})[key] = value
+    return out
+
+
+def add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", "-c", metavar="FILE", help="TOML file overriding the defaults")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one config value (repeatable), e.g. --set scenario.n_uavs=8")
+
+
+def config_from(args, extra: dict[str, dict[str, Any]] | None = None) -> Config:
+    overrides = parse_sets(args.set)
+    for section, values in (extra or {}).items():
+        overrides.setdefault(section, {}).update(values)
+    return load_config(args.config, overrides)
+
+
+def seed_list(args) -> list[int]:
+    if args.seeds < 1:
+        raise UsageError("--seeds must be at least 1")
+    return list(range(args.seed_start, args.seed_start + args.seeds))
+
+
+def format_table(rows: dict[str, dict[str, np.ndarray]]) -> str:
+    """One line per scheme: mean ± 95% interval over seeds of the summary metrics."""
+    from truav.stats import mean_ci
+    header = f"{'scheme':<10}" + "".join(f"{label:>22}" for _, label, _ in SUMMARY_METRICS)
+    lines = [header, "-" * len(header)]
+    for scheme, per_seed in rows.items():
+        cells = []
+        for name, _, scale in SUMMARY_METRICS:
+            m, h = mean_ci(per_seed[name] * scale)
+            cells.append(f"{m:10.2f} ± {h:<9.2f}" if np.isfinite(h) else f"{m:10.2f}{'':12}")
+        lines.append(f"{scheme:<10}" + "".join(f"{c:>22}" for c in cells))
+    return "\n".join(lines)
+
+
+def progress_bar(total: int, desc: str, quiet: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="ep", disable=quiet, dynamic_ncols=True,
+                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} env-episodes [{elapsed}<{remaining}{postfix}]")
+
+
+def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet):
+    from truav.trainer import run_parallel
+    with progress_bar(len(seeds) * episodes, desc, quiet) as bar:
+        def on_progress(n, live):
+            bar.update(n)
+            bar.set_postfix_str("cov {coverage_pct:.1f}% pdr {pdr:.3f} delay {delay_ms:.0f}ms "
+                                "E {energy_j:.0f}J".format(**live), refresh=False)
+        return run_parallel(kind, cfg, seeds, episodes, workers, train, q, on_progress)
+
+
+# -- commands -----------------------------------------------------------------
+def cmd_config_show(args) -> int:
+    sys.stdout.write(to_toml(config_from(args)))
+    return 0
+
+
+def cmd_train(args) -> int:
+    from truav.plots import convergence_figure
+    extra: dict[str, dict[str, Any]] = {}
+    if args.speed is not None:
+        extra["scenario"] = {"uav_speed_mps": args.speed}
+    if args.episodes is not None:
+        extra["learner"] = {"episodes": args.episodes}
+    cfg = config_from(args, extra)
+    seeds = seed_list(args)
+    out = runio.fresh_dir(args.out or f"runs/train-{cfg.scenario.uav_speed_mps:g}mps", args.force)
+    runio.write_config(out, cfg)
+    episodes = cfg.learner.episodes
+    workers = max(1, min(args.workers, len(seeds)))
+    print(f"training {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
+          f"at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) -> {out}", flush=True)
+    t0 = time.perf_counter()
+    result = run_with_progress("truav", cfg, seeds, episodes, workers, True, None, "train", args.quiet)
+    elapsed = time.perf_counter() - t0
+    runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
+    runio.write_qtables(out, seeds, result.q)
+    window = min(500, episodes)
+    convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
+                       title=f"TRUAV at {cfg.scenario.uav_speed_mps:g} m/s")
+    steps = len(seeds) * episodes * cfg.scenario.steps_per_episode
+    print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s)")
+    last = {k: np.nanmean(v[-window:], axis=0) for k, v in result.metrics.items()}
+    print(f"last {window} episodes, mean ± 95% interval over seeds:")
+    print(format_table({"truav": last}))
+    for name in (runio.METRICS_FILE, runio.QTABLE_FILE, runio.CONVERGENCE_FILE, runio.CONFIG_FILE):
+        print(f"  {out / name}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    run = Path(args.run)
+    cfg = runio.read_config(run if run.is_dir() else run.parent)
+    seeds, q = runio.read_qtables(run)
+    if q.shape[1] != cfg.scenario.n_uavs:
+        raise runio.RunDirError(f"{run}: Q-tables hold {q.shape[1]} UAVs but the config says {cfg.scenario.n_uavs}")
+    if args.speed is not None:
+        cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
+    eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
+    workers = max(1, min(args.workers, len(seeds)))
+    rows = {}
+    for kind in ["truav"] + list(args.against):
+        result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
+                                   q if kind == "truav" else None, kind, args.quiet)
+        rows[kind] = {k: np.nanmean(v, axis=0) for k, v in result.metrics.items()}
+    print(f"greedy evaluation: {len(seeds)} seeds x {args.episodes} episodes on held-out traffic "
+          f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds")
+    print(format_table(rows))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="truav", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    cfg = sub.add_parser("config", help="inspect the configuration")
+    cfg_sub = cfg.add_subparsers(dest="config_command", required=True, metavar="ACTION")
+    show = cfg_sub.add_parser("show", help="print the effective config as TOML")
+    add_config_args(show)
+    show.set_defaults(func=cmd_config_show)
+
+    tr = sub.add_parser("train", help="train TRUAV agents for many seeds (one batch per core)")
+    add_config_args(tr)
+    tr.add_argument("--speed", type=float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
+    tr.add_argument("--seeds", type=int, default=10, help="number of seeds (default 10, as the paper)")
+    tr.add_argument("--seed-start", type=int, default=0, help="first seed (default 0)")
+    tr.add_argument("--episodes", type=int, help="episodes (default: learner.episodes, 5000)")
+    tr.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    tr.add_argument("--out", help="output directory (default runs/train-<speed>mps)")
+    tr.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    tr.add_argument("--quiet", action="store_true", help="no progress bar")
+    tr.set_defaults(func=cmd_train)
+
+    ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
+    ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
+    ev.add_argument("--episodes", type=int, default=20, help="episodes per seed (default 20)")
+    ev.add_argument("--speed", type=float, help="evaluate at another UAV speed")
+    ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover"],
+                    help="also run these reference policies on the same traffic")
+    ev.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ev.add_argument("--quiet", action="store_true")
+    ev.set_defaults(func=cmd_evaluate)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ConfigError, UsageError, runio.RunDirError) as exc:
+        print(f"truav: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("truav: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

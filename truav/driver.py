@@ -1,0 +1,60 @@
+"""The in-process driver: steps a batched World with any controller.
+
+A controller decides the actions of all UAVs of all B environments; TRUAV's
+independent Q-learners are one (`agents.controller.TruavController`), fixed
+policies (`agents.policies`) and the baselines are others. Pure computation:
+no files, no progress bars (callbacks report episodes).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Protocol
+
+import numpy as np
+
+from truav import seeding
+from truav.config import Config
+from world.env import EPISODE_FIELDS, LocalObs, World
+
+EpisodeCallback = Callable[[int, dict[str, np.ndarray]], None]
+"""Called after each episode with (episode index, metrics each of shape (B,))."""
+
+
+class Controller(Protocol):
+    def begin_episode(self, episode: int, obs: LocalObs) -> None:
+        """A new episode starts with these observations."""
+
+    def act(self, t: int) -> np.ndarray:
+        """Actions (B, U) for step t."""
+
+    def observe(self, obs: LocalObs, done: bool) -> None:
+        """Outcome of the last actions (learners update here)."""
+
+    def episode_stats(self) -> dict[str, np.ndarray]:
+        """Extra per-episode metrics, each (B,) (e.g. mean reward, epsilon)."""
+
+
+def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes: int,
+                 on_episode: EpisodeCallback | None = None) -> dict[str, np.ndarray]:
+    """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}."""
+    world = World(cfg, len(seeds))
+    history: dict[str, list[np.ndarray]] = {}
+    obs = world.reset([seeding.world_rng(s) for s in seeds])
+    for episode in range(episodes):
+        if episode:
+            obs = world.start_episode()
+        controller.begin_episode(episode, obs)
+        done, t = False, 0
+        while not done:
+            obs, _, done = world.step(controller.act(t))
+            controller.observe(obs, done)
+            t += 1
+        summary = {**world.episode_summary(), **controller.episode_stats()}
+        for key, value in summary.items():
+            history.setdefault(key, []).append(value)
+        if on_episode is not None:
+            on_episode(episode, summary)
+    return {k: np.stack(v) for k, v in history.items()}
+
+
+__all__ = ["Controller", "EpisodeCallback", "EPISODE_FIELDS", "run_episodes"]
