@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 
 from truav.stats import mean_ci, sliding_mean  # noqa: E402
 
+UNSMOOTHED = ("epsilon",)  # schedules, not noisy measurements
 # (metric, axis label, scale applied to the raw value)
 CONVERGENCE_PANELS = (
     ("coverage_pct", "coverage (%)", 1.0),
@@ -31,7 +32,8 @@ def convergence_figure(metrics: dict[str, np.ndarray], path: Path, window: int =
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), squeeze=False)
     for ax, (name, label, scale) in zip(axes.ravel(), panels):
-        smooth = sliding_mean(metrics[name] * scale, window, axis=0)  # (E, B)
+        raw = metrics[name] * scale
+        smooth = raw if name in UNSMOOTHED else sliding_mean(raw, window, axis=0)  # (E, B)
         mean, half = mean_ci(smooth, axis=1)
         x = np.arange(1, len(mean) + 1)
         ax.plot(x, mean, color="C0", lw=1.5)

@@ -120,6 +120,7 @@ class World:
         self.vehicles: Vehicles | None = None
         self.queues = Queues.empty(batch, self.n_vehicles, cfg.traffic.deadline_steps)
         self.uav_pos = np.zeros((batch, self.n_uavs, 2))
+        self._velocity = np.zeros((batch, self.n_uavs, 2))
         self.t = 0
         self.episode = -1
         self.totals = EpisodeTotals.zeros(batch)
@@ -162,6 +163,7 @@ class World:
             turns.append(rng.random((T, N, 2)))
         self._draws = _EpisodeDraws(np.stack(arrivals, 1), np.stack(turns, 1), np.stack(starts))
         self.uav_pos = self._draws.uav_start.copy()
+        self._velocity = np.zeros((self.batch, U, 2))
         self.queues.clear()
         self.totals = EpisodeTotals.zeros(self.batch)
         self.t = 0
@@ -170,9 +172,16 @@ class World:
         return self._observe(np.zeros((self.batch, U)))
 
     # -- one step -----------------------------------------------------------
-    def step(self, actions: np.ndarray) -> tuple[LocalObs, StepMetrics, bool]:
+    def step(self, actions: np.ndarray, control_airtime_s: np.ndarray | None = None,
+             action_delay_s: np.ndarray | float = 0.0) -> tuple[LocalObs, StepMetrics, bool]:
         """Apply one action per UAV and advance one step. Returns the new local
-        observations, the step's metrics and whether the episode ended."""
+        observations, the step's metrics and whether the episode ended.
+
+        Hooks for schemes with a control plane (e.g. a central controller):
+        control_airtime_s (B, U) is radio time each UAV spends this step on
+        control messages (taken from its packet service, charged at the UAV
+        transmit power); action_delay_s (scalar or (B, U)) is how long each UAV
+        keeps flying its previous action before the new one takes effect."""
         cfg, sc, t = self.cfg, self.cfg.scenario, self.t
         if self._draws is None or t >= sc.steps_per_episode:
             raise RuntimeError("call reset() or start_episode() first")
@@ -183,11 +192,18 @@ class World:
             raise ValueError(f"actions must lie in [{uavs.HOVER}, {uavs.N_ACTIONS})")
         dt = sc.step_s
         velocity = uavs.action_velocity(actions, sc.uav_speed_mps)
+        delay = np.clip(np.broadcast_to(np.asarray(action_delay_s, np.float64), actions.shape), 0.0, dt)
+        if np.any(delay > 0):
+            velocity = (self._velocity * delay[..., None] + velocity * (dt - delay)[..., None]) / dt
+        self._velocity = velocity
         self.uav_pos, speed = uavs.move(self.uav_pos, velocity, dt, sc.area_m)
         self.grid.step(self.vehicles, dt, self._draws.turn_u[t])
-        self._run_relay(self._draws.arrivals[t], serve_packets=True)
+        control = np.zeros(actions.shape) if control_airtime_s is None else \
+            np.clip(np.asarray(control_airtime_s, np.float64), 0.0, dt)
+        self._run_relay(self._draws.arrivals[t], serve_packets=True, busy0=control)
         out_uav, out_env = self._out_uav, self._out_env
-        energy = uavs.flight_energy(speed, dt, cfg.energy) + cfg.channel.uav_tx_w * out_uav[:, :, TX_TIME]
+        tx_time = out_uav[:, :, TX_TIME] + control
+        energy = uavs.flight_energy(speed, dt, cfg.energy) + cfg.channel.uav_tx_w * tx_time
         metrics = StepMetrics(
             covered=out_env[:, E_COVERED].copy(),
             generated=out_env[:, E_GENERATED].copy(),
@@ -204,11 +220,12 @@ class World:
         return self._observe(energy), metrics, self.t >= sc.steps_per_episode
 
     # -- sensing --------------------------------------------------------------
-    def _run_relay(self, arrivals: np.ndarray, serve_packets: bool) -> None:
+    def _run_relay(self, arrivals: np.ndarray, serve_packets: bool, busy0: np.ndarray | None = None) -> None:
         v = self.vehicles
+        busy0 = np.zeros((self.batch, self.n_uavs)) if busy0 is None else np.ascontiguousarray(busy0)
         network.relay_step(v.heading, v.road, v.s, self.uav_pos, self.queues.slots, self.queues.total,
                            np.ascontiguousarray(arrivals), self.t, serve_packets, self.relay, self.channel,
-                           self._out_uav, self._out_env)
+                           busy0, self._out_uav, self._out_env)
 
     def _observe(self, energy: np.ndarray) -> LocalObs:
         o = self._out_uav

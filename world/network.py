@@ -111,7 +111,7 @@ def routes(uav_pos, p, ch):
 
 
 @njit(cache=True)
-def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, out_uav, out_env):
+def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env):
     n, n_uav = s.size, uav_pos.shape[0]
     out_uav[:] = 0.0
     out_env[:] = 0.0
@@ -147,7 +147,7 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                 cost[i] = p.bits / uplink_rate(p, dist[i]) + route_time[nearest[i]]
         # Round-robin TDMA: each round, every associated vehicle with packets
         # sends one (oldest first) while its UAV has radio time left this step.
-        clock = np.zeros(n_uav)
+        clock = busy0.copy()  # radio time already taken (e.g. control-plane traffic)
         start = t % n  # rotate who goes first, so no vehicle is favoured
         served_any = True
         while served_any:
@@ -186,11 +186,12 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
 
 
 @njit(cache=True)
-def relay_step(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, out_uav, out_env):
+def relay_step(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env):
     """One step of packets for all envs, in place on slots (B, N, D) and total
     (B, N); arrivals (B, N). With serve_packets False only senses (association,
-    queues) - used at the start of an episode. Fills out_uav (B, U, 5) and
-    out_env (B, 7), see the column constants."""
+    queues) - used at the start of an episode. busy0 (B, U): seconds of each
+    UAV's radio time already used this step (e.g. by control-plane traffic).
+    Fills out_uav (B, U, 5) and out_env (B, 7), see the column constants."""
     for b in range(s.shape[0]):
         _relay_env(heading[b], road[b], s[b], uav_pos[b], slots[b], total[b], arrivals[b], t,
-                   serve_packets, p, ch, out_uav[b], out_env[b])
+                   serve_packets, p, ch, busy0[b], out_uav[b], out_env[b])

@@ -1,0 +1,224 @@
+"""Every Zenoh key expression TRUAV uses, in one place.
+
+All traffic of one emulation run lives under ``truav/<run>/``:
+
+==============================  ==================  ===========================
+key (after ``truav/<run>/``)    direction           payload kind (truav.schema)
+==============================  ==================  ===========================
+``world/tick``                  world -> all        ``tick``
+``world/positions``             world -> recorder   ``positions``
+``uav/<i>/obs``                 world -> agent i    ``obs``
+``uav/<i>/beacon``              agent i -> all      ``beacon``
+``uav/<i>/action``              agent i -> world    ``action``
+``metrics/step``                world -> recorder   ``metrics`` (scope "step")
+``metrics/episode``             world -> recorder   ``metrics`` (scope "episode")
+``fault/<kind>``                faults -> all       ``fault``
+``control/<a>[/<b>...]``        operator -> all     ``control``
+``alive/world``                 liveliness token of the world process
+``alive/uav/<i>``               liveliness token of agent i
+``alive/recorder``              liveliness token of the recorder
+==============================  ==================  ===========================
+
+Sender identities (the ``src`` field of every message and the identity of a
+:class:`truav.transport.Bus`) are ``world``, ``recorder``, ``fault``,
+``replay`` or ``uav/<i>``; helpers for those live here too.
+
+Nothing here talks to Zenoh: these are plain string builders and parsers, so
+run names and ids are validated with a clear :class:`ValueError`.
+"""
+
+from __future__ import annotations
+
+import re
+
+ROOT = "truav"
+MAX_UAVS = 1024  # UAV ids are in [0, MAX_UAVS)
+MAX_CHUNK_LEN = 64
+
+_CHUNK_RE = re.compile(r"[A-Za-z0-9_-]+")
+_UAV_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/(?:alive/)?uav/(0|[1-9][0-9]*)(?:/.*)?")
+_UAV_IDENTITY_RE = re.compile(r"uav/(0|[1-9][0-9]*)")
+_RUN_KEY_RE = re.compile(r"truav/([A-Za-z0-9_-]+)(?:/.*)?")
+
+# Sender identities (``src``) of the non-UAV processes.
+SRC_WORLD = "world"
+SRC_RECORDER = "recorder"
+SRC_FAULT = "fault"
+SRC_REPLAY = "replay"
+
+# Last chunks of the per-UAV keys.
+OBS = "obs"
+BEACON = "beacon"
+ACTION = "action"
+
+# Metric scopes (also the last chunk of the metrics keys).
+SCOPE_STEP = "step"
+SCOPE_EPISODE = "episode"
+
+
+def _check_chunk(value: str, what: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise ValueError(f"{what} must be a non-empty string, got {value!r}")
+    if len(value) > MAX_CHUNK_LEN or not _CHUNK_RE.fullmatch(value):
+        raise ValueError(
+            f"{what} {value!r} is invalid: use 1..{MAX_CHUNK_LEN} characters from [A-Za-z0-9_-]"
+        )
+    return value
+
+
+def validate_run(run: str) -> str:
+    """Return ``run`` if it is a valid run name (non-empty, ``[A-Za-z0-9_-]`` only)."""
+    return _check_chunk(run, "run name")
+
+
+def validate_uav_id(i: int) -> int:
+    """Return ``i`` if it is a valid UAV id: an int in ``[0, MAX_UAVS)``."""
+    if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < MAX_UAVS:
+        raise ValueError(f"UAV id must be an int in [0, {MAX_UAVS}), got {i!r}")
+    return i
+
+
+def prefix(run: str) -> str:
+    """``truav/<run>`` (no trailing slash)."""
+    return f"{ROOT}/{validate_run(run)}"
+
+
+def everything(run: str) -> str:
+    """``truav/<run>/**``: every message and token of one run (the recorder's view)."""
+    return f"{prefix(run)}/**"
+
+
+# --- world ---------------------------------------------------------------
+def world_tick(run: str) -> str:
+    return f"{prefix(run)}/world/tick"
+
+
+def world_positions(run: str) -> str:
+    return f"{prefix(run)}/world/positions"
+
+
+# --- per UAV ---------------------------------------------------------------
+def uav_prefix(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>``: everything agent ``i`` may publish lives below this."""
+    return f"{prefix(run)}/uav/{validate_uav_id(i)}"
+
+
+def uav_obs(run: str, i: int) -> str:
+    return f"{uav_prefix(run, i)}/{OBS}"
+
+
+def uav_beacon(run: str, i: int) -> str:
+    return f"{uav_prefix(run, i)}/{BEACON}"
+
+
+def uav_action(run: str, i: int) -> str:
+    return f"{uav_prefix(run, i)}/{ACTION}"
+
+
+def all_obs(run: str) -> str:
+    return f"{prefix(run)}/uav/*/{OBS}"
+
+
+def all_beacons(run: str) -> str:
+    """``truav/<run>/uav/*/beacon``."""
+    return f"{prefix(run)}/uav/*/{BEACON}"
+
+
+def all_actions(run: str) -> str:
+    """``truav/<run>/uav/*/action`` (what the world subscribes to)."""
+    return f"{prefix(run)}/uav/*/{ACTION}"
+
+
+# --- metrics, faults, control -----------------------------------------------
+def metrics(run: str, scope: str) -> str:
+    if scope not in (SCOPE_STEP, SCOPE_EPISODE):
+        raise ValueError(f"metrics scope must be {SCOPE_STEP!r} or {SCOPE_EPISODE!r}, got {scope!r}")
+    return f"{prefix(run)}/metrics/{scope}"
+
+
+def metrics_step(run: str) -> str:
+    return metrics(run, SCOPE_STEP)
+
+
+def metrics_episode(run: str) -> str:
+    return metrics(run, SCOPE_EPISODE)
+
+
+def all_metrics(run: str) -> str:
+    return f"{prefix(run)}/metrics/*"
+
+
+def fault(run: str, kind: str) -> str:
+    """``truav/<run>/fault/<kind>``, e.g. ``fault(run, "loss")``."""
+    return f"{prefix(run)}/fault/{_check_chunk(kind, 'fault kind')}"
+
+
+def all_faults(run: str) -> str:
+    return f"{prefix(run)}/fault/*"
+
+
+def control(run: str, *parts: str) -> str:
+    """``truav/<run>/control/<part>[/<part>...]``, e.g. ``control(run, "replay", "plan")``."""
+    if not parts:
+        raise ValueError("control key needs at least one part, e.g. control(run, 'fault_plan')")
+    return "/".join([f"{prefix(run)}/control", *(_check_chunk(p, "control key part") for p in parts)])
+
+
+def all_control(run: str) -> str:
+    return f"{prefix(run)}/control/**"
+
+
+# --- liveliness tokens --------------------------------------------------------
+def alive_world(run: str) -> str:
+    return f"{prefix(run)}/alive/world"
+
+
+def alive_uav(run: str, i: int) -> str:
+    return f"{prefix(run)}/alive/uav/{validate_uav_id(i)}"
+
+
+def alive_recorder(run: str) -> str:
+    return f"{prefix(run)}/alive/recorder"
+
+
+def all_alive(run: str) -> str:
+    """``truav/<run>/alive/**``: every liveliness token of the run."""
+    return f"{prefix(run)}/alive/**"
+
+
+def all_alive_uavs(run: str) -> str:
+    return f"{prefix(run)}/alive/uav/*"
+
+
+# --- parsing -------------------------------------------------------------------
+def parse_uav_id(key: str) -> int | None:
+    """UAV id of ``truav/<run>/uav/<i>/...`` or ``truav/<run>/alive/uav/<i>``; else None.
+
+    Returns None too for ids outside ``[0, MAX_UAVS)`` or with leading zeros.
+    """
+    m = _UAV_KEY_RE.fullmatch(key) if isinstance(key, str) else None
+    if m is None:
+        return None
+    i = int(m.group(1))
+    return i if i < MAX_UAVS else None
+
+
+def parse_run(key: str) -> str | None:
+    """The ``<run>`` of ``truav/<run>/...``, or None."""
+    m = _RUN_KEY_RE.fullmatch(key) if isinstance(key, str) else None
+    return m.group(1) if m else None
+
+
+# --- sender identities ---------------------------------------------------------
+def uav_identity(i: int) -> str:
+    """Sender id of agent ``i``: ``uav/<i>``."""
+    return f"uav/{validate_uav_id(i)}"
+
+
+def parse_uav_identity(src: str) -> int | None:
+    """``i`` for a sender id ``uav/<i>`` (valid id), else None."""
+    m = _UAV_IDENTITY_RE.fullmatch(src) if isinstance(src, str) else None
+    if m is None:
+        return None
+    i = int(m.group(1))
+    return i if i < MAX_UAVS else None

@@ -1,0 +1,651 @@
+"""The one place TRUAV processes touch Zenoh.
+
+* :func:`make_config` / :func:`add_transport_args` / :func:`config_from_args`
+  build a ``zenoh.Config`` with multicast scouting always off; defaults are
+  loopback-only (clients connect to, and the router listens on,
+  :data:`DEFAULT_ENDPOINT`).
+* :class:`Bus` wraps one Zenoh session for one sender identity (``world``,
+  ``uav/<i>``, ``recorder`` ...): it stamps and encodes outgoing messages with
+  :mod:`truav.schema`, decodes incoming ones, drops (and counts, and logs once
+  per reason) anything malformed, applies a fault-injection :class:`LinkFilter`
+  on the receive side, and wraps liveliness tokens.
+* :func:`run_router` runs an in-process Zenoh router (zenoh-python 1.x can
+  open a session in ``router`` mode) for ``truav-swarm router``.
+
+Thread model.  zenoh-python runs each Python callback on its own Python
+thread per subscriber (``zenoh.handlers.Callback(indirect=True)``, the
+default), fed by a bounded channel from Zenoh's network threads.  The Bus
+keeps those callbacks trivial: they copy the payload and push it on a heap.
+A single delivery thread per Bus pops the heap by due time and runs decode,
+the link filter, and *all* user callbacks (data, raw and liveliness), so one
+Bus never runs two user callbacks at once, user callbacks may call
+``Bus.publish`` (they are not on a Zenoh thread), and emulated link delays
+cost no extra threads.  A slow callback delays every later delivery of that
+Bus; pending deliveries are capped at ``max_pending`` (overflow is counted).
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import itertools
+import json
+import logging
+import math
+import os
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import zenoh
+
+from truav import keys, schema
+from truav.schema import Message, SchemaError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_PEER_LISTEN = "tcp/127.0.0.1:0"
+MODE_CLIENT = "client"
+MODE_PEER = "peer"
+MODE_ROUTER = "router"
+MODES = (MODE_CLIENT, MODE_PEER, MODE_ROUTER)
+
+DEFAULT_MAX_PENDING = 100_000
+MAX_CACHED_PUBLISHERS = 4096
+DEFAULT_ALIVE_TIMEOUT_S = 1.0
+ALIVE_EMPTY_RETRY_S = (0.005, 0.01, 0.02)  # pauses before re-asking an empty liveliness query
+CLOSE_JOIN_TIMEOUT_S = 2.0
+ROUTER_POLL_S = 0.5
+UNKNOWN_SRC = "?"
+
+# Drop reasons added by the Bus on top of the schema's R_* reasons.
+R_KEY_MISMATCH = "key_mismatch"  # payload does not belong on that key (kind, uav id, src)
+
+_WILDCARD_CHARS = frozenset("*$?#")
+
+DataCallback = Callable[[str, Message, bytes, int], None]  # (key, msg, raw, recv_time_ns)
+RawCallback = Callable[[str, bytes, int], None]  # (key, raw, recv_time_ns)
+KeyCallback = Callable[[str], None]  # liveliness: (token key)
+
+
+# --- configuration -----------------------------------------------------------------
+def make_config(
+    mode: str | None = MODE_CLIENT,
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    config_file: str | os.PathLike[str] | None = None,
+    *,
+    connect_timeout_ms: int | None = None,
+) -> zenoh.Config:
+    """A Zenoh config with multicast scouting off.
+
+    ``mode=None`` keeps the mode of ``config_file`` (Zenoh's default: peer).
+    Without a config file or explicit endpoints, a client connects to
+    :data:`DEFAULT_ENDPOINT`, a router listens there and a peer listens on an
+    ephemeral loopback port; with a config file, its endpoints (or Zenoh's
+    defaults) are kept unless overridden.  ``connect_timeout_ms`` lets a
+    client wait for a router that is not up yet (-1: forever); Zenoh's client
+    default (0) fails at once.
+    """
+    if mode is not None and mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    conf = zenoh.Config.from_file(os.fspath(config_file)) if config_file is not None else zenoh.Config()
+    if mode is not None:
+        conf.insert_json5("mode", json.dumps(mode))
+    loopback_defaults = config_file is None
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    elif loopback_defaults and mode == MODE_CLIENT:
+        conf.insert_json5("connect/endpoints", json.dumps([DEFAULT_ENDPOINT]))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    elif loopback_defaults and mode in (MODE_ROUTER, MODE_PEER):
+        default = DEFAULT_ENDPOINT if mode == MODE_ROUTER else DEFAULT_PEER_LISTEN
+        conf.insert_json5("listen/endpoints", json.dumps([default]))
+    if connect_timeout_ms is not None:
+        conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the zenoh-example style flags ``-e/--connect``, ``-l/--listen``, ``-c/--config``, ``-m/--mode``."""
+    group = parser.add_argument_group("zenoh transport")
+    group.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=[],
+                       help=f"endpoint to connect to (repeatable; client default {DEFAULT_ENDPOINT})")
+    group.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=[],
+                       help="endpoint to listen on (repeatable)")
+    group.add_argument("-c", "--config", metavar="FILE", default=None, help="zenoh JSON5 config file")
+    group.add_argument("-m", "--mode", choices=MODES, default=None,
+                       help="zenoh session mode (default: client, or the config file's)")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """The config for the flags of :func:`add_transport_args`."""
+    mode = args.mode if args.mode is not None else (None if args.config else MODE_CLIENT)
+    return make_config(mode, args.connect or (), args.listen or (), args.config)
+
+
+# --- link filter (fault-injection hook) ----------------------------------------------
+class LinkFilter(Protocol):
+    """Decides the fate of each incoming message on the receiving Bus.
+
+    Called only on the Bus's delivery thread, once per message, with
+    ``dst`` = the Bus identity and ``now_ns`` = arrival time (Bus clock).
+    ``src`` is the sender id, or :data:`UNKNOWN_SRC` for unreadable raw
+    payloads.  Returns ``(deliver, delay_s)``.
+    """
+
+    def decide(self, key: str, src: str, dst: str, now_ns: int) -> tuple[bool, float]: ...
+
+
+class PassThrough:
+    """The default link filter: deliver everything now."""
+
+    def decide(self, key: str, src: str, dst: str, now_ns: int) -> tuple[bool, float]:
+        return True, 0.0
+
+
+@dataclass(frozen=True)
+class BusStats:
+    """A snapshot of a Bus's receive-side counters."""
+
+    received: int = 0  # samples that reached this Bus (data + raw subscriptions)
+    delivered: int = 0  # user callbacks that returned normally (data, raw, liveliness)
+    filtered: int = 0  # dropped by the link filter
+    delayed: int = 0  # delayed by the link filter
+    malformed: dict[str, int] = field(default_factory=dict)  # dropped, by reason
+    callback_errors: int = 0
+    filter_errors: int = 0
+    overflow: int = 0  # dropped because max_pending deliveries were queued
+
+    @property
+    def dropped_malformed(self) -> int:
+        return sum(self.malformed.values())
+
+
+class Handle:
+    """Something declared on a Bus (subscription, token); ``close()`` undeclares it."""
+
+    def __init__(self, what: str, undeclare: Callable[[], None]) -> None:
+        self.what = what
+        self._undeclare: Callable[[], None] | None = undeclare
+
+    @property
+    def closed(self) -> bool:
+        return self._undeclare is None
+
+    def close(self) -> None:
+        undeclare, self._undeclare = self._undeclare, None
+        if undeclare is not None:
+            try:
+                undeclare()
+            except zenoh.ZError as exc:  # session already closed: nothing left to undeclare
+                log.debug("undeclaring %s: %s", self.what, exc)
+
+    def __repr__(self) -> str:
+        return f"Handle({self.what!r}, closed={self.closed})"
+
+
+class _Scheduler:
+    """One thread running zero-argument jobs in due-time order (FIFO among equals)."""
+
+    def __init__(self, name: str, max_pending: int) -> None:
+        self._heap: list[tuple[int, int, Callable[[], None]]] = []
+        self._counter = itertools.count()
+        self._cond = threading.Condition()
+        self._max_pending = max_pending
+        self._running = True
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, due_mono_ns: int, job: Callable[[], None]) -> bool:
+        """Queue ``job``; False if stopped or full."""
+        with self._cond:
+            if not self._running or len(self._heap) >= self._max_pending:
+                return False
+            heapq.heappush(self._heap, (due_mono_ns, next(self._counter), job))
+            self._cond.notify()
+            return True
+
+    def in_thread(self) -> bool:
+        return threading.current_thread() is self._thread
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._running:
+                    if not self._heap:
+                        self._cond.wait()
+                        continue
+                    wait_ns = self._heap[0][0] - time.monotonic_ns()
+                    if wait_ns <= 0:
+                        break
+                    self._cond.wait(wait_ns / 1e9)
+                if not self._running:
+                    return
+                _, _, job = heapq.heappop(self._heap)
+            try:
+                job()
+            except Exception:  # jobs guard user code themselves; this is a last resort
+                log.exception("bus delivery job failed")
+
+    def stop(self) -> None:
+        with self._cond:
+            self._running = False
+            self._heap.clear()
+            self._cond.notify_all()
+        if not self.in_thread():
+            self._thread.join(CLOSE_JOIN_TIMEOUT_S)
+
+
+# --- the bus -------------------------------------------------------------------------
+class Bus:
+    """A Zenoh session owned by one sender identity; a context manager.
+
+    ``identity`` is the ``src`` stamped on every message (``world``,
+    ``uav/<i>``, ``recorder``, ``fault``, ``replay``); ``run`` scopes the keys
+    it may publish.  An agent ``uav/<i>`` may only publish under
+    ``truav/<run>/uav/<i>/`` and declare ``truav/<run>/alive/uav/<i>``;
+    everyone else anywhere under ``truav/<run>/``.
+    """
+
+    def __init__(
+        self,
+        identity: str,
+        run: str,
+        config: zenoh.Config | None = None,
+        *,
+        link_filter: LinkFilter | None = None,
+        clock: Callable[[], int] = time.time_ns,
+        max_pending: int = DEFAULT_MAX_PENDING,
+    ) -> None:
+        self._run = keys.validate_run(run)
+        self._seq = schema.Sequencer(identity, clock)
+        self._identity = self._seq.src
+        self._uav = keys.parse_uav_identity(self._identity)
+        if self._identity.startswith("uav/") and self._uav is None:
+            raise ValueError(f"identity {identity!r}: UAV identities are uav/<id> with id in [0, {keys.MAX_UAVS})")
+        self._prefix = keys.prefix(run) + "/"
+        self._filter: LinkFilter = link_filter if link_filter is not None else PassThrough()
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._handles: list[Handle] = []
+        self._logged: set[str] = set()
+        self._received = self._delivered = self._filtered = self._delayed = 0
+        self._callback_errors = self._filter_errors = self._overflow = 0
+        self._malformed: dict[str, int] = {}
+        self._closed = False
+        self._session = zenoh.open(config if config is not None else make_config())
+        self._sched = _Scheduler(f"truav-bus[{self._identity}]", max_pending)
+
+    # -- properties / lifecycle --
+    @property
+    def identity(self) -> str:
+        return self._identity
+
+    @property
+    def run(self) -> str:
+        return self._run
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The underlying session (escape hatch; prefer the Bus methods)."""
+        return self._session
+
+    @property
+    def link_filter(self) -> LinkFilter:
+        return self._filter
+
+    @link_filter.setter
+    def link_filter(self, value: LinkFilter | None) -> None:
+        self._filter = value if value is not None else PassThrough()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Undeclare everything, close the session and stop the delivery thread. Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            handles, self._handles = self._handles, []
+            publishers, self._publishers = list(self._publishers.values()), {}
+        for h in handles:
+            h.close()
+        for p in publishers:
+            try:
+                p.undeclare()
+            except zenoh.ZError:
+                pass
+        self._session.close()
+        self._sched.stop()
+
+    def stats(self) -> BusStats:
+        with self._lock:
+            return BusStats(
+                received=self._received,
+                delivered=self._delivered,
+                filtered=self._filtered,
+                delayed=self._delayed,
+                malformed=dict(self._malformed),
+                callback_errors=self._callback_errors,
+                filter_errors=self._filter_errors,
+                overflow=self._overflow,
+            )
+
+    @property
+    def dropped_malformed(self) -> dict[str, int]:
+        """Malformed messages dropped so far, by reason."""
+        with self._lock:
+            return dict(self._malformed)
+
+    # -- publishing --
+    def check_publish(self, key: str) -> str:
+        """Return ``key`` if this identity may publish (or declare a token) on it.
+
+        ValueError for a non-concrete key; PermissionError outside this run or,
+        for ``uav/<i>``, outside ``uav/<i>/`` and ``alive/uav/<i>``.
+        """
+        if not isinstance(key, str) or not key or _WILDCARD_CHARS.intersection(key) or "//" in key:
+            raise ValueError(f"cannot publish on {key!r}: need a concrete key without wildcards")
+        if not key.startswith(self._prefix):
+            raise PermissionError(f"{self._identity} may not publish on {key!r}: outside {self._prefix}")
+        if self._uav is not None:
+            own = keys.uav_prefix(self._run, self._uav) + "/"
+            if not key.startswith(own) and key != keys.alive_uav(self._run, self._uav):
+                raise PermissionError(
+                    f"{self._identity} may only publish under {own} and {keys.alive_uav(self._run, self._uav)}, "
+                    f"not on {key!r}"
+                )
+        return key
+
+    def publish(self, key: str, msg: Message) -> Message:
+        """Stamp ``msg`` (src=identity, next seq, t=clock), encode and put it; return the stamped message.
+
+        PermissionError/ValueError from :meth:`check_publish`; SchemaError if
+        ``msg`` does not belong on ``key`` (receivers would drop it).
+        """
+        self.check_publish(key)
+        stamped = self._seq.stamp(msg)
+        _check_placement(key, stamped)
+        self._put(key, schema.encode(stamped))
+        return stamped
+
+    def publish_raw(self, key: str, data: bytes) -> None:
+        """Put pre-encoded bytes as they are (replay, tests); same permission check, no validation."""
+        self._put(self.check_publish(key), bytes(data))
+
+    def _put(self, key: str, data: bytes) -> None:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError(f"bus {self._identity} is closed")
+            pub = self._publishers.get(key)
+            if pub is None and len(self._publishers) < MAX_CACHED_PUBLISHERS:
+                pub = self._publishers[key] = self._session.declare_publisher(key)
+        if pub is not None:
+            pub.put(data)
+        else:
+            self._session.put(key, data)
+
+    # -- subscribing --
+    def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
+        """Deliver decoded, valid messages on ``key_expr`` as ``callback(key, msg, raw, recv_time_ns)``.
+
+        Malformed payloads and payloads that do not belong on their key are
+        dropped, counted by reason and logged once per reason.  ``recv_time_ns``
+        is the Bus clock at delivery, i.e. after any link-filter delay.
+        """
+        return self._declare_data(key_expr, lambda key, raw, arr_ns, arr_mono: self._on_data(
+            key, raw, arr_ns, arr_mono, callback), max_bytes=schema.MAX_PAYLOAD_BYTES)
+
+    def subscribe_raw(self, key_expr: str, callback: RawCallback) -> Handle:
+        """Deliver every payload on ``key_expr`` undecoded as ``callback(key, raw, recv_time_ns)`` (recorder).
+
+        The link filter still applies, with the sender read from the envelope
+        when possible (:data:`UNKNOWN_SRC` otherwise).
+        """
+        return self._declare_data(key_expr, lambda key, raw, arr_ns, arr_mono: self._on_raw(
+            key, raw, arr_ns, arr_mono, callback))
+
+    def _declare_data(
+        self, key_expr: str, handle: Callable[[str, bytes, int, int], None], max_bytes: int | None = None
+    ) -> Handle:
+        def on_sample(sample: zenoh.Sample) -> None:  # zenoh-python's callback thread: keep it short
+            if sample.kind != zenoh.SampleKind.PUT:
+                return
+            arrival_ns, arrival_mono = self._clock(), time.monotonic_ns()
+            key = str(sample.key_expr)
+            with self._lock:
+                self._received += 1
+            size = len(sample.payload)
+            if max_bytes is not None and size > max_bytes:  # don't even copy it
+                self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))
+                return
+            raw = sample.payload.to_bytes()
+            if not self._sched.submit(arrival_mono, lambda: handle(key, raw, arrival_ns, arrival_mono)):
+                self._count_overflow()
+
+        sub = self._session.declare_subscriber(key_expr, on_sample)
+        return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
+
+    def _on_data(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: DataCallback) -> None:
+        try:
+            msg = schema.decode(raw)
+            _check_placement(key, msg)
+        except SchemaError as exc:
+            self._count_malformed(key, exc)
+            return
+        self._route(key, msg.src, arrival_ns, arrival_mono, lambda: callback(key, msg, raw, self._clock()))
+
+    def _on_raw(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: RawCallback) -> None:
+        src = schema.peek_src(raw) or UNKNOWN_SRC
+        self._route(key, src, arrival_ns, arrival_mono, lambda: callback(key, raw, self._clock()))
+
+    def _route(self, key: str, src: str, arrival_ns: int, arrival_mono: int, deliver: Callable[[], None]) -> None:
+        """Apply the link filter, then deliver now or schedule for later."""
+        try:
+            ok, delay_s = self._filter.decide(key, src, self._identity, arrival_ns)
+            delay_s = float(delay_s)
+            if not math.isfinite(delay_s) or delay_s < 0:
+                raise ValueError(f"delay_s={delay_s} must be finite and >= 0")
+        except Exception as exc:  # a broken filter must not silence the bus: fail open
+            with self._lock:
+                self._filter_errors += 1
+            if self._first(f"filter:{type(exc).__name__}"):
+                log.warning("link filter failed on %s from %s (%r); delivering anyway", key, src, exc)
+            ok, delay_s = True, 0.0
+        if not ok:
+            with self._lock:
+                self._filtered += 1
+            return
+        job = lambda: self._invoke(key, deliver)  # noqa: E731
+        if delay_s <= 0:
+            job()
+            return
+        with self._lock:
+            self._delayed += 1
+        if not self._sched.submit(arrival_mono + int(delay_s * 1e9), job):
+            self._count_overflow()
+
+    def _invoke(self, key: str, deliver: Callable[[], None]) -> None:
+        try:
+            deliver()
+        except Exception as exc:
+            with self._lock:
+                self._callback_errors += 1
+            if self._first(f"callback:{key}:{type(exc).__name__}"):
+                log.exception("bus %s: callback for %s raised %r; continuing (repeats only counted)",
+                              self._identity, key, exc)
+        else:
+            with self._lock:
+                self._delivered += 1
+
+    def _count_malformed(self, key: str, exc: SchemaError) -> None:
+        with self._lock:
+            self._malformed[exc.reason] = self._malformed.get(exc.reason, 0) + 1
+        if self._first(f"malformed:{exc.reason}"):
+            log.warning("bus %s: dropping malformed message on %s from %s: %s (further '%s' drops only counted)",
+                        self._identity, key, exc.src or "unknown sender", exc, exc.reason)
+
+    def _count_overflow(self) -> None:
+        with self._lock:
+            self._overflow += 1
+        if self._first("overflow"):
+            log.warning("bus %s: delivery queue full, dropping messages (only counted from now on)", self._identity)
+
+    def _first(self, tag: str) -> bool:
+        """True the first time ``tag`` is seen: the log-once-per-reason gate."""
+        with self._lock:
+            if tag in self._logged:
+                return False
+            self._logged.add(tag)
+            return True
+
+    # -- liveliness --
+    def declare_liveliness(self, token_key: str) -> Handle:
+        """Declare a liveliness token (same permission rules as publish); it dies with the session."""
+        token = self._session.liveliness().declare_token(self.check_publish(token_key))
+        return self._register(Handle(f"token {token_key}", token.undeclare))
+
+    def watch_liveliness(self, key_expr: str, on_join: KeyCallback, on_leave: KeyCallback) -> Handle:
+        """Call ``on_join(key)`` / ``on_leave(key)`` as tokens on ``key_expr`` appear / vanish.
+
+        Tokens alive at declaration are reported as joins (history).  Runs on the
+        delivery thread; the link filter does not apply.
+        """
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            cb = on_join if sample.kind == zenoh.SampleKind.PUT else on_leave
+            if not self._sched.submit(time.monotonic_ns(), lambda: self._invoke(key, lambda: cb(key))):
+                self._count_overflow()
+
+        sub = self._session.liveliness().declare_subscriber(key_expr, on_sample, history=True)
+        return self._register(Handle(f"liveliness watch {key_expr}", sub.undeclare))
+
+    def alive(self, key_expr: str, timeout: float = DEFAULT_ALIVE_TIMEOUT_S) -> list[str]:
+        """Keys of the liveliness tokens currently alive on ``key_expr`` (blocks up to ``timeout`` s).
+
+        A snapshot; use :meth:`watch_liveliness` to track membership.  In
+        zenoh 1.10 a liveliness query sent within a few ms of another session
+        joining or leaving the router can come back empty at once although
+        tokens exist, so an empty answer is re-asked a few times
+        (:data:`ALIVE_EMPTY_RETRY_S`, ~35 ms in all) before it is believed.
+        """
+        deadline = time.monotonic() + timeout
+        found = self._query_tokens(key_expr, deadline)
+        for pause in ALIVE_EMPTY_RETRY_S:
+            if found or time.monotonic() + pause >= deadline:
+                break
+            time.sleep(pause)
+            found = self._query_tokens(key_expr, deadline)
+        return sorted(found)
+
+    def _query_tokens(self, key_expr: str, deadline: float) -> set[str]:
+        found = set()
+        left = max(deadline - time.monotonic(), 0.0)
+        for reply in self._session.liveliness().get(key_expr, timeout=left):
+            sample = reply.ok
+            if sample is not None:
+                found.add(str(sample.key_expr))
+        return found
+
+    def _register(self, handle: Handle) -> Handle:
+        with self._lock:
+            if not self._closed:
+                self._handles.append(handle)
+                return handle
+        handle.close()
+        raise RuntimeError(f"bus {self._identity} is closed")
+
+
+# Which message kind belongs on which key (after ``truav/<run>/``).
+_KIND_BY_KEY = {
+    ("world", "tick"): schema.KIND_TICK,
+    ("world", "positions"): schema.KIND_POSITIONS,
+    ("metrics",): schema.KIND_METRICS,
+    ("fault",): schema.KIND_FAULT,
+    ("control",): schema.KIND_CONTROL,
+    ("uav", keys.OBS): schema.KIND_OBS,
+    ("uav", keys.BEACON): schema.KIND_BEACON,
+    ("uav", keys.ACTION): schema.KIND_ACTION,
+}
+
+
+def expected_kind(key: str) -> str | None:
+    """The message kind that belongs on a TRUAV key, or None if the key is not a known data key."""
+    parts = key.split("/")
+    if len(parts) < 3 or parts[0] != keys.ROOT:
+        return None
+    rest = parts[2:]
+    if rest[0] == "uav":
+        return _KIND_BY_KEY.get(("uav", rest[2])) if len(rest) == 3 else None
+    if rest[0] == "world":
+        return _KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None
+    return _KIND_BY_KEY.get((rest[0],)) if len(rest) >= 2 else None
+
+
+def _check_placement(key: str, msg: Message) -> None:
+    """SchemaError(R_KEY_MISMATCH) if ``msg`` does not belong on ``key``.
+
+    Checked: the kind the key carries, the body's ``uav`` against the key's
+    UAV id, a ``uav/<j>`` sender only on keys of UAV ``j``, the metrics scope
+    and the fault kind against the last key chunk.
+    """
+    kind = expected_kind(key)
+    if kind is not None and kind != msg.KIND:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} message on {key} (expects {kind})", src=msg.src)
+    key_uav = keys.parse_uav_id(key)
+    body_uav = getattr(msg, "uav", None)
+    if key_uav is not None and body_uav is not None and body_uav != key_uav:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
+    src_uav = keys.parse_uav_identity(msg.src)
+    if src_uav is not None and src_uav != key_uav:
+        raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
+    last = key.rsplit("/", 1)[-1]
+    if kind == schema.KIND_METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.scope} metrics on {key}", src=msg.src)
+    if kind == schema.KIND_FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
+
+
+# --- router --------------------------------------------------------------------------
+def open_router(
+    listen: Sequence[str] = (DEFAULT_ENDPOINT,),
+    connect: Sequence[str] = (),
+    config_file: str | os.PathLike[str] | None = None,
+) -> zenoh.Session:
+    """Open a session in Zenoh ``router`` mode (zenoh-python 1.x supports it); caller closes it."""
+    return zenoh.open(make_config(MODE_ROUTER, connect, listen, config_file))
+
+
+def run_router(
+    listen: Sequence[str] = (DEFAULT_ENDPOINT,),
+    *,
+    connect: Sequence[str] = (),
+    config_file: str | os.PathLike[str] | None = None,
+    stop: threading.Event | None = None,
+) -> None:
+    """Run a Zenoh router until ``stop`` is set (or Ctrl-C), for ``truav-swarm router``."""
+    stop = stop if stop is not None else threading.Event()
+    with open_router(listen, connect, config_file) as session:
+        log.info("zenoh router %s listening on %s", session.zid(), ", ".join(listen) or "config endpoints")
+        try:
+            while not stop.wait(ROUTER_POLL_S):
+                pass
+        except KeyboardInterrupt:
+            log.info("router interrupted")
+    log.info("zenoh router stopped")
