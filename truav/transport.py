@@ -8,7 +8,8 @@
   ``uav/<i>``, ``recorder`` ...): it stamps and encodes outgoing messages with
   :mod:`truav.schema`, decodes incoming ones, drops (and counts, and logs once
   per reason) anything malformed, applies a fault-injection :class:`LinkFilter`
-  on the receive side, and wraps liveliness tokens.
+  on the receive side, and wraps liveliness tokens.  Beacons and positions are
+  sent with congestion control DROP, everything else with BLOCK.
 * :func:`run_router` runs an in-process Zenoh router (zenoh-python 1.x can
   open a session in ``router`` mode) for ``truav-swarm router``.
 
@@ -56,7 +57,7 @@ MODES = (MODE_CLIENT, MODE_PEER, MODE_ROUTER)
 DEFAULT_MAX_PENDING = 100_000
 MAX_CACHED_PUBLISHERS = 4096
 DEFAULT_ALIVE_TIMEOUT_S = 1.0
-ALIVE_EMPTY_RETRY_S = (0.005, 0.01, 0.02)  # pauses before re-asking an empty liveliness query
+ALIVE_EMPTY_RETRY_S = (0.005, 0.01, 0.02, 0.05, 0.1)  # pauses before re-asking an empty liveliness query
 CLOSE_JOIN_TIMEOUT_S = 2.0
 ROUTER_POLL_S = 0.5
 UNKNOWN_SRC = "?"
@@ -65,6 +66,13 @@ UNKNOWN_SRC = "?"
 R_KEY_MISMATCH = "key_mismatch"  # payload does not belong on that key (kind, uav id, src)
 
 _WILDCARD_CHARS = frozenset("*$?#")
+
+# Kinds where the freshest value wins and loss is tolerable: published with
+# CongestionControl.DROP.  Everything else (tick, obs, action, metrics, fault,
+# control, and unknown keys) uses BLOCK, so a full queue delays rather than
+# silently drops it.  Zenoh's default is DROP, which under CPU load drops even
+# small messages queued behind a large one (seen in tests with 1 MiB payloads).
+DROPPABLE_KINDS = frozenset({schema.KIND_BEACON, schema.KIND_POSITIONS})
 
 DataCallback = Callable[[str, Message, bytes, int], None]  # (key, msg, raw, recv_time_ns)
 RawCallback = Callable[[str, bytes, int], None]  # (key, raw, recv_time_ns)
@@ -395,11 +403,12 @@ class Bus:
                 raise RuntimeError(f"bus {self._identity} is closed")
             pub = self._publishers.get(key)
             if pub is None and len(self._publishers) < MAX_CACHED_PUBLISHERS:
-                pub = self._publishers[key] = self._session.declare_publisher(key)
+                pub = self._publishers[key] = self._session.declare_publisher(
+                    key, congestion_control=congestion_control(key))
         if pub is not None:
             pub.put(data)
         else:
-            self._session.put(key, data)
+            self._session.put(key, data, congestion_control=congestion_control(key))
 
     # -- subscribing --
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
@@ -542,8 +551,9 @@ class Bus:
         A snapshot; use :meth:`watch_liveliness` to track membership.  In
         zenoh 1.10 a liveliness query sent within a few ms of another session
         joining or leaving the router can come back empty at once although
-        tokens exist, so an empty answer is re-asked a few times
-        (:data:`ALIVE_EMPTY_RETRY_S`, ~35 ms in all) before it is believed.
+        tokens exist (longer under CPU load), so an empty answer is re-asked a
+        few times (:data:`ALIVE_EMPTY_RETRY_S`, ~185 ms in all, within
+        ``timeout``) before it is believed.
         """
         deadline = time.monotonic() + timeout
         found = self._query_tokens(key_expr, deadline)
@@ -583,6 +593,12 @@ _KIND_BY_KEY = {
     ("uav", keys.BEACON): schema.KIND_BEACON,
     ("uav", keys.ACTION): schema.KIND_ACTION,
 }
+
+
+def congestion_control(key: str) -> zenoh.CongestionControl:
+    """DROP for keys of :data:`DROPPABLE_KINDS` (beacons, positions), BLOCK for everything else."""
+    droppable = expected_kind(key) in DROPPABLE_KINDS
+    return zenoh.CongestionControl.DROP if droppable else zenoh.CongestionControl.BLOCK
 
 
 def expected_kind(key: str) -> str | None:
