@@ -1,0 +1,256 @@
+"""One UAV's TRUAV agent as an OS process on the Zenoh bus.
+
+It runs the trainer's own code (StateEncoder, Reward, QLearners with B=1,
+U=1 and the same seed stream) and knows only what its UAV senses: its
+observation from the world and the beacons it hears from its neighbours.
+Per observation it publishes its beacon, builds its state from the beacons
+of the same tick (lock-step: waits for every live peer's; real time: the
+freshest heard), learns from the last step and publishes its action.
+
+Its Q-table can start from a trained run (`--qtable RUN_DIR`) and is
+checkpointed atomically every K steps; a restarted agent resumes from its
+checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agents.qlearning import QLearners
+from agents.reward import Reward
+from agents.state import StateEncoder, neighbour_features
+from truav import keys, schema, seeding
+from truav.config import Config
+from truav.transport import Bus
+from world.uavs import action_velocity
+
+log = logging.getLogger("truav.agent")
+
+CONTROL_SHUTDOWN = "shutdown"
+LOCKSTEP_BEACON_WAIT_S = 2.0
+"""Lock-step: how long to wait for the beacons of live peers before acting without them."""
+REALTIME_BEACON_MAX_AGE_TICKS = 2
+"""Real time: a neighbour's beacon older than this many ticks is ignored."""
+
+
+@dataclass
+class AgentOptions:
+    """How one agent process runs."""
+
+    run: str = "demo"
+    uav: int = 0
+    seed: int = 0
+    """Seed of the run: the agent draws from seeding.agent_rng(seed, uav)."""
+    lockstep: bool = False
+    train: bool = True
+    """Learn online (epsilon-greedy + updates); False acts greedily and never updates."""
+    checkpoint: str | None = None
+    """Q-table checkpoint file (.npz): resumed from if it exists, rewritten every checkpoint_every steps."""
+    checkpoint_every: int = 100
+    qtable: str | None = None
+    """Start from a trained run's qtables.npz (or run dir): the table of `qtable_index`, this UAV."""
+    qtable_index: int = 0
+    beacon_stagger_s: float = 0.02
+    """Real time: beacon i is sent i/n_uavs of this after the observation, to spread bursts."""
+    stats_out: str | None = None
+
+
+class AgentNode:
+    def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus):
+        self.cfg, self.opts, self.bus = cfg, opts, bus
+        self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
+        self.n_uavs = cfg.scenario.n_uavs
+        self.steps = 0
+        self.learners = self._make_learners()
+        self._obs: queue.Queue = queue.Queue()
+        self._cond = threading.Condition()
+        self._beacons: dict[int, schema.Beacon] = {}
+        self._gone: set[int] = set()  # peers whose liveliness token vanished
+        self._latency_ms: list[float] = []
+        self._stop = threading.Event()
+        self._episode = -1
+        self._t = 0
+        self._state = 0
+        self._action = 0
+        self._velocity = (0.0, 0.0)
+        self._warm_up()
+        run, me = opts.run, opts.uav
+        bus.subscribe(keys.uav_obs(run, me), self._on_obs)
+        bus.subscribe(keys.all_beacons(run), self._on_beacon)
+        bus.subscribe(keys.all_control(run), self._on_control)
+        bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        bus.declare_liveliness(keys.alive_uav(run, me))
+
+    def _warm_up(self) -> None:
+        """Load the compiled kernels before joining, so the first tick is not missed."""
+        pos = np.zeros((1, 1, 2))
+        nearest, overlap = neighbour_features(pos, np.zeros((1, 1, 0, 2)), np.ones((1, 1, 0), np.bool_), 1.0)
+        state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest)
+        probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)))
+        probe.begin_episode(0, 1)
+        probe.act(np.zeros((1, 1), np.int64), 0)
+        probe.update(np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64), np.zeros((1, 1)),
+                     np.zeros((1, 1), np.int64), False)
+        del state, overlap
+
+    def _make_learners(self) -> QLearners:
+        o = self.opts
+        rng = seeding.agent_rng(o.seed, o.uav)
+        q = None
+        if o.qtable:
+            from truav.runio import read_qtables
+            _, tables = read_qtables(o.qtable)
+            q = tables[o.qtable_index, o.uav][None, None]
+        learners = QLearners(self.cfg.learner, self.encoder.n_states, [rng], 1, 1, q=q)
+        if o.checkpoint and Path(o.checkpoint).is_file():
+            with np.load(o.checkpoint) as ck:
+                learners.q[0, 0] = ck["q"]
+                self.steps = int(ck["steps"])
+                rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+            log.info("uav %d resumed from checkpoint %s at step %d", o.uav, o.checkpoint, self.steps)
+        return learners
+
+    # -- bus callbacks (delivery thread: keep short) --
+    def _on_obs(self, key, msg: schema.Obs, raw, recv_ns) -> None:
+        self._obs.put(msg)
+
+    def _on_beacon(self, key, msg: schema.Beacon, raw, recv_ns) -> None:
+        if msg.uav == self.opts.uav:
+            return
+        with self._cond:
+            self._beacons[msg.uav] = msg
+            self._latency_ms.append((recv_ns - msg.t) / 1e6)
+            self._cond.notify_all()
+
+    def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
+        if msg.command == CONTROL_SHUTDOWN:
+            self.stop()
+
+    def _on_join(self, key: str) -> None:
+        uav = keys.parse_uav_id(key)
+        if uav is not None and uav != self.opts.uav:
+            with self._cond:
+                self._gone.discard(uav)
+                self._cond.notify_all()
+
+    def _on_leave(self, key: str) -> None:
+        uav = keys.parse_uav_id(key)
+        if uav is not None and uav != self.opts.uav:
+            with self._cond:
+                self._gone.add(uav)
+                self._beacons.pop(uav, None)
+                self._cond.notify_all()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._obs.put(None)
+
+    # -- main loop --
+    def run(self) -> None:
+        while not self._stop.is_set():
+            msg = self._obs.get()
+            if msg is None:
+                break
+            self.handle(msg)
+        self.checkpoint()
+
+    def handle(self, obs: schema.Obs) -> None:
+        """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
+        o, T = self.opts, self.cfg.scenario.steps_per_episode
+        self._send_beacon(obs)
+        peers, heard = self._peers(obs.tick)
+        pos = np.array([[obs.pos]], dtype=np.float64)
+        nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
+        state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
+                                    nearest)
+        if obs.episode != self._episode:
+            self._episode, self._t = obs.episode, 0
+            self.learners.begin_episode(obs.episode, T, greedy=not o.train)
+        else:
+            r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
+                            np.array([[obs.energy_j]]), overlap)
+            if o.train:
+                self.learners.update(np.array([[self._state]]), np.array([[self._action]]), r, state, False)
+            self._t += 1
+            self.steps += 1
+            if o.checkpoint and self.steps % o.checkpoint_every == 0:
+                self.checkpoint()
+        self._state = int(state[0, 0])
+        if obs.done:
+            return
+        self._action = int(self.learners.act(state, min(self._t, T - 1))[0, 0])
+        self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
+        self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
+
+    def _send_beacon(self, obs: schema.Obs) -> None:
+        beacon = schema.Beacon(uav=self.opts.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
+        key = keys.uav_beacon(self.opts.run, self.opts.uav)
+        delay = 0.0 if self.opts.lockstep else self.opts.beacon_stagger_s * self.opts.uav / max(self.n_uavs, 1)
+        if delay > 0:
+            threading.Timer(delay, self._publish_quietly, (key, beacon)).start()
+        else:
+            self.bus.publish(key, beacon)
+
+    def _publish_quietly(self, key, msg) -> None:
+        try:
+            self.bus.publish(key, msg)
+        except RuntimeError:  # bus closed while the timer was pending
+            pass
+
+    def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
+        """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
+        with self._cond:
+            if self.opts.lockstep:
+                deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
+                while not self._stop.is_set():
+                    # Every peer not known gone, so a slow starter is not skipped.
+                    missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone
+                               and (j not in self._beacons or self._beacons[j].tick < tick)]
+                    left = deadline - time.monotonic()
+                    if not missing or left <= 0:
+                        break
+                    self._cond.wait(min(left, 0.05))
+                fresh = {j: b for j, b in self._beacons.items() if b.tick == tick}
+            else:
+                fresh = {j: b for j, b in self._beacons.items() if b.tick >= tick - REALTIME_BEACON_MAX_AGE_TICKS}
+        ids = sorted(fresh)
+        peers = np.array([[[fresh[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
+        return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
+
+    def checkpoint(self) -> None:
+        """Atomically write the Q-table, step count and generator state."""
+        if not self.opts.checkpoint:
+            return
+        path = Path(self.opts.checkpoint)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        state = json.dumps(self.learners.rngs[0].bit_generator.state)
+        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def latency_stats(self) -> dict[str, float]:
+        with self._cond:
+            lat = np.array(self._latency_ms)
+        if lat.size == 0:
+            return {"n": 0}
+        return {"n": int(lat.size), "p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                "max": float(lat.max())}
+
+    def write_stats(self) -> None:
+        if self.opts.stats_out:
+            data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
+                    "bus": {"received": self.bus.stats().received, "malformed": self.bus.dropped_malformed}}
+            p = Path(self.opts.stats_out)
+            tmp = p.with_name(p.name + ".tmp")
+            tmp.write_text(json.dumps(data))
+            tmp.replace(p)

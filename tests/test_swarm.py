@@ -1,0 +1,156 @@
+"""The swarm as real processes on a loopback router: lock-step equivalence with
+the in-process trainer, crash tolerance and checkpoint resume.
+
+Every process is started here, tracked by PID and killed + reaped at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents.controller import TruavController
+from truav import keys
+from truav.config import Config, to_toml
+from truav.driver import run_episodes
+from truav.transport import Bus, make_config
+
+SMALL = {"scenario": {"n_vehicles": 60, "steps_per_episode": 15, "n_uavs": 5}, "roads": {"warmup_steps": 10}}
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+class Procs:
+    """Processes started by a test; all are killed and reaped by `close`."""
+
+    def __init__(self, tmp: Path):
+        self.tmp = tmp
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        log = open(self.tmp / f"{name}.log", "wb")
+        p = subprocess.Popen([sys.executable, "-m", "truav.swarm_cli", *args], stdout=log, stderr=subprocess.STDOUT)
+        log.close()
+        self.procs[name] = p
+        return p
+
+    def log(self, name: str) -> str:
+        return (self.tmp / f"{name}.log").read_text(errors="replace")
+
+    def close(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.kill()
+        for p in self.procs.values():
+            p.wait(timeout=10)
+
+
+@pytest.fixture
+def procs(tmp_path):
+    ps = Procs(tmp_path)
+    yield ps
+    ps.close()
+    assert all(p.poll() is not None for p in ps.procs.values())
+
+
+def wait_port(endpoint: str, timeout: float = 15.0) -> None:
+    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection((host, int(port)), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.1)
+    raise TimeoutError(f"router at {endpoint} did not come up")
+
+
+def start_swarm(procs: Procs, cfg: Config, run: str, *, lockstep: bool, episodes: int,
+                agent_args=lambda i: ()) -> str:
+    scenario = procs.tmp / "scenario.toml"
+    scenario.write_text(to_toml(cfg))
+    ep = free_endpoint()
+    procs.start("router", "router", "-l", ep)
+    wait_port(ep)
+    common = ["--run", run, "--seed", "3", "--scenario", str(scenario), "-e", ep] + (["--lockstep"] if lockstep else [])
+    procs.start("world", "world", *common, "--episodes", str(episodes), "--stats-out", str(procs.tmp / "world.json"),
+                "--wait-agents", "60")
+    for i in range(cfg.scenario.n_uavs):
+        procs.start(f"agent{i}", "agent", "--id", str(i), *common, *agent_args(i))
+    return ep
+
+
+def test_lockstep_swarm_equals_in_process_run(procs):
+    cfg = Config().replace(**SMALL)
+    # In-process first: it also fills numba's cache for the processes below.
+    expected = run_episodes(cfg, [3], TruavController(cfg, [3]), 2)
+    start_swarm(procs, cfg, "eq", lockstep=True, episodes=2)
+    assert procs.procs["world"].wait(timeout=120) == 0, procs.log("world")
+    got = json.loads((procs.tmp / "world.json").read_text())
+    assert got["deadline_misses"] == 0
+    for e in range(2):
+        for k in ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped"):
+            assert got["episodes"][e][k] == expected[k][e, 0], (e, k)
+    for i in range(cfg.scenario.n_uavs):  # agents leave on the world's shutdown
+        assert procs.procs[f"agent{i}"].wait(timeout=20) == 0
+
+
+def test_killed_agent_never_stalls_the_world_and_resumes_from_its_checkpoint(procs):
+    cfg = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 80, "n_uavs": 5},
+                           roads={"warmup_steps": 10})
+    run_episodes(cfg.replace(scenario={"steps_per_episode": 2}), [0], TruavController(cfg, [0]), 1)  # warm cache
+    ck = procs.tmp / "agent2.npz"
+
+    def agent_args(i):
+        return ("--checkpoint", str(ck), "--checkpoint-every", "5", "-v") if i == 2 else ()
+
+    ep = start_swarm(procs, cfg, "crash", lockstep=False, episodes=1, agent_args=agent_args)
+    ticks: list[tuple[float, int]] = []
+    lost: list[float] = []
+    with Bus("observer", "crash", make_config(connect=[ep], connect_timeout_ms=5000)) as bus:
+        bus.subscribe(keys.metrics_step("crash"), lambda k, m, r, t: ticks.append((time.monotonic(), m.tick)))
+        bus.watch_liveliness(keys.alive_uav("crash", 2), lambda k: None, lambda k: lost.append(time.monotonic()))
+        deadline = time.monotonic() + 60
+        while (len(ticks) < 20 or not ck.exists()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert ck.exists() and len(ticks) >= 20, procs.log("world")
+        with np.load(ck) as saved:
+            steps_saved = int(saved["steps"])
+        killed_at = time.monotonic()
+        procs.procs["agent2"].send_signal(signal.SIGKILL)
+        procs.procs["agent2"].wait(timeout=5)
+        while not lost and time.monotonic() < killed_at + 3:
+            time.sleep(0.01)
+        assert lost and lost[0] - killed_at < 1.0  # the loss is seen through liveliness within a second
+        time.sleep(1.5)
+        # the world kept ticking at its rate while the agent was dead
+        after = [t for t, _ in ticks if t > killed_at]
+        assert len(after) >= 10 and np.max(np.diff([killed_at] + after)) < 0.5
+        procs.start("agent2b", "agent", "--id", "2", "--run", "crash", "--seed", "3", "--scenario",
+                    str(procs.tmp / "scenario.toml"), "-e", ep, "--checkpoint", str(ck), "--checkpoint-every", "5",
+                    "-v")
+        deadline = time.monotonic() + 30
+        while "resumed from checkpoint" not in procs.log("agent2b") and time.monotonic() < deadline:
+            time.sleep(0.1)
+    log = procs.log("agent2b")
+    assert "resumed from checkpoint" in log
+    resumed_step = int(log.split("resumed from checkpoint")[1].split("at step")[1].split()[0])
+    assert resumed_step >= steps_saved > 0
+    assert procs.procs["world"].wait(timeout=60) == 0
+    world = json.loads((procs.tmp / "world.json").read_text())
+    assert world["deadline_misses"] > 0  # the dead agent's UAV hovered
+    assert any("uav/2" in k for k in world["losses"])

@@ -1,0 +1,235 @@
+"""`truav-swarm`: the decentralized TRUAV swarm as separate processes on Zenoh.
+
+    truav-swarm up                          # short demo: own router on loopback, world, 5 agents, summary + picture
+    truav-swarm up --agents 8 --episodes 5 --record runs/demo.mcap
+    truav-swarm up --lockstep --qtable runs/train-15mps
+    truav-swarm status -e tcp/127.0.0.1:7447
+    truav-swarm down --run demo -e tcp/127.0.0.1:7447
+
+and the parts, for other hosts or terminals (zenoh-example style flags):
+
+    truav-swarm router -l tcp/0.0.0.0:7447
+    truav-swarm world --run demo -e tcp/HOST:7447
+    truav-swarm agent --id 3 --run demo -e tcp/HOST:7447
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from truav import keys
+from truav.cli import UsageError, parse_sets
+from truav.config import Config, ConfigError, load_config
+from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
+
+log = logging.getLogger("truav.swarm")
+
+
+def add_scenario_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run", default="demo", help="run name: keys live under truav/<run>/ (default demo)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
+    p.add_argument("--scenario", metavar="FILE", help="scenario TOML (as `truav config show` prints)")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one scenario value (repeatable)")
+
+
+def scenario_from(args) -> Config:
+    try:
+        keys.validate_run(args.run)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return load_config(args.scenario, parse_sets(args.set))
+
+
+def _on_sigterm(stop) -> None:
+    signal.signal(signal.SIGTERM, lambda *_: stop())
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+# -- the parts ---------------------------------------------------------------------
+def cmd_router(args) -> int:
+    _setup_logging(args.verbose)
+    stop = threading.Event()
+    _on_sigterm(stop.set)
+    listen = args.listen or [DEFAULT_ENDPOINT]
+    print(f"router listening on {', '.join(listen)}", flush=True)
+    try:
+        run_router(listen, connect=args.connect, config_file=args.config, stop=stop)
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def cmd_world(args) -> int:
+    from world.world_process import WorldNode, WorldOptions, write_stats
+    _setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
+                        rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out)
+    with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
+        node = WorldNode(cfg, opts, bus)
+        _on_sigterm(node.stop)
+        try:
+            stats = node.run()
+        except KeyboardInterrupt:
+            node.stop()
+            stats = node.stats
+    if args.stats_out:
+        write_stats(args.stats_out, stats)
+    return 0
+
+
+def cmd_agent(args) -> int:
+    from agents.agent_process import AgentNode, AgentOptions
+    _setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    if not 0 <= args.id < cfg.scenario.n_uavs:
+        raise UsageError(f"--id {args.id} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
+    opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
+                        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
+                        qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out)
+    with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
+        node = AgentNode(cfg, opts, bus)
+        _on_sigterm(node.stop)
+        try:
+            node.run()
+        except KeyboardInterrupt:
+            node.checkpoint()
+        node.write_stats()
+    return 0
+
+
+def cmd_status(args) -> int:
+    conf = config_from_args(args)
+    pattern = keys.all_alive(args.run) if args.run else "truav/*/alive/**"
+    with Bus("status", args.run or "status", conf) as bus:
+        tokens = sorted(bus.alive(pattern, timeout=args.timeout))
+    if not tokens:
+        print("no TRUAV process alive" + (f" in run {args.run}" if args.run else ""))
+        return 1
+    for token in tokens:
+        print(token)
+    return 0
+
+
+def cmd_down(args) -> int:
+    from truav.swarm_supervisor import stop_recorded_pids
+    from truav import schema
+    with Bus("supervisor", args.run, config_from_args(args)) as bus:
+        bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
+    stopped = stop_recorded_pids(Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}")
+    print(f"shutdown sent to run {args.run}; {stopped} process(es) signalled from the pid file")
+    return 0
+
+
+def cmd_up(args) -> int:
+    from truav.swarm_supervisor import SwarmOptions, run_swarm
+    cfg = scenario_from(args)
+    if args.agents is not None:
+        cfg = cfg.replace(scenario={"n_uavs": args.agents})
+    if args.steps is not None:
+        cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
+    opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
+                        rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
+                        out=args.out, listen=args.listen[0] if args.listen else None,
+                        plot=not args.no_plot, quiet=args.quiet)
+    return run_swarm(cfg, opts)
+
+
+# -- parser ------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="truav-swarm", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
+    add_scenario_args(up)
+    up.add_argument("--agents", type=int, help="number of UAV agents (default scenario.n_uavs, 5)")
+    up.add_argument("--episodes", type=int, default=2, help="episodes before the swarm stops (default 2)")
+    up.add_argument("--steps", type=int, help="steps per episode (default scenario.steps_per_episode, 100)")
+    up.add_argument("--lockstep", action="store_true", help="the world waits for every live agent each tick")
+    up.add_argument("--rate", type=float, default=10.0, help="real-time tick rate in Hz (default 10)")
+    up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
+    up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
+    up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
+    up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
+    up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                    help="router endpoint (default: a free loopback port)")
+    up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
+    up.add_argument("--quiet", action="store_true", help="no live status table")
+    up.set_defaults(func=cmd_up)
+
+    st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
+    st.add_argument("--run", help="only this run")
+    st.add_argument("--timeout", type=float, default=1.0)
+    add_transport_args(st)
+    st.set_defaults(func=cmd_status)
+
+    dn = sub.add_parser("down", help="ask a running swarm to shut down")
+    dn.add_argument("--run", default="demo")
+    dn.add_argument("--out", help="the swarm's output directory holding pids.json (default runs/swarm-<run>)")
+    add_transport_args(dn)
+    dn.set_defaults(func=cmd_down)
+
+    ro = sub.add_parser("router", help="run a Zenoh router")
+    add_transport_args(ro)
+    ro.add_argument("-v", "--verbose", action="store_true")
+    ro.set_defaults(func=cmd_router)
+
+    wo = sub.add_parser("world", help="run the world process")
+    add_scenario_args(wo)
+    wo.add_argument("--episodes", type=int, default=2)
+    wo.add_argument("--lockstep", action="store_true")
+    wo.add_argument("--rate", type=float, default=10.0)
+    wo.add_argument("--wait-agents", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
+    wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
+    wo.add_argument("-v", "--verbose", action="store_true")
+    add_transport_args(wo)
+    wo.set_defaults(func=cmd_world)
+
+    ag = sub.add_parser("agent", help="run one UAV agent process")
+    add_scenario_args(ag)
+    ag.add_argument("--id", type=int, required=True, help="UAV id in [0, n_uavs)")
+    ag.add_argument("--lockstep", action="store_true")
+    ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
+    ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
+    ag.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
+    ag.add_argument("--qtable", metavar="RUN", help="start from a trained run's Q-table")
+    ag.add_argument("--qtable-index", type=int, default=0, help="which seed's table of that run (default 0)")
+    ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
+    ag.add_argument("-v", "--verbose", action="store_true")
+    add_transport_args(ag)
+    ag.set_defaults(func=cmd_agent)
+
+    try:
+        from recorder.cli import add_swarm_commands
+    except ImportError:  # recorder commands not installed
+        pass
+    else:
+        add_swarm_commands(sub)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ConfigError, UsageError) as exc:
+        print(f"truav-swarm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,240 @@
+"""The world process: the same `World` as the trainer, behind Zenoh.
+
+Per tick it publishes the tick and every UAV's local observation, collects
+actions until all live agents answered (lock-step) or a deadline passed
+(real time), applies them (a missing action hovers), steps, and publishes
+step metrics; at an episode's end it publishes the episode metrics and starts
+the next one. It watches the agents' liveliness tokens and logs joins and
+losses. Run it alone with `truav-swarm world`, or let `truav-swarm up` start it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from truav import keys, schema, seeding
+from truav.config import Config
+from truav.transport import Bus
+from world.env import World
+from world.uavs import HOVER
+
+log = logging.getLogger("truav.world")
+
+LOCKSTEP_ACTION_TIMEOUT_S = 10.0
+"""Lock-step still never stalls forever: a live agent silent this long is skipped (hovers)."""
+CONTROL_SHUTDOWN = "shutdown"
+POSITIONS_EVERY_TICKS = 10
+"""Publish all positions (for maps and replay) every this many ticks."""
+
+
+@dataclass
+class WorldOptions:
+    """How the world process runs (scenario parameters live in Config)."""
+
+    run: str = "demo"
+    """Run name: every key lives under truav/<run>/."""
+    seed: int = 0
+    """World seed (same stream as the in-process trainer's world for this seed)."""
+    episodes: int = 2
+    """Episodes to run before publishing shutdown and exiting."""
+    lockstep: bool = False
+    """Wait for every live agent's action each tick (deterministic) instead of real time."""
+    rate_hz: float = 10.0
+    """Real-time tick rate."""
+    deadline_frac: float = 0.8
+    """Real time: actions must arrive within this fraction of the tick period."""
+    wait_agents_s: float = 30.0
+    """Before the first tick, wait up to this long for all n_uavs agents to be alive."""
+    stats_out: str | None = None
+    """Write per-episode metrics and timing statistics as JSON here at exit."""
+
+
+@dataclass
+class WorldStats:
+    episodes: list[dict[str, float]] = field(default_factory=list)
+    tick_lateness_ms: list[float] = field(default_factory=list)
+    deadline_misses: int = 0
+    actions_received: int = 0
+    ticks: int = 0
+    joins: list[str] = field(default_factory=list)
+    losses: list[str] = field(default_factory=list)
+
+
+class WorldNode:
+    """Drives a one-environment World from bus traffic."""
+
+    def __init__(self, cfg: Config, opts: WorldOptions, bus: Bus, clock=time.monotonic):
+        self.cfg, self.opts, self.bus, self.clock = cfg, opts, bus, clock
+        self.n_uavs = cfg.scenario.n_uavs
+        self.world = World(cfg, 1)
+        self.stats = WorldStats()
+        self._cond = threading.Condition()
+        self._actions: dict[int, int] = {}
+        self._tick = -1
+        self._alive: set[int] = set()
+        self._stop = threading.Event()
+        run = opts.run
+        bus.subscribe(keys.all_actions(run), self._on_action)
+        bus.subscribe(keys.all_control(run), self._on_control)
+        bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        bus.declare_liveliness(keys.alive_world(run))
+
+    # -- bus callbacks (delivery thread: keep short) --
+    def _on_action(self, key, msg: schema.Action, raw, recv_ns) -> None:
+        with self._cond:
+            if msg.tick == self._tick and msg.uav < self.n_uavs and msg.uav not in self._actions:
+                self._actions[msg.uav] = msg.action
+                self.stats.actions_received += 1
+                self._cond.notify_all()
+
+    def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
+        if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
+            log.info("shutdown requested by %s", msg.src)
+            self.stop()
+
+    def _on_join(self, key: str) -> None:
+        uav = keys.parse_uav_id(key)
+        with self._cond:
+            if uav is not None:
+                self._alive.add(uav)
+                self.stats.joins.append(key)
+                self._cond.notify_all()
+        log.info("agent joined: %s", key)
+
+    def _on_leave(self, key: str) -> None:
+        uav = keys.parse_uav_id(key)
+        with self._cond:
+            if uav is not None:
+                self._alive.discard(uav)
+                self.stats.losses.append(key)
+                self._cond.notify_all()
+        log.warning("agent lost: %s", key)
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+
+    # -- main loop --
+    def wait_for_agents(self) -> int:
+        deadline = self.clock() + self.opts.wait_agents_s
+        with self._cond:
+            while len(self._alive) < self.n_uavs and not self._stop.is_set():
+                left = deadline - self.clock()
+                if left <= 0:
+                    break
+                self._cond.wait(min(left, 0.2))
+            return len(self._alive)
+
+    def run(self) -> WorldStats:
+        opts, sc = self.opts, self.cfg.scenario
+        period = 1.0 / opts.rate_hz
+        n = self.wait_for_agents()
+        log.info("%d/%d agents alive; starting %s", n, self.n_uavs, "lock-step" if opts.lockstep else f"{opts.rate_hz:g} Hz")
+        obs = self.world.reset([seeding.world_rng(opts.seed)])
+        tick, next_due = 0, self.clock()
+        for episode in range(opts.episodes):
+            if episode:
+                obs = self.world.start_episode()
+            done = False
+            while not done and not self._stop.is_set():
+                if not opts.lockstep:
+                    self._sleep_until(next_due)
+                    self.stats.tick_lateness_ms.append((self.clock() - next_due) * 1e3)
+                    deadline = next_due + opts.deadline_frac * period
+                    next_due += period
+                actions = self._tick_round(tick, episode, obs, False,
+                                           None if opts.lockstep else deadline)
+                obs, metrics, done = self.world.step(actions)
+                self._publish_step(tick, episode, metrics, actions)
+                tick += 1
+            if self._stop.is_set():
+                break
+            # The episode's last observation: agents learn from it but do not act.
+            self._tick_round(tick, episode, obs, True, None)
+            tick += 1
+            summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
+            self.stats.episodes.append(summary)
+            self.bus.publish(keys.metrics_episode(opts.run), schema.Metrics(
+                scope=schema.SCOPE_EPISODE, tick=tick, episode=episode,
+                values={k: v for k, v in summary.items() if np.isfinite(v)}))
+            log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
+                     summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
+        self.stats.ticks = tick
+        self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
+        return self.stats
+
+    def _sleep_until(self, due: float) -> None:
+        while not self._stop.is_set():
+            left = due - self.clock()
+            if left <= 0:
+                return
+            self._stop.wait(min(left, 0.05))
+
+    def _tick_round(self, tick: int, episode: int, obs, done: bool, deadline: float | None) -> np.ndarray:
+        """Publish tick + observations; return the actions (B=1, U), HOVER where missing."""
+        run, sc = self.opts.run, self.cfg.scenario
+        with self._cond:
+            self._tick = -1 if done else tick
+            self._actions = {}
+        period_ms = 1e3 / self.opts.rate_hz
+        self.bus.publish(keys.world_tick(run), schema.Tick(
+            tick=tick, episode=episode, sim_time=tick * sc.step_s,
+            deadline_ms=LOCKSTEP_ACTION_TIMEOUT_S * 1e3 if self.opts.lockstep else self.opts.deadline_frac * period_ms,
+            n_uavs=self.n_uavs))
+        for i in range(self.n_uavs):
+            self.bus.publish(keys.uav_obs(run, i), schema.Obs(
+                tick=tick, episode=episode, uav=i, pos=tuple(obs.pos[0, i]),
+                vehicles_in_range=int(obs.vehicles_in_range[0, i]), queued_packets=int(obs.queued[0, i]),
+                relayed=int(obs.relayed[0, i]), covered=int(obs.covered[0, i]),
+                energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done))
+        if tick % POSITIONS_EVERY_TICKS == 0:
+            self.bus.publish(keys.world_positions(run), schema.Positions(
+                tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, self.world.vehicle_xy()[0]))))
+        actions = np.full((1, self.n_uavs), HOVER, np.int64)
+        if done:
+            return actions
+        limit = self.clock() + LOCKSTEP_ACTION_TIMEOUT_S if deadline is None else deadline
+        with self._cond:
+            while not self._stop.is_set():
+                waiting = (self._alive - set(self._actions)) if deadline is None else \
+                    set(range(self.n_uavs)) - set(self._actions)
+                left = limit - self.clock()
+                if not waiting or left <= 0:
+                    break
+                self._cond.wait(min(left, 0.05))
+            for uav, a in self._actions.items():
+                actions[0, uav] = a
+            self._tick = -1
+        self.stats.deadline_misses += int(np.sum(actions[0] == HOVER))
+        return actions
+
+    def _publish_step(self, tick, episode, m, actions) -> None:
+        values = {"covered": float(m.covered[0]), "generated": float(m.generated[0]),
+                  "delivered": float(m.delivered[0]), "dropped": float(m.dropped_overflow[0] + m.dropped_deadline[0]),
+                  "delay_sum_s": float(m.delay_sum_s[0]), "energy_j": float(m.energy_j[0].mean()),
+                  "hovering_uavs": float(np.sum(actions[0] == HOVER)),
+                  "coverage_pct": 100.0 * float(m.covered[0]) / self.cfg.scenario.n_vehicles}
+        self.bus.publish(keys.metrics_step(self.opts.run), schema.Metrics(
+            scope=schema.SCOPE_STEP, tick=tick, episode=episode, values=values))
+
+
+def write_stats(path: str | Path, stats: WorldStats) -> None:
+    """JSON with per-episode metrics and tick lateness percentiles."""
+    lat = np.array(stats.tick_lateness_ms) if stats.tick_lateness_ms else np.zeros(0)
+    data = asdict(stats)
+    data.pop("tick_lateness_ms")
+    if lat.size:
+        data["tick_lateness_ms"] = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                                    "max": float(lat.max()), "n": int(lat.size)}
+    p = Path(path)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1, allow_nan=True))
+    tmp.replace(p)
