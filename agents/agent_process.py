@@ -59,8 +59,13 @@ class AgentOptions:
     qtable: str | None = None
     """Start from a trained run's qtables.npz (or run dir): the table of `qtable_index`, this UAV."""
     qtable_index: int = 0
-    beacon_stagger_s: float = 0.02
-    """Real time: beacon i is sent i/n_uavs of this after the observation, to spread bursts."""
+    beacon_phase: float = 0.4
+    """Real time: beacons go out this fraction of the tick period after the
+    observation, once every agent has finished its own burst of work..."""
+    beacon_spread: float = 0.5
+    """...spread over this fraction of the period by UAV id: synchronized sends
+    from 20+ processes on a few cores multiply the latency tail."""
+    tick_period_s: float = 0.1
     stats_out: str | None = None
 
 
@@ -82,6 +87,7 @@ class AgentNode:
         self._state = 0
         self._action = 0
         self._velocity = (0.0, 0.0)
+        self._pending_beacon = None
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
@@ -156,6 +162,8 @@ class AgentNode:
 
     # -- main loop --
     def run(self) -> None:
+        if not self.opts.lockstep:
+            threading.Thread(target=self._beacon_loop, name="beacons", daemon=True).start()
         while not self._stop.is_set():
             msg = self._obs.get()
             if msg is None:
@@ -192,19 +200,31 @@ class AgentNode:
         self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
 
     def _send_beacon(self, obs: schema.Obs) -> None:
-        beacon = schema.Beacon(uav=self.opts.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
-        key = keys.uav_beacon(self.opts.run, self.opts.uav)
-        delay = 0.0 if self.opts.lockstep else self.opts.beacon_stagger_s * self.opts.uav / max(self.n_uavs, 1)
-        if delay > 0:
-            threading.Timer(delay, self._publish_quietly, (key, beacon)).start()
-        else:
+        o = self.opts
+        beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
+        key = keys.uav_beacon(o.run, o.uav)
+        if o.lockstep:
             self.bus.publish(key, beacon)
+            return
+        offset = (o.beacon_phase + o.beacon_spread * o.uav / max(self.n_uavs, 1)) * o.tick_period_s
+        with self._cond:
+            self._pending_beacon = (time.monotonic() + offset, key, beacon)
+            self._cond.notify_all()
 
-    def _publish_quietly(self, key, msg) -> None:
-        try:
-            self.bus.publish(key, msg)
-        except RuntimeError:  # bus closed while the timer was pending
-            pass
+    def _beacon_loop(self) -> None:
+        """Real time: one thread sends the latest pending beacon at its due time."""
+        while not self._stop.is_set():
+            with self._cond:
+                pending = self._pending_beacon
+                if pending is None or pending[0] > time.monotonic():
+                    wait = 0.05 if pending is None else min(pending[0] - time.monotonic(), 0.05)
+                    self._cond.wait(max(wait, 0.0))
+                    continue
+                self._pending_beacon = None
+            try:
+                self.bus.publish(pending[1], pending[2])
+            except RuntimeError:  # bus closed at shutdown
+                return
 
     def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
         """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
@@ -248,7 +268,10 @@ class AgentNode:
 
     def write_stats(self) -> None:
         if self.opts.stats_out:
+            with self._cond:
+                samples = [round(x, 3) for x in self._latency_ms]
             data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
+                    "beacon_latency_samples_ms": samples,
                     "bus": {"received": self.bus.stats().received, "malformed": self.bus.dropped_malformed}}
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")

@@ -97,7 +97,8 @@ def cmd_agent(args) -> int:
         raise UsageError(f"--id {args.id} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
     opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-                        qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out)
+                        qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
+                        tick_period_s=1.0 / args.rate)
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
         node = AgentNode(cfg, opts, bus)
         _on_sigterm(node.stop)
@@ -142,7 +143,7 @@ def cmd_up(args) -> int:
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
-                        plot=not args.no_plot, quiet=args.quiet)
+                        plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents)
     return run_swarm(cfg, opts)
 
 
@@ -165,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
     up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                     help="router endpoint (default: a free loopback port)")
+    up.add_argument("--wait-agents", type=float, default=60.0,
+                    help="seconds the world waits for all agents to join before the first tick (default 60)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.set_defaults(func=cmd_up)
@@ -201,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_args(ag)
     ag.add_argument("--id", type=int, required=True, help="UAV id in [0, n_uavs)")
     ag.add_argument("--lockstep", action="store_true")
+    ag.add_argument("--rate", type=float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
     ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
     ag.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")

@@ -52,6 +52,7 @@ class SwarmOptions:
     listen: str | None = None
     plot: bool = True
     quiet: bool = False
+    wait_agents_s: float = 60.0
 
 
 def free_loopback_endpoint() -> str:
@@ -242,7 +243,8 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
             monitor.attach(bus, opts.run)
             children.start("world", _python_module(
                 "truav.swarm_cli", "world", *common, *timing, "--episodes", str(opts.episodes),
-                "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json")))
+                "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
+                "--wait-agents", str(opts.wait_agents_s)))
             for i in range(n):
                 extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json")]
                 if opts.qtable:
@@ -250,7 +252,7 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                 if opts.greedy:
                     extra += ["--greedy"]
                 children.start(f"agent{i}", _python_module("truav.swarm_cli", "agent", "--id", str(i),
-                                                            *common, *timing, *extra))
+                                                            *common, *timing, "--rate", str(opts.rate_hz), *extra))
             (out / PID_FILE).write_text(json.dumps(children.pids()))
             print(f"swarm '{opts.run}': router {endpoint}, world + {n} agents"
                   f"{' + recorder -> ' + opts.record if opts.record else ''}; "

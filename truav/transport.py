@@ -416,7 +416,8 @@ class Bus:
 
         Malformed payloads and payloads that do not belong on their key are
         dropped, counted by reason and logged once per reason.  ``recv_time_ns``
-        is the Bus clock at delivery, i.e. after any link-filter delay.
+        is the Bus clock when the message arrived from Zenoh, or at delivery
+        for a message the link filter delayed.
         """
         return self._declare_data(key_expr, lambda key, raw, arr_ns, arr_mono: self._on_data(
             key, raw, arr_ns, arr_mono, callback), max_bytes=schema.MAX_PAYLOAD_BYTES)
@@ -458,14 +459,17 @@ class Bus:
         except SchemaError as exc:
             self._count_malformed(key, exc)
             return
-        self._route(key, msg.src, arrival_ns, arrival_mono, lambda: callback(key, msg, raw, self._clock()))
+        self._route(key, msg.src, arrival_ns, arrival_mono, lambda recv_ns: callback(key, msg, raw, recv_ns))
 
     def _on_raw(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: RawCallback) -> None:
         src = schema.peek_src(raw) or UNKNOWN_SRC
-        self._route(key, src, arrival_ns, arrival_mono, lambda: callback(key, raw, self._clock()))
+        self._route(key, src, arrival_ns, arrival_mono, lambda recv_ns: callback(key, raw, recv_ns))
 
-    def _route(self, key: str, src: str, arrival_ns: int, arrival_mono: int, deliver: Callable[[], None]) -> None:
-        """Apply the link filter, then deliver now or schedule for later."""
+    def _route(self, key: str, src: str, arrival_ns: int, arrival_mono: int, deliver: Callable[[int], None]) -> None:
+        """Apply the link filter, then deliver now or schedule for later.
+
+        ``deliver(recv_ns)`` gets the arrival time for a message delivered now
+        and the delivery time for one the filter delayed."""
         try:
             ok, delay_s = self._filter.decide(key, src, self._identity, arrival_ns)
             delay_s = float(delay_s)
@@ -481,10 +485,10 @@ class Bus:
             with self._lock:
                 self._filtered += 1
             return
-        job = lambda: self._invoke(key, deliver)  # noqa: E731
         if delay_s <= 0:
-            job()
+            self._invoke(key, lambda: deliver(arrival_ns))
             return
+        job = lambda: self._invoke(key, lambda: deliver(self._clock()))  # noqa: E731
         with self._lock:
             self._delayed += 1
         if not self._sched.submit(arrival_mono + int(delay_s * 1e9), job):
