@@ -30,6 +30,7 @@ from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import keys, schema, seeding
 from truav.config import Config
+from truav.faults import attach_plan, load_plan
 from truav.transport import Bus
 from world.uavs import action_velocity
 
@@ -66,6 +67,8 @@ class AgentOptions:
     """...spread over this fraction of the period by UAV id: synchronized sends
     from 20+ processes on a few cores multiply the latency tail."""
     tick_period_s: float = 0.1
+    fault_plan: str | None = None
+    """Fault plan (TOML) whose link faults apply to what this agent receives."""
     stats_out: str | None = None
 
 
@@ -90,6 +93,8 @@ class AgentNode:
         self._pending_beacon = None
         self._warm_up()
         run, me = opts.run, opts.uav
+        self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
+                                  opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
         bus.subscribe(keys.all_beacons(run), self._on_beacon)
         bus.subscribe(keys.all_control(run), self._on_control)
@@ -123,6 +128,8 @@ class AgentNode:
                 self.steps = int(ck["steps"])
                 rng.bit_generator.state = json.loads(str(ck["rng_state"]))
             log.info("uav %d resumed from checkpoint %s at step %d", o.uav, o.checkpoint, self.steps)
+        else:
+            log.info("uav %d starts from %s", o.uav, f"the tables of {o.qtable}" if o.qtable else "a fresh table")
         return learners
 
     # -- bus callbacks (delivery thread: keep short) --
@@ -270,9 +277,11 @@ class AgentNode:
         if self.opts.stats_out:
             with self._cond:
                 samples = [round(x, 3) for x in self._latency_ms]
+            st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples,
-                    "bus": {"received": self.bus.stats().received, "malformed": self.bus.dropped_malformed}}
+                    "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
+                            "malformed": self.bus.dropped_malformed}}
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")
             tmp.write_text(json.dumps(data))

@@ -26,6 +26,7 @@ from pathlib import Path
 from truav import keys
 from truav.cli import UsageError, parse_sets
 from truav.config import Config, ConfigError, load_config
+from truav.faults import PlanError
 from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -75,7 +76,8 @@ def cmd_world(args) -> int:
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
-                        rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out)
+                        rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
+                        fault_plan=args.fault_plan)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
         node = WorldNode(cfg, opts, bus)
         _on_sigterm(node.stop)
@@ -98,7 +100,7 @@ def cmd_agent(args) -> int:
     opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
-                        tick_period_s=1.0 / args.rate)
+                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan)
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
         node = AgentNode(cfg, opts, bus)
         _on_sigterm(node.stop)
@@ -133,8 +135,8 @@ def cmd_down(args) -> int:
     return 0
 
 
-def cmd_up(args) -> int:
-    from truav.swarm_supervisor import SwarmOptions, run_swarm
+def _swarm_options(args):
+    from truav.swarm_supervisor import SwarmOptions
     cfg = scenario_from(args)
     if args.agents is not None:
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
@@ -143,17 +145,36 @@ def cmd_up(args) -> int:
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
-                        plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents)
+                        plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
+                        fault_plan=args.fault_plan)
+    return cfg, opts
+
+
+def cmd_chaos(args) -> int:
+    from truav.chaos import run_chaos
+    cfg, opts = _swarm_options(args)
+    return run_chaos(cfg, opts, args.plan)
+
+
+def cmd_faults(args) -> int:
+    from truav import schema
+    from truav.faults import CONTROL_FAULTS, load_plan
+    plan = load_plan(args.plan)
+    with Bus("fault", args.run, config_from_args(args)) as bus:
+        bus.publish(keys.control(args.run, CONTROL_FAULTS), schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
+    print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run} "
+          f"(crashes and freezes are scheduled by `truav-swarm up --fault-plan`)")
+    return 0
+
+
+def cmd_up(args) -> int:
+    from truav.swarm_supervisor import run_swarm
+    cfg, opts = _swarm_options(args)
     return run_swarm(cfg, opts)
 
 
 # -- parser ------------------------------------------------------------------------
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="truav-swarm", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
+def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
     up.add_argument("--agents", type=int, help="number of UAV agents (default scenario.n_uavs, 5)")
     up.add_argument("--episodes", type=int, default=2, help="episodes before the swarm stops (default 2)")
@@ -168,9 +189,30 @@ def build_parser() -> argparse.ArgumentParser:
                     help="router endpoint (default: a free loopback port)")
     up.add_argument("--wait-agents", type=float, default=60.0,
                     help="seconds the world waits for all agents to join before the first tick (default 60)")
+    up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="truav-swarm", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
+    add_up_args(up)
     up.set_defaults(func=cmd_up)
+
+    ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan; degradation table + figure")
+    add_up_args(ch)
+    ch.add_argument("--plan", required=True, metavar="FILE", help="fault plan TOML (examples in deploy/plans/)")
+    ch.set_defaults(func=cmd_chaos)
+
+    fa = sub.add_parser("faults", help="replace the fault plan of a running swarm (link faults)")
+    fa.add_argument("--run", default="demo")
+    fa.add_argument("--plan", required=True, metavar="FILE", help="fault plan TOML; an empty file clears all faults")
+    add_transport_args(fa)
+    fa.set_defaults(func=cmd_faults)
 
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
     st.add_argument("--run", help="only this run")
@@ -196,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     wo.add_argument("--rate", type=float, default=10.0)
     wo.add_argument("--wait-agents", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
+    wo.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the world receives")
     wo.add_argument("-v", "--verbose", action="store_true")
     add_transport_args(wo)
     wo.set_defaults(func=cmd_world)
@@ -211,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--qtable", metavar="RUN", help="start from a trained run's Q-table")
     ag.add_argument("--qtable-index", type=int, default=0, help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
+    ag.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the agent receives")
     ag.add_argument("-v", "--verbose", action="store_true")
     add_transport_args(ag)
     ag.set_defaults(func=cmd_agent)
@@ -228,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ConfigError, UsageError) as exc:
+    except (ConfigError, UsageError, PlanError) as exc:
         print(f"truav-swarm: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

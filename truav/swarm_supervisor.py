@@ -26,6 +26,8 @@ import numpy as np
 
 from truav import keys, schema
 from truav.config import Config, to_toml
+from truav.faults import load_plan
+from truav.swarm_faults import FaultController
 from truav.transport import Bus, make_config
 
 PID_FILE = "pids.json"
@@ -53,6 +55,13 @@ class SwarmOptions:
     plot: bool = True
     quiet: bool = False
     wait_agents_s: float = 60.0
+    checkpoint_every: int = 50
+    """Agents checkpoint their Q-table every this many steps."""
+    verbose: bool = False
+    """Children log at INFO level (joins, losses, checkpoint resumes) to <out>/logs."""
+    fault_plan: str | None = None
+    """Fault plan TOML (truav.faults): link faults applied by every process,
+    crashes and freezes sent by this supervisor."""
 
 
 def free_loopback_endpoint() -> str:
@@ -79,15 +88,30 @@ class Children:
     def __init__(self, log_dir: Path):
         self.log_dir = log_dir
         self.procs: dict[str, subprocess.Popen] = {}
+        self.argv: dict[str, list[str]] = {}
         self._logs: list = []
 
     def start(self, name: str, argv: list[str]) -> subprocess.Popen:
-        log = open(self.log_dir / f"{name}.log", "wb")
+        log = open(self.log_dir / f"{name}.log", "ab")  # a restarted process appends
         self._logs.append(log)
         proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True)  # Ctrl-C reaches the supervisor only
         self.procs[name] = proc
+        self.argv[name] = argv
         return proc
+
+    def send(self, name: str, sig) -> None:
+        p = self.procs.get(name)
+        if p is not None and p.poll() is None:
+            p.send_signal(sig)
+            if sig == signal.SIGKILL:
+                p.wait(timeout=5)
+
+    def restart(self, name: str) -> None:
+        p = self.procs.get(name)
+        if p is not None and p.poll() is None:
+            return
+        self.start(name, self.argv[name])
 
     def stop(self, names: list[str], sig=signal.SIGTERM, timeout: float = STOP_TIMEOUT_S) -> None:
         live = [self.procs[n] for n in names if n in self.procs and self.procs[n].poll() is None]
@@ -144,6 +168,8 @@ class Monitor:
     beacon_bytes: dict = field(default_factory=lambda: defaultdict(int))
     tracks: dict = field(default_factory=lambda: defaultdict(list))
     vehicles: list = field(default_factory=list)
+    t0: float | None = None  # monotonic time of the world's tick 0
+    period_s: float = 0.1
     first_beacon: float | None = None
     last_beacon: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -153,6 +179,7 @@ class Monitor:
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
         bus.subscribe(keys.all_beacons(run), self._on_beacon)
         bus.subscribe(keys.world_positions(run), self._on_positions)
+        bus.subscribe(keys.world_tick(run), self._on_tick)
         bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))
 
     def _live(self, key: str, up: bool) -> None:
@@ -168,6 +195,11 @@ class Monitor:
             self.generated += v.get("generated", 0.0)
             self.delivered += v.get("delivered", 0.0)
             self.energy.append(v.get("energy_j", 0.0))
+
+    def _on_tick(self, key, msg: schema.Tick, raw, recv_ns) -> None:
+        with self.lock:
+            if self.t0 is None:
+                self.t0 = time.monotonic() - msg.tick * self.period_s
 
     def _on_episode(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
         with self.lock:
@@ -226,9 +258,12 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     endpoint = opts.listen or free_loopback_endpoint()
     n = cfg.scenario.n_uavs
     common = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", endpoint]
-    timing = ["--lockstep"] if opts.lockstep else []
+    timing = (["--lockstep"] if opts.lockstep else []) + (["-v"] if opts.verbose else [])
     children = Children(out / "logs")
-    monitor = Monitor(n)
+    monitor = Monitor(n, period_s=1.0 / opts.rate_hz)
+    plan = load_plan(opts.fault_plan) if opts.fault_plan else None
+    faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if plan else []
+    controller = None
     interrupted = False
     t0 = time.monotonic()
     try:
@@ -239,25 +274,36 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         if opts.record:
             children.start("recorder", _python_module("recorder.process", "--run", opts.run, "--out", opts.record,
                                                         "--connect", endpoint, "--config-toml", str(scenario)))
-        with Bus("supervisor", opts.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
+        with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
             monitor.attach(bus, opts.run)
+            if plan:
+                hooks = {"kill": lambda u: children.send(f"agent{u}", signal.SIGKILL),
+                         "restart": lambda u: children.restart(f"agent{u}"),
+                         "freeze": lambda u: children.send(f"agent{u}", signal.SIGSTOP),
+                         "thaw": lambda u: children.send(f"agent{u}", signal.SIGCONT)}
+                controller = FaultController(bus, opts.run, plan, hooks)
             children.start("world", _python_module(
-                "truav.swarm_cli", "world", *common, *timing, "--episodes", str(opts.episodes),
+                "truav.swarm_cli", "world", *common, *timing, *faults_args, "--episodes", str(opts.episodes),
                 "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
                 "--wait-agents", str(opts.wait_agents_s)))
             for i in range(n):
-                extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json")]
+                extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json"),
+                         "--checkpoint-every", str(opts.checkpoint_every)]
                 if opts.qtable:
                     extra += ["--qtable", opts.qtable]
                 if opts.greedy:
                     extra += ["--greedy"]
                 children.start(f"agent{i}", _python_module("truav.swarm_cli", "agent", "--id", str(i),
-                                                            *common, *timing, "--rate", str(opts.rate_hz), *extra))
+                                                            *common, *timing, *faults_args, "--rate",
+                                                            str(opts.rate_hz), *extra))
             (out / PID_FILE).write_text(json.dumps(children.pids()))
             print(f"swarm '{opts.run}': router {endpoint}, world + {n} agents"
                   f"{' + recorder -> ' + opts.record if opts.record else ''}; "
                   f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {out}/logs", flush=True)
-            _watch(children, monitor, opts)
+            _watch(children, monitor, opts, controller)
+            if controller is not None:
+                controller.stop()
+            children.stop([f"agent{i}" for i in range(n)], sig=signal.SIGCONT, timeout=0.01)  # thaw frozen ones
             children.stop([f"agent{i}" for i in range(n)])
     except KeyboardInterrupt:
         interrupted = True
@@ -268,21 +314,25 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         children.stop(["router"])
         children.stop_all()
     elapsed = time.monotonic() - t0
-    _summary(out, cfg, opts, monitor, elapsed, interrupted)
+    _summary(out, cfg, opts, monitor, elapsed, interrupted, controller)
     return 130 if interrupted else 0
 
 
-def _watch(children: Children, monitor: Monitor, opts: SwarmOptions) -> None:
+def _watch(children: Children, monitor: Monitor, opts: SwarmOptions, controller=None) -> None:
     tty = sys.stdout.isatty() and not opts.quiet
     drawn = 0
     last_print = 0.0
     world = children.procs["world"]
-    reported_dead: set[str] = set()
+    reported_dead: set[int] = set()
+    faults_started = False
     while world.poll() is None:
-        time.sleep(0.2)
+        time.sleep(0.05 if controller is not None and not faults_started else 0.2)
+        if controller is not None and not faults_started and monitor.t0 is not None:
+            controller.start(monitor.t0)
+            faults_started = True
         for name, p in children.procs.items():
-            if p.poll() is not None and name not in reported_dead and name != "world":
-                reported_dead.add(name)
+            if p.poll() is not None and p.pid not in reported_dead and name != "world":
+                reported_dead.add(p.pid)
                 print(f"{name} exited with code {p.returncode}", flush=True)
         now = time.monotonic()
         if opts.quiet or now - last_print < (STATUS_PERIOD_S if tty else 5.0):
@@ -301,7 +351,8 @@ def _watch(children: Children, monitor: Monitor, opts: SwarmOptions) -> None:
         print(f"world exited with code {world.returncode}", flush=True)
 
 
-def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elapsed: float, interrupted: bool) -> None:
+def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elapsed: float, interrupted: bool,
+             controller=None) -> None:
     world = _read_json(out / "world.json")
     agents = [_read_json(out / f"agent{i}.json") for i in range(cfg.scenario.n_uavs)]
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', interrupted' if interrupted else ''}) ==")
@@ -327,8 +378,14 @@ def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elaps
               f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s in total; a centralized critic would upload "
               f"{n} x {CENTRAL_STATE_VALUES} values x {opts.rate_hz:g} Hz = {central:,.0f} values/s "
               f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
+    events = controller.events if controller is not None else []
+    for t, kind, phase in events:
+        print(f"fault {kind} {phase} at {t:.1f} s")
+    with monitor.lock:
+        timeline = {"coverage": monitor.coverage, "hovering": monitor.hovering}
     (out / "summary.json").write_text(json.dumps({"world": world, "agents": agents, "control_plane": cp,
-                                                  "elapsed_s": elapsed, "interrupted": interrupted}, indent=1))
+                                                  "elapsed_s": elapsed, "interrupted": interrupted,
+                                                  "fault_events": events, "timeline": timeline}, indent=1))
     if opts.plot and monitor.tracks:
         from truav.swarm_plots import swarm_figure
         path = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm '{opts.run}'")

@@ -21,6 +21,7 @@ import numpy as np
 
 from truav import keys, schema, seeding
 from truav.config import Config
+from truav.faults import attach_plan, load_plan
 from truav.transport import Bus
 from world.env import World
 from world.uavs import HOVER
@@ -54,6 +55,8 @@ class WorldOptions:
     """Before the first tick, wait up to this long for all n_uavs agents to be alive."""
     stats_out: str | None = None
     """Write per-episode metrics and timing statistics as JSON here at exit."""
+    fault_plan: str | None = None
+    """Fault plan (TOML) whose link faults apply to what this process receives."""
 
 
 @dataclass
@@ -81,6 +84,8 @@ class WorldNode:
         self._alive: set[int] = set()
         self._stop = threading.Event()
         run = opts.run
+        plan = load_plan(opts.fault_plan) if opts.fault_plan else None
+        self.faults = attach_plan(bus, run, plan, 1.0 / opts.rate_hz)
         bus.subscribe(keys.all_actions(run), self._on_action)
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
