@@ -13,6 +13,10 @@ envelope decoding, no stats, no mirrors).  Prints each figure against the
 100,000 msgs/s target and against what a 20-agent swarm at 10 Hz needs.
 Payloads are built with msgpack directly, with the same fields and sizes as
 ``truav.schema`` (so the bench does not depend on it).
+
+``--bus`` runs ``bench/bench_recorder_bus.py`` instead: the recorder
+*process* fed over Zenoh (router, recorder and publisher processes on
+loopback), its sustained rate and losses, and the 20-agent 10 Hz swarm mix.
 """
 
 from __future__ import annotations
@@ -127,7 +131,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="fewer messages (smoke run)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--bus", action="store_true", help="measure the recorder process fed over Zenoh instead")
     args = parser.parse_args(argv)
+    if args.bus:
+        from bench_recorder_bus import main as bus_main  # bench/ is on sys.path when run as a script
+
+        bus_main(["--quick"] if args.quick else [])
+        return
     n = 50_000 if args.quick else 300_000
     beacon_batch = beacons(n)
     mix_batch = swarm_mix(max(1, n // (N_UAVS * 3 + WORLD_MSGS_PER_TICK)))

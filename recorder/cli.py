@@ -1,0 +1,254 @@
+"""Command-line builders for the recorder tools.
+
+* :func:`add_log_commands` adds to ``truav``::
+
+      truav log recover IN OUT      # finish an unfinished MCAP (recorder killed)
+      truav log check FILE          # per-sender messages and sequence gaps
+      truav report FILE [--out DIR] # map, metric timelines, agent latency; metrics.csv
+
+* :func:`add_swarm_commands` adds to ``truav-swarm``::
+
+      truav-swarm record --run RUN --out FILE [-e ENDPOINT] [--config-toml FILE]
+      truav-swarm replay FILE [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused]
+
+Every command sets ``func(args) -> exit code`` and reports user mistakes
+(missing file, not an MCAP, a pattern matching nothing) in one line on
+stderr with exit code 2, never with a traceback.  Heavy imports (mcap,
+matplotlib, zenoh) happen inside the commands so ``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+Command = Callable[[argparse.Namespace], int]
+
+
+def _fail(prog: str, message: str, code: int = EXIT_USAGE) -> int:
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return code
+
+
+def _mcap_file(path: str) -> str | None:
+    """An error message when ``path`` is not a readable MCAP file, else None."""
+    from recorder.reader import probe
+
+    p = Path(path)
+    if not p.exists():
+        return f"{path}: no such file"
+    if not p.is_file():
+        return f"{path}: not a file"
+    try:
+        with open(p, "rb") as f:
+            probe(f)
+    except ValueError as exc:
+        return f"{path}: {exc}"
+    except OSError as exc:
+        return f"{path}: {exc.strerror or exc}"
+    return None
+
+
+# --- truav log recover / check, truav report --------------------------------------------------
+def cmd_log_recover(args: argparse.Namespace) -> int:
+    from recorder.recover import recover
+
+    problem = _mcap_file(args.input)
+    if problem:
+        return _fail("truav", problem)
+    if Path(args.output).resolve() == Path(args.input).resolve():
+        return _fail("truav", "OUT must differ from IN (the damaged file is kept as evidence)")
+    if Path(args.output).exists() and not args.force:
+        return _fail("truav", f"{args.output} exists; use --force to overwrite it")
+    try:
+        rep = recover(args.input, args.output, compression=args.compression)
+    except OSError as exc:
+        return _fail("truav", f"recovery failed: {exc.strerror or exc}", EXIT_FAILED)
+    span = ((rep.last_log_time - rep.first_log_time) / 1e9
+            if rep.first_log_time is not None and rep.last_log_time is not None else 0.0)
+    state = "unfinished (writer died)" if rep.truncated else "already finished (re-chunked copy)"
+    print(f"{rep.in_path}: {state}, {rep.input_bytes:,} bytes, {rep.torn_bytes:,} torn bytes dropped")
+    print(f"{rep.out_path}: {rep.messages} messages over {span:.3f} s on {rep.channels} channels, "
+          f"{rep.metadata} metadata, {rep.attachments} attachments")
+    if not rep.clean:
+        print(f"  also lost: {rep.corrupt_chunks} corrupt chunks, {rep.orphan_messages} messages without a channel"
+              + (f"; stopped early: {rep.error}" if rep.error else ""))
+    return EXIT_OK
+
+
+def cmd_log_check(args: argparse.Namespace) -> int:
+    from recorder.check import check
+
+    problem = _mcap_file(args.file)
+    if problem:
+        return _fail("truav", problem)
+    print(check(args.file).format_report(max_ranges=args.max_ranges))
+    return EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from recorder.report import ReportError, report
+
+    problem = _mcap_file(args.file)
+    if problem:
+        return _fail("truav", problem)
+    try:
+        _, lines = report(args.file, args.out)
+    except ReportError as exc:
+        return _fail("truav", str(exc))
+    except OSError as exc:
+        return _fail("truav", f"cannot write the report: {exc.strerror or exc}", EXIT_FAILED)
+    print("\n".join(lines))
+    return EXIT_OK
+
+
+def add_log_commands(subparsers: Any) -> None:
+    """Add ``log recover``, ``log check`` and ``report`` to the ``truav`` CLI."""
+    log = subparsers.add_parser("log", help="inspect and repair MCAP recordings of swarm runs",
+                                description="Inspect and repair MCAP recordings made by the TRUAV recorder.")
+    log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
+
+    rec = log_sub.add_parser(
+        "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",
+        description="Salvage every complete chunk of IN (a recording whose recorder died, so it has no "
+                    "summary and mcap's make_reader cannot open it) into a finished MCAP file OUT. "
+                    "A recorder flushes a chunk at least every 50 ms, so about that much is lost.")
+    rec.add_argument("input", metavar="IN", help="the unfinished (or any) MCAP file; left untouched")
+    rec.add_argument("output", metavar="OUT", help="the finished MCAP file to write")
+    rec.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd",
+                     help="chunk compression of OUT (default zstd)")
+    rec.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    rec.set_defaults(func=cmd_log_recover)
+
+    chk = log_sub.add_parser(
+        "check", help="per sender: messages present and sequence gaps (what the bus lost)",
+        description="Audit a recording. Every sender numbers its messages per kind, so a gap in one "
+                    "sender's sequence numbers is a message that never reached the recorder (lost on the bus "
+                    "or sent before it subscribed); an UNFINISHED file means the recorder itself died and "
+                    "lost its last flush interval (run `truav log recover`).")
+    chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+    chk.add_argument("--max-ranges", type=int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
+    chk.set_defaults(func=cmd_log_check)
+
+    rep = subparsers.add_parser(
+        "report", help="pictures of a recorded run: map, metric timelines, agent latency; metrics.csv",
+        description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
+                    "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
+                    "and metrics.csv from a recording.")
+    rep.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+    rep.add_argument("--out", metavar="DIR", help="output directory (default: <FILE stem>_report next to FILE)")
+    rep.set_defaults(func=cmd_report)
+
+
+# --- truav-swarm record / replay ----------------------------------------------------------------
+def cmd_record(args: argparse.Namespace) -> int:
+    from recorder.process import cmd_record as run_record
+
+    return run_record(args)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    import signal
+
+    from recorder.replay import KeyboardControl, ReplayOptions, ReplayUsageError, replay_on_bus, split_patterns
+    from truav.transport import config_from_args
+
+    problem = _mcap_file(args.file)
+    if problem:
+        return _fail("truav-swarm", problem)
+    try:
+        include, exclude = split_patterns(args.topics, args.exclude)
+        options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
+                                include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
+                                paused=args.paused, with_control=args.with_control)
+        zconfig = config_from_args(args)
+    except (ReplayUsageError, ValueError) as exc:
+        return _fail("truav-swarm", str(exc))
+    keyboard = KeyboardControl.available() and not args.no_keys
+    stop = threading.Event()
+    quiet = args.quiet
+
+    def on_state(command: str) -> None:
+        if not quiet:
+            print(f"replay: {command}", file=sys.stderr, flush=True)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # signal handlers only work there
+        previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        if not quiet:
+            hint = "space pause/resume, s step, q quit; " if keyboard else ""
+            print(f"replay: {args.file}{' (paused)' if args.paused else ''}; {hint}bus commands on "
+                  f"truav/<run>/control/replay", file=sys.stderr, flush=True)
+        stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
+    except ReplayUsageError as exc:
+        return _fail("truav-swarm", str(exc))
+    except Exception as exc:  # zenoh could not open (no router...): one line
+        from recorder.process import short_error
+
+        return _fail("truav-swarm", f"replay failed: {short_error(exc)}", EXIT_FAILED)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(stats.format())
+    return EXIT_OK
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def add_swarm_commands(subparsers: Any) -> None:
+    """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
+    from recorder.process import add_record_args
+    from truav.transport import add_transport_args
+
+    rec = subparsers.add_parser(
+        "record", help="record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)",
+        description="Record every message under truav/<run>/ into an MCAP file: one channel per key "
+                    "(msgpack, with a JSON Schema), JSON mirrors of beacons, positions and metrics for "
+                    "Foxglove, the run config as metadata. Stops on Ctrl-C, SIGTERM or a 'stop' control "
+                    "message on truav/<run>/control/recorder, finishes the file and prints a summary.")
+    add_record_args(rec)
+    rec.set_defaults(func=cmd_record)
+
+    rp = subparsers.add_parser(
+        "replay", help="re-publish a recording onto Zenoh with its original timing",
+        description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
+                    "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
+                    "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
+                    "Example, one live agent driven by a recorded world: --topics 'truav/*/world/tick' "
+                    "'truav/*/uav/3/obs'.")
+    rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+    rp.add_argument("--rate", type=_positive, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
+    rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
+    rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
+                    help="replay only keys matching these globs (* also matches /); !PATTERN excludes")
+    rp.add_argument("--exclude", nargs="+", default=[], metavar="PATTERN", help="skip keys matching these globs")
+    rp.add_argument("--start", type=_non_negative, default=0.0, metavar="S",
+                    help="skip the first S seconds of the recording")
+    rp.add_argument("--duration", type=_positive, default=None, metavar="S", help="replay only S seconds")
+    rp.add_argument("--paused", action="store_true", help="start paused (then: space/s, or bus commands)")
+    rp.add_argument("--run", metavar="NEW", help="publish under truav/NEW/ instead of the recorded run")
+    rp.add_argument("--with-control", action="store_true",
+                    help="also replay recorded control messages (skipped by default: old stop/shutdown "
+                         "commands would hit live processes)")
+    rp.add_argument("--no-keys", action="store_true", help="ignore the keyboard even on a terminal")
+    rp.add_argument("--quiet", action="store_true", help="print only the final summary")
+    add_transport_args(rp)
+    rp.set_defaults(func=cmd_replay)

@@ -1,0 +1,546 @@
+"""The recorder as a Zenoh process: everything under ``truav/<run>/`` into one MCAP file.
+
+Run it alone, or let a supervisor start it as a subprocess::
+
+    python -m recorder.process --run RUN --out FILE -e tcp/127.0.0.1:PORT [--config-toml FILE]
+
+(``truav-swarm record`` is the same with the ``truav-swarm`` flags.)  The
+process prints nothing on stdout but one summary when it stops, and exits
+
+* 0 after SIGTERM, SIGINT or a ``stop`` control message on
+  ``truav/<run>/control/recorder``, once the file is finished (footer
+  written, readable by mcap's ``make_reader``);
+* 2 for a user mistake (bad run name, output exists without ``--force``,
+  config not TOML ...), with a one-line message on stderr;
+* 1 when recording failed (router unreachable, disk full ...).
+
+It is *recording* once its liveliness token ``truav/<run>/alive/recorder``
+is visible: the token is declared after the subscription, so a supervisor
+that waits for it (:func:`wait_until_recording`) loses no message it sends
+afterwards.  :func:`recorder_argv`, :func:`spawn_recorder` and
+:func:`stop_recorder` wrap the subprocess life cycle.
+
+Thread model (why three threads).  The Bus delivers raw samples on its one
+delivery thread; the recorder callback only enqueues
+``(key, payload, receive_time)`` on a :class:`queue.SimpleQueue`.  One
+writer thread owns the :class:`~recorder.mcap_log.McapLog` (not
+thread-safe): it drains the queue in bursts and, when the bus is quiet,
+wakes at the log's :meth:`~recorder.mcap_log.McapLog.next_flush_due` so the
+open chunk reaches the OS within ``flush_interval`` even without traffic
+(the SIGKILL loss bound).  The main thread only waits for a stop request.
+
+Log time is the receive time the Bus hands over (its wall clock when the
+sample arrived from Zenoh, ns); publish time is the sender's envelope
+``t``; see :mod:`recorder.mcap_log` for the file layout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+from recorder.mcap_log import (
+    COMPRESSIONS,
+    DEFAULT_CHUNK_BYTES,
+    DEFAULT_COMPRESSION,
+    DEFAULT_FLUSH_INTERVAL_S,
+    LIBRARY,
+    LogSummary,
+    McapLog,
+)
+from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
+from truav import keys, schema, transport
+
+log = logging.getLogger("truav.recorder")
+
+# --- names other tools rely on ---------------------------------------------------------
+CONTROL_PART = "recorder"  # commands arrive on keys.control(run, CONTROL_PART)
+CMD_STOP = "stop"
+
+# --- timing ------------------------------------------------------------------------------
+IDLE_WAKE_S = 0.25  # writer wake-up when nothing is pending (bounds stop latency, costs nothing)
+DRAIN_TIMEOUT_S = 2.0  # after unsubscribing: wait this long at most for the Bus to hand over the rest
+DRAIN_POLL_S = 0.005
+WRITER_JOIN_TIMEOUT_S = 60.0  # a large backlog takes a while to write
+DEFAULT_ROUTER_WAIT_S = 10.0  # a client waits this long for the router (it may start after us)
+DEFAULT_READY_TIMEOUT_S = 10.0
+STOP_GRACE_S = 10.0  # stop_recorder: SIGTERM, then SIGKILL after this long
+MAX_SUMMARY_ROWS = 200  # channel / sender rows in the printed summary
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+_STOP = object()  # queue sentinel: everything before it gets written
+
+
+class RecorderUsageError(ValueError):
+    """A user mistake (bad option, existing output...): reported in one line, exit code 2."""
+
+
+@dataclass(frozen=True)
+class RecorderOptions:
+    """What to record and how; see ``python -m recorder.process --help``."""
+
+    run: str
+    out: Path
+    config_toml: Optional[str] = None  # the run's config as TOML text (stored as MCAP metadata)
+    compression: str = DEFAULT_COMPRESSION
+    flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S
+    chunk_bytes: int = DEFAULT_CHUNK_BYTES
+    mirrors: bool = True
+    fsync: bool = False
+    force: bool = False  # overwrite an existing output file
+
+    def validate(self) -> "RecorderOptions":
+        """Raise RecorderUsageError for anything a user can get wrong; return self."""
+        try:
+            keys.validate_run(self.run)
+        except ValueError as exc:
+            raise RecorderUsageError(str(exc)) from None
+        if self.compression not in COMPRESSIONS:
+            raise RecorderUsageError(f"compression must be one of {sorted(COMPRESSIONS)}, got {self.compression!r}")
+        if not self.flush_interval_s > 0 or self.chunk_bytes <= 0:
+            raise RecorderUsageError("the flush interval and chunk size must be positive")
+        out = Path(self.out)
+        if out.is_dir():
+            raise RecorderUsageError(f"{out} is a directory; give a file name such as {out / 'run.mcap'}")
+        if out.exists() and not self.force:
+            raise RecorderUsageError(f"{out} exists; use --force to overwrite it")
+        if not out.parent.is_dir():
+            raise RecorderUsageError(f"directory {out.parent} does not exist")
+        if self.config_toml is not None:
+            try:
+                tomllib.loads(self.config_toml)
+            except tomllib.TOMLDecodeError as exc:
+                raise RecorderUsageError(f"the run config is not valid TOML: {exc}") from None
+        return self
+
+
+@dataclass
+class RecorderSummary:
+    """What the recorder did; :meth:`format` is the text printed at the end."""
+
+    run: str
+    path: str
+    started_ns: int
+    stopped_ns: int
+    stop_reason: str
+    log: LogSummary
+    bus: transport.BusStats
+    max_backlog: int = 0  # most messages waiting for the writer at once
+    error: Optional[str] = None
+
+    @property
+    def duration_s(self) -> float:
+        return max(self.stopped_ns - self.started_ns, 0) / 1e9
+
+    @property
+    def recorder_dropped(self) -> int:
+        """Messages that reached this process but are not in the file (Bus queue full)."""
+        return self.bus.overflow + self.bus.callback_errors
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain-JSON form (for ``--summary-json`` and the summary metadata)."""
+        return {
+            "run": self.run, "path": self.path, "started_ns": self.started_ns, "stopped_ns": self.stopped_ns,
+            "duration_s": self.duration_s, "stop_reason": self.stop_reason, "error": self.error,
+            "messages": self.log.messages, "mirror_messages": self.log.mirror_messages,
+            "undecodable": self.log.undecodable, "bytes": self.log.bytes_written, "chunks": self.log.chunks,
+            "missing_by_seq": self.log.missing, "recorder_dropped": self.recorder_dropped,
+            "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
+            "channels": dict(sorted(self.log.channels.items())),
+            "senders": {f"{src} {kind}": asdict(s) for (src, kind), s in sorted(self.log.senders.items())},
+        }
+
+    def format(self) -> str:
+        """Headline, then messages per channel, then per-sender sequence gaps."""
+        log_ = self.log
+        rate = log_.messages / self.duration_s if self.duration_s > 0 else 0.0
+        lines = [
+            f"recorder: run {self.run} -> {self.path} ({self.stop_reason})",
+            f"  {log_.messages} messages on {len(log_.channels)} channels in {self.duration_s:.1f} s "
+            f"({rate:,.0f} msgs/s), {log_.mirror_messages} JSON mirrors, {log_.bytes_written:,} bytes, "
+            f"{log_.chunks} chunks",
+            f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
+            f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
+        ]
+        if self.error:
+            lines.append(f"  ERROR: {self.error}")
+        if log_.channels:
+            lines.append("  messages per channel:")
+            items = sorted(log_.channels.items())
+            width = max(len(k) for k, _ in items[:MAX_SUMMARY_ROWS])
+            lines += [f"    {k:<{width}}  {n:>9}" for k, n in items[:MAX_SUMMARY_ROWS]]
+            if len(items) > MAX_SUMMARY_ROWS:
+                lines.append(f"    ... {len(items) - MAX_SUMMARY_ROWS} more channels")
+        gappy = sorted((k, s) for k, s in log_.senders.items() if s.missing or s.backwards)
+        lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
+                     + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
+        for (src, kind), s in gappy[:MAX_SUMMARY_ROWS]:
+            lines.append(f"    {src:<12} {kind:<10} msgs {s.count:>8}  missing {s.missing:>6} in {s.gaps} gaps"
+                         + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
+        return "\n".join(lines)
+
+
+class Recorder:
+    """Subscribes to ``truav/<run>/**`` and writes every sample to an MCAP file.
+
+    ``start()`` opens the file and the Bus; ``stop()`` finishes the file and
+    returns the summary; ``stop_requested`` is set by a ``stop`` control
+    message or a writer failure (the caller decides when to call ``stop``).
+    A context manager stops on exit.
+    """
+
+    def __init__(self, options: RecorderOptions, zenoh_config: Any = None) -> None:
+        self.options = options.validate()
+        self._zconfig = zenoh_config
+        self.stop_requested = threading.Event()
+        self.stop_reason = "stopped"
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._log: Optional[McapLog] = None
+        self._bus: Optional[transport.Bus] = None
+        self._handles: list[transport.Handle] = []
+        self._writer: Optional[threading.Thread] = None
+        self._error: Optional[str] = None
+        self._max_backlog = 0
+        self._started_ns = 0
+        self._summary: Optional[RecorderSummary] = None
+
+    # -- life cycle --
+    def start(self) -> "Recorder":
+        """Open the file, then the Bus; subscribe, then declare liveliness (= ready)."""
+        opts = self.options
+        self._started_ns = time.time_ns()
+        try:
+            self._log = McapLog(opts.out, compression=opts.compression, flush_interval_s=opts.flush_interval_s,
+                                chunk_bytes=opts.chunk_bytes, mirrors=opts.mirrors, fsync=opts.fsync)
+        except OSError as exc:
+            raise RecorderUsageError(f"cannot write {opts.out}: {exc.strerror or exc}") from None
+        try:
+            self._log.set_metadata(RECORDING_METADATA, {
+                "run": opts.run, "started_ns": str(self._started_ns),
+                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(self._started_ns / 1e9)),
+                "host": socket.gethostname(), "recorder": LIBRARY, "schema_version": str(schema.SCHEMA_VERSION),
+                "key_prefix": keys.prefix(opts.run) + "/",
+            })
+            if opts.config_toml is not None:
+                self._log.set_metadata(CONFIG_METADATA, config_metadata(opts.config_toml))
+            self._writer = threading.Thread(target=self._write_loop, name="truav-recorder-writer", daemon=True)
+            self._writer.start()
+            self._bus = transport.Bus(keys.SRC_RECORDER, opts.run, self._zconfig)
+            self._handles.append(self._bus.subscribe_raw(keys.everything(opts.run), self._on_raw))
+            self._handles.append(self._bus.subscribe(keys.control(opts.run, CONTROL_PART), self._on_control))
+            self._handles.append(self._bus.declare_liveliness(keys.alive_recorder(opts.run)))
+        except BaseException:
+            self._abort_start()
+            raise
+        return self
+
+    def _abort_start(self) -> None:
+        """Startup failed: stop what runs and remove the (empty) file we created."""
+        if self._bus is not None:
+            self._bus.close()
+        if self._writer is not None:
+            self._queue.put(_STOP)
+            self._writer.join(WRITER_JOIN_TIMEOUT_S)
+        if self._log is not None:
+            with contextlib.suppress(Exception):
+                self._log.close()
+            with contextlib.suppress(OSError):
+                os.unlink(self.options.out)
+
+    def stop(self, reason: Optional[str] = None) -> RecorderSummary:
+        """Unsubscribe, write everything received, finish the file. Idempotent."""
+        if self._summary is not None:
+            return self._summary
+        if reason is not None:
+            self.stop_reason = reason
+        bus, logfile = self._bus, self._log
+        if bus is None or logfile is None:
+            raise RuntimeError("stop() before start()")
+        for handle in self._handles:
+            handle.close()
+        self._drain_bus(bus)
+        bus_stats = bus.stats()
+        bus.close()  # the liveliness token goes with the session
+        self._queue.put(_STOP)
+        assert self._writer is not None
+        self._writer.join(WRITER_JOIN_TIMEOUT_S)
+        if self._writer.is_alive():
+            self._error = self._error or f"writer did not finish within {WRITER_JOIN_TIMEOUT_S:.0f} s"
+        summary = RecorderSummary(
+            run=self.options.run, path=os.fspath(self.options.out), started_ns=self._started_ns,
+            stopped_ns=time.time_ns(), stop_reason=self.stop_reason, log=logfile.summary(), bus=bus_stats,
+            max_backlog=self._max_backlog, error=self._error,
+        )
+        if not self._writer.is_alive():  # the writer is done with the log: safe to finish it here
+            try:
+                if not logfile.closed:
+                    meta = {k: v for k, v in summary.to_json().items() if k not in ("channels", "senders")}
+                    logfile.set_metadata(SUMMARY_METADATA, meta)
+                logfile.close()
+            except Exception as exc:  # disk full and the like: report it, the flushed chunks stay recoverable
+                detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+                summary.error = self._error = f"finishing {self.options.out} failed: {detail}"
+        self._summary = summary
+        return summary
+
+    def __enter__(self) -> "Recorder":
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._bus is not None:
+            self.stop()
+
+    @property
+    def error(self) -> Optional[str]:
+        return self._error
+
+    # -- callbacks (Bus delivery thread) --
+    def _on_raw(self, key: str, raw: bytes, recv_ns: int) -> None:
+        self._queue.put((key, raw, recv_ns))
+
+    def _on_control(self, key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
+        if isinstance(msg, schema.Control) and msg.command == CMD_STOP:
+            self.stop_reason = f"stop command from {msg.src}"
+            self.stop_requested.set()
+        else:
+            log.warning("recorder: ignoring control command %r from %s (known: %s)",
+                        getattr(msg, "command", msg.KIND), msg.src, CMD_STOP)
+
+    def _drain_bus(self, bus: transport.Bus) -> None:
+        """Wait (bounded) until the Bus has handed over every sample it received."""
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
+        while time.monotonic() < deadline:
+            s = bus.stats()
+            settled = s.delivered + s.filtered + s.overflow + s.callback_errors + s.dropped_malformed
+            if settled >= s.received:
+                return
+            time.sleep(DRAIN_POLL_S)
+        log.warning("recorder: bus still delivering after %.1f s; closing anyway", DRAIN_TIMEOUT_S)
+
+    # -- the writer thread --
+    def _write_loop(self) -> None:
+        """Sole owner of the McapLog: write in bursts, flush on the log's timer."""
+        logfile = self._log
+        assert logfile is not None
+        get, write, clock = self._queue.get, logfile.write, time.monotonic
+        try:
+            while True:
+                due = logfile.next_flush_due()
+                timeout = IDLE_WAKE_S if due is None else max(due - clock(), 0.0)
+                try:
+                    item = get(timeout=timeout)
+                except queue.Empty:
+                    logfile.maybe_flush()
+                    continue
+                backlog = self._queue.qsize()
+                if backlog > self._max_backlog:
+                    self._max_backlog = backlog
+                while item is not _STOP:
+                    write(*item)  # closes the chunk itself once it is flush_interval old
+                    try:
+                        item = get(block=False)
+                    except queue.Empty:
+                        break
+                if item is _STOP:
+                    return
+        except Exception as exc:  # disk full, I/O error: stop recording, keep what was flushed
+            self._error = f"writing {self.options.out} failed: {exc}"
+            log.error("recorder: %s", self._error)
+            self.stop_reason = "write error"
+            self.stop_requested.set()
+
+
+# --- running it ----------------------------------------------------------------------------
+def short_error(exc: BaseException) -> str:
+    """An exception as one line; Zenoh's errors end in " at <rust source path>", which users need not read."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    cut = text.find(" at /")
+    return (text[:cut] if cut > 0 else text).rstrip(" .!") or type(exc).__name__
+
+
+def run_until_stopped(recorder: Recorder, stop: threading.Event) -> RecorderSummary:
+    """Start ``recorder`` and block until ``stop`` or its own stop request is set."""
+    recorder.start()
+    try:
+        while not (stop.is_set() or recorder.stop_requested.is_set()):
+            stop.wait(IDLE_WAKE_S)
+    finally:
+        summary = recorder.stop()
+    return summary
+
+
+@contextlib.contextmanager
+def _signals_set(stop: threading.Event, reasons: list[str]):
+    """SIGTERM/SIGINT set ``stop`` (main thread only); the old handlers come back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, _frame: object) -> None:
+        reasons.append(signal.Signals(signum).name)
+        stop.set()
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def zenoh_config_from_args(args: argparse.Namespace) -> Any:
+    """Like :func:`transport.config_from_args`, plus a client wait for the router
+    (``--router-wait``), so a supervisor may start us before the router is up."""
+    mode = args.mode if args.mode is not None else (None if args.config else transport.MODE_CLIENT)
+    wait_ms = int(args.router_wait * 1000) if mode == transport.MODE_CLIENT else None
+    return transport.make_config(mode, args.connect or (), args.listen or (), args.config,
+                                 connect_timeout_ms=wait_ms)
+
+
+def options_from_args(args: argparse.Namespace) -> RecorderOptions:
+    toml_text = None
+    if args.config_toml:
+        path = Path(args.config_toml)
+        if not path.is_file():
+            raise RecorderUsageError(f"config file not found: {path}")
+        toml_text = path.read_text(encoding="utf-8")
+    return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, compression=args.compression,
+                           flush_interval_s=args.flush_ms / 1000.0, mirrors=not args.no_mirrors, fsync=args.fsync,
+                           force=args.force).validate()
+
+
+def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The recorder's flags (shared by ``python -m recorder.process`` and ``truav-swarm record``)."""
+    parser.add_argument("--run", required=True, help="run name: records every key under truav/<run>/")
+    parser.add_argument("--out", "-o", required=True, metavar="FILE", help="MCAP file to write")
+    parser.add_argument("--config-toml", metavar="FILE",
+                        help="the run's config (as `truav config show` prints) to store as MCAP metadata")
+    parser.add_argument("--compression", choices=sorted(COMPRESSIONS), default=DEFAULT_COMPRESSION,
+                        help=f"chunk compression (default {DEFAULT_COMPRESSION})")
+    parser.add_argument("--flush-ms", type=float, default=DEFAULT_FLUSH_INTERVAL_S * 1000, metavar="MS",
+                        help="hand each chunk to the OS at most this old: a SIGKILL loses about this much "
+                             f"(default {DEFAULT_FLUSH_INTERVAL_S * 1000:g})")
+    parser.add_argument("--fsync", action="store_true", help="also fsync every chunk (survives power loss)")
+    parser.add_argument("--no-mirrors", action="store_true", help="skip the JSON mirror channels for Foxglove")
+    parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
+    parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",
+                        help=f"client mode: wait this long for the router (default {DEFAULT_ROUTER_WAIT_S:g} s)")
+    transport.add_transport_args(parser)
+    return parser
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as documented above."""
+    try:
+        options = options_from_args(args)
+        zconfig = zenoh_config_from_args(args)
+    except (RecorderUsageError, ValueError, OSError) as exc:
+        print(f"recorder: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    stop = threading.Event()
+    reasons: list[str] = []
+    recorder = Recorder(options, zconfig)
+    with _signals_set(stop, reasons):
+        try:
+            summary = run_until_stopped(recorder, stop)
+        except RecorderUsageError as exc:
+            print(f"recorder: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        except Exception as exc:  # zenoh could not open (no router...): one line, no traceback
+            print(f"recorder: error: could not record run {options.run}: {short_error(exc)}", file=sys.stderr)
+            return EXIT_FAILED
+    if reasons and recorder.stop_reason == "stopped":
+        summary.stop_reason = reasons[0]
+    print(summary.format(), flush=True)
+    if args.summary_json:
+        try:
+            Path(args.summary_json).write_text(json.dumps(summary.to_json(), indent=1) + "\n")
+        except OSError as exc:
+            print(f"recorder: error: cannot write {args.summary_json}: {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_FAILED
+    return EXIT_FAILED if summary.error else EXIT_OK
+
+
+# --- for supervisors -----------------------------------------------------------------------
+def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
+                  config_toml: str | os.PathLike[str] | None = None, force: bool = False,
+                  extra: Sequence[str] = (), python: str = sys.executable) -> list[str]:
+    """The command line that runs the recorder as a subprocess (see the module docstring)."""
+    argv = [python, "-m", "recorder.process", "--run", run, "--out", os.fspath(out)]
+    for endpoint in connect:
+        argv += ["--connect", endpoint]
+    if config_toml is not None:
+        argv += ["--config-toml", os.fspath(config_toml)]
+    if force:
+        argv.append("--force")
+    return argv + list(extra)
+
+
+def spawn_recorder(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
+                   config_toml: str | os.PathLike[str] | None = None, force: bool = False,
+                   extra: Sequence[str] = (), **popen_kwargs: Any) -> subprocess.Popen:
+    """Start the recorder subprocess (stdout: its summary; pass ``stdout=PIPE`` to capture it).
+
+    The child ignores nothing: stop it with :func:`stop_recorder` (SIGTERM).
+    Wait for :func:`wait_until_recording` before publishing what must be recorded.
+    """
+    popen_kwargs.setdefault("stdin", subprocess.DEVNULL)
+    return subprocess.Popen(recorder_argv(run, out, connect, config_toml=config_toml, force=force, extra=extra),
+                            **popen_kwargs)
+
+
+def wait_until_recording(bus: transport.Bus, run: str, timeout: float = DEFAULT_READY_TIMEOUT_S) -> bool:
+    """True once the recorder of ``run`` has declared its liveliness token (it then records
+    everything published later); False after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        if bus.alive(keys.alive_recorder(run), timeout=min(left, 1.0)):
+            return True
+        time.sleep(0.05)
+
+
+def stop_recorder(proc: subprocess.Popen, timeout: float = STOP_GRACE_S) -> int:
+    """SIGTERM ``proc`` and wait for it to finish its file; SIGKILL after ``timeout``.
+    Returns the exit code (0: file finished)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return proc.wait()
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m recorder.process",
+        description="Record every message of a TRUAV run (truav/<run>/**) into an MCAP file until "
+                    "SIGINT/SIGTERM or a 'stop' command on truav/<run>/control/recorder; print a summary.")
+    add_record_args(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    return cmd_record(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""`truav report` and `truav log recover|check`: pictures and CSV from a recording, and the CLI's
+one-line errors.  Recordings are synthesised with McapLog (no network)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import msgpack
+import pytest
+from matplotlib.image import imread
+
+from recorder.mcap_log import McapLog
+from recorder.metadata import CONFIG_METADATA, config_metadata
+from recorder.report import AGENTS_FILE, MAP_FILE, METRICS_CSV_FILE, METRICS_FIG_FILE, load_recording, report
+from truav.cli import main as truav_main
+from truav.config import Config, to_toml
+
+RUN = "rep"
+T0 = 1_700_000_000_000_000_000
+MS = 1_000_000
+N_UAVS = 4
+TICKS = 120  # 12 s at 10 Hz, two episodes of 60 ticks
+MIN_PNG_PIXELS = 400 * 300
+
+
+class Seq:
+    """Per-(src, kind) sequence numbers."""
+
+    def __init__(self) -> None:
+        self.next: dict[tuple[str, str], int] = {}
+
+    def __call__(self, src: str, kind: str) -> int:
+        n = self.next.get((src, kind), 0)
+        self.next[(src, kind)] = n + 1
+        return n
+
+
+def msg(seq: Seq, kind: str, src: str, t: int, **body: object) -> bytes:
+    return msgpack.packb({"v": 1, "kind": kind, "src": src, "seq": seq(src, kind), "t": t, **body})
+
+
+def make_swarm_recording(path: Path, *, config: bool = True, beacons: bool = True, crash_uav: int = 2,
+                         finish: bool = True) -> dict[str, int]:
+    """A 4-UAV run: UAVs circle, vehicles on two roads, a loss fault (start/end) and a crash
+    (start only) during which UAV ``crash_uav`` stops beaconing.  Returns counts."""
+    seq = Seq()
+    counts = {"metrics": 0, "beacons": 0}
+    log = McapLog(path)
+    if config:
+        log.set_metadata(CONFIG_METADATA, config_metadata(to_toml(Config())))
+    for tick in range(TICKS):
+        t = T0 + tick * 100 * MS
+        episode, et = divmod(tick, 60)
+        log.write(f"truav/{RUN}/world/tick", msg(seq, "tick", "world", t, tick=et, episode=episode,
+                                                 sim_time=float(et), deadline_ms=80.0, n_uavs=N_UAVS), t + MS)
+        pos = []
+        for u in range(N_UAVS):
+            angle = 2 * math.pi * (et / 60 + u / N_UAVS)
+            xy = [2500 + (800 + 300 * u) * math.cos(angle), 2500 + (800 + 300 * u) * math.sin(angle)]
+            pos.append(xy)
+            log.write(f"truav/{RUN}/uav/{u}/obs", msg(seq, "obs", "world", t, tick=et, episode=episode, uav=u, pos=xy,
+                                                      vehicles_in_range=3, queued_packets=1, relayed=1, covered=3,
+                                                      energy_j=10.0, speed_max=15.0, done=False), t + 2 * MS)
+            crashed = crash_uav == u and tick >= 90
+            if beacons and not crashed:
+                counts["beacons"] += 1
+                sent = t + 5 * MS
+                log.write(f"truav/{RUN}/uav/{u}/beacon", msg(seq, "beacon", f"uav/{u}", sent, uav=u, tick=et,
+                                                             pos=xy, vel=[1.0, 0.0]), sent + (1 + u) * MS)
+        if tick % 10 == 0:
+            vehicles = [[250.0 * (k % 21), 1000.0] for k in range(21)] + [[2500.0, 100.0 * k] for k in range(50)]
+            log.write(f"truav/{RUN}/world/positions", msg(seq, "positions", "world", t, tick=et, uavs=pos,
+                                                          vehicles=vehicles), t + 3 * MS)
+        values = {"coverage_pct": 40.0 + 10 * math.sin(tick / 10), "delivered": float(tick % 7), "pdr": 0.5}
+        log.write(f"truav/{RUN}/metrics/step", msg(seq, "metrics", "world", t, scope="step", tick=et,
+                                                   episode=episode, values=values), t + 4 * MS)
+        counts["metrics"] += 1
+        if et == 59:
+            log.write(f"truav/{RUN}/metrics/episode", msg(seq, "metrics", "world", t, scope="episode", tick=et,
+                                                          episode=episode, values={"pdr": 0.5, "reward": 1.0}),
+                      t + 4 * MS)
+            counts["metrics"] += 1
+        if tick in (30, 50):
+            phase = "start" if tick == 30 else "end"
+            log.write(f"truav/{RUN}/fault/loss", msg(seq, "fault", "fault", t, fault="loss", phase=phase,
+                                                     target="uav/1", params={"p": 0.5}), t + MS)
+        if tick == 90:
+            log.write(f"truav/{RUN}/fault/crash", msg(seq, "fault", "fault", t, fault="crash", phase="start",
+                                                      target=f"uav/{crash_uav}", params={}), t + MS)
+    if finish:
+        log.close()
+    else:
+        log.flush()  # a writer that died after its last flush: no summary, no footer
+    return counts
+
+
+def png_ok(path: Path) -> None:
+    image = imread(path)
+    assert image.shape[0] * image.shape[1] >= MIN_PNG_PIXELS
+    assert image[..., :3].std() > 0.05  # not a blank canvas
+
+
+def test_report_writes_pictures_and_csv(tmp_path: Path) -> None:
+    path = tmp_path / "swarm.mcap"
+    counts = make_swarm_recording(path)
+    out, lines = report(path)
+    assert out == tmp_path / "swarm_report"
+    for name in (MAP_FILE, METRICS_FIG_FILE, AGENTS_FILE):
+        png_ok(out / name)
+    text = "\n".join(lines)
+    assert "4 UAVs (beacons)" in text and "2 faults" in text and "4 beaconing" in text
+    with open(out / METRICS_CSV_FILE, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == counts["metrics"]
+    assert set(rows[0]) == {"time_s", "log_time_ns", "publish_time_ns", "src", "scope", "episode", "tick",
+                            "coverage_pct", "delivered", "pdr", "reward"}
+    assert rows[0]["scope"] == "step" and rows[0]["reward"] == "" and float(rows[0]["coverage_pct"]) == 40.0
+    assert [r["scope"] for r in rows].count("episode") == 2
+    times = [float(r["time_s"]) for r in rows]
+    assert times == sorted(times)
+
+
+def test_recording_is_read_into_tracks_faults_and_config(tmp_path: Path) -> None:
+    path = tmp_path / "swarm.mcap"
+    make_swarm_recording(path)
+    rec = load_recording(path)
+    assert rec.config is not None and rec.config.block_m == 250.0 and len(rec.config.rsus) == 4
+    source, tracks = rec.tracks()
+    assert source == "beacons" and sorted(tracks) == list(range(N_UAVS))
+    assert len(tracks[2].xy) == 90  # the crashed UAV stopped beaconing
+    spans = rec.fault_spans()
+    assert [(s.fault, s.target, round(s.start_s, 1), s.end_s and round(s.end_s, 1)) for s in spans] == [
+        ("loss", "uav/1", 3.0, 5.0), ("crash", "uav/2", 9.0, None)]
+    lat = (tracks[3].log_ns[0] - tracks[3].pub_ns[0]) / MS
+    assert lat == pytest.approx(4.0)
+
+
+def test_report_without_config_or_beacons_and_unfinished(tmp_path: Path) -> None:
+    path = tmp_path / "bare.mcap"
+    make_swarm_recording(path, config=False, beacons=False, finish=False)
+    out, lines = report(path, tmp_path / "out")
+    text = "\n".join(lines)
+    assert "unfinished file" in text and "(observations)" in text and "no config in the file" in text
+    assert f"{AGENTS_FILE}: skipped, no beacons" in text
+    png_ok(out / MAP_FILE)
+    assert not (out / AGENTS_FILE).exists() and (out / METRICS_CSV_FILE).exists()
+
+
+def test_empty_recording_still_reports(tmp_path: Path) -> None:
+    McapLog(tmp_path / "empty.mcap").close()
+    out, lines = report(tmp_path / "empty.mcap")
+    assert sum("skipped" in line for line in lines) == 3
+    assert (out / METRICS_CSV_FILE).read_text().startswith("time_s,log_time_ns")
+
+
+def test_cli_report_log_check_and_recover(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "swarm.mcap"
+    make_swarm_recording(path, finish=False)
+    assert truav_main(["log", "check", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "UNFINISHED" in text and "uav/2" in text
+    fixed = tmp_path / "fixed.mcap"
+    assert truav_main(["log", "recover", str(path), str(fixed)]) == 0
+    assert "unfinished (writer died)" in capsys.readouterr().out
+    assert truav_main(["log", "check", str(fixed)]) == 0
+    assert ": finished" in capsys.readouterr().out
+    assert truav_main(["report", str(fixed), "--out", str(tmp_path / "rep")]) == 0
+    assert "map.png" in capsys.readouterr().out and (tmp_path / "rep" / MAP_FILE).exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["report", "{missing}"], "no such file"),
+    (["report", "{text}"], "not an MCAP file"),
+    (["log", "check", "{missing}"], "no such file"),
+    (["log", "check", "{text}"], "not an MCAP file"),
+    (["log", "recover", "{missing}", "{out}"], "no such file"),
+    (["log", "recover", "{text}", "{out}"], "not an MCAP file"),
+])
+def test_cli_mistakes_are_one_line_errors(tmp_path: Path, capsys, argv: list[str], message: str) -> None:
+    (tmp_path / "text.mcap").write_text("not an mcap")
+    names = {"missing": tmp_path / "nope.mcap", "text": tmp_path / "text.mcap", "out": tmp_path / "out.mcap"}
+    assert truav_main([a.format(**names) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.startswith("truav: error:") and "Traceback" not in err
