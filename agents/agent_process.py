@@ -39,8 +39,8 @@ log = logging.getLogger("truav.agent")
 CONTROL_SHUTDOWN = "shutdown"
 LOCKSTEP_BEACON_WAIT_S = 2.0
 """Lock-step: how long to wait for the beacons of live peers before acting without them."""
-REALTIME_BEACON_MAX_AGE_TICKS = 2
-"""Real time: a neighbour's beacon older than this many ticks is ignored."""
+REALTIME_BEACON_MAX_AGE_TICKS = 10
+"""Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
 
 
 @dataclass

@@ -2,6 +2,7 @@
 
 import json
 
+from recorder.check import check
 from truav.config import Config
 from truav.swarm_supervisor import SwarmOptions, run_swarm
 
@@ -50,8 +51,9 @@ def test_every_fault_kind_on_a_live_swarm(tmp_path):
     cfg = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 40, "n_uavs": 4},
                            roads={"warmup_steps": 10})
     out = tmp_path / "swarm"
+    mcap = tmp_path / "chaos.mcap"
     rc = run_swarm(cfg, SwarmOptions(run="chaos", episodes=2, out=str(out), plot=False, quiet=True,
-                                     fault_plan=str(plan), verbose=True, checkpoint_every=5))
+                                     fault_plan=str(plan), verbose=True, checkpoint_every=5, record=str(mcap)))
     assert rc == 0
     summary = json.loads((out / "summary.json").read_text())
     world = summary["world"]
@@ -73,3 +75,9 @@ def test_every_fault_kind_on_a_live_swarm(tmp_path):
     filtered = sum(a["bus"]["filtered"] for a in summary["agents"] if a)
     delayed = sum(a["bus"]["delayed"] for a in summary["agents"] if a)
     assert filtered > 0 and delayed > 0
+    # the recorder (which no plan filters) holds every message that was sent: no sequence gaps,
+    # and each fault's start and end
+    report = check(str(mcap))
+    assert report.finished and report.missing == 0, report.format_report()
+    for kind in ("loss", "latency", "partition", "obs_loss", "crash", "freeze"):
+        assert report.channels[f"truav/chaos/fault/{kind}"].messages == 2

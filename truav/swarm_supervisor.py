@@ -252,6 +252,10 @@ def _python_module(*args: str) -> list[str]:
 
 def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     out = Path(opts.out or f"runs/swarm-{opts.run}")
+    if opts.record and Path(opts.record).exists():
+        print(f"truav-swarm: error: {opts.record} exists; choose another --record file (nothing was started)",
+              file=sys.stderr)
+        return 2
     (out / "logs").mkdir(parents=True, exist_ok=True)
     scenario = out / SCENARIO_FILE
     scenario.write_text(to_toml(cfg))
@@ -276,6 +280,12 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                                                         "--connect", endpoint, "--config-toml", str(scenario)))
         with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
             monitor.attach(bus, opts.run)
+            if opts.record:
+                from recorder.process import wait_until_recording
+                if not wait_until_recording(bus, opts.run, timeout=30.0):
+                    print(f"truav-swarm: error: the recorder did not start (see {out}/logs/recorder.log)",
+                          file=sys.stderr)
+                    return 1
             if plan:
                 hooks = {"kill": lambda u: children.send(f"agent{u}", signal.SIGKILL),
                          "restart": lambda u: children.restart(f"agent{u}"),
