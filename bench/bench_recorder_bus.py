@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
         with tempfile.TemporaryDirectory() as tmp_name:
             tmp = Path(tmp_name)
             flood = recorder_case(endpoint, tmp, "flood", n, 0.0)
-            print(fmt("recorder process (Bus.subscribe_raw -> queue -> writer)", flood, TARGET_MSGS_S))
+            print(fmt("recorder process (Bus.receive_raw pull -> writer)", flood, TARGET_MSGS_S))
             print(f"{'':52} peak backlog {flood['max_backlog']:,}, dropped in the recorder "
                   f"{flood['recorder_dropped']}, file {flood['bytes']:,} bytes")
             swarm = recorder_case(endpoint, tmp, "swarm", 0, swarm_s)

@@ -251,6 +251,37 @@ class _Scheduler:
             self._thread.join(CLOSE_JOIN_TIMEOUT_S)
 
 
+# --- pull receiver -------------------------------------------------------------------
+DEFAULT_PULL_CAPACITY = 65_536
+PULL_IDLE_SLEEP_S = 0.001
+
+
+class RawReceiver:
+    """Pulls (key, payload, recv_time_ns) from a FIFO subscriber; one consumer thread only."""
+
+    def __init__(self, sub: zenoh.Subscriber, bus: "Bus") -> None:
+        self._sub, self._bus = sub, bus
+
+    def try_recv(self) -> tuple[str, bytes, int] | None:
+        """The next sample, or None if none is waiting. Its receive time is when it is pulled."""
+        sample = self._sub.try_recv()
+        while sample is not None and sample.kind != zenoh.SampleKind.PUT:
+            sample = self._sub.try_recv()
+        if sample is None:
+            return None
+        self._bus._count_received(1)
+        return str(sample.key_expr), sample.payload.to_bytes(), self._bus._clock()
+
+    def recv(self, timeout: float) -> tuple[str, bytes, int] | None:
+        """The next sample, waiting up to ``timeout`` seconds (polling at 1 ms)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            item = self.try_recv()
+            if item is not None or time.monotonic() >= deadline:
+                return item
+            time.sleep(PULL_IDLE_SLEEP_S)
+
+
 # --- the bus -------------------------------------------------------------------------
 class Bus:
     """A Zenoh session owned by one sender identity; a context manager.
@@ -430,6 +461,28 @@ class Bus:
         """
         return self._declare_data(key_expr, lambda key, raw, arr_ns, arr_mono: self._on_raw(
             key, raw, arr_ns, arr_mono, callback))
+
+    def receive_raw(self, key_expr: str, capacity: int = DEFAULT_PULL_CAPACITY) -> "RawReceiver":
+        """A pull receiver of raw payloads on ``key_expr`` (the recorder's fast path).
+
+        Samples queue in a bounded Zenoh FIFO and are pulled by one consumer
+        thread: no Python callback or delivery thread per message. When the
+        consumer lags, the full FIFO pushes back on Zenoh's own queues
+        (BLOCK publishers slow down, DROP ones drop at the source), so nothing
+        is dropped silently in this process. No link filter applies (a
+        recorder records what the bus carried); refused when one is set.
+        """
+        if not isinstance(self._filter, PassThrough):
+            raise ValueError("receive_raw records what the bus carried: not available with a link filter")
+        sub = self._session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
+        receiver = RawReceiver(sub, self)
+        self._register(Handle(f"pull subscriber {key_expr}", sub.undeclare))
+        return receiver
+
+    def _count_received(self, n: int) -> None:
+        with self._lock:
+            self._received += n
+            self._delivered += n
 
     def _declare_data(
         self, key_expr: str, handle: Callable[[str, bytes, int, int], None], max_bytes: int | None = None
