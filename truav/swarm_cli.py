@@ -52,7 +52,13 @@ def _on_sigterm(stop) -> None:
     signal.signal(signal.SIGTERM, lambda *_: stop())
 
 
+GIL_SWITCH_INTERVAL_S = 0.0005
+"""Bus callbacks run on Zenoh's threads and need the GIL: with Python's default
+5 ms switch interval a message can wait that long behind the main thread."""
+
+
 def _setup_logging(verbose: bool) -> None:
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
 
