@@ -4,6 +4,7 @@
     truav train --speed 25 --episodes 500 --seeds 4 --out runs/quick
     truav evaluate runs/train-15mps --against random hover
     truav config show --set scenario.n_uavs=8
+    truav experiment velocity --quick   # the paper's velocity figure (see truav/experiments/cli.py)
 """
 
 from __future__ import annotations
@@ -185,11 +186,16 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
     ev.add_argument("--episodes", type=int, default=20, help="episodes per seed (default 20)")
     ev.add_argument("--speed", type=float, help="evaluate at another UAV speed")
-    ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover"],
+    ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
     ev.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ev.add_argument("--quiet", action="store_true")
     ev.set_defaults(func=cmd_evaluate)
+
+    from truav.experiments.cli import add_experiment_parser
+    add_experiment_parser(sub)  # truav experiment velocity | scale
+    from recorder.cli import add_log_commands
+    add_log_commands(sub)  # truav log recover | log check | report
     return ap
 
 

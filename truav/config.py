@@ -220,6 +220,81 @@ class LearnerConfig:
     """Nearest RSU distance (m): level edges."""
 
 
+PATROL_ASSIGNMENTS = ("nearest", "fixed")
+
+
+@dataclass(frozen=True)
+class PatrolConfig:
+    """Trajectory-knowledge baseline (after Zhou et al.): pre-planned circular
+    patrols centred on the major intersections (roads.major_intersections),
+    routing from advance knowledge of the planned positions."""
+
+    radius_m: float = param(250.0, 0.0, 1e5)
+    """Orbit radius (m) around the patrolled intersection: half the comm range,
+    so the intersection (where traffic clusters) stays in range all the orbit
+    while the swept disc reaches 1.5 x the range."""
+    speed_fraction: float = param(1.0, 0.0, 1.0)
+    """Cruise speed as a fraction of scenario.uav_speed_mps, for the transit to
+    the orbit and the orbit itself (1.0: the swept speed, like the learners'
+    full-speed actions)."""
+    assignment: str = param("nearest")
+    """How the plan, made at deployment, gives orbits to UAVs: "nearest"
+    (greedy minimum-transit matching of start positions to orbit entry points)
+    or "fixed" (UAV k flies orbit k mod the number of sites, whatever its start).
+    With more UAVs than sites, the extra UAVs share an orbit, evenly phased."""
+
+
+@dataclass(frozen=True)
+class CentralConfig:
+    """Centralized baseline (after Chen et al.): a controller behind the RSUs
+    runs a multi-agent soft actor-critic on the joint state. Its control plane
+    is explicit: every UAV uploads its state each step over the same 5.9 GHz
+    radio (along the min-time UAV/RSU route), the controller computes the
+    joint action, and a command comes back; the round trip delays the action,
+    and the airtime is taken from packet service and charged as radio energy.
+    The network parameters are literature values, not fitted to the paper."""
+
+    upload_bytes: int = param(200, 1, 1_000_000)
+    """State report each UAV uploads per step (bytes): a CAM-sized status
+    message (ETSI EN 302 637-2: 200-400 bytes) carrying position, velocity
+    and the UAV's local traffic features."""
+    download_bytes: int = param(78, 1, 1_000_000)
+    """Command the controller sends each UAV per step (bytes): a MAVLink 2
+    SET_POSITION_TARGET_LOCAL_NED (53-byte payload + 12-byte header +
+    13-byte signature)."""
+    update_period_steps: int = param(1, 1, 1_000_000)
+    """Steps between control rounds (1: upload and command every step). Between
+    rounds UAVs keep their last commanded action."""
+    backhaul_latency_s: float = param(0.005, 0.0, 10.0)
+    """One-way latency RSU <-> controller over the wired backhaul (s): a few ms
+    for an edge site in the metro network (ETSI MEC; 5G URLLC budgets 1-10 ms)."""
+    compute_latency_s: float = param(0.005, 0.0, 10.0)
+    """Controller time to batch the states and run the joint policy (s)."""
+    hidden: int = param(64, 4, 4096)
+    """Width of the two hidden layers of the actor and of each critic: small
+    MLPs, as the joint state is only U x 8 numbers (and the CPU budget of the
+    10-seed x 5-speed sweep is tight; see docs/reproduction.md)."""
+    actor_lr: float = param(3e-4, 0.0, 1.0)
+    """Adam step size of the actor (Haarnoja et al. 2018; CleanRL's discrete SAC)."""
+    critic_lr: float = param(3e-4, 0.0, 1.0)
+    """Adam step size of the twin critics and of the temperature."""
+    batch_size: int = param(64, 1, 1_000_000)
+    """Transitions per gradient step, per seed (CleanRL's discrete SAC: 64)."""
+    buffer_size: int = param(100_000, 1, 100_000_000)
+    """Replay capacity per seed (transitions)."""
+    update_every: int = param(4, 1, 1_000_000)
+    """Environment steps per gradient step (CleanRL's discrete SAC: 4)."""
+    learning_starts: int = param(5_000, 0, 100_000_000)
+    """Environment steps of uniformly random actions before learning starts."""
+    tau: float = param(0.005, 0.0, 1.0)
+    """Polyak rate of the target critics (Haarnoja et al. 2018)."""
+    init_alpha: float = param(1.0, 1e-6, 100.0)
+    """Initial temperature alpha (then tuned to the target entropy)."""
+    target_entropy_scale: float = param(0.89, 0.0, 1.0)
+    """Target entropy per UAV = this x log(16), the temperature being tuned to
+    it (discrete SAC, Christodoulou 2019; 0.89 is CleanRL's default)."""
+
+
 @dataclass(frozen=True)
 class Config:
     """The whole effective configuration of a run."""
@@ -231,6 +306,8 @@ class Config:
     channel: ChannelConfig = field(default_factory=ChannelConfig)
     energy: EnergyConfig = field(default_factory=EnergyConfig)
     learner: LearnerConfig = field(default_factory=LearnerConfig)
+    patrol: PatrolConfig = field(default_factory=PatrolConfig)
+    central: CentralConfig = field(default_factory=CentralConfig)
 
     def replace(self, **sections: Mapping[str, Any]) -> "Config":
         """A copy with some keys changed, validated: replace(scenario={"n_uavs": 3})."""
@@ -333,6 +410,8 @@ def _check_consistency(cfg: Config) -> None:
                 raise ConfigError(f"{key}: ({i}, {j}) is outside the {n_roads}x{n_roads} grid")
     if cfg.idm.desired_speed_mps * s.step_s >= r.block_m:
         raise ConfigError("idm.desired_speed_mps: a vehicle must not cross a whole block in one step")
+    if cfg.patrol.assignment not in PATROL_ASSIGNMENTS:
+        raise ConfigError(f"patrol.assignment: {cfg.patrol.assignment!r} is not one of {', '.join(PATROL_ASSIGNMENTS)}")
     if cfg.learner.epsilon_end > cfg.learner.epsilon_start:
         raise ConfigError("learner.epsilon_end must not exceed learner.epsilon_start")
 

@@ -34,10 +34,20 @@ class Controller(Protocol):
         """Extra per-episode metrics, each (B,) (e.g. mean reward, epsilon)."""
 
 
+class ControlPlane(Protocol):
+    """Optional extra of a controller with a control plane (e.g. the centralized
+    baseline): if a controller has `control`, the driver calls it right after
+    `act(t)` and passes its effects to World.step."""
+
+    def control(self, t: int) -> tuple[np.ndarray | None, np.ndarray | float]:
+        """(airtime_s (B, U) or None, action_delay_s scalar or (B, U)) of step t."""
+
+
 def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes: int,
                  on_episode: EpisodeCallback | None = None) -> dict[str, np.ndarray]:
     """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}."""
     world = World(cfg, len(seeds))
+    control = getattr(controller, "control", None)  # see ControlPlane
     history: dict[str, list[np.ndarray]] = {}
     obs = world.reset([seeding.world_rng(s) for s in seeds])
     for episode in range(episodes):
@@ -46,7 +56,12 @@ def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes
         controller.begin_episode(episode, obs)
         done, t = False, 0
         while not done:
-            obs, _, done = world.step(controller.act(t))
+            if control is None:
+                obs, _, done = world.step(controller.act(t))
+            else:
+                actions = controller.act(t)
+                airtime, delay = control(t)
+                obs, _, done = world.step(actions, control_airtime_s=airtime, action_delay_s=delay)
             controller.observe(obs, done)
             t += 1
         summary = {**world.episode_summary(), **controller.episode_stats()}
@@ -57,4 +72,4 @@ def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes
     return {k: np.stack(v) for k, v in history.items()}
 
 
-__all__ = ["Controller", "EpisodeCallback", "EPISODE_FIELDS", "run_episodes"]
+__all__ = ["Controller", "ControlPlane", "EpisodeCallback", "EPISODE_FIELDS", "run_episodes"]

@@ -115,3 +115,26 @@ def sweep_figure(rows: list[dict], path: Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def add_fault_sweep_parser(ex_sub) -> None:
+    """`truav experiment faults` in the experiment command group."""
+    from truav.cli import add_config_args
+    p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
+    add_config_args(p)
+    p.add_argument("--quick", action="store_true",
+                   help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
+    p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10)")
+    p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
+    p.set_defaults(func=cmd_fault_sweep)
+
+
+def cmd_fault_sweep(args) -> int:
+    from truav.cli import config_from
+    size = "quick" if args.quick else "full"
+    out = Path(args.out or f"runs/faults{'-quick' if args.quick else ''}")
+    path = run_sweep(config_from(args), size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate)
+    print(f"\n{out / 'faults.csv'}\n{path}")
+    return 0

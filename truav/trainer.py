@@ -19,7 +19,7 @@ from agents.policies import HoverController, RandomController
 from truav.config import Config
 from truav.driver import run_episodes
 
-CONTROLLERS = ("truav", "random", "hover")
+CONTROLLERS = ("truav", "random", "hover", "patrol", "central", "patrol_ctrl")
 LIVE_METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j")
 
 ProgressCallback = Callable[[int, dict[str, float]], None]
@@ -42,6 +42,16 @@ def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np
         return RandomController(cfg, seeds)
     if kind == "hover":
         return HoverController(cfg, seeds)
+    if kind == "patrol":
+        from agents.patrol import PatrolController
+        return PatrolController(cfg, seeds)
+    if kind == "central":
+        from agents.central import CentralController  # needs the optional `central` extra (torch)
+        return CentralController(cfg, seeds, train=train, params=q)
+    if kind == "patrol_ctrl":  # the patrol flying under the centralized control plane
+        from agents.central import WithControlPlane
+        from agents.patrol import PatrolController
+        return WithControlPlane(PatrolController(cfg, seeds), cfg, len(seeds))
     raise ValueError(f"unknown controller {kind!r} (known: {', '.join(CONTROLLERS)})")
 
 

@@ -1,0 +1,175 @@
+"""`truav experiment velocity | scale`: the paper's velocity sweep and the
+scalability experiment, resumable, on every core.
+
+    truav experiment velocity                     # full: 3 schemes x 5 speeds x 10 seeds x 5000 episodes
+    truav experiment velocity --quick             # seconds: the CI-sized smoke run
+    truav experiment velocity --episodes-for central=1000   # a smaller SAC budget
+    truav experiment scale --episodes 1000        # 5/10/20 UAVs x 200/1000 vehicles, TRUAV vs centralized
+
+Re-running the same command resumes: finished cells (scheme, setting, seed
+chunk) are skipped. --report-only rewrites the tables and figures from the
+finished cells.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from truav import runio
+from truav.experiments import runner, scale, velocity
+
+QUICK_CONFIG: dict[str, dict[str, Any]] = {
+    "scenario": {"n_vehicles": 60, "steps_per_episode": 20},
+    "roads": {"warmup_steps": 20},
+    "central": {"learning_starts": 40, "buffer_size": 2000, "batch_size": 16, "hidden": 16, "update_every": 2},
+}
+"""--quick: a small city and short episodes, every code path exercised in seconds."""
+QUICK = {"seeds": 2, "episodes": 6, "eval_episodes": 2, "window": 3, "speeds": [5.0, 15.0, 25.0],
+         "uavs": [2, 4], "vehicles": [30, 60]}
+
+
+def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, int]:
+    from truav.cli import UsageError
+    out = {s: default for s in schemes}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in schemes or not value.isdigit() or int(value) < 1:
+            raise UsageError(f"--episodes-for expects SCHEME=N with SCHEME in {', '.join(schemes)}, got {item!r}")
+        out[name] = int(value)
+    return out
+
+
+def _check_schemes(schemes) -> None:
+    from truav.cli import UsageError
+    if "central" in schemes and importlib.util.find_spec("torch") is None:
+        raise UsageError("the centralized baseline needs PyTorch: pip install -e '.[central]' "
+                         "(or leave it out: --schemes truav patrol)")
+
+
+def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help: str) -> None:
+    from truav.cli import add_config_args
+    add_config_args(p)
+    p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
+                   help=f"schemes to run (default: {' '.join(default_schemes)})")
+    p.add_argument("--seeds", type=int, help="number of seeds (default 10)")
+    p.add_argument("--seed-start", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--episodes", type=int, help=episodes_help)
+    p.add_argument("--episodes-for", action="append", default=[], metavar="SCHEME=N",
+                   help="training episodes of one scheme (repeatable), e.g. central=1000")
+    p.add_argument("--eval-episodes", type=int, help="greedy evaluation episodes per seed (default 100)")
+    p.add_argument("--window", type=int, help="episodes per training window in the tidy CSV (default 500)")
+    p.add_argument("--seeds-per-cell", type=int, default=5,
+                   help="seeds run as one batch per cell (default 5); changing it re-runs cells")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--out", help="output directory (resumed if it holds finished cells)")
+    p.add_argument("--quick", action="store_true", help="CI-sized run: small city, a few short episodes")
+    p.add_argument("--report-only", action="store_true", help="only rewrite tables and figures from finished cells")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def add_experiment_parser(sub) -> None:
+    """Register `truav experiment ...` on the main parser's subcommands."""
+    ex = sub.add_parser("experiment", help="the paper's experiments (velocity sweep, scalability)",
+                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ex_sub = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    v = ex_sub.add_parser("velocity", help="schemes x speeds x seeds: CSV, summary, four-panel figure")
+    _common(v, velocity.CHOICES, velocity.SCHEMES, "training episodes per scheme (default learner.episodes, 5000)")
+    v.add_argument("--speeds", nargs="+", type=float, help="UAV speeds in m/s (default 5 10 15 20 25)")
+    v.set_defaults(func=cmd_velocity)
+    s = ex_sub.add_parser("scale", help="TRUAV vs centralized as UAVs and vehicles grow, with control traffic")
+    _common(s, velocity.CHOICES, scale.SCHEMES, "training episodes per scheme (default 1000)")
+    s.add_argument("--uavs", nargs="+", type=int, help="swarm sizes (default 5 10 20)")
+    s.add_argument("--vehicles", nargs="+", type=int, help="vehicle counts (default 200 1000)")
+    s.add_argument("--speed", type=float, default=15.0, help="UAV speed in m/s (default 15)")
+    s.set_defaults(func=cmd_scale)
+    from truav.fault_sweep import add_fault_sweep_parser
+    add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
+
+
+def _setup(args, default_out: str, default_episodes: int | None):
+    from truav.cli import UsageError, config_from
+    quick = args.quick
+    cfg = config_from(args, QUICK_CONFIG if quick else None)
+    n_seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if quick else 10)
+    if n_seeds < 1:
+        raise UsageError("--seeds must be at least 1")
+    seeds = list(range(args.seed_start, args.seed_start + n_seeds))
+    base_ep = args.episodes or (QUICK["episodes"] if quick else default_episodes or cfg.learner.episodes)
+    episodes = _parse_episodes_for(args.episodes_for, velocity.CHOICES, base_ep)
+    eval_episodes = args.eval_episodes if args.eval_episodes is not None else (QUICK["eval_episodes"] if quick else 100)
+    window = args.window or (QUICK["window"] if quick else 500)
+    out = Path(args.out or (default_out + ("-quick" if quick else "")))
+    if not args.report_only:
+        _check_schemes(args.schemes)
+    return cfg, seeds, episodes, eval_episodes, window, out
+
+
+def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
+    from truav.cli import UsageError
+    out.mkdir(parents=True, exist_ok=True)
+    runio.write_config(out, cfg)
+    todo = runner.pending_cells(cfg, out, cells)
+    if args.report_only:
+        return 0.0
+    total = sum(c.env_episodes for c in todo)
+    print(f"{label}: {len(cells)} cells, {len(cells) - len(todo)} already finished, {len(todo)} to run "
+          f"on {max(1, min(args.workers, len(todo) or 1))} worker(s) -> {out}", flush=True)
+    if not todo:
+        return 0.0
+    from tqdm import tqdm
+    t0 = time.perf_counter()
+    finished = [0]
+    with tqdm(total=total, desc=label, unit="ep", disable=args.quiet, dynamic_ncols=True,
+              bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} env-episodes [{elapsed}<{remaining}{postfix}]") as bar:
+        def on_cell(cell, wall):
+            finished[0] += 1
+            bar.set_postfix_str(f"cells {finished[0]}/{len(todo)}; last {cell.scheme} {cell.speed:g} m/s "
+                                f"{wall:.0f}s", refresh=True)
+            if args.quiet:
+                print(f"  cell {finished[0]}/{len(todo)}: {cell.scheme} {cell.speed:g} m/s seeds "
+                      f"{cell.seeds[0]}-{cell.seeds[-1]} in {wall:.1f} s", flush=True)
+        try:
+            runner.run_cells(cfg, out, cells, args.workers, on_episode=bar.update, on_cell=on_cell)
+        except RuntimeError as exc:
+            raise UsageError(f"{exc} (finished cells are kept; re-run the same command to resume)") from None
+    return time.perf_counter() - t0
+
+
+def _finish(out: Path, cfg, cells, write, window: int, elapsed: float) -> int:
+    from truav.cli import UsageError
+    done = [c for c in cells if runner.cell_path(out, cfg, c).is_file()]
+    if not done:
+        raise UsageError(f"{out} holds no finished cells of this experiment")
+    results = [runner.load_cell(runner.cell_path(out, cfg, c), c) for c in done]
+    window = max(1, min(window, min(r.cell.episodes for r in results)))
+    files = write(out, cfg, results, window)
+    if elapsed:
+        print(f"ran in {elapsed:.1f} s")
+    if len(done) < len(cells):
+        print(f"note: {len(cells) - len(done)} of {len(cells)} cells are not finished; tables cover the rest")
+    print((out / "summary.md").read_text())
+    for f in files:
+        print(f"  {f}")
+    return 0
+
+
+def cmd_velocity(args) -> int:
+    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/velocity", None)
+    speeds = args.speeds or (QUICK["speeds"] if args.quick else list(velocity.SPEEDS))
+    cells = velocity.plan(args.schemes, speeds, seeds, episodes, eval_episodes, args.seeds_per_cell)
+    elapsed = _run(args, cfg, out, cells, "velocity")
+    return _finish(out, cfg, cells, velocity.write_outputs, window, elapsed)
+
+
+def cmd_scale(args) -> int:
+    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/scale", 1000)
+    uavs = args.uavs or (QUICK["uavs"] if args.quick else list(scale.UAVS))
+    vehicles = args.vehicles or (QUICK["vehicles"] if args.quick else list(scale.VEHICLES))
+    cells = scale.plan(args.schemes, uavs, vehicles, args.speed, seeds, episodes, eval_episodes, args.seeds_per_cell)
+    elapsed = _run(args, cfg, out, cells, "scale")
+    return _finish(out, cfg, cells, scale.write_outputs, window, elapsed)
