@@ -1,5 +1,7 @@
 """The paper's figure "Performance versus UAV velocity": schemes x speeds x
 seeds, each trained for the paper's episodes, then evaluated greedily.
+Schemes: truav, central, patrol (the paper's three) and, on request,
+patrol_ctrl (the patrol under the centralized control plane).
 
 Outputs under the run directory:
 
