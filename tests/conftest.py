@@ -2,9 +2,31 @@
 
 from __future__ import annotations
 
+import socket
+from typing import Iterator
+
 import pytest
 
+from truav import transport
 from truav.config import Config
+
+
+def free_port() -> int:
+    """A free TCP port on loopback (bound once, then released)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def endpoint() -> Iterator[str]:
+    """A Zenoh router on a free loopback port, shared by one test module."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    router = transport.open_router([ep])
+    try:
+        yield ep
+    finally:
+        router.close()
 
 
 @pytest.fixture

@@ -14,7 +14,6 @@ import json
 import os
 import random
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -23,6 +22,8 @@ from pathlib import Path
 
 import msgpack
 import pytest
+
+from conftest import free_port
 from mcap.reader import make_reader
 
 from recorder.check import check
@@ -57,12 +58,6 @@ KILL_AFTER_S = 1.2
 LOSS_WINDOW_NS = 100 * MS
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def wait_until(pred: Callable[[], bool], timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -70,16 +65,6 @@ def wait_until(pred: Callable[[], bool], timeout: float) -> bool:
             return True
         time.sleep(0.01)
     return pred()
-
-
-@pytest.fixture(scope="module")
-def endpoint() -> Iterator[str]:
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    router = transport.open_router([ep])
-    try:
-        yield ep
-    finally:
-        router.close()
 
 
 @pytest.fixture

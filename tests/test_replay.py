@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -24,6 +23,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+
 
 from recorder.cli import add_swarm_commands
 from recorder.mcap_log import McapLog
@@ -276,22 +276,6 @@ def test_cli_reports_mistakes_in_one_line(tmp_path: Path, capsys) -> None:
 
 
 # --- over Zenoh ---------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture(scope="module")
-def endpoint() -> Iterator[str]:
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    router = transport.open_router([ep])
-    try:
-        yield ep
-    finally:
-        router.close()
-
-
 @pytest.fixture
 def bus_factory(endpoint: str) -> Iterator[Callable[..., Bus]]:
     buses: list[Bus] = []

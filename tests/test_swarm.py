@@ -7,12 +7,9 @@ Every process is started here, tracked by PID and killed + reaped at the end.
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -23,15 +20,10 @@ from agents.controller import TruavController
 from truav import keys
 from truav.config import Config, to_toml
 from truav.driver import run_episodes
+from truav.swarm_supervisor import free_loopback_endpoint, wait_for_port
 from truav.transport import Bus, make_config
 
 SMALL = {"scenario": {"n_vehicles": 60, "steps_per_episode": 15, "n_uavs": 5}, "roads": {"warmup_steps": 10}}
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 class Procs:
@@ -67,25 +59,13 @@ def procs(tmp_path):
     assert all(p.poll() is not None for p in ps.procs.values())
 
 
-def wait_port(endpoint: str, timeout: float = 15.0) -> None:
-    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            with socket.create_connection((host, int(port)), timeout=0.5):
-                return
-        except OSError:
-            time.sleep(0.1)
-    raise TimeoutError(f"router at {endpoint} did not come up")
-
-
 def start_swarm(procs: Procs, cfg: Config, run: str, *, lockstep: bool, episodes: int,
                 agent_args=lambda i: ()) -> str:
     scenario = procs.tmp / "scenario.toml"
     scenario.write_text(to_toml(cfg))
-    ep = free_endpoint()
+    ep = free_loopback_endpoint()
     procs.start("router", "router", "-l", ep)
-    wait_port(ep)
+    assert wait_for_port(ep, 15.0), f"router at {ep} did not come up"
     common = ["--run", run, "--seed", "3", "--scenario", str(scenario), "-e", ep] + (["--lockstep"] if lockstep else [])
     procs.start("world", "world", *common, "--episodes", str(episodes), "--stats-out", str(procs.tmp / "world.json"),
                 "--wait-agents", "60")

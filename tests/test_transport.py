@@ -9,13 +9,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
 
 import msgpack
 import pytest
+
+from conftest import free_port
 import zenoh
 
 from truav import keys, schema, transport
@@ -28,12 +29,6 @@ POLL_S = 0.005
 RESEND_S = 0.02
 DELAY_S = 0.2
 LEAVE_BUDGET_S = 1.0
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_until(pred: Callable[[], bool], timeout: float = WAIT_S) -> bool:
@@ -78,16 +73,6 @@ def sync(publish: Callable[[], object], received: Callable[[], bool]) -> None:
         if wait_until(received, RESEND_S):
             return
     raise AssertionError("subscription never became ready")
-
-
-@pytest.fixture(scope="module")
-def endpoint() -> Iterator[str]:
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    router = transport.open_router([ep])
-    try:
-        yield ep
-    finally:
-        router.close()
 
 
 @pytest.fixture

@@ -15,7 +15,7 @@ generated = delivered + dropped + queued at the end.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

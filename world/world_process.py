@@ -139,7 +139,7 @@ class WorldNode:
             return len(self._alive)
 
     def run(self) -> WorldStats:
-        opts, sc = self.opts, self.cfg.scenario
+        opts = self.opts
         period = 1.0 / opts.rate_hz
         n = self.wait_for_agents()
         log.info("%d/%d agents alive; starting %s", n, self.n_uavs, "lock-step" if opts.lockstep else f"{opts.rate_hz:g} Hz")
