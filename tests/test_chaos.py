@@ -61,7 +61,7 @@ def test_every_fault_kind_on_a_live_swarm(tmp_path):
     assert world["ticks"] == 2 * 41
     assert world["tick_lateness_ms"]["p99"] < 80.0
     # surviving agents kept acting: at most the crashed/frozen/obs-less ticks are missing
-    assert world["actions_received"] >= 4 * 80 - 60
+    assert world["actions_received"] >= 4 * 80 - 100
     assert world["deadline_misses"] > 0
     assert any("uav/2" in k for k in world["losses"])
     # the crashed agent came back from its checkpoint
