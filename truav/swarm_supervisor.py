@@ -343,7 +343,8 @@ def _watch(children: Children, monitor: Monitor, opts: SwarmOptions, controller=
         for name, p in children.procs.items():
             if p.poll() is not None and p.pid not in reported_dead and name != "world":
                 reported_dead.add(p.pid)
-                print(f"{name} exited with code {p.returncode}", flush=True)
+                if p.returncode:  # a clean exit (code 0) after the world's shutdown is not news
+                    print(f"{name} exited with code {p.returncode} (log: {children.log_dir / name}.log)", flush=True)
         now = time.monotonic()
         if opts.quiet or now - last_print < (STATUS_PERIOD_S if tty else 5.0):
             continue
