@@ -80,10 +80,12 @@ class AgentNode:
         self.steps = 0
         self.learners = self._make_learners()
         self._obs: queue.Queue = queue.Queue()
-        self._cond = threading.Condition()
+        self._cond = threading.Condition()  # guards beacons and peers; waited on only in lock-step
+        self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
         self._beacons: dict[int, schema.Beacon] = {}
         self._gone: set[int] = set()  # peers whose liveliness token vanished
         self._latency_ms: list[float] = []
+        self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
         self._episode = -1
         self._t = 0
@@ -142,7 +144,9 @@ class AgentNode:
         with self._cond:
             self._beacons[msg.uav] = msg
             self._latency_ms.append((recv_ns - msg.t) / 1e6)
-            self._cond.notify_all()
+            self._latency_from.append((msg.uav, msg.tick))
+            if self.opts.lockstep:  # only lock-step waits for beacons; a wake-up per beacon costs CPU
+                self._cond.notify_all()
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN:
@@ -166,6 +170,8 @@ class AgentNode:
     def stop(self) -> None:
         self._stop.set()
         self._obs.put(None)
+        with self._beacon_due:
+            self._beacon_due.notify()
 
     # -- main loop --
     def run(self) -> None:
@@ -214,18 +220,18 @@ class AgentNode:
             self.bus.publish(key, beacon)
             return
         offset = (o.beacon_phase + o.beacon_spread * o.uav / max(self.n_uavs, 1)) * o.tick_period_s
-        with self._cond:
+        with self._beacon_due:
             self._pending_beacon = (time.monotonic() + offset, key, beacon)
-            self._cond.notify_all()
+            self._beacon_due.notify()
 
     def _beacon_loop(self) -> None:
         """Real time: one thread sends the latest pending beacon at its due time."""
         while not self._stop.is_set():
-            with self._cond:
+            with self._beacon_due:
                 pending = self._pending_beacon
                 if pending is None or pending[0] > time.monotonic():
                     wait = 0.05 if pending is None else min(pending[0] - time.monotonic(), 0.05)
-                    self._cond.wait(max(wait, 0.0))
+                    self._beacon_due.wait(max(wait, 0.0))
                     continue
                 self._pending_beacon = None
             try:
@@ -277,9 +283,10 @@ class AgentNode:
         if self.opts.stats_out:
             with self._cond:
                 samples = [round(x, 3) for x in self._latency_ms]
+                senders = list(self._latency_from)
             st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
-                    "beacon_latency_samples_ms": samples,
+                    "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed}}
             p = Path(self.opts.stats_out)

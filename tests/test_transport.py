@@ -131,7 +131,7 @@ def test_pubsub_roundtrip_through_router(make_bus) -> None:
     assert msg == sent and msg.src == "world" and msg.KIND == schema.KIND_OBS
     assert schema.decode(raw) == sent
     assert recv_ns >= sent.t
-    assert thread.startswith("truav-bus[uav/0]")  # user callbacks run on the Bus delivery thread
+    assert not thread.startswith("truav-bus[")  # undelayed messages are delivered in place, no hand-off
     seqs = [m.seq for m in inbox.msgs()]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
 
@@ -142,6 +142,31 @@ def test_pubsub_roundtrip_through_router(make_bus) -> None:
         keys.uav_action(RUN, 0), Action(uav=0, tick=m.tick, action=m.tick % schema.N_ACTIONS)))
     sync(lambda: world.publish(keys.uav_obs(RUN, 0), obs(tick=7)), lambda: bool(actions.msgs()))
     assert actions.msgs()[0].src == "uav/0" and actions.msgs()[0].action == 7
+
+
+def test_one_bus_never_runs_two_callbacks_at_once(make_bus) -> None:
+    """Subscribers deliver on their own threads, but a Bus serializes its user callbacks."""
+    world, agent = make_bus("world"), make_bus("uav/0")
+    running, overlaps, seen = [0], [0], []
+    guard = threading.Lock()
+
+    def slow(key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
+        with guard:
+            running[0] += 1
+            overlaps[0] = max(overlaps[0], running[0])
+        time.sleep(0.002)  # long enough for the other subscriber's thread to try to enter
+        with guard:
+            running[0] -= 1
+            seen.append(key)
+
+    agent.subscribe(keys.uav_obs(RUN, 0), slow)
+    agent.subscribe(keys.control(RUN, "test"), slow)
+    sync(lambda: world.publish(keys.uav_obs(RUN, 0), obs(tick=0)), lambda: bool(seen))
+    for tick in range(1, 41):
+        world.publish(keys.uav_obs(RUN, 0), obs(tick=tick))
+        world.publish(keys.control(RUN, "test"), schema.Control(command="pause", args={}))
+    assert wait_until(lambda: sum(k == keys.control(RUN, "test") for k in seen) == 40)
+    assert overlaps[0] == 1
 
 
 def test_malformed_messages_are_dropped_counted_and_logged_once(make_bus, caplog) -> None:

@@ -16,13 +16,17 @@
 Thread model.  zenoh-python runs each Python callback on its own Python
 thread per subscriber (``zenoh.handlers.Callback(indirect=True)``, the
 default), fed by a bounded channel from Zenoh's network threads.  The Bus
-keeps those callbacks trivial: they copy the payload and push it on a heap.
-A single delivery thread per Bus pops the heap by due time and runs decode,
-the link filter, and *all* user callbacks (data, raw and liveliness), so one
-Bus never runs two user callbacks at once, user callbacks may call
-``Bus.publish`` (they are not on a Zenoh thread), and emulated link delays
-cost no extra threads.  A slow callback delays every later delivery of that
-Bus; pending deliveries are capped at ``max_pending`` (overflow is counted).
+decodes, filters and delivers a message on that thread, under one delivery
+lock per Bus, so one Bus never runs two user callbacks at once and user
+callbacks may call ``Bus.publish`` (they are not on a Zenoh network thread).
+Only messages the link filter delays, and liveliness changes, go through
+the Bus's scheduler thread (a heap by due time, under the same lock), so
+emulated link delays cost no extra threads.  Delivering in place rather than
+handing every message to the scheduler saves a thread switch per message:
+measured with ``bench/bench_swarm.py`` that switch was about half of an
+agent's receive cost on a 2-core VM.  A slow callback delays every later
+delivery of that Bus; delayed deliveries are capped at ``max_pending``
+(overflow is counted).
 """
 
 from __future__ import annotations
@@ -142,7 +146,7 @@ def config_from_args(args: argparse.Namespace) -> zenoh.Config:
 class LinkFilter(Protocol):
     """Decides the fate of each incoming message on the receiving Bus.
 
-    Called only on the Bus's delivery thread, once per message, with
+    Called under the Bus's delivery lock (one call at a time), once per message, with
     ``dst`` = the Bus identity and ``now_ns`` = arrival time (Bus clock).
     ``src`` is the sender id, or :data:`UNKNOWN_SRC` for unreadable raw
     payloads.  Returns ``(deliver, delay_s)``.
@@ -313,6 +317,7 @@ class Bus:
         self._filter: LinkFilter = link_filter if link_filter is not None else PassThrough()
         self._clock = clock
         self._lock = threading.Lock()
+        self._deliver_lock = threading.RLock()  # one user callback at a time, whichever thread delivers
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._handles: list[Handle] = []
         self._logged: set[str] = set()
@@ -499,8 +504,10 @@ class Bus:
                 self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))
                 return
             raw = sample.payload.to_bytes()
-            if not self._sched.submit(arrival_mono, lambda: handle(key, raw, arrival_ns, arrival_mono)):
-                self._count_overflow()
+            if self._closed:
+                return
+            with self._deliver_lock:  # the link filter, too, sees one message at a time
+                handle(key, raw, arrival_ns, arrival_mono)
 
         sub = self._session.declare_subscriber(key_expr, on_sample)
         return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
@@ -549,7 +556,8 @@ class Bus:
 
     def _invoke(self, key: str, deliver: Callable[[], None]) -> None:
         try:
-            deliver()
+            with self._deliver_lock:
+                deliver()
         except Exception as exc:
             with self._lock:
                 self._callback_errors += 1
@@ -591,7 +599,7 @@ class Bus:
         """Call ``on_join(key)`` / ``on_leave(key)`` as tokens on ``key_expr`` appear / vanish.
 
         Tokens alive at declaration are reported as joins (history).  Runs on the
-        delivery thread; the link filter does not apply.
+        scheduler thread under the delivery lock; the link filter does not apply.
         """
         def on_sample(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
