@@ -72,7 +72,7 @@ class BatchedSAC:
         self.target = [p.detach().clone() for p in self.critic]
         self.log_alpha = torch.full((self.B,), math.log(cfg.init_alpha), requires_grad=True)
         self.target_entropy = cfg.target_entropy_scale * math.log(n_actions)
-        adam = lambda ps, lr: torch.optim.Adam(ps, lr=lr)  # noqa: E731  (element-wise: seeds stay apart)
+        adam = lambda ps, lr: torch.optim.Adam(ps, lr=lr, fused=True)  # noqa: E731  (element-wise: seeds stay apart)
         self.actor_opt = adam(self.actor, cfg.actor_lr)
         self.critic_opt = adam(self.critic, cfg.critic_lr)
         self.alpha_opt = adam([self.log_alpha], cfg.critic_lr)
