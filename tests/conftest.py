@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import socket
-from typing import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
 from truav import transport
+from truav.transport import Bus
 from truav.config import Config
 
 
@@ -27,6 +28,23 @@ def endpoint() -> Iterator[str]:
         yield ep
     finally:
         router.close()
+
+
+@pytest.fixture
+def bus_factory(endpoint: str, request: pytest.FixtureRequest) -> Iterator[Callable[..., Bus]]:
+    """``make(identity, run=None, **bus_kwargs)``: a Bus on the module's router,
+    closed when the test ends; ``run`` defaults to the test module's ``RUN``."""
+    default_run = getattr(request.module, "RUN", "test")
+    buses: list[Bus] = []
+
+    def make(identity: str, run: str | None = None, **kwargs) -> Bus:
+        bus = Bus(identity, run or default_run, transport.make_config("client", connect=[endpoint]), **kwargs)
+        buses.append(bus)
+        return bus
+
+    yield make
+    for bus in buses:
+        bus.close()
 
 
 @pytest.fixture

@@ -41,7 +41,7 @@ from recorder.process import (
 )
 from recorder.reader import iter_messages, probe
 from recorder.recover import recover
-from truav import keys, schema, transport
+from truav import keys, schema
 from truav.config import Config, to_toml
 from truav.transport import Bus
 
@@ -65,20 +65,6 @@ def wait_until(pred: Callable[[], bool], timeout: float) -> bool:
             return True
         time.sleep(0.01)
     return pred()
-
-
-@pytest.fixture
-def bus_factory(endpoint: str) -> Iterator[Callable[[str], Bus]]:
-    buses: list[Bus] = []
-
-    def make(identity: str, run: str = RUN) -> Bus:
-        bus = Bus(identity, run, transport.make_config("client", connect=[endpoint]))
-        buses.append(bus)
-        return bus
-
-    yield make
-    for bus in buses:
-        bus.close()
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import msgpack
@@ -276,20 +276,6 @@ def test_cli_reports_mistakes_in_one_line(tmp_path: Path, capsys) -> None:
 
 
 # --- over Zenoh ---------------------------------------------------------------------------------
-@pytest.fixture
-def bus_factory(endpoint: str) -> Iterator[Callable[..., Bus]]:
-    buses: list[Bus] = []
-
-    def make(identity: str, run: str) -> Bus:
-        bus = Bus(identity, run, transport.make_config("client", connect=[endpoint]))
-        buses.append(bus)
-        return bus
-
-    yield make
-    for bus in buses:
-        bus.close()
-
-
 def zconf(endpoint: str):
     return transport.make_config("client", connect=[endpoint])
 

@@ -11,7 +11,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import msgpack
 import pytest
@@ -21,7 +21,6 @@ import zenoh
 
 from truav import keys, schema, transport
 from truav.schema import Action, Beacon, Obs, SchemaError
-from truav.transport import Bus
 
 RUN = "test_run"
 WAIT_S = 3.0
@@ -75,20 +74,6 @@ def sync(publish: Callable[[], object], received: Callable[[], bool]) -> None:
     raise AssertionError("subscription never became ready")
 
 
-@pytest.fixture
-def make_bus(endpoint: str) -> Iterator[Callable[..., Bus]]:
-    buses: list[Bus] = []
-
-    def make(identity: str, **kwargs) -> Bus:
-        bus = Bus(identity, RUN, transport.make_config("client", connect=[endpoint]), **kwargs)
-        buses.append(bus)
-        return bus
-
-    yield make
-    for bus in buses:
-        bus.close()
-
-
 # --- config -------------------------------------------------------------------------
 def test_make_config_turns_multicast_off_and_sets_endpoints() -> None:
     conf = transport.make_config("peer", connect=["tcp/127.0.0.1:1"], listen=["tcp/127.0.0.1:0"])
@@ -119,8 +104,8 @@ def test_config_from_args(tmp_path) -> None:
 
 
 # --- pub/sub ------------------------------------------------------------------------
-def test_pubsub_roundtrip_through_router(make_bus) -> None:
-    world, agent = make_bus("world"), make_bus("uav/0")
+def test_pubsub_roundtrip_through_router(bus_factory) -> None:
+    world, agent = bus_factory("world"), bus_factory("uav/0")
     inbox = Inbox()
     agent.subscribe(keys.uav_obs(RUN, 0), inbox)
     sync(lambda: world.publish(keys.uav_obs(RUN, 0), obs(tick=0)), lambda: bool(inbox.msgs()))
@@ -144,9 +129,9 @@ def test_pubsub_roundtrip_through_router(make_bus) -> None:
     assert actions.msgs()[0].src == "uav/0" and actions.msgs()[0].action == 7
 
 
-def test_one_bus_never_runs_two_callbacks_at_once(make_bus) -> None:
+def test_one_bus_never_runs_two_callbacks_at_once(bus_factory) -> None:
     """Subscribers deliver on their own threads, but a Bus serializes its user callbacks."""
-    world, agent = make_bus("world"), make_bus("uav/0")
+    world, agent = bus_factory("world"), bus_factory("uav/0")
     running, overlaps, seen = [0], [0], []
     guard = threading.Lock()
 
@@ -169,8 +154,8 @@ def test_one_bus_never_runs_two_callbacks_at_once(make_bus) -> None:
     assert overlaps[0] == 1
 
 
-def test_malformed_messages_are_dropped_counted_and_logged_once(make_bus, caplog) -> None:
-    world, agent, recorder = make_bus("world"), make_bus("uav/1"), make_bus("recorder")
+def test_malformed_messages_are_dropped_counted_and_logged_once(bus_factory, caplog) -> None:
+    world, agent, recorder = bus_factory("world"), bus_factory("uav/1"), bus_factory("recorder")
     inbox, raw_seen = Inbox(), []
     key = keys.uav_obs(RUN, 1)
     agent.subscribe(key, inbox)
@@ -202,8 +187,8 @@ def test_malformed_messages_are_dropped_counted_and_logged_once(make_bus, caplog
     assert any(key in line and "from world" in line and transport.R_KEY_MISMATCH in line for line in lines)
 
 
-def test_callback_errors_do_not_kill_the_subscription(make_bus) -> None:
-    world, agent = make_bus("world"), make_bus("uav/2")
+def test_callback_errors_do_not_kill_the_subscription(bus_factory) -> None:
+    world, agent = bus_factory("world"), bus_factory("uav/2")
     seen: list[int] = []
 
     def flaky(key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
@@ -238,9 +223,9 @@ class KeyFilter:
         return True, 0.0
 
 
-def test_link_filter_drops(make_bus) -> None:
+def test_link_filter_drops(bus_factory) -> None:
     flt = KeyFilter()
-    listener, sender = make_bus("world", link_filter=flt), make_bus("uav/1")
+    listener, sender = bus_factory("world", link_filter=flt), bus_factory("uav/1")
     inbox = Inbox()
     listener.subscribe(f"{keys.uav_prefix(RUN, 1)}/*", inbox)
     sync(lambda: sender.publish(keys.uav_action(RUN, 1), Action(uav=1, tick=0, action=0)),
@@ -257,9 +242,9 @@ def test_link_filter_drops(make_bus) -> None:
          lambda: any(isinstance(m, Beacon) for m in inbox.msgs()))
 
 
-def test_link_filter_delays_on_one_scheduler_thread(make_bus) -> None:
+def test_link_filter_delays_on_one_scheduler_thread(bus_factory) -> None:
     flt = KeyFilter()
-    listener, sender = make_bus("world", link_filter=flt), make_bus("uav/3")
+    listener, sender = bus_factory("world", link_filter=flt), bus_factory("uav/3")
     inbox = Inbox()
     listener.subscribe(keys.all_actions(RUN), inbox)
     sync(lambda: sender.publish(keys.uav_action(RUN, 3), Action(uav=3, tick=0, action=0)),
@@ -283,8 +268,8 @@ def test_link_filter_delays_on_one_scheduler_thread(make_bus) -> None:
 
 
 # --- permissions ---------------------------------------------------------------------------
-def test_publish_permission_check(make_bus) -> None:
-    agent, world = make_bus("uav/3"), make_bus("world")
+def test_publish_permission_check(bus_factory) -> None:
+    agent, world = bus_factory("uav/3"), bus_factory("world")
     agent.publish(keys.uav_beacon(RUN, 3), beacon(3))  # own key: fine
     agent.declare_liveliness(keys.alive_uav(RUN, 3))
     for key in (keys.uav_beacon(RUN, 4), keys.world_tick(RUN), keys.uav_beacon("other_run", 3),
@@ -314,20 +299,20 @@ def test_publish_permission_check(make_bus) -> None:
         world.publish(keys.world_tick("other_run"), schema.Tick(tick=0, episode=0, sim_time=0.0,
                                                                 deadline_ms=1.0, n_uavs=1))
     with pytest.raises(ValueError):
-        make_bus("uav/5000")
+        bus_factory("uav/5000")
 
 
 # --- liveliness -------------------------------------------------------------------------------
-def test_liveliness_join_and_leave(make_bus) -> None:
-    recorder = make_bus("recorder")
-    early = make_bus("uav/5")
+def test_liveliness_join_and_leave(bus_factory) -> None:
+    recorder = bus_factory("recorder")
+    early = bus_factory("uav/5")
     early.declare_liveliness(keys.alive_uav(RUN, 5))
     joins: list[str] = []
     leaves: list[tuple[str, float]] = []
     recorder.watch_liveliness(keys.all_alive(RUN), joins.append, lambda k: leaves.append((k, time.monotonic())))
     assert wait_until(lambda: keys.alive_uav(RUN, 5) in joins)  # history: tokens alive before the watch
 
-    late = make_bus("uav/6")
+    late = bus_factory("uav/6")
     late.declare_liveliness(keys.alive_uav(RUN, 6))
     assert wait_until(lambda: keys.alive_uav(RUN, 6) in joins)
     both = [keys.alive_uav(RUN, 5), keys.alive_uav(RUN, 6)]
@@ -342,8 +327,8 @@ def test_liveliness_join_and_leave(make_bus) -> None:
     assert keys.alive_uav(RUN, 5) not in [k for k, _ in leaves]
 
 
-def test_closed_bus_refuses_work(make_bus) -> None:
-    bus = make_bus("world")
+def test_closed_bus_refuses_work(bus_factory) -> None:
+    bus = bus_factory("world")
     bus.close()
     bus.close()  # idempotent
     assert bus.closed
