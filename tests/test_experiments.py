@@ -3,7 +3,6 @@
 import csv
 
 import numpy as np
-import pytest
 
 from truav.cli import main
 from truav.experiments import runner
