@@ -421,17 +421,20 @@ def n_grid_roads(cfg: Config) -> int:
     return int(math.floor(cfg.scenario.area_m / cfg.roads.block_m + 1e-9)) + 1
 
 
+def read_toml(path: str | Path, what: str, error: type[Exception]) -> dict[str, Any]:
+    """A TOML file as a dict; a missing or malformed file raises ``error`` with a one-line reason."""
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{what} not found: {p}")
+    try:
+        return tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{p}: not valid TOML ({exc})") from None
+
+
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
     """Defaults, then a TOML file, then overrides ({"scenario": {...}})."""
-    data: dict[str, Any] = {}
-    if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"config file not found: {p}")
-        try:
-            data = tomllib.loads(p.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{p}: not valid TOML ({exc})") from None
+    data: dict[str, Any] = read_toml(path, "config file", ConfigError) if path is not None else {}
     for name, values in (overrides or {}).items():
         data[name] = {**data.get(name, {}), **values}
     return config_from_dict(data)

@@ -60,10 +60,11 @@ import hashlib
 import math
 import struct
 import threading
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from truav.config import read_toml
 
 LINK_KINDS = ("loss", "latency", "partition", "obs_loss")
 PROCESS_KINDS = ("crash", "freeze")
@@ -221,14 +222,7 @@ def _missing(where: str, key: str):
 
 
 def load_plan(path: str | Path) -> FaultPlan:
-    p = Path(path)
-    if not p.is_file():
-        raise PlanError(f"fault plan not found: {p}")
-    try:
-        data = tomllib.loads(p.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{p}: not valid TOML ({exc})") from None
-    return plan_from_dict(data)
+    return plan_from_dict(read_toml(path, "fault plan", PlanError))
 
 
 # -- the link filter -----------------------------------------------------------------
