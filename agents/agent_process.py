@@ -8,12 +8,20 @@ of the same tick (lock-step: waits for every live peer's; real time: the
 freshest heard), learns from the last step and publishes its action.
 
 Its Q-table can start from a trained run (`--qtable RUN_DIR`) and is
-checkpointed atomically every K steps; a restarted agent resumes from its
-checkpoint.
+checkpointed atomically every K steps, at a step offset by UAV id so that a
+swarm's agents do not all write (and fsync) in the same tick; a restarted
+agent resumes from its checkpoint.
+
+Threads: observations and control messages come through bus callbacks;
+neighbour beacons collect in an :class:`~truav.inbox.Inbox` that the main
+loop drains once per decision (cheap arrival keeps the fan-out of 20+
+agents' beacons off the CPU); in real time one thread sends this agent's
+beacon in its slot of the tick (:mod:`agents.beacon_schedule`).
 """
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -25,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.beacon_schedule import BeaconSchedule
 from agents.qlearning import QLearners
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
@@ -43,6 +52,12 @@ REALTIME_BEACON_MAX_AGE_TICKS = 10
 """Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
 
 
+def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
+    """Whether UAV ``uav`` checkpoints after ``steps`` steps: every ``every`` steps, at an offset
+    by id so that a swarm's agents take turns (a write and fsync each) instead of all in one tick."""
+    return (steps + uav * every // max(n_uavs, 1)) % every == 0
+
+
 @dataclass
 class AgentOptions:
     """How one agent process runs."""
@@ -57,15 +72,17 @@ class AgentOptions:
     checkpoint: str | None = None
     """Q-table checkpoint file (.npz): resumed from if it exists, rewritten every checkpoint_every steps."""
     checkpoint_every: int = 100
+    """K: UAV i checkpoints when (steps + i * K // n_uavs) % K == 0, so a swarm's writes are spread out."""
     qtable: str | None = None
     """Start from a trained run's qtables.npz (or run dir): the table of `qtable_index`, this UAV."""
     qtable_index: int = 0
-    beacon_phase: float = 0.4
+    beacon_phase: float = 0.3
     """Real time: beacons go out this fraction of the tick period after the
-    observation, once every agent has finished its own burst of work..."""
-    beacon_spread: float = 0.5
+    tick starts, after the burst of observation deliveries and decisions..."""
+    beacon_spread: float = 0.6
     """...spread over this fraction of the period by UAV id: synchronized sends
-    from 20+ processes on a few cores multiply the latency tail."""
+    from 20+ processes on a few cores multiply the latency tail (20 agents at
+    10 Hz: one beacon every 3 ms, each reaching its 19 receivers in ~2 ms)."""
     tick_period_s: float = 0.1
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this agent receives."""
@@ -80,27 +97,36 @@ class AgentNode:
         self.steps = 0
         self.learners = self._make_learners()
         self._obs: queue.Queue = queue.Queue()
-        self._cond = threading.Condition()  # guards beacons and peers; waited on only in lock-step
+        self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
         self._beacons: dict[int, schema.Beacon] = {}
         self._gone: set[int] = set()  # peers whose liveliness token vanished
         self._latency_ms: list[float] = []
         self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
+        self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
         self._t = 0
         self._state = 0
         self._action = 0
         self._velocity = (0.0, 0.0)
         self._pending_beacon = None
+        self._schedule = BeaconSchedule(opts.tick_period_s, opts.beacon_phase, opts.beacon_spread, opts.uav,
+                                        self.n_uavs)
         self._warm_up()
         run, me = opts.run, opts.uav
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
-        bus.subscribe(keys.all_beacons(run), self._on_beacon)
+        self._beacon_inbox = bus.inbox(keys.all_beacons(run))
+        # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
+        self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run))
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        bus.prepare(keys.uav_beacon(run, me), keys.uav_action(run, me))
+        # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
+        # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
+        gc.freeze()
         bus.declare_liveliness(keys.alive_uav(run, me))
 
     def _warm_up(self) -> None:
@@ -138,16 +164,6 @@ class AgentNode:
     def _on_obs(self, key, msg: schema.Obs, raw, recv_ns) -> None:
         self._obs.put(msg)
 
-    def _on_beacon(self, key, msg: schema.Beacon, raw, recv_ns) -> None:
-        if msg.uav == self.opts.uav:
-            return
-        with self._cond:
-            self._beacons[msg.uav] = msg
-            self._latency_ms.append((recv_ns - msg.t) / 1e6)
-            self._latency_from.append((msg.uav, msg.tick))
-            if self.opts.lockstep:  # only lock-step waits for beacons; a wake-up per beacon costs CPU
-                self._cond.notify_all()
-
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN:
             self.stop()
@@ -155,19 +171,18 @@ class AgentNode:
     def _on_join(self, key: str) -> None:
         uav = keys.parse_uav_id(key)
         if uav is not None and uav != self.opts.uav:
-            with self._cond:
+            with self._lock:
                 self._gone.discard(uav)
-                self._cond.notify_all()
 
     def _on_leave(self, key: str) -> None:
         uav = keys.parse_uav_id(key)
         if uav is not None and uav != self.opts.uav:
-            with self._cond:
+            with self._lock:
                 self._gone.add(uav)
                 self._beacons.pop(uav, None)
-                self._cond.notify_all()
 
     def stop(self) -> None:
+        self._stopped_ns = time.time_ns()
         self._stop.set()
         self._obs.put(None)
         with self._beacon_due:
@@ -203,7 +218,7 @@ class AgentNode:
                 self.learners.update(np.array([[self._state]]), np.array([[self._action]]), r, state, False)
             self._t += 1
             self.steps += 1
-            if o.checkpoint and self.steps % o.checkpoint_every == 0:
+            if o.checkpoint and checkpoint_due(self.steps, o.uav, self.n_uavs, o.checkpoint_every):
                 self.checkpoint()
         self._state = int(state[0, 0])
         if obs.done:
@@ -216,12 +231,17 @@ class AgentNode:
         o = self.opts
         beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
         key = keys.uav_beacon(o.run, o.uav)
-        if o.lockstep:
+        if o.lockstep:  # every agent waits for it, the last observation's included
             self.bus.publish(key, beacon)
             return
-        offset = (o.beacon_phase + o.beacon_spread * o.uav / max(self.n_uavs, 1)) * o.tick_period_s
+        for r in self._tick_inbox.drain():
+            self._schedule.observe(r.msg.tick, r.msg.t / 1e9)
+        self._schedule.observe(obs.tick, obs.t / 1e9)  # later than its tick's start: never lowers the estimate wrongly
+        if obs.done:  # no one acts on this tick (and the swarm may be shutting down): its beacon would go unused
+            return
+        due = time.monotonic() + self._schedule.due(obs.tick) - time.time()  # world clock -> this host's monotonic
         with self._beacon_due:
-            self._pending_beacon = (time.monotonic() + offset, key, beacon)
+            self._pending_beacon = (due, key, beacon)
             self._beacon_due.notify()
 
     def _beacon_loop(self) -> None:
@@ -239,19 +259,38 @@ class AgentNode:
             except RuntimeError:  # bus closed at shutdown
                 return
 
+    def _take_beacons(self) -> None:
+        """Move the beacons heard since the last call from the inbox into the neighbour table."""
+        heard = self._beacon_inbox.drain()
+        with self._lock:
+            for r in heard:
+                b: schema.Beacon = r.msg
+                if b.uav == self.opts.uav:
+                    continue
+                if self._stopped_ns is None or r.recv_ns <= self._stopped_ns:
+                    self._latency_ms.append((r.recv_ns - b.t) / 1e6)
+                    self._latency_from.append((b.uav, b.tick))
+                prev = self._beacons.get(b.uav)
+                if b.uav not in self._gone and (prev is None or b.tick >= prev.tick):
+                    self._beacons[b.uav] = b
+
     def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
         """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
-        with self._cond:
-            if self.opts.lockstep:
-                deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
-                while not self._stop.is_set():
+        self._take_beacons()
+        if self.opts.lockstep:
+            deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
+            while not self._stop.is_set():
+                with self._lock:
                     # Every peer not known gone, so a slow starter is not skipped.
                     missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone
                                and (j not in self._beacons or self._beacons[j].tick < tick)]
-                    left = deadline - time.monotonic()
-                    if not missing or left <= 0:
-                        break
-                    self._cond.wait(min(left, 0.05))
+                left = deadline - time.monotonic()
+                if not missing or left <= 0:
+                    break
+                self._beacon_inbox.wait(min(left, 0.05))  # a peer's loss shows within this bound
+                self._take_beacons()
+        with self._lock:
+            if self.opts.lockstep:
                 fresh = {j: b for j, b in self._beacons.items() if b.tick == tick}
             else:
                 fresh = {j: b for j, b in self._beacons.items() if b.tick >= tick - REALTIME_BEACON_MAX_AGE_TICKS}
@@ -272,7 +311,7 @@ class AgentNode:
         os.replace(tmp, path)
 
     def latency_stats(self) -> dict[str, float]:
-        with self._cond:
+        with self._lock:
             lat = np.array(self._latency_ms)
         if lat.size == 0:
             return {"n": 0}
@@ -281,7 +320,8 @@ class AgentNode:
 
     def write_stats(self) -> None:
         if self.opts.stats_out:
-            with self._cond:
+            self._take_beacons()  # the last tick's beacons count too
+            with self._lock:
                 samples = [round(x, 3) for x in self._latency_ms]
                 senders = list(self._latency_from)
             st = self.bus.stats()

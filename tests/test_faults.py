@@ -102,3 +102,12 @@ def test_no_faults_before_the_run_starts_and_plans_can_change():
     f.set_plan(FaultPlan())
     assert f.decide(f"truav/{RUN}/uav/0/beacon", "uav/0", "uav/1", at(1)) == (True, 0.0)
     assert plan_from_dict(plan_from_dict({"fault": [{"kind": "crash", "uav": 1, "start": 2}]}).to_dict()).faults
+
+
+def test_a_plan_without_link_faults_lets_the_bus_skip_the_filter():
+    f = PlanFilter(FaultPlan(), RUN)
+    assert f.passes_everything  # the swarm's default: inboxes keep their fast path
+    f.set_plan(plan_from_dict({"fault": [{"kind": "crash", "uav": 1, "start": 2}]}))
+    assert f.passes_everything  # process faults are the supervisor's business, not the link's
+    f.set_plan(plan_from_dict({"fault": [{"kind": "latency", "fixed_ms": 100}]}))
+    assert not f.passes_everything

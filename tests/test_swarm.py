@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from agents.agent_process import checkpoint_due
 from agents.controller import TruavController
-from truav import keys
+from truav import keys, swarm_cli
 from truav.config import Config, to_toml
 from truav.driver import run_episodes
 from truav.swarm_supervisor import free_loopback_endpoint, wait_for_port
@@ -134,3 +135,29 @@ def test_killed_agent_never_stalls_the_world_and_resumes_from_its_checkpoint(pro
     world = json.loads((procs.tmp / "world.json").read_text())
     assert world["deadline_misses"] > 0  # the dead agent's UAV hovered
     assert any("uav/2" in k for k in world["losses"])
+
+
+def test_agents_take_turns_to_checkpoint() -> None:
+    n, every = 20, 50
+    writers = [[u for u in range(n) if checkpoint_due(step, u, n, every)] for step in range(1, every + 1)]
+    assert sorted(u for w in writers for u in w) == list(range(n))  # each agent once per `every` steps
+    assert max(len(w) for w in writers) == 1  # never two in the same step
+    assert [s for s in range(1, 3 * every + 1) if checkpoint_due(s, 0, n, every)] == [every, 2 * every, 3 * every]
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["up", "--rate", "0"], "--rate: must be a finite number > 0"),
+    (["agent", "--id", "0", "--checkpoint-every", "0"], "--checkpoint-every: must be >= 1"),
+    (["world", "--episodes", "two"], "'two' is not an integer"),
+])
+def test_bad_numbers_are_usage_errors(argv, fragment, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        swarm_cli.main(argv)
+    assert exc.value.code == 2 and fragment in capsys.readouterr().err
+
+
+def test_no_router_is_a_clear_error_not_a_traceback(capsys) -> None:
+    endpoint = free_loopback_endpoint()  # nothing listens there
+    assert swarm_cli.main(["status", "-e", endpoint]) == 1
+    err = capsys.readouterr().err
+    assert "is a router running there?" in err and "Traceback" not in err

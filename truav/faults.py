@@ -258,6 +258,8 @@ class PlanFilter:
     def set_plan(self, plan: FaultPlan, t0_ns: int | None = None) -> None:
         with self._lock:
             self.plan = plan
+            # Lets the Bus skip the filter (and its per-message cost) while no link fault is planned.
+            self.passes_everything = not any(f.kind in LINK_KINDS for f in plan.faults)
             if t0_ns is not None:
                 self.t0_ns = t0_ns
             self._counts.clear()

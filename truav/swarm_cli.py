@@ -22,6 +22,8 @@ import sys
 import threading
 from pathlib import Path
 
+import zenoh
+
 from truav import keys
 from truav.cli import UsageError, parse_sets
 from truav.config import Config, ConfigError, load_config
@@ -29,6 +31,28 @@ from truav.faults import PlanError
 from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (a clear usage error instead of a crash later)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
@@ -181,18 +205,18 @@ def cmd_up(args) -> int:
 # -- parser ------------------------------------------------------------------------
 def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
-    up.add_argument("--agents", type=int, help="number of UAV agents (default scenario.n_uavs, 5)")
-    up.add_argument("--episodes", type=int, default=2, help="episodes before the swarm stops (default 2)")
-    up.add_argument("--steps", type=int, help="steps per episode (default scenario.steps_per_episode, 100)")
+    up.add_argument("--agents", type=positive_int, help="number of UAV agents (default scenario.n_uavs, 5)")
+    up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
+    up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
     up.add_argument("--lockstep", action="store_true", help="the world waits for every live agent each tick")
-    up.add_argument("--rate", type=float, default=10.0, help="real-time tick rate in Hz (default 10)")
+    up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
     up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
     up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
     up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
     up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                     help="router endpoint (default: a free loopback port)")
-    up.add_argument("--wait-agents", type=float, default=60.0,
+    up.add_argument("--wait-agents", type=positive_float, default=60.0,
                     help="seconds the world waits for all agents to join before the first tick (default 60)")
     up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
@@ -221,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
     st.add_argument("--run", help="only this run")
-    st.add_argument("--timeout", type=float, default=1.0)
+    st.add_argument("--timeout", type=positive_float, default=1.0)
     add_transport_args(st)
     st.set_defaults(func=cmd_status)
 
@@ -238,10 +262,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     wo = sub.add_parser("world", help="run the world process")
     add_scenario_args(wo)
-    wo.add_argument("--episodes", type=int, default=2)
+    wo.add_argument("--episodes", type=positive_int, default=2)
     wo.add_argument("--lockstep", action="store_true")
-    wo.add_argument("--rate", type=float, default=10.0)
-    wo.add_argument("--wait-agents", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
+    wo.add_argument("--rate", type=positive_float, default=10.0)
+    wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
     wo.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the world receives")
     wo.add_argument("-v", "--verbose", action="store_true")
@@ -252,10 +276,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_args(ag)
     ag.add_argument("--id", type=int, required=True, help="UAV id in [0, n_uavs)")
     ag.add_argument("--lockstep", action="store_true")
-    ag.add_argument("--rate", type=float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
+    ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
     ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
-    ag.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default 100)")
+    ag.add_argument("--checkpoint-every", type=positive_int, default=100, help="steps between checkpoints (default 100)")
     ag.add_argument("--qtable", metavar="RUN", help="start from a trained run's Q-table")
     ag.add_argument("--qtable-index", type=int, default=0, help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
@@ -280,6 +304,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, UsageError, PlanError) as exc:
         print(f"truav-swarm: error: {exc}", file=sys.stderr)
         return 2
+    except zenoh.ZError as exc:  # almost always: no router where --connect points
+        print(f"truav-swarm: error: Zenoh could not open a session ({str(exc).split(' at ')[0].strip()}); is a router "
+              f"running there? Start one with `truav-swarm router`, or pass -e/--connect ENDPOINT", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

@@ -27,6 +27,7 @@ import numpy as np
 from truav import keys, schema
 from truav.config import Config, to_toml
 from truav.faults import load_plan
+from truav.inbox import Inbox
 from truav.swarm_faults import FaultController
 from truav.transport import Bus, make_config
 
@@ -170,14 +171,17 @@ class Monitor:
     vehicles: list = field(default_factory=list)
     t0: float | None = None  # monotonic time of the world's tick 0
     period_s: float = 0.1
-    first_beacon: float | None = None
+    first_beacon: float | None = None  # wall-clock seconds
     last_beacon: float | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
+    beacon_inbox: Inbox | None = None
 
     def attach(self, bus: Bus, run: str) -> None:
         bus.subscribe(keys.metrics_step(run), self._on_step)
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
-        bus.subscribe(keys.all_beacons(run), self._on_beacon)
+        # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
+        # process from being a 21st subscriber callback in every beacon's fan-out.
+        self.beacon_inbox = bus.inbox(keys.all_beacons(run))
         bus.subscribe(keys.world_positions(run), self._on_positions)
         bus.subscribe(keys.world_tick(run), self._on_tick)
         bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))
@@ -205,14 +209,19 @@ class Monitor:
         with self.lock:
             self.episodes.append(dict(msg.values))
 
-    def _on_beacon(self, key, msg: schema.Beacon, raw, recv_ns) -> None:
-        now = time.monotonic()
+    def poll(self) -> None:
+        """Take in the beacons heard since the last call (call it often: the inbox is bounded)."""
+        if self.beacon_inbox is None:
+            return
+        heard = self.beacon_inbox.drain()
         with self.lock:
-            self.beacon_count[msg.uav] += 1
-            self.beacon_bytes[msg.uav] += len(raw)
-            self.tracks[msg.uav].append(msg.pos)
-            self.first_beacon = self.first_beacon or now
-            self.last_beacon = now
+            for r in heard:
+                msg: schema.Beacon = r.msg
+                self.beacon_count[msg.uav] += 1
+                self.beacon_bytes[msg.uav] += len(r.raw)
+                self.tracks[msg.uav].append(msg.pos)
+                self.first_beacon = self.first_beacon or r.recv_ns / 1e9
+                self.last_beacon = r.recv_ns / 1e9
 
     def _on_positions(self, key, msg: schema.Positions, raw, recv_ns) -> None:
         with self.lock:
@@ -235,6 +244,7 @@ class Monitor:
                 "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
 
     def control_plane(self) -> dict[str, float]:
+        self.poll()
         with self.lock:
             n = sum(self.beacon_count.values())
             size = sum(self.beacon_bytes.values())
@@ -311,6 +321,7 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                   f"{' + recorder -> ' + opts.record if opts.record else ''}; "
                   f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {out}/logs", flush=True)
             _watch(children, monitor, opts, controller)
+            monitor.poll()
             if controller is not None:
                 controller.stop()
             children.stop([f"agent{i}" for i in range(n)], sig=signal.SIGCONT, timeout=0.01)  # thaw frozen ones
@@ -337,6 +348,7 @@ def _watch(children: Children, monitor: Monitor, opts: SwarmOptions, controller=
     faults_started = False
     while world.poll() is None:
         time.sleep(0.05 if controller is not None and not faults_started else 0.2)
+        monitor.poll()
         if controller is not None and not faults_started and monitor.t0 is not None:
             controller.start(monitor.t0)
             faults_started = True

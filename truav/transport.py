@@ -26,7 +26,9 @@ handing every message to the scheduler saves a thread switch per message:
 measured with ``bench/bench_swarm.py`` that switch was about half of an
 agent's receive cost on a 2-core VM.  A slow callback delays every later
 delivery of that Bus; delayed deliveries are capped at ``max_pending``
-(overflow is counted).
+(overflow is counted).  An :meth:`Bus.inbox` skips the callback altogether:
+arrival is a timestamp and an append, and its reader decodes on its own
+thread (:mod:`truav.inbox`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from typing import Protocol
 import zenoh
 
 from truav import keys, schema
+from truav.inbox import DEFAULT_INBOX_CAPACITY, Inbox
 from truav.schema import Message, SchemaError
 
 log = logging.getLogger(__name__)
@@ -150,6 +153,10 @@ class LinkFilter(Protocol):
     ``dst`` = the Bus identity and ``now_ns`` = arrival time (Bus clock).
     ``src`` is the sender id, or :data:`UNKNOWN_SRC` for unreadable raw
     payloads.  Returns ``(deliver, delay_s)``.
+
+    A filter may also have a ``passes_everything`` attribute: while it is
+    true the Bus's inboxes skip the filter (their arrival path stays a
+    timestamp and an append).
     """
 
     def decide(self, key: str, src: str, dst: str, now_ns: int) -> tuple[bool, float]: ...
@@ -157,6 +164,8 @@ class LinkFilter(Protocol):
 
 class PassThrough:
     """The default link filter: deliver everything now."""
+
+    passes_everything = True
 
     def decide(self, key: str, src: str, dst: str, now_ns: int) -> tuple[bool, float]:
         return True, 0.0
@@ -166,14 +175,14 @@ class PassThrough:
 class BusStats:
     """A snapshot of a Bus's receive-side counters."""
 
-    received: int = 0  # samples that reached this Bus (data + raw subscriptions)
-    delivered: int = 0  # user callbacks that returned normally (data, raw, liveliness)
+    received: int = 0  # samples that reached this Bus (data + raw subscriptions + inboxes)
+    delivered: int = 0  # user callbacks that returned normally (data, raw, liveliness) + valid messages drained
     filtered: int = 0  # dropped by the link filter
     delayed: int = 0  # delayed by the link filter
     malformed: dict[str, int] = field(default_factory=dict)  # dropped, by reason
     callback_errors: int = 0
     filter_errors: int = 0
-    overflow: int = 0  # dropped because max_pending deliveries were queued
+    overflow: int = 0  # dropped because max_pending deliveries were queued, or evicted from a full inbox
 
     @property
     def dropped_malformed(self) -> int:
@@ -318,6 +327,7 @@ class Bus:
         self._clock = clock
         self._lock = threading.Lock()
         self._deliver_lock = threading.RLock()  # one user callback at a time, whichever thread delivers
+        self._filter_lock = threading.Lock()  # the link filter sees one message at a time (inboxes decide off that lock)
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._handles: list[Handle] = []
         self._logged: set[str] = set()
@@ -429,6 +439,18 @@ class Bus:
         self._put(key, schema.encode(stamped))
         return stamped
 
+    def prepare(self, *keys_: str) -> None:
+        """Declare the publishers of ``keys_`` now, so a process's first message on each is not
+        slowed by the declaration (a round trip to the router, seen as a latency spike at tick 0)."""
+        for key in keys_:
+            self.check_publish(key)
+            with self._lock:
+                if self._closed:
+                    raise RuntimeError(f"bus {self._identity} is closed")
+                if key not in self._publishers and len(self._publishers) < MAX_CACHED_PUBLISHERS:
+                    self._publishers[key] = self._session.declare_publisher(
+                        key, congestion_control=congestion_control(key))
+
     def publish_raw(self, key: str, data: bytes) -> None:
         """Put pre-encoded bytes as they are (replay, tests); same permission check, no validation."""
         self._put(self.check_publish(key), bytes(data))
@@ -484,10 +506,22 @@ class Bus:
         self._register(Handle(f"pull subscriber {key_expr}", sub.undeclare))
         return receiver
 
-    def _count_received(self, n: int) -> None:
+    def inbox(self, key_expr: str, capacity: int = DEFAULT_INBOX_CAPACITY) -> Inbox:
+        """An :class:`~truav.inbox.Inbox` of valid messages on ``key_expr``, decoded when drained.
+
+        For traffic a process reads once per cycle (an agent's neighbour
+        beacons): arrival costs a timestamp and an append, not a callback.
+        The link filter applies at arrival, as for :meth:`subscribe`.
+        """
+        box = Inbox(self, capacity)
+        sub = self._session.declare_subscriber(key_expr, box.on_sample)
+        self._register(Handle(f"inbox {key_expr}", sub.undeclare))
+        return box
+
+    def _count_received(self, n: int, delivered: int | None = None) -> None:
         with self._lock:
             self._received += n
-            self._delivered += n
+            self._delivered += n if delivered is None else delivered
 
     def _declare_data(
         self, key_expr: str, handle: Callable[[str, bytes, int, int], None], max_bytes: int | None = None
@@ -506,20 +540,33 @@ class Bus:
             raw = sample.payload.to_bytes()
             if self._closed:
                 return
-            with self._deliver_lock:  # the link filter, too, sees one message at a time
+            with self._deliver_lock:  # one message at a time through filter and callback
                 handle(key, raw, arrival_ns, arrival_mono)
 
         sub = self._session.declare_subscriber(key_expr, on_sample)
         return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
 
     def _on_data(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: DataCallback) -> None:
+        msg = self._decode(key, raw)
+        if msg is not None:
+            self._route(key, msg.src, arrival_ns, arrival_mono, lambda recv_ns: callback(key, msg, raw, recv_ns))
+
+    def _decode(self, key: str, raw: bytes) -> Message | None:
+        """The valid message ``raw`` carries on ``key``, or None (dropped, counted, logged once per reason)."""
         try:
             msg = schema.decode(raw)
             _check_placement(key, msg)
         except SchemaError as exc:
             self._count_malformed(key, exc)
-            return
-        self._route(key, msg.src, arrival_ns, arrival_mono, lambda recv_ns: callback(key, msg, raw, recv_ns))
+            return None
+        return msg
+
+    def _filters_nothing(self) -> bool:
+        return getattr(self._filter, "passes_everything", False)
+
+    def _admit(self, key: str, raw: bytes, arrival_ns: int) -> float | None:
+        """The link filter's verdict on a raw message (see :meth:`_decide`), for an inbox."""
+        return self._decide(key, schema.peek_src(raw) or UNKNOWN_SRC, arrival_ns)
 
     def _on_raw(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: RawCallback) -> None:
         src = schema.peek_src(raw) or UNKNOWN_SRC
@@ -530,8 +577,24 @@ class Bus:
 
         ``deliver(recv_ns)`` gets the arrival time for a message delivered now
         and the delivery time for one the filter delayed."""
+        delay_s = self._decide(key, src, arrival_ns)
+        if delay_s is None:
+            return
+        if delay_s <= 0:
+            self._invoke(key, lambda: deliver(arrival_ns))
+            return
+        job = lambda: self._invoke(key, lambda: deliver(self._clock()))  # noqa: E731
+        if not self._sched.submit(arrival_mono + int(delay_s * 1e9), job):
+            self._count_overflow()
+
+    def _decide(self, key: str, src: str, arrival_ns: int) -> float | None:
+        """The link filter's verdict: None to drop, else the delay in s (counted as filtered / delayed).
+
+        A filter that raises or returns a bad delay fails open (delivered now,
+        counted, logged once)."""
         try:
-            ok, delay_s = self._filter.decide(key, src, self._identity, arrival_ns)
+            with self._filter_lock:
+                ok, delay_s = self._filter.decide(key, src, self._identity, arrival_ns)
             delay_s = float(delay_s)
             if not math.isfinite(delay_s) or delay_s < 0:
                 raise ValueError(f"delay_s={delay_s} must be finite and >= 0")
@@ -544,15 +607,11 @@ class Bus:
         if not ok:
             with self._lock:
                 self._filtered += 1
-            return
-        if delay_s <= 0:
-            self._invoke(key, lambda: deliver(arrival_ns))
-            return
-        job = lambda: self._invoke(key, lambda: deliver(self._clock()))  # noqa: E731
-        with self._lock:
-            self._delayed += 1
-        if not self._sched.submit(arrival_mono + int(delay_s * 1e9), job):
-            self._count_overflow()
+            return None
+        if delay_s > 0:
+            with self._lock:
+                self._delayed += 1
+        return delay_s
 
     def _invoke(self, key: str, deliver: Callable[[], None]) -> None:
         try:

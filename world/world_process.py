@@ -10,6 +10,7 @@ losses. Run it alone with `truav-swarm world`, or let `truav-swarm up` start it.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import threading
@@ -89,6 +90,9 @@ class WorldNode:
         bus.subscribe(keys.all_actions(run), self._on_action)
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
+                    *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
+        gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
         bus.declare_liveliness(keys.alive_world(run))
 
     # -- bus callbacks (delivery thread: keep short) --
@@ -173,6 +177,8 @@ class WorldNode:
             log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
                      summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
         self.stats.ticks = tick
+        if not opts.lockstep:  # let the last tick run its period: its beacons are still on the way
+            self._sleep_until(next_due)
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
 

@@ -1,0 +1,80 @@
+"""When a real-time agent sends its beacon: a fixed slot in the world's tick, by UAV id.
+
+Beacons are spread over the tick so that 20+ processes on a few cores never
+send at once, and they go out after the burst of observation deliveries at
+the start of each tick, not into it.  The slot is anchored to the *start of
+the tick* rather than to when this agent got round to its observation: with
+20 agents the observations reach the last agent 5-30 ms after the first, and
+anchoring to that pushes late slots into the next tick's burst (measured with
+``bench/bench_swarm.py``).
+
+The tick start is estimated from the world's own send stamps (the ``t`` of
+its Tick and Obs messages, world clock): the world ticks every ``period_s``,
+so ``stamp - tick * period_s`` is its time origin plus how late that stamp
+was, and the minimum over recent ticks is the origin.  Every agent hears the
+same Tick stamps, so all slots hang off one anchor and stay evenly spaced.
+Across hosts this needs synchronized clocks (NTP/PTP), as the fault plan's
+timing and the beacon-latency figures already do.  The estimate follows the
+one-tick shift at each episode boundary (the world sends the episode's last
+observation without waiting for a slot) and restarts when a stamp is more
+than a period after its estimated tick start (a stalled or a new world).
+
+Pure computation: no clocks are read here; callers pass times in.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+DEFAULT_WINDOW = 50
+"""Ticks of arrival history the tick-start estimate takes its minimum over (5 s at 10 Hz)."""
+
+
+@dataclass
+class BeaconSchedule:
+    """The beacon slot of UAV ``uav`` of ``n_uavs``: ``phase + spread * uav / n_uavs`` of the period after tick start."""
+
+    period_s: float
+    """The world's tick period."""
+    phase: float
+    """Fraction of the period after tick start at which UAV 0 sends."""
+    spread: float
+    """Fraction of the period the slots of all UAVs are spread over, by id."""
+    uav: int
+    n_uavs: int
+    window: int = DEFAULT_WINDOW
+    _origins: deque = field(default_factory=deque, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {self.period_s}")
+        if not (0 <= self.phase and 0 <= self.spread and self.phase + self.spread <= 1):
+            raise ValueError(f"need 0 <= phase, 0 <= spread and phase + spread <= 1, got {self.phase}, {self.spread}")
+        if not 0 <= self.uav < max(self.n_uavs, 1):
+            raise ValueError(f"uav {self.uav} not in [0, {self.n_uavs})")
+        if self.window < 1:
+            raise ValueError(f"window must be >= 1, got {self.window}")
+        self._origins = deque(maxlen=self.window)
+
+    @property
+    def offset_s(self) -> float:
+        """This UAV's slot, in seconds after tick start."""
+        return (self.phase + self.spread * self.uav / max(self.n_uavs, 1)) * self.period_s
+
+    def observe(self, tick: int, stamp_s: float) -> None:
+        """Record a world message of ``tick`` sent at ``stamp_s`` (world clock, seconds), in any order."""
+        origin = stamp_s - tick * self.period_s
+        if self._origins and origin > min(self._origins) + self.period_s:
+            self._origins.clear()
+        self._origins.append(origin)
+
+    def tick_start(self, tick: int) -> float:
+        """Estimated start of ``tick`` (world clock, seconds); needs one :meth:`observe` first."""
+        if not self._origins:
+            raise RuntimeError("no observation yet")
+        return min(self._origins) + tick * self.period_s
+
+    def due(self, tick: int) -> float:
+        """When this UAV's beacon for ``tick`` should go out (world clock, seconds)."""
+        return self.tick_start(tick) + self.offset_s
