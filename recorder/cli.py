@@ -25,6 +25,8 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from truav.cli import non_negative_float, positive_float
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 Command = Callable[[argparse.Namespace], int]
@@ -199,20 +201,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
 def add_swarm_commands(subparsers: Any) -> None:
     """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
     from recorder.process import add_record_args
@@ -235,14 +223,14 @@ def add_swarm_commands(subparsers: Any) -> None:
                     "Example, one live agent driven by a recorded world: --topics 'truav/*/world/tick' "
                     "'truav/*/uav/3/obs'.")
     rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
-    rp.add_argument("--rate", type=_positive, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
+    rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
     rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
     rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
                     help="replay only keys matching these globs (* also matches /); !PATTERN excludes")
     rp.add_argument("--exclude", nargs="+", default=[], metavar="PATTERN", help="skip keys matching these globs")
-    rp.add_argument("--start", type=_non_negative, default=0.0, metavar="S",
+    rp.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
                     help="skip the first S seconds of the recording")
-    rp.add_argument("--duration", type=_positive, default=None, metavar="S", help="replay only S seconds")
+    rp.add_argument("--duration", type=positive_float, default=None, metavar="S", help="replay only S seconds")
     rp.add_argument("--paused", action="store_true", help="start paused (then: space/s, or bus commands)")
     rp.add_argument("--run", metavar="NEW", help="publish under truav/NEW/ instead of the recorded run")
     rp.add_argument("--with-control", action="store_true",

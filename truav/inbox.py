@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import zenoh
 
 from truav import schema
-from truav.schema import Message, SchemaError
+from truav.schema import Message
 
 if TYPE_CHECKING:
     from truav.transport import Bus
@@ -84,7 +84,7 @@ class Inbox:
             return
         arrival_mono = time.monotonic_ns()
         key = str(sample.key_expr)
-        raw = _payload(self._bus, key, sample)
+        raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
         delay_s = None if raw is None else self._bus._admit(key, raw, recv_ns)
         self._bus._count_received(1, delivered=0)  # counted here; drain counts only what it delivers
         if delay_s is None:
@@ -104,6 +104,7 @@ class Inbox:
         entries = []
         while self._ready:
             entries.append(self._ready.popleft())
+        arrived = len(entries)
         if self._delayed:
             now = time.monotonic_ns()
             with self._cond:
@@ -119,7 +120,7 @@ class Inbox:
                     continue
                 unfiltered += 1
                 key = str(sample.key_expr)
-                raw = _payload(self._bus, key, sample)
+                raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
                 if raw is None:
                     continue
             else:
@@ -129,7 +130,8 @@ class Inbox:
                 out.append(Received(key, msg, raw, recv_ns))
         if entries:
             self._bus._count_received(unfiltered, delivered=len(out))
-        out.sort(key=lambda r: r.recv_ns)  # delayed ones interleave by when they were due
+        if len(entries) > arrived:  # delayed ones interleave by when they were due
+            out.sort(key=lambda r: r.recv_ns)
         return out
 
     def wait(self, timeout: float) -> bool:
@@ -151,11 +153,3 @@ class Inbox:
         """Messages waiting (delayed ones included), before validation."""
         return len(self._ready) + len(self._delayed)
 
-
-def _payload(bus: Bus, key: str, sample: zenoh.Sample) -> bytes | None:
-    """The sample's bytes, or None (counted as too large) above the schema's limit, without copying them."""
-    size = len(sample.payload)
-    if size > schema.MAX_PAYLOAD_BYTES:
-        bus._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {schema.MAX_PAYLOAD_BYTES}"))
-        return None
-    return sample.payload.to_bytes()

@@ -25,34 +25,12 @@ from pathlib import Path
 import zenoh
 
 from truav import keys
-from truav.cli import UsageError, parse_sets
+from truav.cli import UsageError, parse_sets, positive_float, positive_int
 from truav.config import Config, ConfigError, load_config
 from truav.faults import PlanError
 from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (a clear usage error instead of a crash later)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value > 0 and value != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:

@@ -149,7 +149,7 @@ def config_from_args(args: argparse.Namespace) -> zenoh.Config:
 class LinkFilter(Protocol):
     """Decides the fate of each incoming message on the receiving Bus.
 
-    Called under the Bus's delivery lock (one call at a time), once per message, with
+    Called one message at a time (under the Bus's filter lock), once per message, with
     ``dst`` = the Bus identity and ``now_ns`` = arrival time (Bus clock).
     ``src`` is the sender id, or :data:`UNKNOWN_SRC` for unreadable raw
     payloads.  Returns ``(deliver, delay_s)``.
@@ -443,19 +443,14 @@ class Bus:
         """Declare the publishers of ``keys_`` now, so a process's first message on each is not
         slowed by the declaration (a round trip to the router, seen as a latency spike at tick 0)."""
         for key in keys_:
-            self.check_publish(key)
-            with self._lock:
-                if self._closed:
-                    raise RuntimeError(f"bus {self._identity} is closed")
-                if key not in self._publishers and len(self._publishers) < MAX_CACHED_PUBLISHERS:
-                    self._publishers[key] = self._session.declare_publisher(
-                        key, congestion_control=congestion_control(key))
+            self._publisher(self.check_publish(key))
 
     def publish_raw(self, key: str, data: bytes) -> None:
         """Put pre-encoded bytes as they are (replay, tests); same permission check, no validation."""
         self._put(self.check_publish(key), bytes(data))
 
-    def _put(self, key: str, data: bytes) -> None:
+    def _publisher(self, key: str) -> zenoh.Publisher | None:
+        """The cached publisher of ``key``, declared on first use (None once the cache is full)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"bus {self._identity} is closed")
@@ -463,6 +458,10 @@ class Bus:
             if pub is None and len(self._publishers) < MAX_CACHED_PUBLISHERS:
                 pub = self._publishers[key] = self._session.declare_publisher(
                     key, congestion_control=congestion_control(key))
+            return pub
+
+    def _put(self, key: str, data: bytes) -> None:
+        pub = self._publisher(key)
         if pub is not None:
             pub.put(data)
         else:
@@ -533,18 +532,22 @@ class Bus:
             key = str(sample.key_expr)
             with self._lock:
                 self._received += 1
-            size = len(sample.payload)
-            if max_bytes is not None and size > max_bytes:  # don't even copy it
-                self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))
-                return
-            raw = sample.payload.to_bytes()
-            if self._closed:
+            raw = self._payload(key, sample, max_bytes)
+            if raw is None or self._closed:
                 return
             with self._deliver_lock:  # one message at a time through filter and callback
                 handle(key, raw, arrival_ns, arrival_mono)
 
         sub = self._session.declare_subscriber(key_expr, on_sample)
         return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
+
+    def _payload(self, key: str, sample: zenoh.Sample, max_bytes: int | None) -> bytes | None:
+        """The sample's bytes, or None (counted as too large) above ``max_bytes``, without copying them."""
+        size = len(sample.payload)
+        if max_bytes is not None and size > max_bytes:
+            self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))
+            return None
+        return sample.payload.to_bytes()
 
     def _on_data(self, key: str, raw: bytes, arrival_ns: int, arrival_mono: int, callback: DataCallback) -> None:
         msg = self._decode(key, raw)
