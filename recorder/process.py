@@ -65,6 +65,7 @@ from recorder.mcap_log import (
 )
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
 from truav import keys, schema, transport
+from truav.lifeline import watch_supervisor
 
 log = logging.getLogger("truav.recorder")
 
@@ -449,6 +450,12 @@ def cmd_record(args: argparse.Namespace) -> int:
     stop = threading.Event()
     reasons: list[str] = []
     recorder = Recorder(options, zconfig)
+
+    def supervisor_gone() -> None:  # started by `truav-swarm up`, which was killed: finish the file
+        reasons.append("supervisor gone")
+        stop.set()
+
+    watch_supervisor(supervisor_gone)
     with _signals_set(stop, reasons):
         try:
             summary = run_until_stopped(recorder, stop)

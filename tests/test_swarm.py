@@ -7,6 +7,7 @@ Every process is started here, tracked by PID and killed + reaped at the end.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -161,3 +162,49 @@ def test_no_router_is_a_clear_error_not_a_traceback(capsys) -> None:
     assert swarm_cli.main(["status", "-e", endpoint]) == 1
     err = capsys.readouterr().err
     assert "is a router running there?" in err and "Traceback" not in err
+
+
+def _running(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie awaiting its reaper counts as stopped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "sigkill"])
+def test_no_swarm_process_outlives_its_supervisor(tmp_path, signum):
+    """SIGTERM stops `truav-swarm up` as Ctrl-C does (summary, exit 130); after SIGKILL its
+    children notice it is gone and stop by themselves, cleanly (agents write their statistics)."""
+    out = tmp_path / "swarm"
+    log = open(tmp_path / "up.log", "wb")
+    sup = subprocess.Popen([sys.executable, "-m", "truav.swarm_cli", "up", "--run", "lifeline", "--agents", "2",
+                            "--steps", "100", "--episodes", "50", "--set", "scenario.n_vehicles=40",
+                            "--out", str(out), "--quiet", "--no-plot"],
+                           stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    log.close()
+    children: dict[str, int] = {}
+    try:
+        deadline = time.monotonic() + 90
+        while not all((out / f"agent{i}.npz").is_file() for i in (0, 1)) and sup.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)  # both agents have checkpointed once: the swarm is ticking (50 episodes take minutes)
+        children = json.loads((out / "pids.json").read_text())
+        assert set(children) == {"router", "world", "agent0", "agent1"} and sup.poll() is None
+        sup.send_signal(signum)
+        rc = sup.wait(timeout=30)
+        stop_by = time.monotonic() + 15
+        while any(_running(pid) for pid in children.values()) and time.monotonic() < stop_by:
+            time.sleep(0.1)
+        assert not [name for name, pid in children.items() if _running(pid)], (tmp_path / "up.log").read_text()
+        assert (out / "agent0.json").is_file() and (out / "agent1.json").is_file()  # stopped, not killed
+        if signum == signal.SIGTERM:
+            assert rc == 130 and (out / "summary.json").is_file()
+            assert "interrupted" in (tmp_path / "up.log").read_text()
+    finally:
+        if sup.poll() is None:
+            sup.kill()
+            sup.wait()
+        for pid in children.values():  # only our own children, should the test have failed
+            if _running(pid) and b"truav.swarm_cli" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                os.kill(pid, signal.SIGKILL)

@@ -28,6 +28,7 @@ from truav import keys
 from truav.cli import UsageError, parse_sets, positive_float, positive_int
 from truav.config import Config, ConfigError, load_config
 from truav.faults import PlanError
+from truav.lifeline import watch_supervisor
 from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -50,7 +51,9 @@ def scenario_from(args) -> Config:
 
 
 def _on_sigterm(stop) -> None:
+    """``stop()`` on SIGTERM, and when the `truav-swarm up` that started this process is gone."""
     signal.signal(signal.SIGTERM, lambda *_: stop())
+    watch_supervisor(stop)
 
 
 GIL_SWITCH_INTERVAL_S = 0.0005

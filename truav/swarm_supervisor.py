@@ -4,12 +4,15 @@ The supervisor starts a Zenoh router on loopback, optionally the recorder,
 the world process and one process per UAV agent (all `python -m
 truav.swarm_cli ...`, logs under <out>/logs/), watches the bus (liveliness,
 step metrics, beacons) for a live status table, and at the end (or on
-Ctrl-C) stops every process it started, by PID, and prints a summary with
-control-plane figures; it also draws <out>/summary.png.
+Ctrl-C, SIGTERM or SIGHUP) stops every process it started, by PID, and prints
+a summary with control-plane figures; it also draws <out>/summary.png.  Killed
+outright, it cannot: its children then notice it is gone and stop by
+themselves (:mod:`truav.lifeline`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -28,6 +31,7 @@ from truav import keys, schema
 from truav.config import Config, to_toml
 from truav.faults import load_plan
 from truav.inbox import Inbox
+from truav.lifeline import child_env
 from truav.swarm_faults import FaultController
 from truav.transport import Bus, make_config
 
@@ -96,7 +100,8 @@ class Children:
         log = open(self.log_dir / f"{name}.log", "ab")  # a restarted process appends
         self._logs.append(log)
         proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True)  # Ctrl-C reaches the supervisor only
+                                start_new_session=True,  # Ctrl-C reaches the supervisor only...
+                                env=child_env())  # ...and each child stops if the supervisor dies (truav.lifeline)
         self.procs[name] = proc
         self.argv[name] = argv
         return proc
@@ -261,6 +266,36 @@ def _python_module(*args: str) -> list[str]:
 
 
 def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
+    """Run a swarm to its end (or Ctrl-C, SIGTERM, SIGHUP), stop every process it started, summarise.
+
+    Returns the exit code: 0, 130 if interrupted, 1-2 if it could not start."""
+    with _terminate_as_interrupt():
+        return _run_swarm(cfg, opts)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM and SIGHUP stop the swarm as Ctrl-C does (main thread only), once: a second
+    signal does not cut the shutdown short."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired: list[int] = []
+
+    def handler(signum: int, _frame) -> None:
+        if not fired:
+            fired.append(signum)
+            raise KeyboardInterrupt
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     out = Path(opts.out or f"runs/swarm-{opts.run}")
     if opts.record and Path(opts.record).exists():
         print(f"truav-swarm: error: {opts.record} exists; choose another --record file (nothing was started)",

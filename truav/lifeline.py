@@ -1,0 +1,71 @@
+"""Processes started by ``truav-swarm up`` stop when their supervisor is gone.
+
+The supervisor starts its children in sessions of their own (so Ctrl-C
+reaches it alone) and stops them by PID.  Killed itself (SIGKILL, the OOM
+killer, a closed terminal), it cannot, so each child also watches it: the
+supervisor's PID comes in :data:`SUPERVISOR_PID_ENV`, and when that process
+exits the child stops as it does on SIGTERM (an agent checkpoints, the
+recorder closes its MCAP file).  A process started by hand has no such
+variable and is not watched.
+
+The watch blocks on a Linux pidfd, so it costs no wake-ups; elsewhere it
+polls the parent PID every :data:`POLL_PERIOD_S`.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+from collections.abc import Callable, Mapping
+
+SUPERVISOR_PID_ENV = "TRUAV_SUPERVISOR_PID"
+POLL_PERIOD_S = 0.5
+
+
+def supervisor_pid(environ: Mapping[str, str] = os.environ) -> int | None:
+    """The PID in :data:`SUPERVISOR_PID_ENV`, or None if unset or not a positive integer."""
+    value = environ.get(SUPERVISOR_PID_ENV, "")
+    return int(value) if value.isdigit() and int(value) > 0 else None
+
+
+def child_env(environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """The environment for a child of this process that should stop when this process is gone."""
+    return {**environ, SUPERVISOR_PID_ENV: str(os.getpid())}
+
+
+def watch_supervisor(on_gone: Callable[[], None]) -> threading.Thread | None:
+    """If this process has a supervisor, call ``on_gone()`` once, from a daemon thread, when it exits.
+
+    Returns the thread, or None when there is nothing to watch (no supervisor
+    named, or it is not this process's parent: started by hand with a stale
+    environment)."""
+    pid = supervisor_pid()
+    if pid is None or os.getppid() != pid:
+        return None
+    thread = threading.Thread(target=_watch, args=(pid, on_gone), name="supervisor-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _watch(pid: int, on_gone: Callable[[], None]) -> None:
+    fd = _pidfd(pid)
+    try:
+        # Opened while the parent is still `pid`, the pidfd cannot refer to a later process with a reused PID.
+        if fd is not None and os.getppid() == pid:
+            select.select([fd], [], [])  # readable once the process has exited
+        else:
+            while os.getppid() == pid:  # re-parented once the supervisor is gone
+                time.sleep(POLL_PERIOD_S)
+    finally:
+        if fd is not None:
+            os.close(fd)
+    on_gone()
+
+
+def _pidfd(pid: int) -> int | None:
+    try:
+        return os.pidfd_open(pid)
+    except (AttributeError, OSError):  # not Linux >= 5.3, or the process is already gone
+        return None
