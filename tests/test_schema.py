@@ -263,6 +263,16 @@ def test_decode_rejects_nan_and_inf_floats() -> None:
         assert reason_of(msgpack.packb(w)) == schema.R_OUT_OF_RANGE
 
 
+def test_decoded_messages_are_normalised_and_frozen() -> None:
+    w = wire(stamped_samples()[2])  # beacon
+    w["pos"] = [3, 4]  # ints where floats belong: accepted and stored as floats, as by the constructor
+    b = decode(msgpack.packb(w))
+    assert b.pos == (3.0, 4.0) and all(type(x) is float for x in b.pos)
+    assert b == schema.Beacon(src=b.src, seq=b.seq, t=b.t, uav=b.uav, tick=b.tick, pos=(3, 4), vel=b.vel)
+    with pytest.raises(FrozenInstanceError):
+        b.tick = 0  # type: ignore[misc]
+
+
 def test_decode_error_carries_sender_and_is_a_value_error() -> None:
     with pytest.raises(ValueError) as info:
         decode(with_(action=99))

@@ -34,6 +34,7 @@ thread (:mod:`truav.inbox`).
 from __future__ import annotations
 
 import argparse
+import functools
 import heapq
 import itertools
 import json
@@ -80,6 +81,13 @@ _WILDCARD_CHARS = frozenset("*$?#")
 # silently drops it.  Zenoh's default is DROP, which under CPU load drops even
 # small messages queued behind a large one (seen in tests with 1 MiB payloads).
 DROPPABLE_KINDS = frozenset({schema.KIND_BEACON, schema.KIND_POSITIONS})
+
+ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
+LEAN_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+"""Zenoh's receive runtime with one worker thread instead of two.  A swarm on a
+few cores runs 20+ processes; with two rx workers each message also wakes the
+second one.  Measured with ``bench/bench_swarm.py`` (20 agents, 2 cores): 35k
+-> 26k context switches per second.  Applied unless ``ZENOH_RUNTIME`` is set."""
 
 DataCallback = Callable[[str, Message, bytes, int], None]  # (key, msg, raw, recv_time_ns)
 RawCallback = Callable[[str, bytes, int], None]  # (key, raw, recv_time_ns)
@@ -335,7 +343,7 @@ class Bus:
         self._callback_errors = self._filter_errors = self._overflow = 0
         self._malformed: dict[str, int] = {}
         self._closed = False
-        self._session = zenoh.open(config if config is not None else make_config())
+        self._session = _open_session(config if config is not None else make_config())
         self._sched = _Scheduler(f"truav-bus[{self._identity}]", max_pending)
 
     # -- properties / lifecycle --
@@ -748,14 +756,13 @@ def _check_placement(key: str, msg: Message) -> None:
     UAV id, a ``uav/<j>`` sender only on keys of UAV ``j``, the metrics scope
     and the fault kind against the last key chunk.
     """
-    kind = expected_kind(key)
+    kind, key_uav = _key_facts(key)
     if kind is not None and kind != msg.KIND:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} message on {key} (expects {kind})", src=msg.src)
-    key_uav = keys.parse_uav_id(key)
     body_uav = getattr(msg, "uav", None)
     if key_uav is not None and body_uav is not None and body_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
-    src_uav = keys.parse_uav_identity(msg.src)
+    src_uav = _src_uav(msg.src)
     if src_uav is not None and src_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
     last = key.rsplit("/", 1)[-1]
@@ -765,6 +772,25 @@ def _check_placement(key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
 
 
+# A process sees the same few keys and senders over and over: parse each once (bounded caches,
+# so a flood of distinct keys from a misbehaving peer cannot grow memory).
+@functools.lru_cache(maxsize=4096)
+def _key_facts(key: str) -> tuple[str | None, int | None]:
+    """(expected_kind, UAV id) of a key."""
+    return expected_kind(key), keys.parse_uav_id(key)
+
+
+@functools.lru_cache(maxsize=4096)
+def _src_uav(src: str) -> int | None:
+    return keys.parse_uav_identity(src)
+
+
+def _open_session(config: zenoh.Config) -> zenoh.Session:
+    # Zenoh reads ZENOH_RUNTIME when a process opens its first session; child processes inherit it.
+    os.environ.setdefault(ZENOH_RUNTIME_ENV, LEAN_ZENOH_RUNTIME)
+    return zenoh.open(config)
+
+
 # --- router --------------------------------------------------------------------------
 def open_router(
     listen: Sequence[str] = (DEFAULT_ENDPOINT,),
@@ -772,7 +798,7 @@ def open_router(
     config_file: str | os.PathLike[str] | None = None,
 ) -> zenoh.Session:
     """Open a session in Zenoh ``router`` mode (zenoh-python 1.x supports it); caller closes it."""
-    return zenoh.open(make_config(MODE_ROUTER, connect, listen, config_file))
+    return _open_session(make_config(MODE_ROUTER, connect, listen, config_file))
 
 
 def run_router(
