@@ -41,12 +41,12 @@ from __future__ import annotations
 
 import copy
 import math
-from math import isfinite
 import re
 import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
+from math import isfinite
 from types import MappingProxyType
 from typing import Any, ClassVar, TypeVar, Union
 

@@ -166,7 +166,13 @@ class WorldNode:
                 tick += 1
             if self._stop.is_set():
                 break
-            # The episode's last observation: agents learn from it but do not act.
+            # The episode's last observation: agents learn from it but do not act.  In real time it
+            # waits for its own tick: sent at once, its 20 deliveries and learning steps would land
+            # among the last tick's beacon slots.
+            if not opts.lockstep:
+                self._sleep_until(next_due)
+                self.stats.tick_lateness_ms.append((self.clock() - next_due) * 1e3)
+                next_due += period
             self._tick_round(tick, episode, obs, True, None)
             tick += 1
             summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
