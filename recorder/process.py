@@ -65,7 +65,7 @@ from recorder.mcap_log import (
 )
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
 from truav import keys, schema, transport
-from truav.lifeline import watch_supervisor
+from truav.lifeline import signals_handled, watch_supervisor
 
 log = logging.getLogger("truav.recorder")
 
@@ -381,20 +381,13 @@ def run_until_stopped(recorder: Recorder, stop: threading.Event) -> RecorderSumm
 @contextlib.contextmanager
 def _signals_set(stop: threading.Event, reasons: list[str]):
     """SIGTERM/SIGINT set ``stop`` (main thread only); the old handlers come back afterwards."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def handler(signum: int, _frame: object) -> None:
         reasons.append(signal.Signals(signum).name)
         stop.set()
 
-    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
-    try:
+    with signals_handled((signal.SIGTERM, signal.SIGINT), handler):
         yield
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
 
 
 def zenoh_config_from_args(args: argparse.Namespace) -> Any:

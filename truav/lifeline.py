@@ -9,16 +9,19 @@ recorder closes its MCAP file).  A process started by hand has no such
 variable and is not watched.
 
 The watch blocks on a Linux pidfd, so it costs no wake-ups; elsewhere it
-polls the parent PID every :data:`POLL_PERIOD_S`.
+polls the parent PID every :data:`POLL_PERIOD_S`.  :func:`signals_handled`
+is the other half: how a process turns SIGTERM and friends into its own stop.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
+import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 SUPERVISOR_PID_ENV = "TRUAV_SUPERVISOR_PID"
 POLL_PERIOD_S = 0.5
@@ -69,3 +72,19 @@ def _pidfd(pid: int) -> int | None:
         return os.pidfd_open(pid)
     except (AttributeError, OSError):  # not Linux >= 5.3, or the process is already gone
         return None
+
+
+@contextlib.contextmanager
+def signals_handled(signals: Iterable[signal.Signals], handler: Callable[[int, object], None]) -> Iterator[None]:
+    """Handle ``signals`` with ``handler`` while the block runs, then restore the previous handlers.
+
+    Python delivers signals to the main thread only; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {sig: signal.signal(sig, handler) for sig in signals}
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)

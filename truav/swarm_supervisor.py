@@ -31,7 +31,7 @@ from truav import keys, schema
 from truav.config import Config, to_toml
 from truav.faults import load_plan
 from truav.inbox import Inbox
-from truav.lifeline import child_env
+from truav.lifeline import child_env, signals_handled
 from truav.swarm_faults import FaultController
 from truav.transport import Bus, make_config
 
@@ -277,22 +277,15 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
 def _terminate_as_interrupt():
     """SIGTERM and SIGHUP stop the swarm as Ctrl-C does (main thread only), once: a second
     signal does not cut the shutdown short."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     fired: list[int] = []
 
-    def handler(signum: int, _frame) -> None:
+    def handler(signum: int, _frame: object) -> None:
         if not fired:
             fired.append(signum)
             raise KeyboardInterrupt
 
-    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGHUP)}
-    try:
+    with signals_handled((signal.SIGTERM, signal.SIGHUP), handler):
         yield
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
 
 
 def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
