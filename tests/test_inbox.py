@@ -136,10 +136,13 @@ def test_link_filter_applies_at_arrival(bus_factory) -> None:
     assert not any(name.startswith("truav-bus[") for name in flt.threads)  # no hand-off to the scheduler
 
 
-def test_a_full_inbox_keeps_the_newest_and_counts_the_rest(bus_factory) -> None:
-    sender, reader = bus_factory("uav/1"), bus_factory("uav/0")
+@pytest.mark.parametrize("link_filter", [None, KeyFilter()], ids=["unfiltered", "filtered"])
+def test_a_full_inbox_keeps_the_newest_and_counts_the_rest(bus_factory, link_filter) -> None:
+    sender = bus_factory("uav/1")
+    reader = bus_factory("uav/0") if link_filter is None else bus_factory("uav/0", link_filter=link_filter)
     box = reader.inbox(keys.all_beacons(RUN), capacity=4)
     ready(sender, box, keys.uav_beacon(RUN, 1), beacon(1, 0))
+    received = reader.stats().received
     for tick in range(1, 11):
         sender.publish(keys.uav_beacon(RUN, 1), beacon(1, tick))
     deadline = time.monotonic() + WAIT_S
@@ -147,6 +150,7 @@ def test_a_full_inbox_keeps_the_newest_and_counts_the_rest(bus_factory) -> None:
         time.sleep(0.01)
     assert [r.msg.tick for r in box.drain()] == [7, 8, 9, 10]
     assert reader.stats().overflow == 6
+    assert reader.stats().received == received + 10  # each message counted once, evicted or drained
 
 
 def test_prepare_declares_publishers_within_the_agents_permissions(bus_factory) -> None:

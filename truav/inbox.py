@@ -75,8 +75,14 @@ class Inbox:
 
     def _push(self, entry: tuple) -> None:
         if len(self._ready) == self._ready.maxlen:  # deque evicts the oldest
-            self._bus._count_overflow()
-            self._bus._count_received(1, delivered=0)
+            try:
+                oldest = self._ready[0]
+            except IndexError:  # drained meanwhile: nothing is evicted
+                oldest = None
+            if oldest is not None:
+                self._bus._count_overflow()
+                if len(oldest) == 2:  # an unfiltered sample is counted as received when drained, or here
+                    self._bus._count_received(1, delivered=0)
         self._ready.append(entry)
 
     def _filtered_arrival(self, sample: zenoh.Sample, recv_ns: int) -> None:
