@@ -14,10 +14,9 @@ so ``stamp - tick * period_s`` is its time origin plus how late that stamp
 was, and the minimum over recent ticks is the origin.  Every agent hears the
 same Tick stamps, so all slots hang off one anchor and stay evenly spaced.
 Across hosts this needs synchronized clocks (NTP/PTP), as the fault plan's
-timing and the beacon-latency figures already do.  The estimate follows the
-one-tick shift at each episode boundary (the world sends the episode's last
-observation without waiting for a slot) and restarts when a stamp is more
-than a period after its estimated tick start (a stalled or a new world).
+timing and the beacon-latency figures already do.  The estimate restarts
+when a stamp is more than a period after its estimated tick start (a stalled
+or a new world).
 
 Pure computation: no clocks are read here; callers pass times in.
 """

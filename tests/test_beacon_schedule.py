@@ -34,11 +34,11 @@ def test_late_stamps_do_not_move_the_slot() -> None:
     assert s.due(100) == pytest.approx(ORIGIN + 100 * PERIOD + s.offset_s, abs=0.0015)
 
 
-def test_the_episode_boundary_shift_is_followed_at_once() -> None:
+def test_an_earlier_tick_start_is_followed_at_once() -> None:
     s = schedule()
     for tick in range(10):
         s.observe(tick, ORIGIN + tick * PERIOD)
-    # the world sends the episode's last observation (tick 10) right after tick 9, without a slot of its own
+    # a world that sends tick 10 right after tick 9, without a period of its own, shifts every later tick
     s.observe(10, ORIGIN + 9 * PERIOD + 0.002)
     assert s.tick_start(11) == pytest.approx(ORIGIN + 10 * PERIOD, abs=0.003)
 

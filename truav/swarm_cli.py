@@ -50,7 +50,7 @@ def scenario_from(args) -> Config:
     return load_config(args.scenario, parse_sets(args.set))
 
 
-def _on_sigterm(stop) -> None:
+def _stop_on_sigterm_or_orphaned(stop) -> None:
     """``stop()`` on SIGTERM, and when the `truav-swarm up` that started this process is gone."""
     signal.signal(signal.SIGTERM, lambda *_: stop())
     watch_supervisor(stop)
@@ -71,7 +71,7 @@ def _setup_logging(verbose: bool) -> None:
 def cmd_router(args) -> int:
     _setup_logging(args.verbose)
     stop = threading.Event()
-    _on_sigterm(stop.set)
+    _stop_on_sigterm_or_orphaned(stop.set)
     listen = args.listen or [DEFAULT_ENDPOINT]
     print(f"router listening on {', '.join(listen)}", flush=True)
     try:
@@ -90,7 +90,7 @@ def cmd_world(args) -> int:
                         fault_plan=args.fault_plan)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
         node = WorldNode(cfg, opts, bus)
-        _on_sigterm(node.stop)
+        _stop_on_sigterm_or_orphaned(node.stop)
         try:
             stats = node.run()
         except KeyboardInterrupt:
@@ -113,7 +113,7 @@ def cmd_agent(args) -> int:
                         tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan)
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
         node = AgentNode(cfg, opts, bus)
-        _on_sigterm(node.stop)
+        _stop_on_sigterm_or_orphaned(node.stop)
         try:
             node.run()
         except KeyboardInterrupt:

@@ -550,7 +550,7 @@ class Bus:
         return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
 
     def _payload(self, key: str, sample: zenoh.Sample, max_bytes: int | None) -> bytes | None:
-        """The sample's bytes, or None (counted as too large) above ``max_bytes``, without copying them."""
+        """The sample's bytes; None (counted as too large) above ``max_bytes``, checked before copying."""
         size = len(sample.payload)
         if max_bytes is not None and size > max_bytes:
             self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))

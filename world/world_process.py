@@ -155,10 +155,8 @@ class WorldNode:
             done = False
             while not done and not self._stop.is_set():
                 if not opts.lockstep:
-                    self._sleep_until(next_due)
-                    self.stats.tick_lateness_ms.append((self.clock() - next_due) * 1e3)
                     deadline = next_due + opts.deadline_frac * period
-                    next_due += period
+                    next_due = self._await_tick(next_due, period)
                 actions = self._tick_round(tick, episode, obs, False,
                                            None if opts.lockstep else deadline)
                 obs, metrics, done = self.world.step(actions)
@@ -170,9 +168,7 @@ class WorldNode:
             # waits for its own tick: sent at once, its 20 deliveries and learning steps would land
             # among the last tick's beacon slots.
             if not opts.lockstep:
-                self._sleep_until(next_due)
-                self.stats.tick_lateness_ms.append((self.clock() - next_due) * 1e3)
-                next_due += period
+                next_due = self._await_tick(next_due, period)
             self._tick_round(tick, episode, obs, True, None)
             tick += 1
             summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
@@ -183,10 +179,16 @@ class WorldNode:
             log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
                      summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
         self.stats.ticks = tick
-        if not opts.lockstep:  # let the last tick run its period: its beacons are still on the way
+        if not opts.lockstep:  # let the last tick run its period: agents are still learning from it
             self._sleep_until(next_due)
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
+
+    def _await_tick(self, due: float, period: float) -> float:
+        """Real time: sleep until the tick due at ``due``, record how late it starts; the next one's due time."""
+        self._sleep_until(due)
+        self.stats.tick_lateness_ms.append((self.clock() - due) * 1e3)
+        return due + period
 
     def _sleep_until(self, due: float) -> None:
         while not self._stop.is_set():
