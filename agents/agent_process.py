@@ -13,7 +13,7 @@ swarm's agents do not all write (and fsync) in the same tick; a restarted
 agent resumes from its checkpoint.
 
 Threads: observations and control messages come through bus callbacks;
-neighbour beacons collect in an :class:`~truav.inbox.Inbox` that the main
+neighbour beacons collect in an :class:`~truav.bus.inbox.Inbox` that the main
 loop drains once per decision (cheap arrival keeps the fan-out of 20+
 agents' beacons off the CPU); in real time one thread sends this agent's
 beacon in its slot of the tick (:mod:`agents.beacon_schedule`).
@@ -37,10 +37,11 @@ from agents.beacon_schedule import BeaconSchedule
 from agents.qlearning import QLearners
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
-from truav import keys, schema, seeding
+from truav import seeding
+from truav.bus import keys, schema
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
-from truav.transport import Bus
+from truav.bus.transport import Bus
 from world.uavs import action_velocity
 
 log = logging.getLogger("truav.agent")

@@ -46,7 +46,7 @@ from recorder.check import check  # noqa: E402
 from recorder.mcap_log import McapLog  # noqa: E402
 from recorder.process import spawn_recorder, stop_recorder, wait_until_recording  # noqa: E402
 from recorder.reader import iter_messages  # noqa: E402
-from truav import keys, transport  # noqa: E402
+from truav.bus import keys, transport  # noqa: E402
 
 RUN = "benchbus"
 TARGET_MSGS_S = 100_000
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> None:
     FLOOD_N[0] = n
     endpoint = free_endpoint()
     print(f"{os.cpu_count()} CPU cores; router, recorder and publisher are separate processes on loopback")
-    serve = f"from truav import transport; transport.run_router([{endpoint!r}])"
+    serve = f"from truav.bus import transport; transport.run_router([{endpoint!r}])"
     router = subprocess.Popen([sys.executable, "-c", serve], env=_env(), stdin=subprocess.DEVNULL)
     try:
         time.sleep(1.0)

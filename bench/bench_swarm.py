@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from truav.config import Config  # noqa: E402
-from truav.swarm_supervisor import SwarmOptions, run_swarm  # noqa: E402
+from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 
 def run_once(agents: int, rate: float, ticks: int) -> dict:

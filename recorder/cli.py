@@ -158,7 +158,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     import signal
 
     from recorder.replay import KeyboardControl, ReplayOptions, ReplayUsageError, replay_on_bus, split_patterns
-    from truav.transport import config_from_args
+    from truav.bus.transport import config_from_args
 
     problem = _mcap_file(args.file)
     if problem:
@@ -204,7 +204,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def add_swarm_commands(subparsers: Any) -> None:
     """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
     from recorder.process import add_record_args
-    from truav.transport import add_transport_args
+    from truav.bus.transport import add_transport_args
 
     rec = subparsers.add_parser(
         "record", help="record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)",

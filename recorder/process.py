@@ -22,7 +22,7 @@ afterwards.  :func:`recorder_argv`, :func:`spawn_recorder` and
 
 Thread model.  The writer thread owns the :class:`~recorder.mcap_log.McapLog`
 (not thread-safe) and pulls samples itself from a bounded Zenoh FIFO
-(:meth:`truav.transport.Bus.receive_raw`): no Python callback and no thread
+(:meth:`truav.bus.transport.Bus.receive_raw`): no Python callback and no thread
 hand-off per message, which doubled the sustained rate against a callback
 design. When the bus is quiet it sleeps 1 ms at a time and flushes at the
 log's :meth:`~recorder.mcap_log.McapLog.next_flush_due`, so the open chunk
@@ -64,8 +64,8 @@ from recorder.mcap_log import (
     McapLog,
 )
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
-from truav import keys, schema, transport
-from truav.lifeline import signals_handled, watch_supervisor
+from truav.bus import keys, schema, transport
+from truav.swarm.lifeline import signals_handled, watch_supervisor
 
 log = logging.getLogger("truav.recorder")
 

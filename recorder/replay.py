@@ -53,7 +53,7 @@ from typing import IO, Any, Optional
 
 from recorder.mcap_log import MIRROR_PREFIX
 from recorder.reader import RecordedMessage, iter_messages, open_source, probe, read_schemas
-from truav import keys, schema, transport
+from truav.bus import keys, schema, transport
 
 CONTROL_PART = "replay"  # commands arrive on keys.control(run, CONTROL_PART)
 CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_QUIT = "pause", "resume", "toggle", "step", "quit"

@@ -7,8 +7,8 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from truav import transport
-from truav.transport import Bus
+from truav.bus import transport
+from truav.bus.transport import Bus
 from truav.config import Config
 
 

@@ -4,7 +4,7 @@ import json
 
 from recorder.check import check
 from truav.config import Config
-from truav.swarm_supervisor import SwarmOptions, run_swarm
+from truav.swarm.supervisor import SwarmOptions, run_swarm
 
 PLAN = """
 seed = 3

@@ -2,7 +2,7 @@
 
 import csv
 
-from truav import fault_sweep
+from truav.experiments import faults as fault_sweep
 from truav.config import Config
 
 

@@ -1,4 +1,4 @@
-"""Tests for truav.inbox over real Zenoh sessions (loopback, bounded waits)."""
+"""Tests for truav.bus.inbox over real Zenoh sessions (loopback, bounded waits)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from truav import keys, schema
-from truav.schema import Action, Beacon
+from truav.bus import keys, schema
+from truav.bus.schema import Action, Beacon
 
 RUN = "test_inbox"
 WAIT_S = 3.0

@@ -41,9 +41,9 @@ from recorder.process import (
 )
 from recorder.reader import iter_messages, probe
 from recorder.recover import recover
-from truav import keys, schema
+from truav.bus import keys, schema
 from truav.config import Config, to_toml
-from truav.transport import Bus
+from truav.bus.transport import Bus
 
 REPO = Path(__file__).resolve().parents[1]
 RUN = "rec_proc"

@@ -40,8 +40,8 @@ from recorder.replay import (
     replay_on_bus,
     split_patterns,
 )
-from truav import keys, schema, transport
-from truav.transport import Bus
+from truav.bus import keys, schema, transport
+from truav.bus.transport import Bus
 
 RUN = "rp"
 T0 = 1_700_000_000_000_000_000
@@ -442,7 +442,7 @@ def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str
     subscribe_ready(watcher, keys.uav_prefix(run, uav) + "/**", actions, run)
     repo = Path(__file__).resolve().parents[1]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")])}
-    agent = subprocess.Popen([sys.executable, "-m", "truav.swarm_cli", "agent", "--id", str(uav), "--run", run,
+    agent = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "agent", "--id", str(uav), "--run", run,
                               "--greedy", "-e", endpoint], env=env, stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:

@@ -1,4 +1,4 @@
-"""Tests for truav.transport over real Zenoh sessions, loopback only.
+"""Tests for truav.bus.transport over real Zenoh sessions, loopback only.
 
 One in-process router per module on a free tcp/127.0.0.1 port; every Bus is a
 client of it.  Multicast scouting is off, every wait is bounded.
@@ -19,8 +19,8 @@ import pytest
 from conftest import free_port
 import zenoh
 
-from truav import keys, schema, transport
-from truav.schema import Action, Beacon, Obs, SchemaError
+from truav.bus import keys, schema, transport
+from truav.bus.schema import Action, Beacon, Obs, SchemaError
 
 RUN = "test_run"
 WAIT_S = 3.0
@@ -163,7 +163,7 @@ def test_malformed_messages_are_dropped_counted_and_logged_once(bus_factory, cap
     sync(lambda: world.publish(key, obs(uav=1, tick=0)), lambda: bool(inbox.msgs()) and bool(raw_seen))
     before = len(raw_seen)
 
-    caplog.set_level(logging.WARNING, logger="truav.transport")
+    caplog.set_level(logging.WARNING, logger="truav.bus.transport")
     garbage = [b"\xc1 not msgpack", b"\xc1 still not", msgpack.packb({"v": 1, "kind": "obs"}),
                msgpack.packb([1, 2])]
     for payload in garbage:

@@ -344,7 +344,7 @@ def attach_plan(bus, run: str, plan: FaultPlan | None, tick_period_s: float) -> 
     """Install a PlanFilter on a Bus. Time origin: the world's tick 0, inferred
     from the first tick heard (send time - tick x period, so a process
     restarted mid-run agrees). A `control/faults` message replaces the plan."""
-    from truav import keys
+    from truav.bus import keys
 
     flt = PlanFilter(plan or FaultPlan(), run)
     bus.link_filter = flt

@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from truav import keys, schema, seeding
+from truav import seeding
+from truav.bus import keys, schema
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
-from truav.transport import Bus
+from truav.bus.transport import Bus
 from world.env import World
 from world.uavs import HOVER
 

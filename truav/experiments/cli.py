@@ -87,7 +87,7 @@ def add_experiment_parser(sub) -> None:
     s.add_argument("--vehicles", nargs="+", type=int, help="vehicle counts (default 200 1000)")
     s.add_argument("--speed", type=float, default=15.0, help="UAV speed in m/s (default 15)")
     s.set_defaults(func=cmd_scale)
-    from truav.fault_sweep import add_fault_sweep_parser
+    from truav.experiments.faults import add_fault_sweep_parser
     add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
 
 

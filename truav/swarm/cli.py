@@ -24,12 +24,12 @@ from pathlib import Path
 
 import zenoh
 
-from truav import keys
+from truav.bus import keys
 from truav.cli import UsageError, parse_sets, positive_float, positive_int
 from truav.config import Config, ConfigError, load_config
 from truav.faults import PlanError
-from truav.lifeline import watch_supervisor
-from truav.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
+from truav.swarm.lifeline import watch_supervisor
+from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
 
@@ -136,8 +136,8 @@ def cmd_status(args) -> int:
 
 
 def cmd_down(args) -> int:
-    from truav.swarm_supervisor import stop_recorded_pids
-    from truav import schema
+    from truav.swarm.supervisor import stop_recorded_pids
+    from truav.bus import schema
     with Bus("supervisor", args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
     stopped = stop_recorded_pids(Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}")
@@ -146,7 +146,7 @@ def cmd_down(args) -> int:
 
 
 def _swarm_options(args):
-    from truav.swarm_supervisor import SwarmOptions
+    from truav.swarm.supervisor import SwarmOptions
     cfg = scenario_from(args)
     if args.agents is not None:
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
@@ -161,13 +161,13 @@ def _swarm_options(args):
 
 
 def cmd_chaos(args) -> int:
-    from truav.chaos import run_chaos
+    from truav.swarm.chaos import run_chaos
     cfg, opts = _swarm_options(args)
     return run_chaos(cfg, opts, args.plan)
 
 
 def cmd_faults(args) -> int:
-    from truav import schema
+    from truav.bus import schema
     from truav.faults import CONTROL_FAULTS, load_plan
     plan = load_plan(args.plan)
     with Bus("fault", args.run, config_from_args(args)) as bus:
@@ -178,7 +178,7 @@ def cmd_faults(args) -> int:
 
 
 def cmd_up(args) -> int:
-    from truav.swarm_supervisor import run_swarm
+    from truav.swarm.supervisor import run_swarm
     cfg, opts = _swarm_options(args)
     return run_swarm(cfg, opts)
 

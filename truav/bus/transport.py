@@ -6,7 +6,7 @@
   :data:`DEFAULT_ENDPOINT`).
 * :class:`Bus` wraps one Zenoh session for one sender identity (``world``,
   ``uav/<i>``, ``recorder`` ...): it stamps and encodes outgoing messages with
-  :mod:`truav.schema`, decodes incoming ones, drops (and counts, and logs once
+  :mod:`truav.bus.schema`, decodes incoming ones, drops (and counts, and logs once
   per reason) anything malformed, applies a fault-injection :class:`LinkFilter`
   on the receive side, and wraps liveliness tokens.  Beacons and positions are
   sent with congestion control DROP, everything else with BLOCK.
@@ -28,7 +28,7 @@ agent's receive cost on a 2-core VM.  A slow callback delays every later
 delivery of that Bus; delayed deliveries are capped at ``max_pending``
 (overflow is counted).  An :meth:`Bus.inbox` skips the callback altogether:
 arrival is a timestamp and an append, and its reader decodes on its own
-thread (:mod:`truav.inbox`).
+thread (:mod:`truav.bus.inbox`).
 """
 
 from __future__ import annotations
@@ -49,9 +49,9 @@ from typing import Protocol
 
 import zenoh
 
-from truav import keys, schema
-from truav.inbox import DEFAULT_INBOX_CAPACITY, Inbox
-from truav.schema import Message, SchemaError
+from truav.bus import keys, schema
+from truav.bus.inbox import DEFAULT_INBOX_CAPACITY, Inbox
+from truav.bus.schema import Message, SchemaError
 
 log = logging.getLogger(__name__)
 
@@ -514,7 +514,7 @@ class Bus:
         return receiver
 
     def inbox(self, key_expr: str, capacity: int = DEFAULT_INBOX_CAPACITY) -> Inbox:
-        """An :class:`~truav.inbox.Inbox` of valid messages on ``key_expr``, decoded when drained.
+        """An :class:`~truav.bus.inbox.Inbox` of valid messages on ``key_expr``, decoded when drained.
 
         For traffic a process reads once per cycle (an agent's neighbour
         beacons): arrival costs a timestamp and an append, not a callback.

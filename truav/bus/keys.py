@@ -3,7 +3,7 @@
 All traffic of one emulation run lives under ``truav/<run>/``:
 
 ==============================  ==================  ===========================
-key (after ``truav/<run>/``)    direction           payload kind (truav.schema)
+key (after ``truav/<run>/``)    direction           payload kind (truav.bus.schema)
 ==============================  ==================  ===========================
 ``world/tick``                  world -> all        ``tick``
 ``world/positions``             world -> recorder   ``positions``
@@ -20,7 +20,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.schema)
 ==============================  ==================  ===========================
 
 Sender identities (the ``src`` field of every message and the identity of a
-:class:`truav.transport.Bus`) are ``world``, ``recorder``, ``fault``,
+:class:`truav.bus.transport.Bus`) are ``world``, ``recorder``, ``fault``,
 ``replay`` or ``uav/<i>``; helpers for those live here too.
 
 Nothing here talks to Zenoh: these are plain string builders and parsers, so

@@ -12,7 +12,7 @@ followed by the fields of that kind; one frozen dataclass per kind below
 (:class:`Tick`, :class:`Obs`, :class:`Beacon`, :class:`Action`,
 :class:`Metrics`, :class:`Fault`, :class:`Control`, :class:`Positions`).  The
 envelope fields ``src``/``seq``/``t`` are keyword-only with "unstamped"
-defaults; a :class:`Sequencer` (or :class:`truav.transport.Bus`, which owns
+defaults; a :class:`Sequencer` (or :class:`truav.bus.transport.Bus`, which owns
 one) stamps them just before sending.
 
 Messages validate themselves on construction and :func:`decode` builds them
@@ -53,7 +53,7 @@ from typing import Any, ClassVar, TypeVar, Union
 import msgpack
 import numpy as np
 
-from truav.keys import MAX_UAVS
+from truav.bus.keys import MAX_UAVS
 
 SCHEMA_VERSION = 1
 

@@ -15,9 +15,9 @@ import threading
 import time
 from typing import Callable
 
-from truav import keys, schema
+from truav.bus import keys, schema
 from truav.faults import Fault, FaultPlan
-from truav.transport import Bus
+from truav.bus.transport import Bus
 
 log = logging.getLogger("truav.faults")
 

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 
 from truav.config import Config  # noqa: E402
 from truav.faults import load_plan  # noqa: E402
-from truav.swarm_supervisor import SwarmOptions, run_swarm  # noqa: E402
+from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
         ("energy_j", "energy kJ/UAV/episode", 1e-3))

@@ -28,11 +28,11 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import zenoh
 
-from truav import schema
-from truav.schema import Message
+from truav.bus import schema
+from truav.bus.schema import Message
 
 if TYPE_CHECKING:
-    from truav.transport import Bus
+    from truav.bus.transport import Bus
 
 DEFAULT_INBOX_CAPACITY = 4096
 """Messages held before the oldest are evicted (counted as overflow): 10 s of 20 agents' beacons at 10 Hz."""

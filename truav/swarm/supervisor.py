@@ -2,12 +2,12 @@
 
 The supervisor starts a Zenoh router on loopback, optionally the recorder,
 the world process and one process per UAV agent (all `python -m
-truav.swarm_cli ...`, logs under <out>/logs/), watches the bus (liveliness,
+truav.swarm.cli ...`, logs under <out>/logs/), watches the bus (liveliness,
 step metrics, beacons) for a live status table, and at the end (or on
 Ctrl-C, SIGTERM or SIGHUP) stops every process it started, by PID, and prints
 a summary with control-plane figures; it also draws <out>/summary.png.  Killed
 outright, it cannot: its children then notice it is gone and stop by
-themselves (:mod:`truav.lifeline`).
+themselves (:mod:`truav.swarm.lifeline`).
 """
 
 from __future__ import annotations
@@ -27,13 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from truav import keys, schema
+from truav.bus import keys, schema
 from truav.config import Config, to_toml
 from truav.faults import load_plan
-from truav.inbox import Inbox
-from truav.lifeline import child_env, signals_handled
-from truav.swarm_faults import FaultController
-from truav.transport import Bus, make_config
+from truav.bus.inbox import Inbox
+from truav.swarm.lifeline import child_env, signals_handled
+from truav.swarm.fault_control import FaultController
+from truav.bus.transport import Bus, make_config
 
 PID_FILE = "pids.json"
 SCENARIO_FILE = "scenario.toml"
@@ -101,7 +101,7 @@ class Children:
         self._logs.append(log)
         proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True,  # Ctrl-C reaches the supervisor only...
-                                env=child_env())  # ...and each child stops if the supervisor dies (truav.lifeline)
+                                env=child_env())  # ...and each child stops if the supervisor dies (truav.swarm.lifeline)
         self.procs[name] = proc
         self.argv[name] = argv
         return proc
@@ -151,7 +151,7 @@ def stop_recorded_pids(out: Path) -> int:
             cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
-        if b"truav.swarm_cli" in cmdline or b"recorder.process" in cmdline:
+        if b"truav.swarm.cli" in cmdline or b"recorder.process" in cmdline:
             os.kill(pid, signal.SIGTERM)
             count += 1
     return count
@@ -309,7 +309,7 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     interrupted = False
     t0 = time.monotonic()
     try:
-        children.start("router", _python_module("truav.swarm_cli", "router", "-l", endpoint))
+        children.start("router", _python_module("truav.swarm.cli", "router", "-l", endpoint))
         if not wait_for_port(endpoint, ROUTER_START_TIMEOUT_S):
             print(f"truav-swarm: error: the router did not open {endpoint} (see {out}/logs/router.log)", file=sys.stderr)
             return 1
@@ -331,7 +331,7 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                          "thaw": lambda u: children.send(f"agent{u}", signal.SIGCONT)}
                 controller = FaultController(bus, opts.run, plan, hooks)
             children.start("world", _python_module(
-                "truav.swarm_cli", "world", *common, *timing, *faults_args, "--episodes", str(opts.episodes),
+                "truav.swarm.cli", "world", *common, *timing, *faults_args, "--episodes", str(opts.episodes),
                 "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
                 "--wait-agents", str(opts.wait_agents_s)))
             for i in range(n):
@@ -341,7 +341,7 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                     extra += ["--qtable", opts.qtable]
                 if opts.greedy:
                     extra += ["--greedy"]
-                children.start(f"agent{i}", _python_module("truav.swarm_cli", "agent", "--id", str(i),
+                children.start(f"agent{i}", _python_module("truav.swarm.cli", "agent", "--id", str(i),
                                                             *common, *timing, *faults_args, "--rate",
                                                             str(opts.rate_hz), *extra))
             (out / PID_FILE).write_text(json.dumps(children.pids()))
@@ -438,7 +438,7 @@ def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elaps
                                                   "elapsed_s": elapsed, "interrupted": interrupted,
                                                   "fault_events": events, "timeline": timeline}, indent=1))
     if opts.plot and monitor.tracks:
-        from truav.swarm_plots import swarm_figure
+        from truav.swarm.plots import swarm_figure
         path = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm '{opts.run}'")
         print(f"picture: {path}")
     if opts.record:

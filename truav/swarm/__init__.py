@@ -1,0 +1,1 @@
+"""The swarm's orchestration: `truav-swarm` CLI, supervisor, run-time fault control, chaos runs, plots, lifeline."""
