@@ -5,7 +5,12 @@ U=1 and the same seed stream) and knows only what its UAV senses: its
 observation from the world and the beacons it hears from its neighbours.
 Per observation it publishes its beacon, builds its state from the beacons
 of the same tick (lock-step: waits for every live peer's; real time: the
-freshest heard), learns from the last step and publishes its action.
+freshest heard), learns from the last step and publishes its action (in
+lock-step a `done` observation is answered too, once learned from: the world
+releases no later tick before that).
+
+Lock-step beacons are kept per tick and a decision uses exactly its own
+tick's, so a peer already on the next tick cannot change it.
 
 Its Q-table can start from a trained run (`--qtable RUN_DIR`) and is
 checkpointed atomically every K steps, at a step offset by UAV id so that a
@@ -51,6 +56,25 @@ LOCKSTEP_BEACON_WAIT_S = 2.0
 """Lock-step: how long to wait for the beacons of live peers before acting without them."""
 REALTIME_BEACON_MAX_AGE_TICKS = 10
 """Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
+DONE_ACK_ACTION = 0
+"""The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
+DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
+"""Testing only: ``UAV:MS[,UAV:MS...]`` makes those agents pause MS ms per observation (see debug_delay_s)."""
+
+
+def debug_delay_s(spec: str, uav: int) -> float:
+    """The pause of agent ``uav`` from a DELAY_ENV value ("" for none); ValueError if malformed."""
+    for item in filter(None, (part.strip() for part in spec.split(","))):
+        who, sep, ms = item.partition(":")
+        try:
+            who_id, delay_ms = int(who), float(ms)
+        except ValueError:
+            who_id, delay_ms = -1, -1.0
+        if not sep or who_id < 0 or not 0 <= delay_ms < 60_000:
+            raise ValueError(f"{DELAY_ENV}={spec!r}: expected UAV:MS[,UAV:MS...] with 0 <= MS < 60000")
+        if who_id == uav:
+            return delay_ms / 1e3
+    return 0.0
 
 
 def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
@@ -88,6 +112,9 @@ class AgentOptions:
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this agent receives."""
     stats_out: str | None = None
+    debug_delay_s: float = 0.0
+    """Testing only: pause this long per observation between sending the beacon and reading the peers'
+    (a deliberately slow agent: lock-step results must not change)."""
 
 
 class AgentNode:
@@ -100,7 +127,9 @@ class AgentNode:
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
-        self._beacons: dict[int, schema.Beacon] = {}
+        self._beacons: dict[int, schema.Beacon] = {}  # real time: each peer's freshest beacon
+        self._beacons_at: dict[int, dict[int, schema.Beacon]] = {}  # lock-step: tick -> {peer: its beacon}
+        self._used_tick = -1  # lock-step: beacons of this tick or earlier come too late to be used
         self._gone: set[int] = set()  # peers whose liveliness token vanished
         self._latency_ms: list[float] = []
         self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
@@ -181,6 +210,8 @@ class AgentNode:
             with self._lock:
                 self._gone.add(uav)
                 self._beacons.pop(uav, None)
+                for at_tick in self._beacons_at.values():
+                    at_tick.pop(uav, None)
 
     def stop(self) -> None:
         self._stopped_ns = time.time_ns()
@@ -204,6 +235,8 @@ class AgentNode:
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
         o, T = self.opts, self.cfg.scenario.steps_per_episode
         self._send_beacon(obs)
+        if o.debug_delay_s:
+            self._stop.wait(o.debug_delay_s)
         peers, heard = self._peers(obs.tick)
         pos = np.array([[obs.pos]], dtype=np.float64)
         nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
@@ -223,6 +256,9 @@ class AgentNode:
                 self.checkpoint()
         self._state = int(state[0, 0])
         if obs.done:
+            if o.lockstep:  # the acknowledgement the world waits for before the next tick (and the shutdown)
+                self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick,
+                                                                             action=DONE_ACK_ACTION))
             return
         self._action = int(self.learners.act(state, min(self._t, T - 1))[0, 0])
         self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
@@ -261,7 +297,7 @@ class AgentNode:
                 return
 
     def _take_beacons(self) -> None:
-        """Move the beacons heard since the last call from the inbox into the neighbour table."""
+        """Move the beacons heard since the last call from the inbox into the neighbour tables."""
         heard = self._beacon_inbox.drain()
         with self._lock:
             for r in heard:
@@ -271,33 +307,50 @@ class AgentNode:
                 if self._stopped_ns is None or r.recv_ns <= self._stopped_ns:
                     self._latency_ms.append((r.recv_ns - b.t) / 1e6)
                     self._latency_from.append((b.uav, b.tick))
+                if b.uav in self._gone:
+                    continue
+                if self.opts.lockstep:
+                    if b.tick > self._used_tick:
+                        self._beacons_at.setdefault(b.tick, {})[b.uav] = b
+                    continue
                 prev = self._beacons.get(b.uav)
-                if b.uav not in self._gone and (prev is None or b.tick >= prev.tick):
+                if prev is None or b.tick >= prev.tick:
                     self._beacons[b.uav] = b
 
     def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
         """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
         self._take_beacons()
         if self.opts.lockstep:
-            deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
-            while not self._stop.is_set():
-                with self._lock:
-                    # Every peer not known gone, so a slow starter is not skipped.
-                    missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone
-                               and (j not in self._beacons or self._beacons[j].tick < tick)]
-                left = deadline - time.monotonic()
-                if not missing or left <= 0:
-                    break
-                self._beacon_inbox.wait(min(left, 0.05))  # a peer's loss shows within this bound
-                self._take_beacons()
-        with self._lock:
-            if self.opts.lockstep:
-                fresh = {j: b for j, b in self._beacons.items() if b.tick == tick}
-            else:
+            fresh = self._lockstep_beacons(tick)
+        else:
+            with self._lock:
                 fresh = {j: b for j, b in self._beacons.items() if b.tick >= tick - REALTIME_BEACON_MAX_AGE_TICKS}
         ids = sorted(fresh)
         peers = np.array([[[fresh[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
         return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
+
+    def _lockstep_beacons(self, tick: int) -> dict[int, schema.Beacon]:
+        """The beacons of exactly ``tick`` of every peer not known gone (waited for); older ones are dropped."""
+        deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
+        while True:
+            with self._lock:
+                got = self._beacons_at.get(tick, {})
+                # Every peer not known gone, so a slow starter is not skipped.
+                missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone and j not in got]
+            left = deadline - time.monotonic()
+            if not missing or left <= 0 or self._stop.is_set():
+                break
+            self._beacon_inbox.wait(min(left, 0.05))  # a peer's loss shows within this bound
+            self._take_beacons()
+        if missing and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
+            log.warning("uav %d, tick %d: no beacon from peer(s) %s within %.0f s; deciding without them",
+                        self.opts.uav, tick, missing, LOCKSTEP_BEACON_WAIT_S)
+        with self._lock:
+            fresh = self._beacons_at.pop(tick, {})
+            self._used_tick = max(self._used_tick, tick)
+            for old in [t for t in self._beacons_at if t <= tick]:
+                del self._beacons_at[old]
+        return fresh
 
     def checkpoint(self) -> None:
         """Atomically write the Q-table, step count and generator state."""

@@ -3,8 +3,11 @@
 Per tick it publishes the tick and every UAV's local observation, collects
 actions until all live agents answered (lock-step) or a deadline passed
 (real time), applies them (a missing action hovers), steps, and publishes
-step metrics; at an episode's end it publishes the episode metrics and starts
-the next one. It watches the agents' liveliness tokens and logs joins and
+step metrics; at an episode's end it publishes the `done` observation, the
+episode metrics and starts the next one. In lock-step no tick is released
+before every live agent has answered the previous one, the `done` observation
+included (its answer only acknowledges: the agent has learned from it), so an
+agent never sees a peer's beacon of a later tick before it is done with its own. It watches the agents' liveliness tokens and logs joins and
 losses. Run it alone with `truav-swarm world`, or let `truav-swarm up` start it.
 """
 
@@ -101,7 +104,6 @@ class WorldNode:
         with self._cond:
             if msg.tick == self._tick and msg.uav < self.n_uavs and msg.uav not in self._actions:
                 self._actions[msg.uav] = msg.action
-                self.stats.actions_received += 1
                 self._cond.notify_all()
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
@@ -199,15 +201,19 @@ class WorldNode:
             self._stop.wait(min(left, 0.05))
 
     def _tick_round(self, tick: int, episode: int, obs, done: bool, deadline: float | None) -> np.ndarray:
-        """Publish tick + observations; return the actions (B=1, U), HOVER where missing."""
-        run, sc = self.opts.run, self.cfg.scenario
+        """Publish tick + observations; return the actions (B=1, U), HOVER where missing.
+
+        Lock-step waits for an answer to the ``done`` observation too (an acknowledgement, not applied):
+        the next tick goes out only once every agent alive at publication has finished this one."""
+        run, sc, lockstep = self.opts.run, self.cfg.scenario, self.opts.lockstep
         with self._cond:
-            self._tick = -1 if done else tick
+            self._tick = tick if lockstep or not done else -1
             self._actions = {}
+            expected = set(self._alive)  # one who joins later never saw this tick's observation
         period_ms = 1e3 / self.opts.rate_hz
         self.bus.publish(keys.world_tick(run), schema.Tick(
             tick=tick, episode=episode, sim_time=tick * sc.step_s,
-            deadline_ms=LOCKSTEP_ACTION_TIMEOUT_S * 1e3 if self.opts.lockstep else self.opts.deadline_frac * period_ms,
+            deadline_ms=LOCKSTEP_ACTION_TIMEOUT_S * 1e3 if lockstep else self.opts.deadline_frac * period_ms,
             n_uavs=self.n_uavs))
         for i in range(self.n_uavs):
             self.bus.publish(keys.uav_obs(run, i), schema.Obs(
@@ -219,20 +225,27 @@ class WorldNode:
             self.bus.publish(keys.world_positions(run), schema.Positions(
                 tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, self.world.vehicle_xy()[0]))))
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
-        if done:
+        if done and not lockstep:
             return actions
         limit = self.clock() + LOCKSTEP_ACTION_TIMEOUT_S if deadline is None else deadline
         with self._cond:
             while not self._stop.is_set():
-                waiting = (self._alive - set(self._actions)) if deadline is None else \
+                waiting = (expected & self._alive) - set(self._actions) if deadline is None else \
                     set(range(self.n_uavs)) - set(self._actions)
                 left = limit - self.clock()
                 if not waiting or left <= 0:
                     break
                 self._cond.wait(min(left, 0.05))
-            for uav, a in self._actions.items():
-                actions[0, uav] = a
+            answered = dict(self._actions)
             self._tick = -1
+        if lockstep and waiting and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
+            log.warning("tick %d: no %s from live agent(s) %s within %.0f s; going on without them", tick,
+                        "acknowledgement" if done else "action", sorted(waiting), LOCKSTEP_ACTION_TIMEOUT_S)
+        if done:
+            return actions
+        for uav, a in answered.items():
+            actions[0, uav] = a
+        self.stats.actions_received += len(answered)
         self.stats.deadline_misses += int(np.sum(actions[0] == HOVER))
         return actions
 

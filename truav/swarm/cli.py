@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -102,15 +103,19 @@ def cmd_world(args) -> int:
 
 
 def cmd_agent(args) -> int:
-    from agents.agent_process import AgentNode, AgentOptions
+    from agents.agent_process import DELAY_ENV, AgentNode, AgentOptions, debug_delay_s
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     if not 0 <= args.id < cfg.scenario.n_uavs:
         raise UsageError(f"--id {args.id} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
+    try:
+        delay_s = debug_delay_s(os.environ.get(DELAY_ENV, ""), args.id)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
-                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan)
+                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s)
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
         node = AgentNode(cfg, opts, bus)
         _stop_on_sigterm_or_orphaned(node.stop)
