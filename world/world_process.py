@@ -7,8 +7,9 @@ step metrics; at an episode's end it publishes the `done` observation, the
 episode metrics and starts the next one. In lock-step no tick is released
 before every live agent has answered the previous one, the `done` observation
 included (its answer only acknowledges: the agent has learned from it), so an
-agent never sees a peer's beacon of a later tick before it is done with its own. It watches the agents' liveliness tokens and logs joins and
-losses. Run it alone with `truav-swarm world`, or let `truav-swarm up` start it.
+agent never sees a peer's beacon of a later tick before it is done with its
+own. It watches the agents' liveliness tokens and logs joins and losses. Run
+it alone with `truav-swarm world`, or let `truav-swarm up` start it.
 """
 
 from __future__ import annotations
@@ -228,6 +229,7 @@ class WorldNode:
         if done and not lockstep:
             return actions
         limit = self.clock() + LOCKSTEP_ACTION_TIMEOUT_S if deadline is None else deadline
+        waiting: set[int] = set()
         with self._cond:
             while not self._stop.is_set():
                 waiting = (expected & self._alive) - set(self._actions) if deadline is None else \
