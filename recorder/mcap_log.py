@@ -10,6 +10,11 @@ Layout of a file:
 * for beacons, metrics and positions a JSON *mirror* channel
   ``/json/<key>`` (message encoding ``json``, a real JSON Schema) because
   Foxglove cannot decode msgpack;
+* Foxglove well-known-schema mirrors (``/foxglove/...``: 3D scene, frame
+  transforms, one LocationFix per UAV, a Log), built by
+  :class:`recorder.foxglove.FoxgloveMirror` with foxglove-sdk's schema classes
+  (protobuf encoding, the SDK's own schemas); every mirror topic starts with
+  "/" and no bus key does (:func:`is_mirror_topic`);
 * ``log_time`` = receive time, ``publish_time`` = envelope ``t`` and
   ``sequence`` = envelope ``seq`` (mod 2**32), so other MCAP tools see them.
 
@@ -47,6 +52,8 @@ from typing import IO, Any, Callable, Mapping, Optional, Union
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
+    Attachment,
+    AttachmentIndex,
     Channel,
     Chunk,
     ChunkIndex,
@@ -61,6 +68,8 @@ from mcap.records import (
     SummaryOffset,
 )
 
+from recorder.foxglove import MESSAGE_ENCODING as FOXGLOVE_ENCODING
+from recorder.foxglove import FoxgloveMirror, FoxSchema, Out
 from recorder.schemas import (
     KINDS,
     MIRROR_SCHEMA_PREFIX,
@@ -89,11 +98,23 @@ MIRROR_PREFIX = "/json/"  # mirror topic = MIRROR_PREFIX + key; bus keys never s
 META_KIND = "truav.kind"  # channel metadata: kind the schema was chosen for
 META_MIRROR_OF = "truav.mirror_of"  # channel metadata on mirrors: the mirrored key
 
+
+def is_mirror_topic(topic: str) -> bool:
+    """JSON and Foxglove mirrors start with "/"; bus keys never do."""
+    return topic.startswith("/")
+
+
 COMPRESSIONS = {"none": "", "lz4": "lz4", "zstd": "zstd"}  # option -> Chunk.compression
 DEFAULT_COMPRESSION = "zstd"
 DEFAULT_FLUSH_INTERVAL_S = 0.05  # max age of the oldest message still in memory
 DEFAULT_CHUNK_BYTES = 512 * 1024  # also close a chunk once this big (bounds memory)
 DEFAULT_ZSTD_LEVEL = 3
+# A finished file is rewritten once into big, strongly compressed chunks (see recorder.recover.compact):
+# 50 ms chunks make the indexes a third of the file and halve what zstd can find to share.
+COMPACT_CHUNK_BYTES = 8 * 1024 * 1024  # = zstd level 19's window
+COMPACT_ZSTD_LEVEL = 19  # zstd's strongest usual level: ~2 MB/s, a quarter smaller than levels 9-18 here
+COMPACT_FAST_ZSTD_LEVEL = 9  # ~80 MB/s: for recordings too big to finish within seconds at level 19
+COMPACT_STRONG_MAX_BYTES = 8 * 1024 * 1024  # recorded files up to this size (~40 MB of messages) get level 19
 MAX_ID = 0xFFFF  # schema and channel ids are uint16
 
 _U32 = 0xFFFFFFFF
@@ -199,10 +220,12 @@ class McapLog:
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         chunk_bytes: int = DEFAULT_CHUNK_BYTES,
         mirrors: bool = True,
+        foxglove: Union[FoxgloveMirror, bool] = True,
         auto_flush: bool = True,
         fsync: bool = False,
         zstd_level: int = DEFAULT_ZSTD_LEVEL,
         clock: Callable[[], float] = time.monotonic,
+        library: str = LIBRARY,
     ) -> None:
         self._compress = _compressor(compression, zstd_level)
         self._compression = COMPRESSIONS[compression]
@@ -211,6 +234,12 @@ class McapLog:
         self._interval = flush_interval_s
         self._chunk_bytes = chunk_bytes
         self._mirrors = mirrors
+        # True: the default scene geometry; the recorder process passes one built from the run config
+        self._fox: Optional[FoxgloveMirror] = (FoxgloveMirror() if foxglove is True else foxglove or None) \
+            if mirrors else None
+        self._fox_kinds = self._fox.KINDS if self._fox is not None else frozenset()
+        self._fox_chans: dict[str, list[int]] = {}  # topic -> [channel id, sequence]
+        self._srcs_seen: set[str] = set()
         self._auto_flush = auto_flush
         self._fsync = fsync
         self._clock = clock
@@ -238,6 +267,7 @@ class McapLog:
         # summary section material
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
         self._n_messages = 0  # in written chunks; the open chunk holds _chunk_n more
         self._time_min: Optional[int] = None  # over written chunks
         self._time_max: Optional[int] = None
@@ -248,7 +278,7 @@ class McapLog:
         self._mirror_messages = 0
         self._stream.write(MCAP_MAGIC)
         self._offset += len(MCAP_MAGIC)
-        self._write_records(Header(profile=PROFILE, library=LIBRARY))
+        self._write_records(Header(profile=PROFILE, library=library))
         self._stream.flush()
 
     # --- context manager -------------------------------------------------------------
@@ -293,6 +323,9 @@ class McapLog:
             stats = self._senders.get((src, kind))
             if stats is None:
                 self._senders[(src, kind)] = SeqStats(count=1, first_seq=seq, last_seq=seq)
+                if self._fox is not None and src not in self._srcs_seen:
+                    self._srcs_seen.add(src)
+                    self.write_foxglove(self._fox.joined(src, log_time_ns), log_time_ns, pub)
             else:
                 stats.count += 1
                 last = stats.last_seq
@@ -302,14 +335,38 @@ class McapLog:
                     stats.gaps += 1
                     stats.missing += seq - last - 1  # type: ignore[operator]
                     stats.last_seq = seq
+                    if self._fox is not None:
+                        self.write_foxglove(self._fox.lost(src, kind, seq - last - 1, log_time_ns), log_time_ns, pub)
                 else:
                     stats.backwards += 1
             if chan.mirror is not None and kind == chan.kind:
                 self._write_mirror(key, chan, body, log_time_ns, pub, seq & _U32)
+            if kind in self._fox_kinds and kind == chan.kind:
+                try:
+                    outs = self._fox.feed(kind, body, log_time_ns)  # type: ignore[union-attr]
+                except Exception:  # odd bodies: counted, as for the JSON mirrors
+                    self._mirror_errors += 1
+                else:
+                    for out in outs:
+                        self.write_foxglove(out, log_time_ns, pub)
         if self._auto_flush and (
             len(self._chunk) >= self._chunk_bytes or self._clock() - self._chunk_opened >= self._interval
         ):
             self._close_chunk()
+
+    def write_foxglove(self, out: Out, log_time_ns: int, publish_time_ns: Optional[int] = None) -> None:
+        """Record one Foxglove mirror message (channel and schema made on first use)."""
+        if self._closed:
+            raise ValueError("write_foxglove() on a closed McapLog")
+        entry = self._fox_chans.get(out.topic)
+        if entry is None:
+            sid = self._raw_schema_id(out.schema)
+            entry = self._fox_chans[out.topic] = [
+                self._new_channel(out.topic, FOXGLOVE_ENCODING, sid, {META_KIND: "foxglove"}), 0]
+        self._append(entry[0], entry[1] & _U32, log_time_ns,
+                     log_time_ns if publish_time_ns is None else publish_time_ns, out.data)
+        entry[1] += 1
+        self._mirror_messages += 1
 
     def maybe_flush(self, now: Optional[float] = None) -> bool:
         """Close and flush the open chunk if its oldest message is ``flush_interval_s`` old.
@@ -355,6 +412,39 @@ class McapLog:
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
         self._sync()
 
+    # --- copying records (recorder.recover: salvage and compaction) ----------------------
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Register a schema as is; returns its id (the same for the same name and encoding)."""
+        return self._raw_schema_id(FoxSchema(name, encoding, bytes(data)))
+
+    def add_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: Mapping[str, str]) -> int:
+        """Register a channel as is; returns its id."""
+        return self._new_channel(topic, message_encoding, schema_id, dict(metadata))
+
+    def add_message(self, channel_id: int, sequence: int, log_time: int, publish_time: int, data: bytes) -> None:
+        """Append one message to a channel of :meth:`add_channel` (no envelope decoding, no
+        mirrors); the chunk closes once it holds ``chunk_bytes`` (or on the timer when auto_flush)."""
+        if self._closed:
+            raise ValueError("add_message() on a closed McapLog")
+        self._append(channel_id, sequence & _U32, log_time, publish_time, data)
+        if len(self._chunk) >= self._chunk_bytes or (
+                self._auto_flush and self._clock() - self._chunk_opened >= self._interval):
+            self._close_chunk()
+
+    def add_metadata(self, name: str, metadata: Mapping[str, str]) -> None:
+        """A Metadata record with string values, as is."""
+        self.set_metadata(name, dict(metadata))
+
+    def add_attachment(self, record: Attachment) -> None:
+        """An Attachment record, written outside chunks and indexed in the summary."""
+        if self._closed:
+            raise ValueError("add_attachment() on a closed McapLog")
+        offset = self._offset
+        length = self._write_records(record)
+        self._attachment_indexes.append(AttachmentIndex(
+            offset=offset, length=length, log_time=record.log_time, create_time=record.create_time,
+            data_size=len(record.data), name=record.name, media_type=record.media_type))
+
     def close(self) -> None:
         """Write the last chunk, the summary section (schemas, channels, statistics,
         chunk and metadata indexes), the footer and the closing magic.  Idempotent."""
@@ -379,6 +469,7 @@ class McapLog:
         group(Opcode.CHANNEL, list(self._channels))
         group(Opcode.STATISTICS, [self._statistics()])
         group(Opcode.CHUNK_INDEX, list(self._chunk_indexes))
+        group(Opcode.ATTACHMENT_INDEX, list(self._attachment_indexes))
         group(Opcode.METADATA_INDEX, list(self._metadata_indexes))
         summary_offset_start = summary_start + summary.count
         for offset_record in groups:
@@ -414,7 +505,7 @@ class McapLog:
 
     def _statistics(self) -> Statistics:
         return Statistics(
-            attachment_count=0,
+            attachment_count=len(self._attachment_indexes),
             channel_count=len(self._channels),
             channel_message_counts=dict(self._msg_counts),
             chunk_count=len(self._chunk_indexes),
@@ -433,10 +524,22 @@ class McapLog:
             if sid > MAX_ID:
                 raise ValueError("too many schemas for MCAP's uint16 ids")
             record = Schema(id=sid, name=name, encoding=JSONSCHEMA_ENCODING,
-                            data=json.dumps(schema, indent=1).encode())
+                            data=json.dumps(schema, separators=(",", ":")).encode())
             self._schemas.append(record)
             self._schema_ids[(name, JSONSCHEMA_ENCODING)] = sid
             self._chunk += _serialise(record)  # in the chunk, before its first user
+        return sid
+
+    def _raw_schema_id(self, schema: FoxSchema) -> int:
+        sid = self._schema_ids.get((schema.name, schema.encoding))
+        if sid is None:
+            sid = len(self._schemas) + 1
+            if sid > MAX_ID:
+                raise ValueError("too many schemas for MCAP's uint16 ids")
+            record = Schema(id=sid, name=schema.name, encoding=schema.encoding, data=schema.data)
+            self._schemas.append(record)
+            self._schema_ids[(schema.name, schema.encoding)] = sid
+            self._chunk += _serialise(record)
         return sid
 
     def _new_channel(self, topic: str, encoding: str, schema_id: int, metadata: dict[str, str]) -> int:

@@ -63,6 +63,8 @@ from recorder.mcap_log import (
     LogSummary,
     McapLog,
 )
+from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry, parse_origin
+from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
 from truav.bus import keys, schema, transport
 from truav.swarm.lifeline import signals_handled, watch_supervisor
@@ -103,6 +105,8 @@ class RecorderOptions:
     mirrors: bool = True
     fsync: bool = False
     force: bool = False  # overwrite an existing output file
+    geo_origin: tuple[float, float] = DEFAULT_ORIGIN  # (lat, lon) of the area's centre in Foxglove's Map panel
+    compact: bool = True  # rewrite into big chunks at a clean finish (recorder.recover.compact)
 
     def validate(self) -> "RecorderOptions":
         """Raise RecorderUsageError for anything a user can get wrong; return self."""
@@ -142,6 +146,7 @@ class RecorderSummary:
     bus: transport.BusStats
     max_backlog: int = 0  # most messages waiting for the writer at once
     error: Optional[str] = None
+    compacted: Optional[tuple[int, int]] = None  # file size before and after the compaction at the finish
 
     @property
     def duration_s(self) -> float:
@@ -172,7 +177,7 @@ class RecorderSummary:
         lines = [
             f"recorder: run {self.run} -> {self.path} ({self.stop_reason})",
             f"  {log_.messages} messages on {len(log_.channels)} channels in {self.duration_s:.1f} s "
-            f"({rate:,.0f} msgs/s), {log_.mirror_messages} JSON mirrors, {log_.bytes_written:,} bytes, "
+            f"({rate:,.0f} msgs/s), {log_.mirror_messages} mirror messages, {log_.bytes_written:,} bytes, "
             f"{log_.chunks} chunks",
             f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
             f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
@@ -197,6 +202,17 @@ class RecorderSummary:
 
 PULL_IDLE_S = 0.001  # writer sleep when the bus is quiet (bounds added latency, not the flush)
 BURST = 4096  # samples written between checks for a stop request
+
+
+def _scene_geometry(config_toml: Optional[str]) -> Geometry:
+    """The Foxglove scene's geometry from the run config; the default scenario's (with a
+    warning) for a config this version cannot read: the recording itself must not fail."""
+    try:
+        return Geometry.from_toml(config_toml)
+    except ValueError as exc:
+        log.warning("recorder: the Foxglove scene uses the default geometry: the run config was not usable (%s)",
+                    exc)
+        return Geometry()
 
 
 class Recorder:
@@ -229,8 +245,9 @@ class Recorder:
         opts = self.options
         self._started_ns = time.time_ns()
         try:
+            fox = FoxgloveMirror(_scene_geometry(opts.config_toml), opts.geo_origin) if opts.mirrors else False
             self._log = McapLog(opts.out, compression=opts.compression, flush_interval_s=opts.flush_interval_s,
-                                chunk_bytes=opts.chunk_bytes, mirrors=opts.mirrors, fsync=opts.fsync)
+                                chunk_bytes=opts.chunk_bytes, mirrors=opts.mirrors, foxglove=fox, fsync=opts.fsync)
         except OSError as exc:
             raise RecorderUsageError(f"cannot write {opts.out}: {exc.strerror or exc}") from None
         try:
@@ -299,6 +316,13 @@ class Recorder:
             except Exception as exc:  # disk full and the like: report it, the flushed chunks stay recoverable
                 detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
                 summary.error = self._error = f"finishing {self.options.out} failed: {detail}"
+            else:
+                if self.options.compact and self._error is None:
+                    try:
+                        summary.compacted = compact(self.options.out, compression=self.options.compression)
+                    except Exception as exc:  # the finished (uncompacted) file is still there and valid
+                        log.warning("recorder: compacting %s failed (%s); kept the file as written",
+                                    self.options.out, exc)
         self._summary = summary
         return summary
 
@@ -408,7 +432,14 @@ def options_from_args(args: argparse.Namespace) -> RecorderOptions:
         toml_text = path.read_text(encoding="utf-8")
     return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, compression=args.compression,
                            flush_interval_s=args.flush_ms / 1000.0, mirrors=not args.no_mirrors, fsync=args.fsync,
-                           force=args.force).validate()
+                           force=args.force, geo_origin=args.geo_origin, compact=not args.no_compact).validate()
+
+
+def _origin_arg(text: str) -> tuple[float, float]:
+    try:
+        return parse_origin(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -423,7 +454,13 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="hand each chunk to the OS at most this old: a SIGKILL loses about this much "
                              f"(default {DEFAULT_FLUSH_INTERVAL_S * 1000:g})")
     parser.add_argument("--fsync", action="store_true", help="also fsync every chunk (survives power loss)")
-    parser.add_argument("--no-mirrors", action="store_true", help="skip the JSON mirror channels for Foxglove")
+    parser.add_argument("--no-mirrors", action="store_true",
+                        help="skip the mirror channels for Foxglove (well-known schemas, JSON metrics)")
+    parser.add_argument("--geo-origin", type=_origin_arg, default=DEFAULT_ORIGIN, metavar="LAT,LON",
+                        help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
+                        % DEFAULT_ORIGIN)
+    parser.add_argument("--no-compact", action="store_true",
+                        help="keep the 50 ms chunks at a clean finish instead of rewriting into big ones")
     parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
     parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",

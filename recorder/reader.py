@@ -36,7 +36,7 @@ from mcap.records import Channel, Chunk, DataEnd, McapRecord, Message, Metadata,
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
-from recorder.mcap_log import MCAP_MAGIC, MIRROR_PREFIX
+from recorder.mcap_log import MCAP_MAGIC, is_mirror_topic
 
 Source = Union[str, "os.PathLike[str]", IO[bytes]]
 Patterns = Union[str, Sequence[str], None]
@@ -176,7 +176,7 @@ class TopicFilter:
         hit = self._memo.get(topic)
         if hit is None:
             hit = (
-                (self._mirrors or not topic.startswith(MIRROR_PREFIX))
+                (self._mirrors or not is_mirror_topic(topic))
                 and (self._include is None or any(fnmatchcase(topic, p) for p in self._include))
                 and not any(fnmatchcase(topic, p) for p in self._exclude)
             )

@@ -3,26 +3,36 @@
 The valid prefix is streamed with mcap's ``StreamReader`` (see
 :mod:`recorder.reader`: framing check, CRC-checked chunks, torn tail
 skipped) and every schema, channel, message, metadata and attachment is
-rewritten, in file order, with mcap's own :class:`mcap.writer.Writer`, which
-adds the summary section (statistics, chunk indexes) that ``make_reader``
-and Foxglove want.  The output is written to ``<out>.part`` and renamed into
+rewritten, in file order, with :class:`recorder.mcap_log.McapLog` (mcap's
+own record classes) into big chunks (COMPACT_CHUNK_BYTES) compressed hard
+(COMPACT_ZSTD_LEVEL), plus the summary section (statistics, chunk indexes)
+that ``make_reader`` and Foxglove want.  :func:`compact` does the same in
+place for a finished file: the recorder calls it at a clean finish.  The output is written to ``<out>.part`` and renamed into
 place, so a crash during recovery never leaves a half file under ``out``.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import os
 from dataclasses import dataclass
 from typing import Optional
 
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
-from mcap.writer import CompressionType, Writer
 
-from recorder.mcap_log import DEFAULT_COMPRESSION, LIBRARY
+from recorder.mcap_log import (
+    COMPACT_CHUNK_BYTES,
+    COMPACT_FAST_ZSTD_LEVEL,
+    COMPACT_STRONG_MAX_BYTES,
+    COMPACT_ZSTD_LEVEL,
+    COMPRESSIONS,
+    DEFAULT_COMPRESSION,
+    LIBRARY,
+    McapLog,
+)
 from recorder.reader import SalvageStats, iter_salvaged_records, probe
 
-_COMPRESSION_TYPES = {"none": CompressionType.NONE, "lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD}
 RECOVERED_BY = f"{LIBRARY} recover"
 PART_SUFFIX = ".part"
 
@@ -54,15 +64,21 @@ class RecoverReport:
 
 
 def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *,
-            compression: str = DEFAULT_COMPRESSION) -> RecoverReport:
+            compression: str = DEFAULT_COMPRESSION, chunk_bytes: int = COMPACT_CHUNK_BYTES,
+            zstd_level: int | None = None, compacting: bool = False) -> RecoverReport:
     """Salvage ``in_path`` into a finished MCAP at ``out_path`` (must differ).
 
     Also works on a finished file (then it is a plain re-chunking copy).
+    ``zstd_level`` None: COMPACT_ZSTD_LEVEL for inputs up to COMPACT_STRONG_MAX_BYTES,
+    COMPACT_FAST_ZSTD_LEVEL above (level 19 runs at ~2 MB/s).
     """
+    if zstd_level is None:
+        zstd_level = COMPACT_ZSTD_LEVEL if os.path.getsize(in_path) <= COMPACT_STRONG_MAX_BYTES \
+            else COMPACT_FAST_ZSTD_LEVEL
     if os.path.abspath(in_path) == os.path.abspath(out_path):
         raise ValueError("recover() needs a different out_path: the input is evidence")
-    if compression not in _COMPRESSION_TYPES:
-        raise ValueError(f"compression must be one of {sorted(_COMPRESSION_TYPES)}")
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"compression must be one of {sorted(COMPRESSIONS)}")
     part = os.fspath(out_path) + PART_SUFFIX
     stats = SalvageStats()
     counts = dict(messages=0, schemas=0, channels=0, metadata=0, attachments=0, orphans=0)
@@ -71,11 +87,12 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
     with open(in_path, "rb") as src:
         state = probe(src)
         records = iter_salvaged_records(src, state, stats)
+        first_record = next(records, None)
+        header = first_record if isinstance(first_record, Header) else Header("", "")
         with open(part, "wb") as dst:
-            writer = Writer(dst, compression=_COMPRESSION_TYPES[compression])
-            first_record = next(records, None)
-            header = first_record if isinstance(first_record, Header) else Header("", "")
-            writer.start(profile=header.profile, library=f"{RECOVERED_BY} ({header.library})")
+            writer = McapLog(dst, compression=compression, chunk_bytes=chunk_bytes, flush_interval_s=math.inf,
+                             auto_flush=False, mirrors=False, zstd_level=zstd_level,
+                             library=header.library if compacting else f"{RECOVERED_BY} ({header.library})")
             schema_ids: dict[int, int] = {}  # input id -> output id
             channel_ids: dict[int, int] = {}
             pending = [] if isinstance(first_record, Header) or first_record is None else [first_record]
@@ -85,32 +102,28 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
                     if cid is None:
                         counts["orphans"] += 1
                         continue
-                    writer.add_message(channel_id=cid, log_time=record.log_time, data=record.data,
-                                       publish_time=record.publish_time, sequence=record.sequence)
+                    writer.add_message(cid, record.sequence, record.log_time, record.publish_time, record.data)
                     counts["messages"] += 1
                     first = record.log_time if first is None else min(first, record.log_time)
                     last = record.log_time if last is None else max(last, record.log_time)
                 elif isinstance(record, Channel):
                     if record.id in channel_ids:  # repeated declaration
                         continue
-                    channel_ids[record.id] = writer.register_channel(
-                        topic=record.topic, message_encoding=record.message_encoding,
-                        schema_id=schema_ids.get(record.schema_id, 0), metadata=dict(record.metadata))
+                    channel_ids[record.id] = writer.add_channel(
+                        record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0), record.metadata)
                     counts["channels"] += 1
                 elif isinstance(record, Schema):
                     if record.id in schema_ids:
                         continue
-                    schema_ids[record.id] = writer.register_schema(
-                        name=record.name, encoding=record.encoding, data=record.data)
+                    schema_ids[record.id] = writer.add_schema(record.name, record.encoding, record.data)
                     counts["schemas"] += 1
                 elif isinstance(record, Metadata):
                     writer.add_metadata(record.name, dict(record.metadata))
                     counts["metadata"] += 1
                 elif isinstance(record, Attachment):
-                    writer.add_attachment(create_time=record.create_time, log_time=record.log_time,
-                                          name=record.name, media_type=record.media_type, data=record.data)
+                    writer.add_attachment(record)
                     counts["attachments"] += 1
-            writer.finish()
+            writer.close()
             dst.flush()
             os.fsync(dst.fileno())
     os.replace(part, out_path)
@@ -122,3 +135,28 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
         orphan_messages=counts["orphans"], first_log_time=first, last_log_time=last, error=stats.error,
     )
 
+
+
+COMPACT_SUFFIX = ".compact"
+
+
+def compact(path: str | os.PathLike[str], *, compression: str = DEFAULT_COMPRESSION) -> tuple[int, int]:
+    """Rewrite a finished recording in place into big chunks; returns (bytes before, after).
+
+    The copy goes to ``<path>.compact`` (then ``.part``) and is renamed over
+    ``path`` only when complete and fsynced, so a crash while compacting
+    leaves the original file.  Raises OSError / ValueError on failure (the
+    original is then untouched).
+    """
+    before = os.path.getsize(path)
+    tmp = os.fspath(path) + COMPACT_SUFFIX
+    try:
+        report = recover(path, tmp, compression=compression, compacting=True)
+        if report.truncated or not report.clean:
+            raise ValueError(f"{path} is not a clean finished recording; run `truav log recover`")
+        os.replace(tmp, path)
+    finally:
+        for leftover in (tmp, tmp + PART_SUFFIX):
+            if os.path.exists(leftover):
+                os.unlink(leftover)
+    return before, os.path.getsize(path)

@@ -51,7 +51,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import IO, Any, Optional
 
-from recorder.mcap_log import MIRROR_PREFIX
+from recorder.mcap_log import is_mirror_topic
 from recorder.reader import RecordedMessage, iter_messages, open_source, probe, read_schemas
 from truav.bus import keys, schema, transport
 
@@ -138,7 +138,7 @@ def recording_info(path: str | os.PathLike[str]) -> RecordingInfo:
     try:
         with open_source(path) as stream:
             probe(stream)
-        topics = tuple(sorted(t for t in read_schemas(path) if not t.startswith(MIRROR_PREFIX)))
+        topics = tuple(sorted(t for t in read_schemas(path) if not is_mirror_topic(t)))
         first = last = None
         summary = _finished_summary(path)
         if summary is not None and summary.statistics is not None and summary.statistics.message_count:

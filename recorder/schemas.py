@@ -5,8 +5,8 @@ recorder must record anything, including payloads the schema module would
 reject, so it only needs the envelope (``kind``, ``src``, ``seq``, ``t``) to
 route, sequence-check and timestamp a message.  The JSON Schemas document the
 fields of each kind as ``truav.bus.schema`` defines them (for MCAP viewers); the
-mirror builders turn beacons, metrics and positions into JSON for Foxglove,
-which cannot decode msgpack.
+mirror builder turns metrics into plain JSON for Foxglove's plots, which cannot
+decode msgpack (beacons and positions go to :mod:`recorder.foxglove`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
-MIRRORED_KINDS = ("beacon", "metrics", "positions")
+MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
 _U64 = (1 << 64) - 1
 _isfinite = math.isfinite
@@ -105,7 +105,7 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
     },
     "fault": {
         "fault": _STR, "phase": {"enum": ["start", "end"]}, "target": _STR,
-        "params": {"type": "object", "additionalProperties": {"type": ["number", "string"]}},
+        "params": {"type": "object", "description": "numbers or strings, by fault kind"},
     },
     "control": {"command": _STR, "args": {"type": "object"}},
     "positions": {"tick": _INT, "uavs": _POINTS, "vehicles": _POINTS},
@@ -126,29 +126,16 @@ def bus_schema(kind: str) -> dict[str, Any]:
     }
 
 
-_NUM_OR_NULL = {"type": ["number", "null"]}  # null = the value was NaN/inf
-_XY_OBJ = {"type": "object", "properties": {"x": _NUM_OR_NULL, "y": _NUM_OR_NULL}, "required": ["x", "y"]}
+# No type unions (["number", "null"]) anywhere: Foxglove's JSON Schema parser rejects
+# them.  A value that is NaN/inf (not JSON) or absent is simply left out, so only
+# the fields that are always there are required.
 _MIRROR_SCHEMAS: dict[str, dict[str, Any]] = {
-    "beacon": {
-        "type": "object",
-        "properties": {"uav": _INT, "tick": _INT, "x": _NUM_OR_NULL, "y": _NUM_OR_NULL,
-                       "vx": _NUM_OR_NULL, "vy": _NUM_OR_NULL},
-        "required": ["uav", "tick", "x", "y", "vx", "vy"],
-    },
     "metrics": {
         "type": "object",
         "description": "metric values flattened next to tick/episode/scope; a value named like "
-        "one of those is stored as value_<name>",
-        "properties": {"tick": {"type": ["integer", "null"]}, "episode": {"type": ["integer", "null"]},
-                       "scope": {"type": ["string", "null"]}},
-        "required": ["tick", "episode", "scope"],
-        "additionalProperties": _NUM_OR_NULL,
-    },
-    "positions": {
-        "type": "object",
-        "properties": {"tick": _INT, "uavs": {"type": "array", "items": _XY_OBJ},
-                       "vehicles": {"type": "array", "items": _XY_OBJ}},
-        "required": ["tick", "uavs", "vehicles"],
+        "one of those is stored as value_<name>; a value that is not finite is left out",
+        "properties": {"tick": _INT, "episode": _INT, "scope": _STR},
+        "additionalProperties": _NUM,
     },
 }
 
@@ -165,48 +152,30 @@ def _num(v: Any) -> Optional[float]:
     return f if math.isfinite(f) else None
 
 
-_BEACON_JSON = '{"uav":%d,"tick":%d,"x":%r,"y":%r,"vx":%r,"vy":%r}'  # %r of a float == json's
-
-
-def _beacon_json(b: dict) -> bytes:
-    """Hand-formatted: beacons are the most frequent mirror, and building a dict for
-    json's encoder costs ~2 us more per message (of a ~10 us budget)."""
-    x, y = b["pos"]
-    vx, vy = b["vel"]
-    x, y, vx, vy = float(x), float(y), float(vx), float(vy)
-    uav, tick = int(b["uav"]), int(b["tick"])
-    if _isfinite(x) and _isfinite(y) and _isfinite(vx) and _isfinite(vy):
-        return (_BEACON_JSON % (uav, tick, x, y, vx, vy)).encode()
-    return _json_encode({"uav": uav, "tick": tick, "x": _num(x), "y": _num(y),
-                         "vx": _num(vx), "vy": _num(vy)}).encode()
-
-
 _METRIC_RESERVED = ("tick", "episode", "scope")
 
 
 def _metrics_json(b: dict) -> bytes:
     tick, episode, scope = b.get("tick"), b.get("episode"), b.get("scope")
-    out: dict[str, Any] = {
-        "tick": tick if type(tick) is int else None,
-        "episode": episode if type(episode) is int else None,
-        "scope": scope if type(scope) is str else None,
-    }
+    out: dict[str, Any] = {}
+    if type(tick) is int:
+        out["tick"] = tick
+    if type(episode) is int:
+        out["episode"] = episode
+    if type(scope) is str:
+        out["scope"] = scope
     for name, value in b["values"].items():
         name = str(name)
-        out["value_" + name if name in _METRIC_RESERVED else name] = _num(value)
+        value = _num(value)
+        if value is not None:
+            out["value_" + name if name in _METRIC_RESERVED else name] = value
     return _json_encode(out).encode()
-
-
-def _positions_json(b: dict) -> bytes:
-    return _json_encode({"tick": int(b["tick"]),
-                         "uavs": [{"x": _num(p[0]), "y": _num(p[1])} for p in b["uavs"]],
-                         "vehicles": [{"x": _num(p[0]), "y": _num(p[1])} for p in b["vehicles"]]}).encode()
 
 
 # one reusable encoder: json.dumps(..., separators=...) builds a new one per call
 _json_encode = json.JSONEncoder(separators=(",", ":"), allow_nan=False, ensure_ascii=False).encode
 _MIRROR_BUILDERS: dict[str, Callable[[dict], bytes]] = {
-    "beacon": _beacon_json, "metrics": _metrics_json, "positions": _positions_json,
+    "metrics": _metrics_json,
 }
 
 

@@ -37,8 +37,13 @@ log = logging.getLogger("truav.world")
 LOCKSTEP_ACTION_TIMEOUT_S = 10.0
 """Lock-step still never stalls forever: a live agent silent this long is skipped (hovers)."""
 CONTROL_SHUTDOWN = "shutdown"
-POSITIONS_EVERY_TICKS = 10
-"""Publish all positions (for maps and replay) every this many ticks."""
+POSITIONS_EVERY_TICKS = 1
+"""Publish all positions (maps, replay, the Foxglove scene) every this many ticks: every tick,
+so vehicles move smoothly in the viewer."""
+POSITIONS_GRID_M = 1.0
+"""Vehicle positions are published rounded to this grid (metres): far below what a map
+or the Foxglove scene shows (a vehicle is drawn 40 m wide), and whole numbers
+compress several times better in a recording than full float64 noise."""
 
 
 @dataclass
@@ -223,8 +228,9 @@ class WorldNode:
                 relayed=int(obs.relayed[0, i]), covered=int(obs.covered[0, i]),
                 energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done))
         if tick % POSITIONS_EVERY_TICKS == 0:
+            vehicles = np.round(self.world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
             self.bus.publish(keys.world_positions(run), schema.Positions(
-                tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, self.world.vehicle_xy()[0]))))
+                tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, vehicles))))
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
         if done and not lockstep:
             return actions

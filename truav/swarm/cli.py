@@ -161,7 +161,8 @@ def _swarm_options(args):
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
-                        fault_plan=args.fault_plan)
+                        fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
+                        geo_origin=args.geo_origin)
     return cfg, opts
 
 
@@ -180,6 +181,53 @@ def cmd_faults(args) -> int:
     print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run} "
           f"(crashes and freezes are scheduled by `truav-swarm up --fault-plan`)")
     return 0
+
+
+def cmd_view(args) -> int:
+    from recorder.foxglove import FoxgloveMirror, Geometry
+    from truav.swarm.view import serve
+    _setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    stop = threading.Event()
+    _stop_on_sigterm_or_orphaned(stop.set)
+    mirror = FoxgloveMirror(Geometry.from_config(cfg), args.geo_origin)
+
+    def ready(port: int) -> None:
+        print(f"Foxglove: open ws://127.0.0.1:{port} (run {args.run}); layout: deploy/foxglove-layout.json",
+              flush=True)
+
+    try:
+        serve(args.run, config_from_args(args), mirror, port=args.port, stop=stop, ready=ready)
+    except KeyboardInterrupt:
+        pass
+    except RuntimeError as exc:  # the SDK's server could not bind (port in use)
+        raise UsageError(f"--port {args.port}: the Foxglove server could not start ({exc})") from None
+    return 0
+
+
+def _origin(text: str):
+    from recorder.foxglove import parse_origin
+    try:
+        return parse_origin(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a TCP port number, got {text!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"a TCP port is in [0, 65535], got {port}")
+    return port
+
+
+def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
+    from recorder.foxglove import DEFAULT_ORIGIN
+    p.add_argument("--geo-origin", type=_origin, default=DEFAULT_ORIGIN, metavar="LAT,LON",
+                   help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
+                   % DEFAULT_ORIGIN)
 
 
 def cmd_up(args) -> int:
@@ -207,6 +255,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
+    up.add_argument("--foxglove", type=_port, nargs="?", const=8765, metavar="PORT",
+                    help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")
+    add_geo_origin_arg(up)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -240,6 +291,14 @@ def build_parser() -> argparse.ArgumentParser:
     dn.add_argument("--out", help="the swarm's output directory holding pids.json (default runs/swarm-<run>)")
     add_transport_args(dn)
     dn.set_defaults(func=cmd_down)
+
+    vw = sub.add_parser("view", help="serve a live run or a replay to the Foxglove app (WebSocket, loopback)")
+    add_scenario_args(vw)
+    vw.add_argument("--port", type=_port, default=8765, help="WebSocket port on 127.0.0.1 (default 8765; 0: any)")
+    add_geo_origin_arg(vw)
+    vw.add_argument("-v", "--verbose", action="store_true")
+    add_transport_args(vw)
+    vw.set_defaults(func=cmd_view)
 
     ro = sub.add_parser("router", help="run a Zenoh router")
     add_transport_args(ro)

@@ -40,6 +40,8 @@ SCENARIO_FILE = "scenario.toml"
 STATUS_PERIOD_S = 1.0
 ROUTER_START_TIMEOUT_S = 15.0
 STOP_TIMEOUT_S = 5.0
+RECORDER_STOP_TIMEOUT_S = 60.0
+"""The recorder finishes its file, then rewrites it into big chunks (seconds per 10 MB)."""
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
 CENTRAL_VALUE_BYTES = 4
@@ -67,6 +69,10 @@ class SwarmOptions:
     fault_plan: str | None = None
     """Fault plan TOML (truav.faults): link faults applied by every process,
     crashes and freezes sent by this supervisor."""
+    foxglove_port: int | None = None
+    """Serve the run to the Foxglove app on ws://127.0.0.1:<port> (`truav-swarm view`)."""
+    geo_origin: tuple[float, float] | None = None
+    """(lat, lon) of the area's centre on Foxglove's map (recorder and view); None: Paris."""
 
 
 def free_loopback_endpoint() -> str:
@@ -313,9 +319,13 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         if not wait_for_port(endpoint, ROUTER_START_TIMEOUT_S):
             print(f"truav-swarm: error: the router did not open {endpoint} (see {out}/logs/router.log)", file=sys.stderr)
             return 1
+        origin = ["--geo-origin", "%r,%r" % opts.geo_origin] if opts.geo_origin else []
         if opts.record:
             children.start("recorder", _python_module("recorder.process", "--run", opts.run, "--out", opts.record,
-                                                        "--connect", endpoint, "--config-toml", str(scenario)))
+                                                        "--connect", endpoint, "--config-toml", str(scenario), *origin))
+        if opts.foxglove_port is not None:
+            children.start("view", _python_module("truav.swarm.cli", "view", *common, *origin,
+                                                    "--port", str(opts.foxglove_port)))
         with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
             monitor.attach(bus, opts.run)
             if opts.record:
@@ -348,6 +358,9 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
             print(f"swarm '{opts.run}': router {endpoint}, world + {n} agents"
                   f"{' + recorder -> ' + opts.record if opts.record else ''}; "
                   f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {out}/logs", flush=True)
+            if opts.foxglove_port is not None:
+                print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)",
+                      flush=True)
             _watch(children, monitor, opts, controller)
             monitor.poll()
             if controller is not None:
@@ -359,7 +372,7 @@ def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         print("\ninterrupted: stopping every process of the swarm", flush=True)
     finally:
         children.stop([name for name in children.procs if name not in ("router", "recorder")])
-        children.stop(["recorder"], sig=signal.SIGINT)
+        children.stop(["recorder"], sig=signal.SIGINT, timeout=RECORDER_STOP_TIMEOUT_S)
         children.stop(["router"])
         children.stop_all()
     elapsed = time.monotonic() - t0

@@ -1,0 +1,118 @@
+"""`truav-swarm view`: a live run (or a `replay`) in the Foxglove app.
+
+Subscribes to ``truav/<run>/**`` like the recorder and serves the same mirror
+channels the recorder writes into an MCAP file (``/foxglove/...`` with
+Foxglove's well-known schemas, ``/json/<metrics key>``) over Foxglove's
+WebSocket protocol, with ``foxglove-sdk``'s server (``foxglove.start_server``)
+on loopback.  Open it in the Foxglove app: *Open connection* -> *Foxglove
+WebSocket* -> ``ws://127.0.0.1:8765``, then import ``deploy/foxglove-layout.json``.
+
+    truav-swarm view -e tcp/127.0.0.1:7447 --run demo [--port 8765] [--scenario FILE]
+    truav-swarm up --foxglove 8765            # the same, started by `up`
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from typing import Any, Callable, Optional
+
+import foxglove
+
+from recorder.foxglove import FoxgloveMirror, Geometry, Out
+from recorder.mcap_log import JSON_ENCODING, MIRROR_PREFIX
+from recorder.schemas import MIRROR_SCHEMA_PREFIX, envelope_fields, mirror_builder, mirror_schema
+from truav.bus import keys
+from truav.bus.transport import Bus
+
+log = logging.getLogger("truav.view")
+
+DEFAULT_PORT = 8765  # Foxglove's own default for a WebSocket connection
+LOOPBACK = "127.0.0.1"
+PULL_IDLE_S = 0.005
+SRC_VIEW = "view"
+
+
+class FoxgloveView:
+    """Bus samples in, Foxglove channels out (one SDK channel per mirror topic).
+
+    Pure of Zenoh: :meth:`handle` takes ``(key, payload, receive time)`` as the
+    recorder's pull receiver yields them, so a test can feed it directly.
+    """
+
+    def __init__(self, mirror: FoxgloveMirror, context: foxglove.Context) -> None:
+        self.mirror = mirror
+        self.context = context
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._json: dict[str, Optional[Callable[[dict], bytes]]] = {}  # key -> JSON mirror builder
+        self._seqs: dict[tuple[str, str], int] = {}  # (src, kind) -> highest seq seen
+        self._srcs: set[str] = set()
+        self.messages = 0  # bus samples handled
+        self.errors = 0  # bodies that did not fit their kind's mirror
+
+    def _channel(self, topic: str, schema_name: str, encoding: str, data: bytes, message_encoding: str):
+        ch = self._channels.get(topic)
+        if ch is None:
+            ch = self._channels[topic] = foxglove.Channel(
+                topic, schema=foxglove.Schema(name=schema_name, encoding=encoding, data=data),
+                message_encoding=message_encoding, context=self.context)
+        return ch
+
+    def _emit(self, out: Out, t: int) -> None:
+        self._channel(out.topic, out.schema.name, out.schema.encoding, out.schema.data,
+                      "protobuf").log(out.data, log_time=t)
+
+    def handle(self, key: str, payload: bytes, recv_ns: int) -> None:
+        self.messages += 1
+        env = envelope_fields(payload)
+        if env is None:
+            return
+        kind, src, seq, _t, body = env
+        last = self._seqs.get((src, kind))
+        self._seqs[(src, kind)] = seq if last is None else max(seq, last)
+        try:
+            if src not in self._srcs:
+                self._srcs.add(src)
+                self._emit(self.mirror.joined(src, recv_ns), recv_ns)
+            elif last is not None and seq > last + 1:
+                self._emit(self.mirror.lost(src, kind, seq - last - 1, recv_ns), recv_ns)
+            if key not in self._json:
+                self._json[key] = mirror_builder(kind)
+            build = self._json[key]
+            if build is not None:
+                self._channel(MIRROR_PREFIX + key, MIRROR_SCHEMA_PREFIX + kind, "jsonschema",
+                              json.dumps(mirror_schema(kind)).encode(), JSON_ENCODING).log(build(body), log_time=recv_ns)
+            for out in self.mirror.feed(kind, body, recv_ns):
+                self._emit(out, recv_ns)
+        except Exception:  # an odd body: count it, keep serving
+            self.errors += 1
+
+
+def serve(run: str, zenoh_config: Any, mirror: FoxgloveMirror, port: int = DEFAULT_PORT,
+          stop: Optional[threading.Event] = None, ready: Optional[Callable[[int], None]] = None) -> FoxgloveView:
+    """Serve ``run``'s mirrors on ws://127.0.0.1:<port> until ``stop`` is set."""
+    stop = stop or threading.Event()
+    context = foxglove.Context()
+    server = foxglove.start_server(name=f"truav {run}", host=LOOPBACK, port=port, context=context,
+                                   capabilities=[foxglove.Capability.Time])
+    view = FoxgloveView(mirror, context)
+    try:
+        with Bus(SRC_VIEW, run, zenoh_config) as bus:
+            receiver = bus.receive_raw(keys.everything(run))
+            if ready is not None:
+                ready(server.port)
+            last_time = 0
+            while not stop.is_set():
+                item = receiver.try_recv()
+                if item is None:
+                    time.sleep(PULL_IDLE_S)
+                    continue
+                view.handle(*item)
+                if item[2] - last_time > 50_000_000:  # the app's clock follows the bus, 20 times a second
+                    last_time = item[2]
+                    server.broadcast_time(item[2])
+    finally:
+        server.stop()
+    return view
