@@ -89,6 +89,7 @@ def write_mixed(log: McapLog, ticks: int = 50) -> list[tuple[str, bytes, int, in
 
 def finished_bytes(**kwargs: object) -> tuple[bytes, list[tuple[str, bytes, int, int]], McapLog]:
     buf = io.BytesIO()
+    kwargs.setdefault("foxglove", False)  # the Foxglove mirror has its own tests (test_foxglove.py)
     log = McapLog(buf, **kwargs)  # type: ignore[arg-type]
     log.set_metadata("config", {"run": RUN, "n_uavs": 3, "note": "test"})
     written = write_mixed(log)
@@ -115,9 +116,9 @@ def test_official_reader_reads_finished_file_and_statistics() -> None:
     topics = {c.id: c.topic for c in summary.channels.values()}
     bus = [m for _, c, m in reader.iter_messages() if not c.topic.startswith(MIRROR_PREFIX)]
     assert len(bus) == len(written)
-    mirrors = sum(1 for k, *_ in written if k.endswith(("beacon", "step", "positions")))
+    mirrors = sum(1 for k, *_ in written if k.endswith("step"))
     assert stats.message_count == len(written) + mirrors
-    assert stats.channel_count == len(summary.channels) == 8 + 5  # 8 keys, 5 mirrored
+    assert stats.channel_count == len(summary.channels) == 8 + 1  # 8 keys, metrics/step mirrored
     per_topic = {topics[cid]: n for cid, n in stats.channel_message_counts.items()}
     assert per_topic[key("uav", 1, "beacon")] == 50 and per_topic[MIRROR_PREFIX + key("metrics", "step")] == 50
     assert stats.message_start_time == written[0][2] and stats.message_end_time == written[-1][2]
@@ -140,7 +141,7 @@ def test_official_reader_reads_finished_file_and_statistics() -> None:
 def test_message_indexes_point_at_their_messages() -> None:
     """Our hand-packed MessageIndex records, parsed by mcap, locate the right messages."""
     buf = io.BytesIO()
-    with McapLog(buf) as log:
+    with McapLog(buf, foxglove=False) as log:
         for tick in range(5):
             write_mixed(log, ticks=3)
             log.flush()
@@ -155,7 +156,7 @@ def test_message_indexes_point_at_their_messages() -> None:
                 message = by_offset[offset]
                 assert message.channel_id == record.channel_id and message.log_time == log_time
                 checked += 1
-    assert checked == 5 * 3 * 8 + 5 * 3 * 5  # bus + mirror messages
+    assert checked == 5 * 3 * 8 + 5 * 3 * 1  # bus + mirror messages
 
 
 def _message_offsets(chunk: Chunk) -> dict:
@@ -179,8 +180,7 @@ def test_json_mirrors_decode_as_json_with_json_schema() -> None:
     data, written, _ = finished_bytes()
     schemas = read_schemas(io.BytesIO(data))
     mirrors = [m for m in iter_messages(io.BytesIO(data), include_mirrors=True) if m.key.startswith(MIRROR_PREFIX)]
-    assert {m.key for m in mirrors} == {MIRROR_PREFIX + key("uav", u, "beacon") for u in range(3)} | {
-        MIRROR_PREFIX + key("metrics", "step"), MIRROR_PREFIX + key("world", "positions")}
+    assert {m.key for m in mirrors} == {MIRROR_PREFIX + key("metrics", "step")}
     reader = make_reader(io.BytesIO(data))
     encodings = {c.topic: c.message_encoding for c in reader.get_summary().channels.values()}  # type: ignore[union-attr]
     for m in mirrors:
@@ -189,12 +189,8 @@ def test_json_mirrors_decode_as_json_with_json_schema() -> None:
         assert schemas[m.key].encoding == JSONSCHEMA_ENCODING and schema["type"] == "object"
         value = json.loads(m.payload)
         _validate(value, schema)
-    first_beacon = next(json.loads(m.payload) for m in mirrors if m.key.endswith("uav/1/beacon"))
-    assert first_beacon == {"uav": 1, "tick": 0, "x": 10.0, "y": -2.5, "vx": 1.0, "vy": 0.5}
     last_metrics = [json.loads(m.payload) for m in mirrors if m.key.endswith("metrics/step")][-1]
-    assert last_metrics == {"tick": 49, "episode": 2, "scope": "step", "reward": 12.25, "coverage": None}
-    pos = next(json.loads(m.payload) for m in mirrors if m.key.endswith("positions"))
-    assert pos["uavs"] == [{"x": 1.0, "y": 2.0}, {"x": 3.0, "y": 4.0}] and pos["vehicles"] == [{"x": 5.0, "y": 6.0}]
+    assert last_metrics == {"tick": 49, "episode": 2, "scope": "step", "reward": 12.25}  # NaN left out
     # bus schemas are JSON Schema too, documenting the envelope
     bus_schema = json.loads(schemas[key("uav", 0, "beacon")].data)
     assert {"v", "kind", "src", "seq", "t", "pos", "vel"} <= set(bus_schema["properties"])
@@ -271,13 +267,13 @@ def test_garbage_payloads_are_recorded_raw_and_counted() -> None:
         for i, payload in enumerate(GARBAGE):
             log.write(key("uav", 1, "beacon"), payload, T0 + i)
         log.write(key("uav", 1, "beacon"), beacon(1, 0, T0), T0 + 100)
-        # a decodable beacon whose fields don't fit the mirror: recorded, mirror skipped
-        odd = msgpack.packb({"v": 1, "kind": "beacon", "src": "uav/1", "seq": 1, "t": T0, "pos": "here"})
-        log.write(key("uav", 1, "beacon"), odd, T0 + 101)
+        # a decodable observation whose fields don't fit the Foxglove mirror: recorded, mirror skipped
+        odd = msgpack.packb({"v": 1, "kind": "obs", "src": "world", "seq": 1, "t": T0, "uav": "one", "pos": [1, 2]})
+        log.write(key("uav", 1, "obs"), odd, T0 + 101)
         log.write("some/other/topic", b"\xff\xfe", T0 + 102)
         summary = log.summary()
     assert summary.undecodable == len(GARBAGE) + 1 and summary.mirror_errors == 1
-    assert summary.messages == len(GARBAGE) + 3 and summary.mirror_messages == 1
+    assert summary.messages == len(GARBAGE) + 3 and summary.mirror_messages == 2  # "joined" logs: uav/1, world
     got = list(iter_messages(io.BytesIO(buf.getvalue())))
     assert [m.payload for m in got] == [*GARBAGE, beacon(1, 0, T0), odd, b"\xff\xfe"]
     assert [m.publish_time for m in got[: len(GARBAGE)]] == [T0 + i for i in range(len(GARBAGE))]

@@ -27,7 +27,7 @@ from conftest import free_port
 from mcap.reader import make_reader
 
 from recorder.check import check
-from recorder.mcap_log import MIRROR_PREFIX
+from recorder.mcap_log import MIRROR_PREFIX, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA
 from recorder.process import (
     CMD_STOP,
@@ -177,7 +177,7 @@ def test_records_a_swarm_and_finishes_the_file_on_sigterm(tmp_path: Path, endpoi
         assert summary is not None and summary.statistics is not None
         got: dict[str, list[bytes]] = {}
         for _, channel, message in reader.iter_messages():
-            if not channel.topic.startswith(MIRROR_PREFIX):
+            if not is_mirror_topic(channel.topic):
                 got.setdefault(channel.topic, []).append(message.data)
                 if message.data != b"\xc1 not msgpack":
                     t = msgpack.unpackb(message.data)["t"]
@@ -188,7 +188,7 @@ def test_records_a_swarm_and_finishes_the_file_on_sigterm(tmp_path: Path, endpoi
         expected.setdefault(k, []).append(payload)
     assert got == expected
     topics = {c.topic for c in summary.channels.values()}
-    assert MIRROR_PREFIX + keys.uav_beacon(RUN, 7) in topics and MIRROR_PREFIX + keys.metrics_step(RUN) in topics
+    assert "/foxglove/log" in topics and MIRROR_PREFIX + keys.metrics_step(RUN) in topics
     assert metadata[CONFIG_METADATA]["toml"] == cfg_text
     assert metadata[CONFIG_METADATA]["scenario.n_uavs"] == "5"
     assert metadata[RECORDING_METADATA]["run"] == RUN
