@@ -34,17 +34,26 @@ def draw_map(ax, cfg: Config) -> None:
     ax.set_ylabel("y (m)")
 
 
-def split_jumps(pts: np.ndarray, max_hop: float) -> np.ndarray:
-    """Insert a NaN row where consecutive points are further apart than a UAV
-    can fly (a new episode re-places the UAVs), so no fake flight is drawn."""
+def uav_color(u: int, n: int):
+    """tab10 up to 10 UAVs, tab20 above (no two UAVs share a colour up to 20)."""
+    return plt.get_cmap("tab10" if n <= 10 else "tab20")(u % (10 if n <= 10 else 20))
+
+
+def last_segment(pts: np.ndarray, max_hop: float) -> tuple[np.ndarray, int]:
+    """The points after the last jump further than a UAV can fly (a new episode re-places
+    the UAVs): the last episode's track; and how many segments there were."""
     if len(pts) < 2:
-        return pts
-    jump = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) > max_hop) + 1
-    return np.insert(pts.astype(float), jump, np.nan, axis=0)
+        return pts, 1
+    jumps = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) > max_hop) + 1
+    return pts[jumps[-1]:] if jumps.size else pts, jumps.size + 1
 
 
 def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm") -> Path:
-    fig, (ax, tl) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [1.1, 1]})
+    fig = plt.figure(figsize=(13, 6.8))
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.1, 1], height_ratios=[3, 1], hspace=0.08)
+    ax = fig.add_subplot(grid[:, 0])
+    tl = fig.add_subplot(grid[0, 1])
+    miss_ax = fig.add_subplot(grid[1, 1], sharex=tl)
     draw_map(ax, cfg)
     with monitor.lock:
         tracks = {u: np.array(p) for u, p in monitor.tracks.items()}
@@ -52,29 +61,57 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm") -> Path
         coverage = np.array(monitor.coverage)
         hovering = np.array(monitor.hovering)
     if vehicles.size:
-        ax.scatter(vehicles[:, 0], vehicles[:, 1], s=4, color="C7", alpha=0.6, label="vehicles (last)", zorder=1)
+        ax.scatter(vehicles[:, 0], vehicles[:, 1], s=4, color="0.55", alpha=0.6, label="vehicles (at the end)",
+                   zorder=1)
     R = cfg.scenario.comm_range_m
     max_hop = 3.0 * cfg.scenario.uav_speed_mps * cfg.scenario.step_s
+    n_uavs = max(len(tracks), cfg.scenario.n_uavs)
     for u, pts in sorted(tracks.items()):
-        pts = split_jumps(pts, max_hop)
-        color = f"C{u % 10}"
-        ax.plot(pts[:, 0], pts[:, 1], color=color, lw=1.2, alpha=0.9, zorder=3)
-        ax.add_patch(plt.Circle(pts[-1], R, color=color, alpha=0.12, zorder=1))
-        ax.scatter(*pts[-1], color=color, s=30, zorder=5, label=f"UAV {u}")
-    ax.legend(loc="upper left", fontsize=7, ncol=2, framealpha=0.8)
-    ax.set_title("UAV tracks (from beacons), coverage discs at the end")
+        seg, _ = last_segment(pts, max_hop)
+        color = uav_color(u, n_uavs)
+        ax.plot(seg[:, 0], seg[:, 1], color=color, lw=1.4, alpha=0.95, zorder=3)
+        ax.add_patch(plt.Circle(seg[-1], R, color=color, alpha=0.10, zorder=1))
+        ax.scatter(*seg[0], facecolor="white", edgecolor=color, s=22, lw=1.2, zorder=5)
+        ax.scatter(*seg[-1], color=color, s=30, zorder=5)
+        ax.annotate(str(u), seg[-1], xytext=(4, 4), textcoords="offset points", fontsize=8, color=color,
+                    weight="bold", zorder=6)
+    ax.scatter([], [], facecolor="white", edgecolor="k", s=22, label="UAV at the episode's start")
+    ax.scatter([], [], color="k", s=30, label="UAV at the end (id), coverage disc")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=3, fontsize=7, framealpha=0.85)
+    steps = cfg.scenario.steps_per_episode
+    n_episodes = int(coverage[-1, 0]) // steps + 1 if coverage.size else 1
+    ax.set_title(f"UAV tracks in the last episode ({n_episodes} of {n_episodes})" if n_episodes > 1
+                 else "UAV tracks (from beacons)")
     if coverage.size:
-        tl.plot(coverage[:, 0], coverage[:, 1], color="C0", lw=1, label="coverage (%)")
+        tl.plot(coverage[:, 0], coverage[:, 1], color="C0", lw=1.1, zorder=3)
         tl.set_ylabel("coverage (%)")
-        tl.set_xlabel("tick")
+        tl.set_ylim(0, max(5.0, float(np.nanmax(coverage[:, 1])) * 1.15))
         tl.grid(alpha=0.3)
-        if hovering.size and hovering[:, 1].any():
-            ax2 = tl.twinx()
-            ax2.bar(hovering[:, 0], hovering[:, 1], color="C3", alpha=0.5, width=1.0, label="missed actions")
-            ax2.set_ylabel("UAVs without an action (hovered)")
-    tl.set_title("coverage per tick")
+        last_tick = int(coverage[-1, 0])
+        for k in range(1, last_tick // steps + 1):
+            if k * steps < last_tick:
+                for a in (tl, miss_ax):
+                    a.axvline(k * steps, color="0.5", lw=0.8, ls=":", zorder=1)
+        for k in range(0, last_tick // steps + 1):
+            if k * steps < last_tick:
+                tl.text(k * steps + steps / 2, 1.0, f"ep {k + 1}", transform=tl.get_xaxis_transform(),
+                        ha="center", va="bottom", fontsize=8, color="0.35")
+    plt.setp(tl.get_xticklabels(), visible=False)
+    if hovering.size and hovering[:, 1].any():
+        miss_ax.step(hovering[:, 0], hovering[:, 1], where="mid", color="C3", lw=1.0)
+        miss_ax.set_ylim(0, max(1.0, float(hovering[:, 1].max())) * 1.2)
+        miss_ax.yaxis.get_major_locator().set_params(integer=True)
+    else:
+        miss_ax.set_ylim(0, 1)
+        miss_ax.set_yticks([])
+        miss_ax.text(0.5, 0.5, "every UAV acted in time on every tick", transform=miss_ax.transAxes,
+                     ha="center", va="center", fontsize=9, color="0.35")
+    miss_ax.set_ylabel("UAVs without\nan action", fontsize=9)
+    miss_ax.set_xlabel("tick")
+    miss_ax.grid(alpha=0.3)
+    tl.set_title("coverage per tick (episodes separated by dotted lines)", pad=14)
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.06, right=0.98, top=0.89, bottom=0.14, wspace=0.18)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
