@@ -13,15 +13,22 @@ import numpy as np  # noqa: E402
 from truav.stats import mean_ci, sliding_mean  # noqa: E402
 
 UNSMOOTHED = ("epsilon",)  # schedules, not noisy measurements
-# (metric, axis label, scale applied to the raw value)
+# (metric, axis label, scale applied to the raw value, the scaled value's possible range)
 CONVERGENCE_PANELS = (
-    ("coverage_pct", "coverage (%)", 1.0),
-    ("pdr", "packet delivery ratio (%)", 100.0),
-    ("delay_ms", "avg relay delay (ms)", 1.0),
-    ("energy_j", "energy per UAV (kJ/episode)", 1e-3),
-    ("reward", "mean reward per step", 1.0),
-    ("epsilon", "exploration rate", 1.0),
+    ("coverage_pct", "coverage (%)", 1.0, (0.0, 100.0)),
+    ("pdr", "packet delivery ratio (%)", 100.0, (0.0, 100.0)),
+    ("delay_ms", "avg relay delay (ms)", 1.0, (0.0, np.inf)),
+    ("energy_j", "energy per UAV (kJ/episode)", 1e-3, (0.0, np.inf)),
+    ("reward", "mean reward per step", 1.0, (-np.inf, np.inf)),
+    ("epsilon", "exploration rate", 1.0, (0.0, 1.0)),
 )
+
+
+def window_text(window: int, episodes: int) -> str:
+    """What the curves average, in words that hold for short runs too."""
+    if window >= episodes:
+        return "running mean from the first episode"
+    return f"trailing mean of the last {window} episodes (fewer in the first {window - 1})"
 
 
 def convergence_figure(metrics: dict[str, np.ndarray], path: Path, window: int = 500,
@@ -31,21 +38,24 @@ def convergence_figure(metrics: dict[str, np.ndarray], path: Path, window: int =
     cols = 3
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), squeeze=False)
-    for ax, (name, label, scale) in zip(axes.ravel(), panels):
+    for ax, (name, label, scale, (lo, hi)) in zip(axes.ravel(), panels):
         raw = metrics[name] * scale
         smooth = raw if name in UNSMOOTHED else sliding_mean(raw, window, axis=0)  # (E, B)
         mean, half = mean_ci(smooth, axis=1)
         x = np.arange(1, len(mean) + 1)
         ax.plot(x, mean, color="C0", lw=1.5)
         if np.isfinite(half).any():
-            ax.fill_between(x, mean - half, mean + half, color="C0", alpha=0.25, lw=0)
+            # a t-interval of few seeds is wide: never draw it past what the metric can be
+            ax.fill_between(x, np.clip(mean - half, lo, hi), np.clip(mean + half, lo, hi), color="C0", alpha=0.25,
+                            lw=0)
         ax.set_xlabel("episode")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
-    n_seeds = next(iter(metrics.values())).shape[1]
-    fig.suptitle(f"{title} — {window}-episode sliding window, mean of {n_seeds} seeds, 95% band")
+    episodes, n_seeds = next(iter(metrics.values())).shape[:2]
+    band = "95% band" if n_seeds > 1 else "1 seed, no band"
+    fig.suptitle(f"{title}: {window_text(window, episodes)}; mean of {n_seeds} seed{'s' * (n_seeds != 1)}, {band}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
