@@ -44,6 +44,21 @@ NS = 1e9
 HEAT_BINS = 120  # heat map cells per axis
 MAX_VEHICLE_POINTS = 4_000_000  # keep every k-th positions message beyond this (bounded memory)
 MAX_METRIC_PANELS = 12
+# step metrics as people read them, in the order they matter (others follow, by name)
+METRIC_LABELS = {
+    "coverage_pct": "coverage (% of vehicles)",
+    "covered": "vehicles covered",
+    "generated": "packets generated",
+    "delivered": "packets delivered",
+    "dropped": "packets dropped",
+    "delay_sum_s": "relay delay, all packets (s)",
+    "energy_j": "energy per UAV (J/step)",
+    "hovering_uavs": "UAVs without an action",
+}
+
+
+def metric_label(name: str) -> str:
+    return METRIC_LABELS.get(name, name.replace("_", " "))
 TRACK_BREAK_MIN_M = 100.0  # a jump longer than this (and 5x the usual step) starts a new track segment
 TRACK_BREAK_FACTOR = 5.0
 DEFAULT_RANGE_M = 500.0  # coverage radius when the file holds no config (the paper's 500 m)
@@ -381,8 +396,22 @@ def metrics_figure(rec: Recording, path: Path) -> Optional[str]:
     steps = [m for m in rec.metrics if m.get("scope") == "step"] or rec.metrics
     if not steps:
         return None
-    names = sorted({n for m in steps for n in m["values"]})
-    shown = names[:MAX_METRIC_PANELS]
+    names = sorted({n for m in steps for n in m["values"]},
+                   key=lambda n: (list(METRIC_LABELS).index(n) if n in METRIC_LABELS else len(METRIC_LABELS), n))
+
+    def series(name: str) -> np.ndarray:
+        return np.array([float(m["values"][name]) if m["values"].get(name) is not None else np.nan for m in steps])
+
+    # a metric that never changes gets a line in the title, not a flat panel
+    constant = {}
+    for name in names:
+        finite = series(name)[np.isfinite(series(name))]
+        if finite.size and np.all(finite == finite[0]):
+            constant[name] = finite[0]
+    varying = [n for n in names if n not in constant]
+    shown = varying[:MAX_METRIC_PANELS]
+    if not shown:
+        shown = names[:1]
     plt = _plt()
     t = np.array([rec.t(m["_log_ns"]) for m in steps])
     episodes = [m.get("episode") for m in steps]
@@ -392,13 +421,12 @@ def metrics_figure(rec: Recording, path: Path) -> Optional[str]:
     rows = math.ceil(len(shown) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(7.0 * cols, 2.1 * rows + 0.8), sharex=True, squeeze=False)
     for ax, name in zip(axes.ravel(), shown):
-        y = np.array([float(m["values"].get(name, np.nan)) if m["values"].get(name) is not None else np.nan
-                      for m in steps])
+        y = series(name)
         _shade_faults(ax, spans, rec.duration_s, label=True)
         for s in starts:
             ax.axvline(s, color="0.5", lw=0.6, ls=":")
         ax.plot(t, y, lw=1.0, color="C0")
-        ax.set_ylabel(name, fontsize=9)
+        ax.set_title(metric_label(name), fontsize=9, loc="left", pad=3)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(shown):]:
         ax.axis("off")
@@ -414,8 +442,9 @@ def metrics_figure(rec: Recording, path: Path) -> Optional[str]:
     if handles:
         fig.legend(handles, labels, loc="upper left", bbox_to_anchor=(0.01, top + 0.25 / fig.get_figheight()),
                    ncol=len(handles), fontsize=8, frameon=False)
-    more = f" (first {len(shown)} of {len(names)})" if len(names) > len(shown) else ""
-    fig.suptitle(f"Step metrics over time{more}: {len(steps)} samples, {len(spans)} fault interval(s)",
+    more = f" (first {len(shown)} of {len(varying)})" if len(varying) > len(shown) else ""
+    flat = "; constant: " + ", ".join(f"{metric_label(n)} = {v:g}" for n, v in constant.items()) if constant else ""
+    fig.suptitle(f"Step metrics over time{more}: {len(steps)} samples, {len(spans)} fault interval(s){flat}",
                  x=0.01, y=0.995, ha="left", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, top))
     fig.savefig(path, dpi=DPI)
