@@ -48,27 +48,62 @@ def degradation_table(base: dict, faulted: dict) -> str:
     return "\n".join(lines)
 
 
+def fault_lanes(plan, end_s: float) -> list[tuple[str, float, float | None, bool]]:
+    """(label, start, stop or None for an instant, lasts to the end of the run) per fault, for one lane each."""
+    lanes = []
+    for f in plan.faults:
+        target = f.params.get("uav", f.params.get("key", f.params.get("target", "")))
+        label = f"{f.kind} {target}".strip()
+        if f.kind == "crash":
+            restart = f.params.get("restart_after")
+            lanes.append((label, f.start, None if restart is None else f.start + float(restart), False))
+        else:
+            forever = math.isinf(f.duration)
+            lanes.append((label, f.start, end_s if forever else min(f.end, end_s), forever))
+    return lanes
+
+
 def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path: Path) -> Path:
+    """Coverage and missed actions with and without the plan; the plan's faults on their own lanes
+    above (a bar per window, a cross for a crash), so overlapping windows never blend."""
     plan = load_plan(plan_path)
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    n = len(plan.faults)
+    fig, axes = plt.subplots(3, 1, figsize=(11, 6.5 + 0.22 * n), sharex=True,
+                             gridspec_kw={"height_ratios": [0.5 + 0.28 * max(n, 1), 3, 1.6]})
+    lanes_ax, cov_ax, hov_ax = axes
     for summary, label, color in ((base, "no faults", "C0"), (faulted, "with plan", "C3")):
         cov = np.array(summary["timeline"]["coverage"] or [[0, np.nan]])
         hov = np.array(summary["timeline"]["hovering"] or [[0, np.nan]])
-        axes[0].plot(cov[:, 0] / rate_hz, cov[:, 1], color=color, lw=1, label=label)
-        axes[1].plot(hov[:, 0] / rate_hz, hov[:, 1], color=color, lw=1, label=label)
+        cov_ax.plot(cov[:, 0] / rate_hz, cov[:, 1], color=color, lw=1, label=label)
+        hov_ax.step(hov[:, 0] / rate_hz, hov[:, 1], where="mid", color=color, lw=1, label=label)
     end = max(len(faulted["timeline"]["coverage"]), 1) / rate_hz
-    for n, f in enumerate(plan.faults):
-        stop = min(f.end, end) if f.kind != "crash" else f.start + f.params.get("restart_after", end - f.start)
-        for ax in axes:
-            ax.axvspan(f.start, stop, color=f"C{2 + n % 6}", alpha=0.15, lw=0)
-        axes[0].text(f.start, axes[0].get_ylim()[1], f" {f.kind}", va="top", fontsize=8)
-    axes[0].set_ylabel("coverage (%)")
-    axes[1].set_ylabel("UAVs without action")
-    axes[1].set_xlabel("time since tick 0 (s)")
-    axes[0].legend(loc="lower right")
-    for ax in axes:
+    for row, (label, start, stop, forever) in enumerate(fault_lanes(plan, end)):
+        color = f"C{(2 + row) % 10}" if (2 + row) % 10 != 3 else "C9"
+        y = n - 1 - row
+        if stop is None:
+            lanes_ax.plot([start], [y], marker="x", ms=9, mew=2, color=color, ls="none")
+        else:
+            lanes_ax.barh(y, stop - start, left=start, height=0.6, color=color, alpha=0.8)
+        text = label + (" (no end)" if forever else "") + (" (no restart)" if stop is None else "")
+        lanes_ax.text(max(start, 0.005 * end), y + 0.38, text, fontsize=7.5, va="bottom", color="0.2")
+        for ax in (cov_ax, hov_ax):
+            ax.axvline(start, color=color, lw=0.9, alpha=0.8)
+            if stop is not None and not forever:
+                ax.axvline(stop, color=color, lw=0.9, alpha=0.8, ls="--")
+    lanes_ax.set_ylim(-0.6, n + 0.2)
+    lanes_ax.set_yticks([])
+    lanes_ax.set_title("faults of the plan (bar: active window; x: crash; lines below: start solid, end dashed)",
+                       fontsize=9, loc="left")
+    lanes_ax.grid(axis="x", alpha=0.3)
+    cov_ax.set_ylabel("coverage (%)")
+    hov_ax.set_ylabel("UAVs without\nan action")
+    hov_ax.set_xlabel("time since tick 0 (s)")
+    hov_ax.yaxis.get_major_locator().set_params(integer=True)
+    cov_ax.legend(loc="lower right")
+    for ax in (cov_ax, hov_ax):
         ax.grid(alpha=0.3)
-    fig.suptitle(f"chaos: {Path(plan_path).name} (fault windows shaded)")
+    hov_ax.set_xlim(0, end)
+    fig.suptitle(f"chaos: {Path(plan_path).name}, the same seed with and without the plan")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
