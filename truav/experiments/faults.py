@@ -25,6 +25,21 @@ from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0),
            ("delay_ms", "relay delay (ms)", 1.0), ("energy_j", "energy (kJ/UAV/episode)", 1e-3))
+# Smallest y span a panel shows (absolute for percentages, relative to the no-fault value
+# otherwise), so a change of a few hundredths is drawn flat, not as a steep line.
+MIN_SPAN = {"coverage_pct": 10.0, "pdr": 10.0, "delay_ms": 0.25, "energy_j": 0.05}
+RELATIVE_SPAN = ("delay_ms", "energy_j")
+
+
+def y_limits(key: str, values: np.ndarray) -> tuple[float, float]:
+    lo, hi = float(np.nanmin(values)), float(np.nanmax(values))
+    span = MIN_SPAN[key] * (abs(values[0]) if key in RELATIVE_SPAN else 1.0)
+    if hi - lo >= span:
+        pad = 0.1 * (hi - lo)
+        return lo - pad, hi + pad
+    mid = (lo + hi) / 2
+    return max(0.0, mid - span / 2) if lo >= 0 else mid - span / 2, max(0.0, mid - span / 2) + span if lo >= 0 \
+        else mid + span / 2
 
 
 @dataclass(frozen=True)
@@ -106,7 +121,14 @@ def sweep_figure(rows: list[dict], path: Path) -> Path:
         x = np.array([p["level"] for p in pts]) * scale
         for c, (key, label, s) in enumerate(METRICS):
             ax = axes[r, c]
-            ax.plot(x, [p[key] * s for p in pts], marker="o", color=f"C{r}")
+            y = np.array([p[key] * s for p in pts], dtype=float)
+            ax.plot(x, y, marker="o", color=f"C{r}")
+            if y.size:
+                ax.set_ylim(*y_limits(key, y))
+                change = y[-1] - y[0]
+                unit = " pts" if key in ("coverage_pct", "pdr") else f" ({100 * change / y[0]:+.1f}%)" if y[0] else ""
+                ax.set_title(f"at the highest level: {change:+.2f}{unit}" if key in ("coverage_pct", "pdr")
+                             else f"at the highest level: {change:+.3g}{unit}", fontsize=8, color="0.35")
             ax.set_xlabel(xlabel)
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
