@@ -24,7 +24,6 @@ UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
 _U64 = (1 << 64) - 1
-_isfinite = math.isfinite
 
 
 # --- envelope ---------------------------------------------------------------------

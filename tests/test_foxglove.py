@@ -4,7 +4,6 @@ accepts, compact finished files, and the live WebSocket view (loopback, bounded)
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import os
 import struct

@@ -21,7 +21,7 @@ from typing import Any, Callable, Optional
 
 import foxglove
 
-from recorder.foxglove import FoxgloveMirror, Geometry, Out
+from recorder.foxglove import FoxgloveMirror, Out
 from recorder.mcap_log import JSON_ENCODING, MIRROR_PREFIX
 from recorder.schemas import MIRROR_SCHEMA_PREFIX, envelope_fields, mirror_builder, mirror_schema
 from truav.bus import keys
