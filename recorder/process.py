@@ -178,7 +178,8 @@ class RecorderSummary:
             f"recorder: run {self.run} -> {self.path} ({self.stop_reason})",
             f"  {log_.messages} messages on {len(log_.channels)} channels in {self.duration_s:.1f} s "
             f"({rate:,.0f} msgs/s), {log_.mirror_messages} mirror messages, {log_.bytes_written:,} bytes, "
-            f"{log_.chunks} chunks",
+            f"{log_.chunks} chunks" + (f"; compacted at the finish to {self.compacted[1]:,} bytes"
+                                       if self.compacted else ""),
             f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
             f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
         ]

@@ -3,6 +3,7 @@ intersections, vehicles and UAV tracks, beside the coverage timeline."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import matplotlib
@@ -79,7 +80,8 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm") -> Path
     ax.scatter([], [], color="k", s=30, label="UAV at the end (id), coverage disc")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=3, fontsize=7, framealpha=0.85)
     steps = cfg.scenario.steps_per_episode
-    n_episodes = int(coverage[-1, 0]) // steps + 1 if coverage.size else 1
+    # ticks 0..steps are episode 1 (its last tick is the done observation), and so on
+    n_episodes = max(1, math.ceil(int(coverage[-1, 0]) / steps)) if coverage.size else 1
     ax.set_title(f"UAV tracks in the last episode ({n_episodes} of {n_episodes})" if n_episodes > 1
                  else "UAV tracks (from beacons)")
     if coverage.size:
