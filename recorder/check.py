@@ -8,10 +8,15 @@ so within a recording:
   subscribed) — the recorder writes everything it receives;
 * an *unfinished* file (no footer) = the recorder itself died; it lost its
   last <= flush_interval of messages, which show as a cut tail, not as gaps
-  (run ``recorder.recover`` to finish the file).
+  (run ``truav log recover`` to finish the file);
+* a *corrupt chunk* (bad CRC or compression) = messages lost on disk.
 
-Figures are exact (computed offline over the whole file), unlike the online
-counts of :meth:`recorder.mcap_log.McapLog.summary`.
+The file is read record by record (the salvage path of :mod:`recorder.reader`),
+so a damaged chunk is counted, not fatal.  ``truav log check`` exits 1 when
+any of these (or duplicates, reordering, undecodable payloads) is found:
+:attr:`CheckReport.problems` lists them.  Figures are exact (computed
+offline over the whole file), unlike the online counts of
+:meth:`recorder.mcap_log.McapLog.summary`.
 """
 
 from __future__ import annotations
@@ -20,8 +25,10 @@ import os
 from dataclasses import dataclass, field
 from typing import Optional
 
+from mcap.records import Channel, Message
+
+from recorder.reader import SalvageStats, Source, TopicFilter, iter_salvaged_records, open_source, probe
 from recorder.schemas import decode_envelope
-from recorder.reader import Source, iter_messages, open_source, probe
 
 MAX_RANGES_SHOWN = 4
 
@@ -62,11 +69,35 @@ class CheckReport:
     last_log_time: Optional[int]
     channels: dict[str, ChannelCheck]
     senders: dict[tuple[str, str], SenderCheck]
+    corrupt_chunks: int = 0  # chunks whose CRC or compression was bad: their messages are lost
+    read_error: Optional[str] = None  # why reading stopped before the end, if it did
 
     @property
     def missing(self) -> int:
         """Messages the bus lost, over all senders."""
         return sum(s.missing for s in self.senders.values())
+
+    @property
+    def problems(self) -> list[str]:
+        """What is wrong with the recording, one phrase each; empty for a complete one."""
+        out = []
+        if not self.finished:
+            out.append("unfinished (the recorder died; run `truav log recover` to finish the file)")
+        if self.corrupt_chunks:
+            out.append(f"{self.corrupt_chunks} corrupt chunk(s) (their messages are lost)")
+        if self.read_error:
+            out.append(f"unreadable after some point ({self.read_error})")
+        if self.missing:
+            out.append(f"{self.missing} message(s) missing by seq")
+        duplicates = sum(s.duplicates for s in self.senders.values())
+        reordered = sum(s.out_of_order for s in self.senders.values())
+        if duplicates:
+            out.append(f"{duplicates} duplicate(s)")
+        if reordered:
+            out.append(f"{reordered} out of order")
+        if self.undecodable:
+            out.append(f"{self.undecodable} undecodable")
+        return out
 
     def format_report(self, max_ranges: int = MAX_RANGES_SHOWN) -> str:
         """A plain-text report: file state, one row per sender, one row per channel."""
@@ -76,7 +107,10 @@ class CheckReport:
             else 0.0
         )
         state = ("finished" if self.finished else
-                 f"UNFINISHED (recorder died; {self.torn_bytes} torn bytes; run recorder.recover)")
+                 f"UNFINISHED (recorder died; {self.torn_bytes} torn bytes; run `truav log recover`)")
+        if self.corrupt_chunks or self.read_error:
+            state += (f"; DAMAGED: {self.corrupt_chunks} corrupt chunk(s) skipped"
+                      + (f", stopped early: {self.read_error}" if self.read_error else ""))
         lines = [
             f"{self.path}: {state}",
             f"{self.messages} messages over {span:.3f} s, {self.undecodable} undecodable, "
@@ -143,14 +177,24 @@ class _SeqAudit:
 
 def check(source: Source) -> CheckReport:
     """Audit the bus channels of a recording (finished or not; mirrors ignored)."""
+    stats = SalvageStats()
+    keep = TopicFilter()  # bus channels only: the JSON mirrors repeat them
     with open_source(source) as stream:
         state = probe(stream)
         audits: dict[tuple[str, str], _SeqAudit] = {}
         channels: dict[str, ChannelCheck] = {}
+        topics: dict[int, str] = {}
         messages = undecodable = 0
         first: Optional[int] = None
         last: Optional[int] = None
-        for key, payload, log_time, _ in iter_messages(stream):
+        for record in iter_salvaged_records(stream, state, stats):
+            if isinstance(record, Channel):
+                topics.setdefault(record.id, record.topic)
+                continue
+            key = topics.get(record.channel_id) if isinstance(record, Message) else None
+            if key is None or not keep(key):  # other records, mirrors, messages of an undeclared channel
+                continue
+            payload, log_time = record.data, record.log_time
             messages += 1
             first = log_time if first is None or log_time < first else first
             last = log_time if last is None or log_time > last else last
@@ -172,4 +216,5 @@ def check(source: Source) -> CheckReport:
         path=name, finished=state.finished, torn_bytes=state.torn_bytes, messages=messages,
         undecodable=undecodable, first_log_time=first, last_log_time=last, channels=channels,
         senders={k: a.finish() for k, a in audits.items()},
+        corrupt_chunks=stats.corrupt_chunks, read_error=stats.error,
     )

@@ -25,9 +25,18 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-from truav.cli import non_negative_float, positive_float
+from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_PROBLEMS = 1
+"""`truav log check`: the recording is unfinished, damaged or has sequence anomalies (like diff/grep, 1 = found)."""
+
+
+def damage_errors() -> tuple[type[BaseException], ...]:
+    """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
+    import zstandard
+    from mcap.exceptions import McapError
+    return (McapError, zstandard.ZstdError, EOFError)
 
 Command = Callable[[argparse.Namespace], int]
 
@@ -68,9 +77,18 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
     if Path(args.output).exists() and not args.force:
         return _fail("truav", f"{args.output} exists; use --force to overwrite it")
     try:
+        check_out_file("OUT", args.output)
+    except ValueError as exc:
+        return _fail("truav", str(exc))
+    try:
         rep = recover(args.input, args.output, compression=args.compression)
     except OSError as exc:
         return _fail("truav", f"recovery failed: {exc.strerror or exc}", EXIT_FAILED)
+    if rep.messages == 0 and (rep.corrupt_chunks or rep.error or rep.orphan_messages or rep.torn_bytes):
+        Path(args.output).unlink(missing_ok=True)  # an empty "recovered" file would pass for a real one
+        why = (f"{rep.corrupt_chunks} corrupt chunk(s), {rep.orphan_messages} message(s) without a channel, "
+               f"{rep.torn_bytes:,} torn bytes" + (f"; stopped early: {rep.error}" if rep.error else ""))
+        return _fail("truav", f"{args.input}: nothing salvageable ({why}); {args.output} not written", EXIT_FAILED)
     span = ((rep.last_log_time - rep.first_log_time) / 1e9
             if rep.first_log_time is not None and rep.last_log_time is not None else 0.0)
     state = "unfinished (writer died)" if rep.truncated else "already finished (re-chunked copy)"
@@ -89,7 +107,11 @@ def cmd_log_check(args: argparse.Namespace) -> int:
     problem = _mcap_file(args.file)
     if problem:
         return _fail("truav", problem)
-    print(check(args.file).format_report(max_ranges=args.max_ranges))
+    report = check(args.file)
+    print(report.format_report(max_ranges=args.max_ranges), flush=True)
+    if report.problems:
+        print(f"truav log check: {args.file}: {'; '.join(report.problems)}", file=sys.stderr)
+        return EXIT_PROBLEMS
     return EXIT_OK
 
 
@@ -99,10 +121,18 @@ def cmd_report(args: argparse.Namespace) -> int:
     problem = _mcap_file(args.file)
     if problem:
         return _fail("truav", problem)
+    if args.out is not None:
+        try:
+            check_out_dir("--out", args.out)
+        except ValueError as exc:
+            return _fail("truav", str(exc))
     try:
         _, lines = report(args.file, args.out)
     except ReportError as exc:
         return _fail("truav", str(exc))
+    except damage_errors() as exc:
+        return _fail("truav", f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log check` "
+                              f"shows what is wrong, `truav log recover` salvages the rest")
     except OSError as exc:
         return _fail("truav", f"cannot write the report: {exc.strerror or exc}", EXIT_FAILED)
     print("\n".join(lines))
@@ -132,9 +162,11 @@ def add_log_commands(subparsers: Any) -> None:
         description="Audit a recording. Every sender numbers its messages per kind, so a gap in one "
                     "sender's sequence numbers is a message that never reached the recorder (lost on the bus "
                     "or sent before it subscribed); an UNFINISHED file means the recorder itself died and "
-                    "lost its last flush interval (run `truav log recover`).")
+                    "lost its last flush interval (run `truav log recover`). Exit code 0: finished and "
+                    "complete; 1: unfinished, damaged, or with gaps, duplicates, reordering or undecodable "
+                    "messages (listed on stderr); 2: not an MCAP file.")
     chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
-    chk.add_argument("--max-ranges", type=int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
+    chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)
 
     rep = subparsers.add_parser(
@@ -149,8 +181,24 @@ def add_log_commands(subparsers: Any) -> None:
 
 # --- truav-swarm record / replay ----------------------------------------------------------------
 def cmd_record(args: argparse.Namespace) -> int:
+    import math
+
     from recorder.process import cmd_record as run_record
 
+    # The flags recorder.process leaves to later (a NaN there reaches int() mid-start).
+    for flag, value, positive in (("--flush-ms", args.flush_ms, True), ("--router-wait", args.router_wait, False)):
+        if not math.isfinite(value) or value < 0 or (positive and value == 0):
+            return _fail("truav-swarm", f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
+    try:
+        check_out_file("--out", args.out)
+    except ValueError as exc:
+        return _fail("truav-swarm", str(exc))
+    if args.config_toml is not None:
+        from truav.config import ConfigError, read_toml
+        try:
+            read_toml(args.config_toml, "--config-toml", ConfigError)
+        except ConfigError as exc:
+            return _fail("truav-swarm", str(exc))
     return run_record(args)
 
 

@@ -158,9 +158,9 @@ def test_empty_recording_still_reports(tmp_path: Path) -> None:
 def test_cli_report_log_check_and_recover(tmp_path: Path, capsys) -> None:
     path = tmp_path / "swarm.mcap"
     make_swarm_recording(path, finish=False)
-    assert truav_main(["log", "check", str(path)]) == 0
-    text = capsys.readouterr().out
-    assert "UNFINISHED" in text and "uav/2" in text
+    assert truav_main(["log", "check", str(path)]) == 1  # unfinished: not a clean bill of health
+    out, err = capsys.readouterr()
+    assert "UNFINISHED" in out and "uav/2" in out and "`truav log recover`" in err
     fixed = tmp_path / "fixed.mcap"
     assert truav_main(["log", "recover", str(path), str(fixed)]) == 0
     assert "unfinished (writer died)" in capsys.readouterr().out

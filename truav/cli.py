@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -21,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from truav import runio
-from truav.config import Config, ConfigError, load_config, to_toml
+from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
+    OneLineParser, UserError, check_out_dir, non_negative_float, positive_float, positive_int, run_main, seed_int)
+from truav.config import Config, load_config, to_toml
 
 EVAL_SEED_OFFSET = 10_000
 """Evaluation runs on held-out traffic: world seed = training seed + this."""
@@ -30,40 +31,8 @@ SUMMARY_METRICS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0),
                    ("delay_ms", "delay ms", 1.0), ("energy_j", "energy kJ/UAV", 1e-3))
 
 
-class UsageError(ValueError):
+class UsageError(UserError):
     """A user mistake on the command line."""
-
-
-# -- shared helpers -----------------------------------------------------------
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (a clear usage error instead of a crash later)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _finite_float(text: str, allow_zero: bool) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and (value > 0 or (allow_zero and value == 0))):
-        raise argparse.ArgumentTypeError(f"must be a finite number {'>=' if allow_zero else '>'} 0, got {text}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    return _finite_float(text, allow_zero=False)
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    return _finite_float(text, allow_zero=True)
 
 
 def parse_sets(items: list[str]) -> dict[str, dict[str, Any]]:
@@ -88,16 +57,16 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
                    help="override one config value (repeatable), e.g. --set scenario.n_uavs=8")
 
 
-def config_from(args, extra: dict[str, dict[str, Any]] | None = None) -> Config:
+def config_from(args, extra: dict[str, dict[str, Any]] | None = None,
+                base: dict[str, dict[str, Any]] | None = None) -> Config:
+    """Defaults < ``base`` (e.g. --quick) < --config file < --set < ``extra`` (dedicated flags)."""
     overrides = parse_sets(args.set)
     for section, values in (extra or {}).items():
         overrides.setdefault(section, {}).update(values)
-    return load_config(args.config, overrides)
+    return load_config(args.config, overrides, base)
 
 
 def seed_list(args) -> list[int]:
-    if args.seeds < 1:
-        raise UsageError("--seeds must be at least 1")
     return list(range(args.seed_start, args.seed_start + args.seeds))
 
 
@@ -146,10 +115,11 @@ def cmd_train(args) -> int:
         extra["learner"] = {"episodes": args.episodes}
     cfg = config_from(args, extra)
     seeds = seed_list(args)
-    out = runio.fresh_dir(args.out or f"runs/train-{cfg.scenario.uav_speed_mps:g}mps", args.force)
+    out = runio.fresh_dir(args.out if args.out is not None else f"runs/train-{cfg.scenario.uav_speed_mps:g}mps",
+                          args.force)
     runio.write_config(out, cfg)
     episodes = cfg.learner.episodes
-    workers = max(1, min(args.workers, len(seeds)))
+    workers = min(args.workers, len(seeds))
     print(f"training {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
           f"at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) -> {out}", flush=True)
     t0 = time.perf_counter()
@@ -174,12 +144,11 @@ def cmd_evaluate(args) -> int:
     run = Path(args.run)
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     seeds, q = runio.read_qtables(run)
-    if q.shape[1] != cfg.scenario.n_uavs:
-        raise runio.RunDirError(f"{run}: Q-tables hold {q.shape[1]} UAVs but the config says {cfg.scenario.n_uavs}")
+    runio.check_qtables(run, q, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
-    workers = max(1, min(args.workers, len(seeds)))
+    workers = min(args.workers, len(seeds))
     rows = {}
     for kind in ["truav"] + list(args.against):
         result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
@@ -192,8 +161,7 @@ def cmd_evaluate(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="truav", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(prog="truav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     cfg = sub.add_parser("config", help="inspect the configuration")
@@ -204,11 +172,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser("train", help="train TRUAV agents for many seeds (one batch per core)")
     add_config_args(tr)
-    tr.add_argument("--speed", type=float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
-    tr.add_argument("--seeds", type=int, default=10, help="number of seeds (default 10, as the paper)")
-    tr.add_argument("--seed-start", type=int, default=0, help="first seed (default 0)")
-    tr.add_argument("--episodes", type=int, help="episodes (default: learner.episodes, 5000)")
-    tr.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    tr.add_argument("--speed", type=positive_float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
+    tr.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (default 10, as the paper)")
+    tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
+    tr.add_argument("--episodes", type=positive_int, help="episodes (default: learner.episodes, 5000)")
+    tr.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+                    help="worker processes (default: all cores)")
     tr.add_argument("--out", help="output directory (default runs/train-<speed>mps)")
     tr.add_argument("--force", action="store_true", help="write into a non-empty --out")
     tr.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -216,11 +185,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
-    ev.add_argument("--episodes", type=int, default=20, help="episodes per seed (default 20)")
-    ev.add_argument("--speed", type=float, help="evaluate at another UAV speed")
+    ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default 20)")
+    ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
-    ev.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
     ev.add_argument("--quiet", action="store_true")
     ev.set_defaults(func=cmd_evaluate)
 
@@ -233,14 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (ConfigError, UsageError, runio.RunDirError) as exc:
-        print(f"truav: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("truav: interrupted", file=sys.stderr)
-        return 130
+    return run_main("truav", lambda: args.func(args))
 
 
 if __name__ == "__main__":

@@ -17,11 +17,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from truav.cli_args import UserError
+
 
 UAV_STARTS = ("random", "persist", "center")
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError):
     """A user mistake in a config file or override: the message names the key."""
 
 
@@ -424,19 +426,34 @@ def n_grid_roads(cfg: Config) -> int:
 def read_toml(path: str | Path, what: str, error: type[Exception]) -> dict[str, Any]:
     """A TOML file as a dict; a missing or malformed file raises ``error`` with a one-line reason."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise error(f"{what} not found: {p}")
+    if not p.is_file():
+        raise error(f"{what} {p}: not a regular file")
     try:
-        return tomllib.loads(p.read_text())
+        text = p.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise error(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise error(f"{what} {p}: not a text file (not UTF-8), so not TOML") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise error(f"{p}: not valid TOML ({exc})") from None
+        raise error(f"{what} {p}: not valid TOML ({exc})") from None
 
 
-def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
-    """Defaults, then a TOML file, then overrides ({"scenario": {...}})."""
-    data: dict[str, Any] = read_toml(path, "config file", ConfigError) if path is not None else {}
-    for name, values in (overrides or {}).items():
-        data[name] = {**data.get(name, {}), **values}
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None,
+                base: Mapping[str, Mapping[str, Any]] | None = None) -> Config:
+    """Defaults, then ``base`` (e.g. the --quick settings), then a TOML file, then overrides
+    ({"scenario": {...}}): whatever the user wrote explicitly wins."""
+    data: dict[str, Any] = {name: dict(values) for name, values in (base or {}).items()}
+    layers = [read_toml(path, "config file", ConfigError) if path is not None else {}, overrides or {}]
+    for layer in layers:
+        for name, values in layer.items():
+            if isinstance(values, Mapping) and isinstance(data.get(name), Mapping):
+                data[name] = {**data[name], **values}
+            else:
+                data[name] = dict(values) if isinstance(values, Mapping) else values
     return config_from_dict(data)
 
 

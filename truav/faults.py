@@ -58,12 +58,14 @@ from __future__ import annotations
 import fnmatch
 import hashlib
 import math
+import re
 import struct
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from truav.cli_args import UserError
 from truav.config import read_toml
 
 LINK_KINDS = ("loss", "latency", "partition", "obs_loss")
@@ -82,7 +84,7 @@ _ALLOWED = {
 _COMMON = {"kind", "start", "duration"}
 
 
-class PlanError(ValueError):
+class PlanError(UserError):
     """A mistake in a fault plan; the message names the fault and the key."""
 
 
@@ -170,10 +172,35 @@ def plan_from_dict(data: dict[str, Any]) -> FaultPlan:
     return FaultPlan(tuple(faults), seed)
 
 
+_PATTERN_CHUNK = re.compile(r"(?:[A-Za-z0-9_*?-]|\[!?[A-Za-z0-9_-]+\])+")
+"""One chunk of a key or sender pattern: key characters, the globs * ? and [...] classes."""
+_PATTERN_ROOTS = {
+    "keys": ("world", "uav", "metrics", "fault", "control", "alive"),  # after truav/<run>/, see truav.bus.keys
+    "src": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status"),  # sender identities
+    "dst": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status"),
+}
+
+
+def _check_pattern(where: str, key: str, value: Any) -> str:
+    """A key/sender glob that is well formed and can match something TRUAV sends (a typo in
+    a pattern would otherwise silently match nothing)."""
+    if not isinstance(value, str) or not value:
+        raise PlanError(f"{where}: {key} must be a non-empty pattern string")
+    chunks = value.split("/")
+    if not all(_PATTERN_CHUNK.fullmatch(c) for c in chunks):
+        raise PlanError(f"{where}: {key} {value!r} is not a valid pattern (chunks of [A-Za-z0-9_-] and the "
+                        f"globs * ** ? [...], separated by single '/')")
+    roots = _PATTERN_ROOTS[key]
+    if "*" not in chunks[0] and not any(fnmatch.fnmatchcase(r, chunks[0]) for r in roots):
+        raise PlanError(f"{where}: {key} {value!r} matches nothing TRUAV sends (it must start with one of "
+                        f"{', '.join(roots)}, or a *)")
+    return value
+
+
 def _check_params(where: str, kind: str, p: dict[str, Any]) -> dict[str, Any]:
     for key in ("keys", "src", "dst"):
-        if key in p and (not isinstance(p[key], str) or not p[key]):
-            raise PlanError(f"{where}: {key} must be a non-empty pattern string")
+        if key in p:
+            _check_pattern(where, key, p[key])
     if kind == "loss":
         ge = {"p_good_to_bad", "p_bad_to_good", "loss_good", "loss_bad"}
         if "probability" in p and ge & set(p):
@@ -222,7 +249,36 @@ def _missing(where: str, key: str):
 
 
 def load_plan(path: str | Path) -> FaultPlan:
-    return plan_from_dict(read_toml(path, "fault plan", PlanError))
+    """A plan file, validated; PlanError names the file, the fault and the key."""
+    data = read_toml(path, "fault plan", PlanError)
+    try:
+        return plan_from_dict(data)
+    except PlanError as exc:
+        raise PlanError(f"fault plan {path}: {exc}") from None
+
+
+_UAV_IN_PATTERN = re.compile(r"(?:^|/)uav/(\d+)(?:/|$)")
+
+
+def plan_uavs(fault: Fault) -> list[int]:
+    """The UAV ids a fault names explicitly (ids, groups, and uav/<i> in its patterns)."""
+    p = fault.params
+    ids = [p["uav"]] if "uav" in p else []
+    ids += list(p.get("uavs", [])) + [u for g in p.get("groups", []) for u in g]
+    for key in ("keys", "src", "dst"):
+        ids += [int(m) for m in _UAV_IN_PATTERN.findall(p.get(key, ""))]
+    return ids
+
+
+def check_plan_for(plan: FaultPlan, n_uavs: int, path: str | Path | None = None) -> FaultPlan:
+    """A plan that names only UAVs of a swarm of ``n_uavs`` (a fault on UAV 99 of 5 is a typo)."""
+    for n, f in enumerate(plan.faults):
+        bad = sorted({u for u in plan_uavs(f) if u >= n_uavs})
+        if bad:
+            where = f"fault plan {path}: " if path is not None else ""
+            raise PlanError(f"{where}fault #{n + 1} ({f.kind}) names UAV {bad[0]}, but the swarm has "
+                            f"{n_uavs} UAVs (ids 0-{n_uavs - 1})")
+    return plan
 
 
 # -- the link filter -----------------------------------------------------------------

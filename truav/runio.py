@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import csv
 import os
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
+from truav.cli_args import UserError
 from truav.config import Config, load_config, to_toml
 
 CONFIG_FILE = "config.toml"
@@ -23,17 +26,17 @@ QTABLE_FILE = "qtables.npz"
 CONVERGENCE_FILE = "convergence.png"
 
 
-class RunDirError(ValueError):
+class RunDirError(UserError):
     """A run directory is missing or incomplete (a user mistake, not a bug)."""
 
 
 def fresh_dir(path: str | Path, force: bool = False) -> Path:
     """Create an output directory; refuse to overwrite a non-empty one unless force."""
-    p = Path(path)
+    from truav.cli_args import check_out_dir, make_dir
+    p = check_out_dir("--out", os.fspath(path))
     if p.exists() and any(p.iterdir()) and not force:
-        raise RunDirError(f"{p} exists and is not empty (choose another --out, or --force)")
-    p.mkdir(parents=True, exist_ok=True)
-    return p
+        raise RunDirError(f"--out {p}: exists and is not empty (choose another --out, or --force)")
+    return make_dir("--out", p)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -104,5 +107,37 @@ def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
         p = p / QTABLE_FILE
     if not p.is_file():
         raise RunDirError(f"no Q-tables at {p}")
-    with np.load(p) as data:
-        return [int(s) for s in data["seeds"]], data["q"].astype(np.float64)
+    # What np.load raises on an empty, truncated or foreign file: a user's file, not a bug.
+    try:
+        data = np.load(p, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise RunDirError(f"{p}: a bare .npy array, not a Q-table file of 'truav train' (.npz with q and seeds)")
+        with data:
+            if not {"q", "seeds"} <= set(data.files):
+                raise RunDirError(f"{p}: not a Q-table file of 'truav train' (needs arrays q and seeds, "
+                                  f"has {', '.join(data.files) or 'none'})")
+            seeds, q = data["seeds"], data["q"]
+    except RunDirError:
+        raise
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:
+        raise RunDirError(f"{p}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
+    if q.ndim != 4 or seeds.ndim != 1 or len(seeds) != q.shape[0] or not np.issubdtype(seeds.dtype, np.integer):
+        raise RunDirError(f"{p}: q must be (seeds, UAVs, states, actions) with one integer seed per table, "
+                          f"got q {q.shape} and seeds {seeds.shape}")
+    if not np.issubdtype(q.dtype, np.floating) or not np.isfinite(q).all():
+        raise RunDirError(f"{p}: q must hold finite floating-point values")
+    return [int(s) for s in seeds], q.astype(np.float64)
+
+
+def check_qtables(path: str | Path, q: np.ndarray, cfg: Config, exact_uavs: bool = True) -> None:
+    """Q-tables ``q`` (B, U, S, A) fit the scenario of ``cfg``: its UAVs (all of them, or at
+    least, when not ``exact_uavs``), its state encoding and the action set."""
+    from agents.state import StateEncoder
+    from world.uavs import N_ACTIONS
+    n_uavs = cfg.scenario.n_uavs
+    n_states = StateEncoder(cfg).n_states
+    if q.shape[1] < n_uavs or (exact_uavs and q.shape[1] != n_uavs):
+        raise RunDirError(f"{path}: Q-tables hold {q.shape[1]} UAVs but the scenario has {n_uavs}")
+    if q.shape[2:] != (n_states, N_ACTIONS):
+        raise RunDirError(f"{path}: Q-tables have {q.shape[2]} states x {q.shape[3]} actions but this "
+                          f"config's state encoding needs {n_states} x {N_ACTIONS}")

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from truav import runio
+from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
 from truav.experiments import runner, scale, velocity
 
 QUICK_CONFIG: dict[str, dict[str, Any]] = {
@@ -56,18 +57,21 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
     add_config_args(p)
     p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
                    help=f"schemes to run (default: {' '.join(default_schemes)})")
-    p.add_argument("--seeds", type=int, help="number of seeds (default 10)")
-    p.add_argument("--seed-start", type=int, default=0, help="first seed (default 0)")
-    p.add_argument("--episodes", type=int, help=episodes_help)
+    p.add_argument("--seeds", type=positive_int, help="number of seeds (default 10)")
+    p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
+    p.add_argument("--episodes", type=positive_int, help=episodes_help)
     p.add_argument("--episodes-for", action="append", default=[], metavar="SCHEME=N",
                    help="training episodes of one scheme (repeatable), e.g. central=1000")
-    p.add_argument("--eval-episodes", type=int, help="greedy evaluation episodes per seed (default 100)")
-    p.add_argument("--window", type=int, help="episodes per training window in the tidy CSV (default 500)")
-    p.add_argument("--seeds-per-cell", type=int, default=5,
+    p.add_argument("--eval-episodes", type=positive_int, help="greedy evaluation episodes per seed (default 100)")
+    p.add_argument("--window", type=positive_int, help="episodes per training window in the tidy CSV (default 500)")
+    p.add_argument("--seeds-per-cell", type=positive_int, default=5,
                    help="seeds run as one batch per cell (default 5); changing it re-runs cells")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+                   help="worker processes (default: all cores)")
     p.add_argument("--out", help="output directory (resumed if it holds finished cells)")
-    p.add_argument("--quick", action="store_true", help="CI-sized run: small city, a few short episodes")
+    p.add_argument("--quick", action="store_true",
+                   help="CI-sized run: small city, a few short episodes (flags and --config/--set given "
+                        "explicitly still win)")
     p.add_argument("--report-only", action="store_true", help="only rewrite tables and figures from finished cells")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -79,31 +83,34 @@ def add_experiment_parser(sub) -> None:
     ex_sub = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     v = ex_sub.add_parser("velocity", help="schemes x speeds x seeds: CSV, summary, four-panel figure")
     _common(v, velocity.CHOICES, velocity.SCHEMES, "training episodes per scheme (default learner.episodes, 5000)")
-    v.add_argument("--speeds", nargs="+", type=float, help="UAV speeds in m/s (default 5 10 15 20 25)")
+    v.add_argument("--speeds", nargs="+", type=positive_float, help="UAV speeds in m/s (default 5 10 15 20 25)")
     v.set_defaults(func=cmd_velocity)
     s = ex_sub.add_parser("scale", help="TRUAV vs centralized as UAVs and vehicles grow, with control traffic")
     _common(s, velocity.CHOICES, scale.SCHEMES, "training episodes per scheme (default 1000)")
-    s.add_argument("--uavs", nargs="+", type=int, help="swarm sizes (default 5 10 20)")
-    s.add_argument("--vehicles", nargs="+", type=int, help="vehicle counts (default 200 1000)")
-    s.add_argument("--speed", type=float, default=15.0, help="UAV speed in m/s (default 15)")
+    s.add_argument("--uavs", nargs="+", type=positive_int, help="swarm sizes (default 5 10 20)")
+    s.add_argument("--vehicles", nargs="+", type=positive_int, help="vehicle counts (default 200 1000)")
+    s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default 15)")
     s.set_defaults(func=cmd_scale)
     from truav.experiments.faults import add_fault_sweep_parser
     add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
 
 
 def _setup(args, default_out: str, default_episodes: int | None):
-    from truav.cli import UsageError, config_from
+    from truav.cli import config_from
     quick = args.quick
-    cfg = config_from(args, QUICK_CONFIG if quick else None)
-    n_seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if quick else 10)
-    if n_seeds < 1:
-        raise UsageError("--seeds must be at least 1")
+    # --quick only fills in what the user left out: an explicit flag, --config or --set wins.
+    cfg = config_from(args, base=QUICK_CONFIG if quick else None)
+
+    def pick(given, quick_value, full_value):
+        return given if given is not None else (quick_value if quick else full_value)
+
+    n_seeds = pick(args.seeds, QUICK["seeds"], 10)
     seeds = list(range(args.seed_start, args.seed_start + n_seeds))
-    base_ep = args.episodes or (QUICK["episodes"] if quick else default_episodes or cfg.learner.episodes)
+    base_ep = pick(args.episodes, QUICK["episodes"], default_episodes or cfg.learner.episodes)
     episodes = _parse_episodes_for(args.episodes_for, velocity.CHOICES, base_ep)
-    eval_episodes = args.eval_episodes if args.eval_episodes is not None else (QUICK["eval_episodes"] if quick else 100)
-    window = args.window or (QUICK["window"] if quick else 500)
-    out = Path(args.out or (default_out + ("-quick" if quick else "")))
+    eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], 100)
+    window = pick(args.window, QUICK["window"], 500)
+    out = check_out_dir("--out", args.out if args.out is not None else default_out + ("-quick" if quick else ""))
     if not args.report_only:
         _check_schemes(args.schemes)
     return cfg, seeds, episodes, eval_episodes, window, out
@@ -111,7 +118,7 @@ def _setup(args, default_out: str, default_episodes: int | None):
 
 def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
     from truav.cli import UsageError
-    out.mkdir(parents=True, exist_ok=True)
+    make_dir("--out", out)
     runio.write_config(out, cfg)
     todo = runner.pending_cells(cfg, out, cells)
     if args.report_only:
@@ -146,7 +153,6 @@ def _finish(out: Path, cfg, cells, write, window: int, elapsed: float) -> int:
     if not done:
         raise UsageError(f"{out} holds no finished cells of this experiment")
     results = [runner.load_cell(runner.cell_path(out, cfg, c), c) for c in done]
-    window = max(1, window)  # a cell with fewer episodes gets one shorter window
     files = write(out, cfg, results, window)
     if elapsed:
         print(f"ran in {elapsed:.1f} s")

@@ -142,21 +142,33 @@ def sweep_figure(rows: list[dict], path: Path) -> Path:
 def add_fault_sweep_parser(ex_sub) -> None:
     """`truav experiment faults` in the experiment command group."""
     from truav.cli import add_config_args
+    from truav.cli_args import positive_float, seed_int
     p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
     add_config_args(p)
     p.add_argument("--quick", action="store_true",
                    help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default 0)")
+    p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default 10)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
     p.set_defaults(func=cmd_fault_sweep)
 
 
 def cmd_fault_sweep(args) -> int:
+    from truav import runio
     from truav.cli import config_from
+    from truav.cli_args import check_out_dir
     size = "quick" if args.quick else "full"
-    out = Path(args.out or f"runs/faults{'-quick' if args.quick else ''}")
-    path = run_sweep(config_from(args), size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate)
+    cfg = config_from(args)
+    out = check_out_dir("--out", args.out if args.out is not None else f"runs/faults{'-quick' if args.quick else ''}")
+    if args.qtable is not None:  # the policy every swarm run flies: check it fits before the first run
+        from truav.cli import UsageError
+        run = Path(args.qtable)
+        try:
+            _, q = runio.read_qtables(run)
+            runio.check_qtables(run, q, cfg, exact_uavs=False)
+        except runio.RunDirError as exc:
+            raise UsageError(f"--qtable: {exc}") from None
+    path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate)
     print(f"\n{out / 'faults.csv'}\n{path}")
     return 0

@@ -26,29 +26,93 @@ from pathlib import Path
 import zenoh
 
 from truav.bus import keys
-from truav.cli import UsageError, parse_sets, positive_float, positive_int
-from truav.config import Config, ConfigError, load_config
-from truav.faults import PlanError
+from truav.cli import UsageError, parse_sets
+from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
+                            non_negative_int, positive_float, positive_int, run_main, run_name, seed_int)
+from truav.config import Config, load_config
 from truav.swarm.lifeline import watch_supervisor
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
 
+MAX_AGENTS = 50
+"""Agent processes `up` and `chaos` start without --force-agents. On the 2-core reference
+machine 20 agents at 10 Hz keep every deadline with a wide margin, and 50 already miss 2.4%
+of their actions (each agent is its own Python process); past 50 the swarm is no longer
+real time there, and hundreds of processes can load the machine before anything is printed."""
+
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--run", default="demo", help="run name: keys live under truav/<run>/ (default demo)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
+    p.add_argument("--run", type=run_name, default="demo", help="run name: keys live under truav/<run>/ (default demo)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the run (default 0)")
     p.add_argument("--scenario", metavar="FILE", help="scenario TOML (as `truav config show` prints)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one scenario value (repeatable)")
 
 
 def scenario_from(args) -> Config:
-    try:
-        keys.validate_run(args.run)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
     return load_config(args.scenario, parse_sets(args.set))
+
+
+# -- validation before anything starts -----------------------------------------------
+def check_transport(args, listen_flag: str = "-l/--listen") -> None:
+    """The zenoh-example flags: endpoints well formed, a -c file Zenoh can read."""
+    for ep in getattr(args, "connect", None) or []:
+        check_endpoint("-e/--connect", ep)
+    for ep in getattr(args, "listen", None) or []:
+        check_endpoint(listen_flag, ep)
+    if getattr(args, "config", None) is not None:
+        check_in_file("-c/--config", args.config)
+        try:
+            zenoh.Config.from_file(args.config)
+        except zenoh.ZError as exc:
+            reason = str(exc).split(" at ")[0].strip()
+            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({reason})") from None
+
+
+def check_plan(flag: str, path: str, n_uavs: int):
+    """A fault plan file that is valid and names only UAVs of this swarm."""
+    from truav.faults import check_plan_for, load_plan
+    check_in_file(flag, path)
+    return check_plan_for(load_plan(path), n_uavs, path)
+
+
+def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None) -> None:
+    """A trained run (or its qtables.npz) whose tables fit this scenario."""
+    from truav import runio
+    try:
+        seeds, q = runio.read_qtables(run)
+        runio.check_qtables(run, q, cfg, exact_uavs=False)
+    except runio.RunDirError as exc:
+        raise UsageError(f"{flag}: {exc}") from None
+    if index is not None and index >= len(seeds):
+        raise UsageError(f"--qtable-index {index}: {run} holds {len(seeds)} table(s) (indices 0-{len(seeds) - 1})")
+
+
+def check_checkpoint(path: str, cfg: Config) -> None:
+    """An agent checkpoint: resumed from if it exists (then it must be one), else creatable."""
+    import json
+    import zipfile
+    import zlib
+
+    import numpy as np
+
+    from agents.state import StateEncoder
+    from world.uavs import N_ACTIONS
+    p = Path(path)
+    if not p.exists():
+        check_out_file("--checkpoint", path)
+        return
+    check_in_file("--checkpoint", path)
+    try:
+        with np.load(p, allow_pickle=False) as ck:
+            shape, _, _ = ck["q"].shape, int(ck["steps"]), json.loads(str(ck["rng_state"]))
+    except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, zlib.error) as exc:
+        raise UsageError(f"--checkpoint {path}: not an agent checkpoint (.npz with q, steps, rng_state): "
+                         f"{type(exc).__name__}") from None
+    want = (StateEncoder(cfg).n_states, N_ACTIONS)
+    if shape != want:
+        raise UsageError(f"--checkpoint {path}: its Q-table is {shape}, this scenario needs {want}")
 
 
 def _stop_on_sigterm_or_orphaned(stop) -> None:
@@ -86,6 +150,10 @@ def cmd_world(args) -> int:
     from world.world_process import WorldNode, WorldOptions, write_stats
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs)
+    if args.stats_out:
+        check_out_file("--stats-out", args.stats_out)
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
                         fault_plan=args.fault_plan)
@@ -112,6 +180,14 @@ def cmd_agent(args) -> int:
         delay_s = debug_delay_s(os.environ.get(DELAY_ENV, ""), args.id)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs)
+    if args.qtable:
+        check_qtable("--qtable", args.qtable, cfg, args.qtable_index)
+    if args.checkpoint:
+        check_checkpoint(args.checkpoint, cfg)
+    if args.stats_out:
+        check_out_file("--stats-out", args.stats_out)
     opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
@@ -143,6 +219,8 @@ def cmd_status(args) -> int:
 def cmd_down(args) -> int:
     from truav.swarm.supervisor import stop_recorded_pids
     from truav.bus import schema
+    if args.out is not None:
+        check_out_dir("--out", args.out)
     with Bus("supervisor", args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
     stopped = stop_recorded_pids(Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}")
@@ -151,12 +229,30 @@ def cmd_down(args) -> int:
 
 
 def _swarm_options(args):
+    """The scenario and options of `up`/`chaos`, every flag and file checked: nothing has started yet."""
     from truav.swarm.supervisor import SwarmOptions
     cfg = scenario_from(args)
     if args.agents is not None:
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
     if args.steps is not None:
         cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
+    n = cfg.scenario.n_uavs
+    if n > MAX_AGENTS and not args.force_agents:
+        raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
+                         + f": more than {MAX_AGENTS} agent processes is past what the reference machine runs in "
+                         f"real time (see MAX_AGENTS in truav/swarm/cli.py); add --force-agents to start them anyway")
+    if len(args.listen) > 1:
+        raise UsageError(f"-l/--listen: the swarm's router listens on one endpoint, got {len(args.listen)}")
+    for ep in args.listen:
+        check_endpoint("-l/--listen", ep, tcp_only=True)  # the supervisor waits for the router's TCP port
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    if args.record is not None:
+        check_out_file("--record", args.record)
+    if args.qtable is not None:
+        check_qtable("--qtable", args.qtable, cfg)
+    if args.fault_plan is not None:
+        check_plan("--fault-plan", args.fault_plan, n)
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
@@ -168,13 +264,18 @@ def _swarm_options(args):
 
 def cmd_chaos(args) -> int:
     from truav.swarm.chaos import run_chaos
+    if args.fault_plan is not None:  # one plan per chaos run: the faulted half flies --plan
+        raise UsageError("--fault-plan: chaos takes its plan from --plan (the baseline run has none); "
+                         "drop --fault-plan")
     cfg, opts = _swarm_options(args)
+    check_plan("--plan", args.plan, cfg.scenario.n_uavs)
     return run_chaos(cfg, opts, args.plan)
 
 
 def cmd_faults(args) -> int:
     from truav.bus import schema
     from truav.faults import CONTROL_FAULTS, load_plan
+    check_in_file("--plan", args.plan)
     plan = load_plan(args.plan)
     with Bus("fault", args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, CONTROL_FAULTS), schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
@@ -239,7 +340,10 @@ def cmd_up(args) -> int:
 # -- parser ------------------------------------------------------------------------
 def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
-    up.add_argument("--agents", type=positive_int, help="number of UAV agents (default scenario.n_uavs, 5)")
+    up.add_argument("--agents", type=positive_int,
+                    help=f"number of UAV agents (default scenario.n_uavs, 5; at most {MAX_AGENTS} without --force-agents)")
+    up.add_argument("--force-agents", action="store_true",
+                    help=f"start more than {MAX_AGENTS} agent processes (not real time on a 2-core machine)")
     up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
     up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
     up.add_argument("--lockstep", action="store_true", help="the world waits for every live agent each tick")
@@ -261,8 +365,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="truav-swarm", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(prog="truav-swarm", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
@@ -275,19 +378,19 @@ def build_parser() -> argparse.ArgumentParser:
     ch.set_defaults(func=cmd_chaos)
 
     fa = sub.add_parser("faults", help="replace the fault plan of a running swarm (link faults)")
-    fa.add_argument("--run", default="demo")
+    fa.add_argument("--run", type=run_name, default="demo")
     fa.add_argument("--plan", required=True, metavar="FILE", help="fault plan TOML; an empty file clears all faults")
     add_transport_args(fa)
     fa.set_defaults(func=cmd_faults)
 
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
-    st.add_argument("--run", help="only this run")
+    st.add_argument("--run", type=run_name, help="only this run")
     st.add_argument("--timeout", type=positive_float, default=1.0)
     add_transport_args(st)
     st.set_defaults(func=cmd_status)
 
     dn = sub.add_parser("down", help="ask a running swarm to shut down")
-    dn.add_argument("--run", default="demo")
+    dn.add_argument("--run", type=run_name, default="demo")
     dn.add_argument("--out", help="the swarm's output directory holding pids.json (default runs/swarm-<run>)")
     add_transport_args(dn)
     dn.set_defaults(func=cmd_down)
@@ -319,14 +422,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     ag = sub.add_parser("agent", help="run one UAV agent process")
     add_scenario_args(ag)
-    ag.add_argument("--id", type=int, required=True, help="UAV id in [0, n_uavs)")
+    ag.add_argument("--id", type=non_negative_int, required=True, help="UAV id in [0, n_uavs)")
     ag.add_argument("--lockstep", action="store_true")
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
     ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
     ag.add_argument("--checkpoint-every", type=positive_int, default=100, help="steps between checkpoints (default 100)")
     ag.add_argument("--qtable", metavar="RUN", help="start from a trained run's Q-table")
-    ag.add_argument("--qtable-index", type=int, default=0, help="which seed's table of that run (default 0)")
+    ag.add_argument("--qtable-index", type=non_negative_int, default=0,
+                    help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
     ag.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the agent receives")
     ag.add_argument("-v", "--verbose", action="store_true")
@@ -344,17 +448,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (ConfigError, UsageError, PlanError) as exc:
-        print(f"truav-swarm: error: {exc}", file=sys.stderr)
-        return 2
-    except zenoh.ZError as exc:  # almost always: no router where --connect points
-        print(f"truav-swarm: error: Zenoh could not open a session ({str(exc).split(' at ')[0].strip()}); is a router "
-              f"running there? Start one with `truav-swarm router`, or pass -e/--connect ENDPOINT", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
+
+    def run() -> int:
+        if args.command != "up" and args.command != "chaos":  # their -l is the supervisor's (checked there)
+            check_transport(args)
+        try:
+            return args.func(args)
+        except zenoh.ZError as exc:  # almost always: no router where --connect points
+            print(f"truav-swarm: error: Zenoh could not open a session ({str(exc).split(' at ')[0].strip()}); is a "
+                  f"router running there? Start one with `truav-swarm router`, or pass -e/--connect ENDPOINT",
+                  file=sys.stderr)
+            return 1
+
+    return run_main("truav-swarm", run, say_interrupted=False)
 
 
 if __name__ == "__main__":
