@@ -34,9 +34,11 @@ EXIT_PROBLEMS = 1
 
 def damage_errors() -> tuple[type[BaseException], ...]:
     """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
+    import struct
+
     import zstandard
     from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError)
+    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
 
 Command = Callable[[argparse.Namespace], int]
 
@@ -116,11 +118,16 @@ def cmd_log_check(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from recorder.check import check
     from recorder.report import ReportError, report
 
     problem = _mcap_file(args.file)
     if problem:
         return _fail("truav", problem)
+    audit = check(args.file)  # a damaged chunk would stop the report halfway: say so first
+    if audit.corrupt_chunks or audit.read_error:
+        return _fail("truav", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
+                              f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
     if args.out is not None:
         try:
             check_out_dir("--out", args.out)

@@ -1,0 +1,250 @@
+"""Every user mistake is one line on stderr naming the flag or file, a non-zero exit code
+(2 for a usage error), no traceback, and nothing started.
+
+Each row is a command line of `truav` or `truav-swarm` with the bad files it needs; most run
+in-process through ``main(argv)`` with the starters of work (trainer, swarm supervisor, chaos,
+fault sweep, recorder, Zenoh sessions, subprocesses) replaced by a trap that fails the test, so
+a row passes only if the mistake is caught before anything starts.  A few rows run the real
+entry points as subprocesses.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recorder.mcap_log import McapLog
+from truav.cli import main as truav_main
+from truav.config import Config, to_toml
+from truav.swarm.cli import main as swarm_main
+
+GOOD_PLAN = '[[fault]]\nkind = "crash"\nstart = 1.0\nuav = 1\n'
+
+
+def _recording(path: Path) -> bytes:
+    """A small finished recording of beacons from 3 UAVs in many chunks (so some can be corrupted)."""
+    import msgpack
+    with McapLog(path, chunk_bytes=2048, mirrors=False) as log:
+        for i in range(600):
+            u = i % 3
+            payload = msgpack.packb({"v": 1, "kind": "beacon", "src": f"uav/{u}", "seq": i // 3, "t": 10**18 + i})
+            log.write(f"truav/r/uav/{u}/beacon", payload, 10**18 + i * 10**6)
+    return path.read_bytes()
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, str]:
+    d = tmp_path_factory.mktemp("bad")
+    rng = np.random.default_rng(13)
+    (d / "random.toml").write_bytes(rng.integers(0, 256, 300, dtype=np.uint8).tobytes())
+    (d / "a_file").write_text("a regular file, not a directory\n")
+    (d / "uav99.toml").write_text('[[fault]]\nkind = "crash"\nstart = 1.0\nuav = 99\n')
+    (d / "badglob.toml").write_text('[[fault]]\nkind = "loss"\nprobability = 0.5\nkeys = "uav/[*/beacon"\n')
+    (d / "typoglob.toml").write_text('[[fault]]\nkind = "loss"\nprobability = 0.5\nkeys = "uavs/*/beacon"\n')
+    (d / "plan.toml").write_text(GOOD_PLAN)
+    (d / "empty.npz").write_bytes(b"")
+    cfg = to_toml(Config())
+    for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):
+        (d / name).mkdir()
+        (d / name / "config.toml").write_text(cfg)
+    (d / "run_empty" / "qtables.npz").write_bytes(b"")
+    np.savez(d / "run_foreign" / "qtables.npz", weights=np.zeros(3))
+    np.savez_compressed(d / "run_shape" / "qtables.npz", q=np.zeros((1, 5, 10, 16), np.float32), seeds=np.array([0]))
+    whole = (d / "run_shape" / "qtables.npz").read_bytes()
+    (d / "run_trunc" / "qtables.npz").write_bytes(whole[: len(whole) // 2])
+    data = _recording(d / "good.mcap")
+    corrupt = bytearray(data)
+    for i in range(len(data) // 3, len(data) // 3 + 2000):  # garble the middle chunks, keep the footer
+        corrupt[i] ^= 0x5A
+    (d / "corrupt.mcap").write_bytes(bytes(corrupt))
+    (d / "unfinished.mcap").write_bytes(data[: len(data) * 2 // 3])  # the recorder "died" two thirds in
+    (d / "header_only.mcap").write_bytes(data[:40])
+    names = {p.name.replace(".", "_"): str(p) for p in d.iterdir()}
+    names["dir"] = str(d)
+    return names
+
+
+class Started(AssertionError):
+    """Something began work although the command line was wrong."""
+
+
+@pytest.fixture
+def nothing_starts(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # default output directories (runs/...) land here, not in the repository
+    def trap(*_a, **_k):
+        raise Started("work started before the mistake was caught")
+    import recorder.process
+    import truav.experiments.faults
+    import truav.experiments.runner
+    import truav.swarm.chaos
+    import truav.swarm.cli
+    import truav.swarm.supervisor
+    import truav.trainer
+    for module, name in ((truav.trainer, "run_parallel"), (truav.experiments.runner, "run_cells"),
+                         (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
+                         (truav.experiments.faults, "run_sweep"), (truav.swarm.cli, "Bus"),
+                         (truav.swarm.cli, "run_router"), (recorder.process, "cmd_record"),
+                         (subprocess, "Popen")):
+        monkeypatch.setattr(module, name, trap)
+
+
+# (id, main, argv, exit code, what stderr must name). {x} is a file of the `files` fixture.
+ROWS = [
+    # truav train / config / evaluate
+    ("train-seed-start", "truav", "train --seed-start -1", 2, "--seed-start"),
+    ("train-seeds-0", "truav", "train --seeds 0", 2, "--seeds"),
+    ("train-workers-0", "truav", "train --workers 0", 2, "--workers"),
+    ("train-speed-nan", "truav", "train --speed nan", 2, "--speed"),
+    ("train-out-under-file", "truav", "train --out {a_file}/run", 2, "--out"),
+    ("train-out-is-file", "truav", "train --out {a_file}", 2, "--out"),
+    ("train-out-empty", "truav", ["train", "--out", ""], 2, "--out: empty path"),
+    ("train-config-random-bytes", "truav", "train --config {random_toml}", 2, "random.toml"),
+    ("train-config-directory", "truav", "train --config {dir}", 2, "not a regular file"),
+    ("config-show-random-bytes", "truav", "config show --config {random_toml}", 2, "random.toml"),
+    ("evaluate-episodes-0", "truav", "evaluate {run_shape} --episodes 0", 2, "--episodes"),
+    ("evaluate-empty-npz", "truav", "evaluate {run_empty}", 2, "qtables.npz"),
+    ("evaluate-truncated-npz", "truav", "evaluate {run_trunc}", 2, "qtables.npz"),
+    ("evaluate-foreign-npz", "truav", "evaluate {run_foreign}", 2, "qtables.npz"),
+    ("evaluate-wrong-shape", "truav", "evaluate {run_shape}", 2, "states"),
+    # truav experiment
+    ("velocity-episodes-0", "truav", "experiment velocity --quick --episodes 0", 2, "--episodes"),
+    ("velocity-window-0", "truav", "experiment velocity --quick --window 0", 2, "--window"),
+    ("velocity-seeds-per-cell-0", "truav", "experiment velocity --quick --seeds-per-cell 0", 2, "--seeds-per-cell"),
+    ("velocity-out-is-file", "truav", "experiment velocity --quick --out {a_file}", 2, "--out"),
+    ("velocity-config-random", "truav", "experiment velocity --quick --config {random_toml}", 2, "random.toml"),
+    ("scale-uavs-0", "truav", "experiment scale --quick --uavs 0", 2, "--uavs"),
+    ("faults-rate-0", "truav", "experiment faults --quick --rate 0", 2, "--rate"),
+    ("faults-rate-nan", "truav", "experiment faults --quick --rate nan", 2, "--rate"),
+    ("faults-seed-negative", "truav", "experiment faults --quick --seed -1", 2, "--seed"),
+    ("faults-out-is-file", "truav", "experiment faults --quick --out {a_file}", 2, "--out"),
+    ("faults-qtable-empty", "truav", "experiment faults --quick --qtable {run_empty}", 2, "--qtable"),
+    # truav report / log
+    ("report-corrupt-mcap", "truav", "report {corrupt_mcap} --out {dir}/rep", 2, "corrupt.mcap"),
+    ("report-out-under-file", "truav", "report {good_mcap} --out {a_file}/rep", 2, "--out"),
+    ("check-unfinished", "truav", "log check {unfinished_mcap}", 1, "truav log recover"),
+    ("check-corrupt", "truav", "log check {corrupt_mcap}", 1, "corrupt.mcap"),
+    ("check-max-ranges", "truav", "log check {good_mcap} --max-ranges -1", 2, "--max-ranges"),
+    ("recover-nothing-salvageable", "truav", "log recover {header_only_mcap} {dir}/fixed.mcap", 1,
+     "nothing salvageable"),
+    ("recover-out-under-file", "truav", "log recover {good_mcap} {a_file}/fixed.mcap", 2, "OUT"),
+    # truav-swarm up / chaos
+    ("up-listen-garbage", "swarm", "up -l garbage", 2, "-l/--listen"),
+    ("up-two-listens", "swarm", "up -l tcp/127.0.0.1:7447 -l tcp/127.0.0.1:7448", 2, "-l/--listen"),
+    ("up-out-is-file", "swarm", "up --out {a_file}", 2, "--out"),
+    ("up-out-under-file", "swarm", "up --out {a_file}/swarm", 2, "--out"),
+    ("up-record-under-file", "swarm", "up --record {a_file}/run.mcap", 2, "--record"),
+    ("up-plan-random-bytes", "swarm", "up --fault-plan {random_toml}", 2, "random.toml"),
+    ("up-scenario-random-bytes", "swarm", "up --scenario {random_toml}", 2, "random.toml"),
+    ("up-plan-uav-99", "swarm", "up --fault-plan {uav99_toml}", 2, "UAV 99"),
+    ("up-plan-malformed-glob", "swarm", "up --fault-plan {badglob_toml}", 2, "badglob.toml"),
+    ("up-plan-glob-matches-nothing", "swarm", "up --fault-plan {typoglob_toml}", 2, "typoglob.toml"),
+    ("up-agents-500", "swarm", "up --agents 500", 2, "--force-agents"),
+    ("up-n-uavs-300", "swarm", "up --set scenario.n_uavs=300", 2, "--force-agents"),
+    ("up-seed-negative", "swarm", "up --seed -1", 2, "--seed"),
+    ("up-qtable-empty", "swarm", "up --qtable {run_empty}", 2, "--qtable"),
+    ("up-qtable-wrong-shape", "swarm", "up --qtable {run_shape}", 2, "--qtable"),
+    ("up-run-slash", "swarm", "up --run a/b", 2, "--run"),
+    ("chaos-fault-plan-ignored", "swarm", "chaos --plan {plan_toml} --fault-plan {plan_toml}", 2, "--fault-plan"),
+    ("chaos-plan-random-bytes", "swarm", "chaos --plan {random_toml}", 2, "random.toml"),
+    ("chaos-plan-uav-99", "swarm", "chaos --plan {uav99_toml}", 2, "UAV 99"),
+    # truav-swarm: the other commands
+    ("status-run-slash", "swarm", "status --run a/b", 2, "--run"),
+    ("down-run-slash", "swarm", "down --run a/b", 2, "--run"),
+    ("faults-run-slash", "swarm", "faults --run a/b --plan {plan_toml}", 2, "--run"),
+    ("faults-plan-random-bytes", "swarm", "faults --plan {random_toml}", 2, "random.toml"),
+    ("status-connect-garbage", "swarm", "status -e garbage", 2, "-e/--connect"),
+    ("status-config-missing", "swarm", "status -c {dir}/nope.json5", 2, "-c/--config"),
+    ("router-listen-garbage", "swarm", "router -l garbage", 2, "-l/--listen"),
+    ("world-plan-uav-99", "swarm", "world --fault-plan {uav99_toml}", 2, "UAV 99"),
+    ("world-seed-negative", "swarm", "world --seed -1", 2, "--seed"),
+    ("agent-id-negative", "swarm", "agent --id -1", 2, "--id"),
+    ("agent-checkpoint-empty", "swarm", "agent --id 0 --checkpoint {empty_npz}", 2, "--checkpoint"),
+    ("agent-qtable-foreign", "swarm", "agent --id 0 --qtable {run_foreign}", 2, "--qtable"),
+    ("record-router-wait-nan", "swarm", "record --run r --out {dir}/r.mcap --router-wait nan", 2, "--router-wait"),
+    ("record-config-random", "swarm", "record --run r --out {dir}/r.mcap --config-toml {random_toml}", 2,
+     "random.toml"),
+    ("record-out-under-file", "swarm", "record --run r --out {a_file}/r.mcap", 2, "--out"),
+    ("replay-connect-garbage", "swarm", "replay {good_mcap} -e garbage", 2, "-e/--connect"),
+]
+
+
+def _argv(argv: str | list[str], files: dict[str, str]) -> list[str]:
+    return [a.format(**files) for a in (argv.split() if isinstance(argv, str) else argv)]
+
+
+@pytest.mark.parametrize("main, argv, code, names", [r[1:] for r in ROWS], ids=[r[0] for r in ROWS])
+def test_bad_invocation_is_one_line(files, nothing_starts, capsys, main, argv, code, names) -> None:
+    entry = truav_main if main == "truav" else swarm_main
+    try:
+        rc = entry(_argv(argv, files))
+    except SystemExit as exc:  # argparse's own errors
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert rc == code, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert names in lines[0], lines[0]
+
+
+def test_quick_does_not_override_explicit_settings(files, tmp_path, monkeypatch) -> None:
+    """--quick fills in what the user left out; --set and flags given explicitly win."""
+    from truav.experiments import cli as ex_cli
+    seen = {}
+
+    def capture(args, cfg, out, cells, label):
+        seen.update(cfg=cfg, cells=cells)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(ex_cli, "_run", capture)
+    with pytest.raises(SystemExit):
+        truav_main(["experiment", "velocity", "--quick", "--set", "scenario.n_vehicles=90", "--episodes", "7",
+                    "--out", str(tmp_path / "v"), "--schemes", "truav"])
+    assert seen["cfg"].scenario.n_vehicles == 90
+    assert seen["cfg"].scenario.steps_per_episode == ex_cli.QUICK_CONFIG["scenario"]["steps_per_episode"]
+    assert {c.episodes for c in seen["cells"]} == {7}
+
+
+def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=cwd,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+
+
+@pytest.mark.parametrize("cmd, code, names", [
+    (["truav", "train", "--seed-start", "-1"], 2, "--seed-start"),
+    (["truav-swarm", "up", "-l", "garbage"], 2, "-l/--listen"),
+    (["truav-swarm", "status", "--run", "a/b"], 2, "--run"),
+    (["truav", "log", "check", "{unfinished_mcap}"], 1, "truav log recover"),
+])
+def test_real_entry_points(files, tmp_path, cmd, code, names) -> None:
+    proc = _run([sys.executable, "-c", f"import sys; from {'truav.cli' if cmd[0] == 'truav' else 'truav.swarm.cli'} "
+                 f"import main; sys.exit(main())", *_argv(cmd[1:], files)], cwd=tmp_path)
+    assert "Traceback" not in proc.stderr
+    assert proc.returncode == code, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and names in proc.stderr
+
+
+def test_log_check_into_a_closed_pipe_ends_quietly(files, tmp_path) -> None:
+    """`truav log check FILE | head`: the reader goes away; no BrokenPipeError traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # nobody reads: the first write fails with EPIPE
+    try:
+        proc = subprocess.run([sys.executable, "-c", "import sys; from truav.cli import main; sys.exit(main())",
+                               "log", "check", files["good_mcap"]], stdout=write_end, stderr=subprocess.PIPE,
+                              text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    finally:
+        os.close(write_end)
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr
+    assert proc.returncode == 141  # 128 + SIGPIPE, what a shell reports for a Unix tool in this spot
+
+
+def test_log_check_is_quiet_and_zero_on_a_complete_recording(files, capsys) -> None:
+    assert truav_main(["log", "check", files["good_mcap"]]) == 0
+    out, err = capsys.readouterr()
+    assert ": finished" in out and err == ""
