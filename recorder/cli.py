@@ -212,7 +212,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     import signal
 
-    from recorder.replay import KeyboardControl, ReplayOptions, ReplayUsageError, replay_on_bus, split_patterns
+    from recorder.replay import (KeyboardControl, Replayer, ReplayOptions, ReplayUsageError, recording_info,
+                                 replay_on_bus, split_patterns)
     from truav.bus.transport import config_from_args
 
     problem = _mcap_file(args.file)
@@ -226,6 +227,19 @@ def cmd_replay(args: argparse.Namespace) -> int:
         zconfig = config_from_args(args)
     except (ReplayUsageError, ValueError) as exc:
         return _fail("truav-swarm", str(exc))
+    from recorder.check import check
+    audit = check(args.file)  # a damaged chunk would stop the replay halfway: say so first
+    if audit.corrupt_chunks or audit.read_error:
+        return _fail("truav-swarm", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
+                                    f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+    try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
+        if Replayer(options, lambda _key, _payload: None, recording_info(options.path)).target_run is None:
+            return _fail("truav-swarm", f"{args.file}: no truav/<run>/ keys to replay")
+    except ReplayUsageError as exc:
+        return _fail("truav-swarm", str(exc))
+    except damage_errors() as exc:
+        return _fail("truav-swarm", f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); "
+                                    f"`truav log recover` salvages the rest")
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet

@@ -79,6 +79,7 @@ def nothing_starts(monkeypatch, tmp_path):
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
     import recorder.process
+    import recorder.replay
     import truav.experiments.faults
     import truav.experiments.runner
     import truav.swarm.chaos
@@ -89,6 +90,7 @@ def nothing_starts(monkeypatch, tmp_path):
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
                          (truav.experiments.faults, "run_sweep"), (truav.swarm.cli, "Bus"),
                          (truav.swarm.cli, "run_router"), (recorder.process, "cmd_record"),
+                         (recorder.replay, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)
 
@@ -170,6 +172,8 @@ ROWS = [
      "random.toml"),
     ("record-out-under-file", "swarm", "record --run r --out {a_file}/r.mcap", 2, "--out"),
     ("replay-connect-garbage", "swarm", "replay {good_mcap} -e garbage", 2, "-e/--connect"),
+    ("replay-topics-match-nothing", "swarm", "replay {good_mcap} --topics truav/*/world/nothing", 2, "--topics"),
+    ("replay-corrupt-mcap", "swarm", "replay {corrupt_mcap}", 2, "corrupt.mcap"),
 ]
 
 

@@ -149,7 +149,7 @@ def test_agents_take_turns_to_checkpoint() -> None:
 
 @pytest.mark.parametrize("argv, fragment", [
     (["up", "--rate", "0"], "--rate: must be a finite number > 0"),
-    (["agent", "--id", "0", "--checkpoint-every", "0"], "--checkpoint-every: must be >= 1"),
+    (["agent", "--id", "0", "--checkpoint-every", "0"], "--checkpoint-every: must be an integer >= 1"),
     (["world", "--episodes", "two"], "'two' is not an integer"),
 ])
 def test_bad_numbers_are_usage_errors(argv, fragment, capsys) -> None:

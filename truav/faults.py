@@ -45,6 +45,10 @@ start of the run:
     duration = 3.0
     uav = 4
 
+Patterns are checked on load (chunks of key characters and the globs * ** ?
+[...], starting with a TRUAV key root or a *), and `truav-swarm` refuses a
+plan naming a UAV the swarm does not have (`check_plan_for`).
+
 Loss, latency, partitions and observation loss act in the transport's link
 filter on the receiving side, identically in every process. Their random
 draws are counter-based: a uniform for the n-th message on a (src, dst, key)

@@ -14,14 +14,9 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from truav.config import Config  # noqa: E402
-from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
+from truav.config import Config
 
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0),
            ("delay_ms", "relay delay (ms)", 1.0), ("energy_j", "energy (kJ/UAV/episode)", 1e-3))
@@ -78,6 +73,7 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
 
 def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str | None = None,
               rate_hz: float = 10.0) -> Path:
+    from truav.swarm.supervisor import SwarmOptions, run_swarm  # here: the parser loads this module
     size = SIZES[size_name]
     out.mkdir(parents=True, exist_ok=True)
     cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
@@ -114,6 +110,9 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
 
 
 def sweep_figure(rows: list[dict], path: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
     fig, axes = plt.subplots(2, 4, figsize=(15, 6.5))
     for r, (kind, xlabel, scale) in enumerate((("loss", "beacon loss (%)", 100.0),
                                                 ("latency", "beacon latency (ms)", 1.0))):

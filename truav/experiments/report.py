@@ -16,10 +16,6 @@ import os
 import warnings
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from truav.experiments.runner import CellResult  # noqa: E402
@@ -44,6 +40,14 @@ SCHEME_STYLE = {"truav": ("TRUAV (distributed Q-learning)", "C0", "o"),
                 "central": ("Centralized MA-SAC", "C3", "s"),
                 "patrol": ("Trajectory-knowledge patrol", "C2", "^"),
                 "patrol_ctrl": ("Patrol + centralized control plane", "C7", "v")}
+
+
+def _pyplot():
+    """matplotlib on first use: `truav --help` and a usage error need not load it (~1 s)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
 
 
 def _label(scheme: str) -> str:
@@ -177,6 +181,7 @@ def versus_figure(rows: list[dict[str, object]], x: str, xlabel: str, path: Path
                   group: str | None = None) -> Path:
     """The four panels (coverage, delay, energy, PDR) against x, one line per
     scheme (and per `group` value, dashed for the second), 95% bands."""
+    plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(10.5, 7.4))
     schemes = [s for s in SCHEME_STYLE if any(r["scheme"] == s for r in rows)] + \
         sorted({str(r["scheme"]) for r in rows} - set(SCHEME_STYLE))
@@ -220,6 +225,7 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
             d[name] = col if name not in d else _hcat(d[name], col)
     speeds = sorted({k[1] for k in data})
     schemes = [s for s in SCHEME_STYLE if any(k[0] == s for k in data)]
+    plt = _pyplot()
     fig, axes = plt.subplots(len(PANELS), len(speeds), figsize=(3.3 * len(speeds), 2.5 * len(PANELS)),
                              squeeze=False, sharex="col")
     for j, v in enumerate(speeds):

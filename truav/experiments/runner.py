@@ -24,7 +24,6 @@ from typing import Any, Callable
 import numpy as np
 
 from truav.config import Config, to_dict
-from truav.driver import run_episodes
 
 EVAL_SEED_OFFSET = 10_000
 """Evaluation runs on held-out traffic: world seed = training seed + this (as `truav evaluate`)."""
@@ -84,6 +83,7 @@ def cell_path(out: Path, base: Config, cell: Cell) -> Path:
 
 
 def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: int, on_episode):
+    from truav.driver import run_episodes  # here, like the trainer: the CLI's parser loads this module
     from truav.trainer import make_controller
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     if scheme == "truav":
@@ -98,6 +98,7 @@ def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: 
 
 def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None = None) -> CellResult:
     """Train then evaluate one cell in this process."""
+    from truav.driver import run_episodes
     from truav.trainer import make_controller
     cfg = cell.config(base)
     seeds = list(cell.seeds)
