@@ -167,6 +167,8 @@ ROWS = [
     ("agent-id-negative", "swarm", "agent --id -1", 2, "--id"),
     ("agent-checkpoint-empty", "swarm", "agent --id 0 --checkpoint {empty_npz}", 2, "--checkpoint"),
     ("agent-qtable-foreign", "swarm", "agent --id 0 --qtable {run_foreign}", 2, "--qtable"),
+    ("agent-qtable-truncated", "swarm", "agent --id 0 --qtable {run_trunc}", 2, "--qtable"),
+    ("agent-qtable-wrong-shape", "swarm", "agent --id 0 --qtable {run_shape}", 2, "--qtable"),
     ("record-router-wait-nan", "swarm", "record --run r --out {dir}/r.mcap --router-wait nan", 2, "--router-wait"),
     ("record-config-random", "swarm", "record --run r --out {dir}/r.mcap --config-toml {random_toml}", 2,
      "random.toml"),

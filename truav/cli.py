@@ -144,7 +144,7 @@ def cmd_evaluate(args) -> int:
     run = Path(args.run)
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     seeds, q = runio.read_qtables(run)
-    runio.check_qtables(run, q, cfg)
+    runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]

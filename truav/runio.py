@@ -129,15 +129,42 @@ def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
     return [int(s) for s in seeds], q.astype(np.float64)
 
 
-def check_qtables(path: str | Path, q: np.ndarray, cfg: Config, exact_uavs: bool = True) -> None:
-    """Q-tables ``q`` (B, U, S, A) fit the scenario of ``cfg``: its UAVs (all of them, or at
-    least, when not ``exact_uavs``), its state encoding and the action set."""
+def qtable_shapes(path: str | Path) -> tuple[int, tuple[int, ...]]:
+    """(number of seeds, shape of q) from the array headers alone: the cheap check an agent
+    process makes before it loads the tables (`truav-swarm up` has read them in full)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / QTABLE_FILE
+    if not p.is_file():
+        raise RunDirError(f"no Q-tables at {p}")
+    try:
+        with zipfile.ZipFile(p) as z:
+            shapes = {}
+            for name in ("q", "seeds"):
+                with z.open(f"{name}.npy") as f:
+                    version = np.lib.format.read_magic(f)
+                    shapes[name] = np.lib.format.read_array_header_1_0(f)[0] if version == (1, 0) else \
+                        np.lib.format.read_array_header_2_0(f)[0]
+    except KeyError:
+        raise RunDirError(f"{p}: not a Q-table file of 'truav train' (needs arrays q and seeds)") from None
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:
+        raise RunDirError(f"{p}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
+    q, seeds = shapes["q"], shapes["seeds"]
+    if len(q) != 4 or len(seeds) != 1 or seeds[0] != q[0]:
+        raise RunDirError(f"{p}: q must be (seeds, UAVs, states, actions) with one seed per table, "
+                          f"got q {q} and seeds {seeds}")
+    return seeds[0], q
+
+
+def check_qtables(path: str | Path, shape: tuple[int, ...], cfg: Config, exact_uavs: bool = True) -> None:
+    """Q-tables of ``shape`` (B, U, S, A) fit the scenario of ``cfg``: its UAVs (all of them,
+    or at least, when not ``exact_uavs``), its state encoding and the action set."""
     from agents.state import StateEncoder
     from world.uavs import N_ACTIONS
     n_uavs = cfg.scenario.n_uavs
     n_states = StateEncoder(cfg).n_states
-    if q.shape[1] < n_uavs or (exact_uavs and q.shape[1] != n_uavs):
-        raise RunDirError(f"{path}: Q-tables hold {q.shape[1]} UAVs but the scenario has {n_uavs}")
-    if q.shape[2:] != (n_states, N_ACTIONS):
-        raise RunDirError(f"{path}: Q-tables have {q.shape[2]} states x {q.shape[3]} actions but this "
+    if shape[1] < n_uavs or (exact_uavs and shape[1] != n_uavs):
+        raise RunDirError(f"{path}: Q-tables hold {shape[1]} UAVs but the scenario has {n_uavs}")
+    if tuple(shape[2:]) != (n_states, N_ACTIONS):
+        raise RunDirError(f"{path}: Q-tables have {shape[2]} states x {shape[3]} actions but this "
                           f"config's state encoding needs {n_states} x {N_ACTIONS}")

@@ -165,7 +165,7 @@ def cmd_fault_sweep(args) -> int:
         run = Path(args.qtable)
         try:
             _, q = runio.read_qtables(run)
-            runio.check_qtables(run, q, cfg, exact_uavs=False)
+            runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
         except runio.RunDirError as exc:
             raise UsageError(f"--qtable: {exc}") from None
     path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate)

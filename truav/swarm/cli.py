@@ -77,16 +77,21 @@ def check_plan(flag: str, path: str, n_uavs: int):
     return check_plan_for(load_plan(path), n_uavs, path)
 
 
-def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None) -> None:
-    """A trained run (or its qtables.npz) whose tables fit this scenario."""
+def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, full: bool = True) -> None:
+    """A trained run (or its qtables.npz) whose tables fit this scenario; ``full``: read every
+    entry (once, in `up`), else only the array headers (each agent process, just before it loads them)."""
     from truav import runio
     try:
-        seeds, q = runio.read_qtables(run)
-        runio.check_qtables(run, q, cfg, exact_uavs=False)
+        if full:
+            seeds, q = runio.read_qtables(run)
+            n_seeds, shape = len(seeds), q.shape
+        else:
+            n_seeds, shape = runio.qtable_shapes(run)
+        runio.check_qtables(run, shape, cfg, exact_uavs=False)
     except runio.RunDirError as exc:
         raise UsageError(f"{flag}: {exc}") from None
-    if index is not None and index >= len(seeds):
-        raise UsageError(f"--qtable-index {index}: {run} holds {len(seeds)} table(s) (indices 0-{len(seeds) - 1})")
+    if index is not None and index >= n_seeds:
+        raise UsageError(f"--qtable-index {index}: {run} holds {n_seeds} table(s) (indices 0-{n_seeds - 1})")
 
 
 def check_checkpoint(path: str, cfg: Config) -> None:
@@ -183,7 +188,7 @@ def cmd_agent(args) -> int:
     if args.fault_plan:
         check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs)
     if args.qtable:
-        check_qtable("--qtable", args.qtable, cfg, args.qtable_index)
+        check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
     if args.checkpoint:
         check_checkpoint(args.checkpoint, cfg)
     if args.stats_out:
