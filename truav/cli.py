@@ -21,7 +21,7 @@ import numpy as np
 
 from truav import runio
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
-    OneLineParser, UserError, check_out_dir, non_negative_float, positive_float, positive_int, run_main, seed_int)
+    OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
 from truav.config import Config, load_config, to_toml
 
 EVAL_SEED_OFFSET = 10_000
