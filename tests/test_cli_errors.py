@@ -105,6 +105,7 @@ ROWS = [
     ("train-out-under-file", "truav", "train --out {a_file}/run", 2, "--out"),
     ("train-out-is-file", "truav", "train --out {a_file}", 2, "--out"),
     ("train-out-empty", "truav", ["train", "--out", ""], 2, "--out: empty path"),
+    ("train-speed-contradicts-set", "truav", "train --speed 20 --set scenario.uav_speed_mps=10", 2, "--set"),
     ("train-config-random-bytes", "truav", "train --config {random_toml}", 2, "random.toml"),
     ("train-config-directory", "truav", "train --config {dir}", 2, "not a regular file"),
     ("config-show-random-bytes", "truav", "config show --config {random_toml}", 2, "random.toml"),
@@ -147,6 +148,7 @@ ROWS = [
     ("up-plan-glob-matches-nothing", "swarm", "up --fault-plan {typoglob_toml}", 2, "typoglob.toml"),
     ("up-agents-500", "swarm", "up --agents 500", 2, "--force-agents"),
     ("up-n-uavs-300", "swarm", "up --set scenario.n_uavs=300", 2, "--force-agents"),
+    ("up-agents-contradicts-set", "swarm", "up --agents 8 --set scenario.n_uavs=5", 2, "--agents"),
     ("up-seed-negative", "swarm", "up --seed -1", 2, "--seed"),
     ("up-qtable-empty", "swarm", "up --qtable {run_empty}", 2, "--qtable"),
     ("up-qtable-wrong-shape", "swarm", "up --qtable {run_shape}", 2, "--qtable"),
@@ -214,6 +216,17 @@ def test_quick_does_not_override_explicit_settings(files, tmp_path, monkeypatch)
     assert seen["cfg"].scenario.n_vehicles == 90
     assert seen["cfg"].scenario.steps_per_episode == ex_cli.QUICK_CONFIG["scenario"]["steps_per_episode"]
     assert {c.episodes for c in seen["cells"]} == {7}
+
+
+def test_fault_sweep_keeps_explicit_episode_length(tmp_path, monkeypatch) -> None:
+    """The sweep's own episode length gives way to a scenario.steps_per_episode the user set."""
+    import truav.experiments.faults as sweep
+    seen = []
+    monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: seen.append((cfg, kw)) or out / "f.png")
+    for extra in ([], ["--set", "scenario.steps_per_episode=30"]):
+        assert truav_main(["experiment", "faults", "--quick", "--out", str(tmp_path), *extra]) == 0
+    assert [kw["keep_steps"] for _, kw in seen] == [False, True]
+    assert seen[1][0].scenario.steps_per_episode == 30
 
 
 def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:

@@ -62,6 +62,10 @@ def config_from(args, extra: dict[str, dict[str, Any]] | None = None,
     """Defaults < ``base`` (e.g. --quick) < --config file < --set < ``extra`` (dedicated flags)."""
     overrides = parse_sets(args.set)
     for section, values in (extra or {}).items():
+        for key, value in values.items():
+            if key in overrides.get(section, {}) and overrides[section][key] != value:
+                raise UsageError(f"--set {section}.{key}={overrides[section][key]} contradicts the flag that sets "
+                                 f"it to {value}; give one of them")
         overrides.setdefault(section, {}).update(values)
     return load_config(args.config, overrides, base)
 

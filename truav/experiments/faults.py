@@ -72,11 +72,14 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
 
 
 def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str | None = None,
-              rate_hz: float = 10.0) -> Path:
+              rate_hz: float = 10.0, keep_steps: bool = False) -> Path:
+    """The sweep of SIZES[size_name]; episodes of its length unless ``keep_steps`` (the user set
+    scenario.steps_per_episode explicitly)."""
     from truav.swarm.supervisor import SwarmOptions, run_swarm  # here: the parser loads this module
     size = SIZES[size_name]
     out.mkdir(parents=True, exist_ok=True)
-    cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
+    if not keep_steps:
+        cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
     if qtable is None:
         print(f"training a policy in-process ({size.train_episodes} episodes) for the swarm to fly", flush=True)
         qtable = str(train_policy(cfg, out, size.train_episodes, seed))
@@ -168,6 +171,10 @@ def cmd_fault_sweep(args) -> int:
             runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
         except runio.RunDirError as exc:
             raise UsageError(f"--qtable: {exc}") from None
-    path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate)
+    from truav.cli import parse_sets
+    from truav.config import read_toml, ConfigError
+    given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
+    keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
+    path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate, keep_steps=keep_steps)
     print(f"\n{out / 'faults.csv'}\n{path}")
     return 0

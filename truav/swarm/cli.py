@@ -236,6 +236,10 @@ def cmd_down(args) -> int:
 def _swarm_options(args):
     """The scenario and options of `up`/`chaos`, every flag and file checked: nothing has started yet."""
     from truav.swarm.supervisor import SwarmOptions
+    sets = parse_sets(args.set).get("scenario", {})
+    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps)):
+        if value is not None and key in sets and sets[key] != value:
+            raise UsageError(f"{flag} {value} contradicts --set scenario.{key}={sets[key]}; give one of them")
     cfg = scenario_from(args)
     if args.agents is not None:
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
