@@ -196,6 +196,7 @@ class AgentNode:
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN:
+            log.info("uav %d: shutdown from %s", self.opts.uav, msg.src)
             self.stop()
 
     def _on_join(self, key: str) -> None:
@@ -203,6 +204,7 @@ class AgentNode:
         if uav is not None and uav != self.opts.uav:
             with self._lock:
                 self._gone.discard(uav)
+            log.info("uav %d: peer uav %d joined", self.opts.uav, uav)
 
     def _on_leave(self, key: str) -> None:
         uav = keys.parse_uav_id(key)
@@ -212,6 +214,7 @@ class AgentNode:
                 self._beacons.pop(uav, None)
                 for at_tick in self._beacons_at.values():
                     at_tick.pop(uav, None)
+            log.info("uav %d: peer uav %d lost", self.opts.uav, uav)
 
     def stop(self) -> None:
         self._stopped_ns = time.time_ns()
@@ -363,6 +366,7 @@ class AgentNode:
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
+        log.info("uav %d: checkpoint at step %d -> %s", self.opts.uav, self.steps, path)
 
     def latency_stats(self) -> dict[str, float]:
         with self._lock:

@@ -807,11 +807,15 @@ def run_router(
     connect: Sequence[str] = (),
     config_file: str | os.PathLike[str] | None = None,
     stop: threading.Event | None = None,
+    on_ready: Callable[[], None] | None = None,
 ) -> None:
-    """Run a Zenoh router until ``stop`` is set (or Ctrl-C), for ``truav-swarm router``."""
+    """Run a Zenoh router until ``stop`` is set (or Ctrl-C), for ``truav-swarm router``;
+    ``on_ready()`` is called once it listens."""
     stop = stop if stop is not None else threading.Event()
     with open_router(listen, connect, config_file) as session:
         log.info("zenoh router %s listening on %s", session.zid(), ", ".join(listen) or "config endpoints")
+        if on_ready is not None:
+            on_ready()
         try:
             while not stop.wait(ROUTER_POLL_S):
                 pass

@@ -94,7 +94,8 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
             print(f"[{n + 1}/{len(points)}] beacon {kind} {level:g}", flush=True)
             rc = run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=size.episodes, rate_hz=rate_hz,
                                              qtable=qtable, greedy=True, out=str(out / name), plot=False,
-                                             quiet=True, fault_plan=str(plan)))
+                                             quiet=True, fault_plan=str(plan),
+                                             force=True))  # an unfinished point starts afresh
             if rc:
                 raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
         summary = json.loads(done.read_text())

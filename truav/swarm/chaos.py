@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -17,6 +18,7 @@ import numpy as np  # noqa: E402
 
 from truav.config import Config  # noqa: E402
 from truav.faults import load_plan  # noqa: E402
+from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
@@ -110,21 +112,55 @@ def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path
     return path
 
 
+BASELINE_MAX_MISSED_SHARE = 0.02
+"""The no-fault baseline should miss (almost) no action: more than this and the host was too busy."""
+BASELINE_MAX_LATENESS_FRAC = 0.5
+"""...nor start its ticks late by more than this fraction of the tick period (p99)."""
+
+
+def baseline_warning(base: dict, n_uavs: int, rate_hz: float) -> str | None:
+    """Why the no-fault run cannot serve as a baseline (a loaded host, most often), or None."""
+    world = base.get("world") or {}
+    problems = []
+    acting = world.get("ticks", 0) - len(world.get("episodes") or [])
+    if acting > 0:
+        missed = 1.0 - world.get("actions_received", 0) / (acting * n_uavs)
+        if missed > BASELINE_MAX_MISSED_SHARE:
+            problems.append(f"{100 * missed:.1f}% of its actions were missing")
+    p99 = (world.get("tick_lateness_ms") or {}).get("p99")
+    if p99 is not None and p99 > BASELINE_MAX_LATENESS_FRAC * 1e3 / rate_hz:
+        problems.append(f"its ticks started up to {p99:.0f} ms late (p99; the period is {1e3 / rate_hz:.0f} ms)")
+    if not problems:
+        return None
+    return ("the no-fault baseline is itself degraded (" + "; ".join(problems) + "): the host is probably "
+            "loaded, and the changes below mix its load with the plan's faults; rerun on a quieter machine")
+
+
 def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
     load_plan(plan_path)  # fail early on a bad plan
     out = Path(opts.out or f"runs/chaos-{opts.run}")
+    try:
+        prepare_chaos_dir(out, resume=opts.resume, force=opts.force)
+    except OutDirError as exc:
+        print(f"truav-swarm: error: {exc}", file=sys.stderr)
+        return 2
     results = {}
     for name, plan in (("baseline", None), ("faulted", plan_path)):
         print(f"== {name} run ==", flush=True)
-        run_opts = dataclasses.replace(opts, out=str(out / name), fault_plan=plan, plot=False,
-                                       record=str(out / f"{name}.mcap") if opts.record else None)
+        sub = out / name
+        run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=plan, plot=False,
+                                       record=str(out / f"{name}.mcap") if opts.record else None,
+                                       resume=opts.resume and sub.is_dir() and any(sub.iterdir()))
         rc = run_swarm(cfg, run_opts)
         if rc:
             return rc
-        results[name] = _load(out / name)
+        results[name] = _load(sub)
     table = degradation_table(results["baseline"], results["faulted"])
+    warning = baseline_warning(results["baseline"], cfg.scenario.n_uavs, opts.rate_hz)
     print(f"\n== degradation under {plan_path} (seed {opts.seed}) ==\n{table}")
-    (out / "degradation.txt").write_text(table + "\n")
+    if warning:
+        print(f"warning: {warning}", flush=True)
+    (out / "degradation.txt").write_text(table + "\n" + (f"\nwarning: {warning}\n" if warning else ""))
     path = chaos_figure(results["baseline"], results["faulted"], plan_path, opts.rate_hz, out / "chaos.png")
     print(f"figure: {path}")
     return 0

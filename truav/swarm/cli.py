@@ -3,8 +3,8 @@
     truav-swarm up                          # short demo: own router on loopback, world, 5 agents, summary + picture
     truav-swarm up --agents 8 --episodes 5 --record runs/demo.mcap
     truav-swarm up --lockstep --qtable runs/train-15mps
-    truav-swarm status -e tcp/127.0.0.1:7447
-    truav-swarm down --run demo -e tcp/127.0.0.1:7447
+    truav-swarm status                      # `up` listens on tcp/127.0.0.1:7447 when that port is free
+    truav-swarm down --run demo             # finds the run's endpoint in runs/swarm-demo/swarm.json
 
 and the parts, for other hosts or terminals (zenoh-example style flags):
 
@@ -30,7 +30,7 @@ from truav.cli import UsageError, parse_sets
 from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
                             non_negative_int, positive_float, positive_int, run_main, run_name, seed_int)
 from truav.config import Config, load_config
-from truav.swarm.lifeline import watch_supervisor
+from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -120,10 +120,37 @@ def check_checkpoint(path: str, cfg: Config) -> None:
         raise UsageError(f"--checkpoint {path}: its Q-table is {shape}, this scenario needs {want}")
 
 
-def _stop_on_sigterm_or_orphaned(stop) -> None:
-    """``stop()`` on SIGTERM, and when the `truav-swarm up` that started this process is gone."""
-    signal.signal(signal.SIGTERM, lambda *_: stop())
-    watch_supervisor(stop)
+EXIT_ROUTER_LOST = 1
+
+
+class StopReasons:
+    """Why a part stopped: the first reason is logged and kept (the logs say why a process ended)."""
+
+    def __init__(self, stop) -> None:
+        self._stop = stop
+        self.first: str | None = None
+        self.router_lost = False
+
+    def because(self, reason: str) -> None:
+        if self.first is None:
+            self.first = reason
+            log.info("stopping: %s", reason)
+        self._stop()
+
+
+def _stop_on_sigterm_or_orphaned(stop, bus: Bus | None = None, router_timeout_s: float | None = None) -> StopReasons:
+    """``stop()`` on SIGTERM, when the `truav-swarm up` that started this process is gone, and
+    (with ``bus``) when the router has been gone for ``router_timeout_s``."""
+    reasons = StopReasons(stop)
+    signal.signal(signal.SIGTERM, lambda *_: reasons.because("SIGTERM"))
+    watch_supervisor(lambda: reasons.because("the truav-swarm up that started this process is gone"))
+    if bus is not None and router_timeout_s is not None:
+        def router_lost(seconds: float) -> None:
+            reasons.router_lost = True
+            log.error("no router for %.1f s (it stopped, or the network to it is down)", seconds)
+            reasons.because(f"router lost for {seconds:.1f} s")
+        watch_router(bus.session, router_timeout_s, router_lost)
+    return reasons
 
 
 GIL_SWITCH_INTERVAL_S = 0.0005
@@ -133,8 +160,11 @@ GIL_SWITCH_INTERVAL_S = 0.0005
 
 def _setup_logging(verbose: bool) -> None:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    # INFO by default: a part's log says what it did (joins, losses, checkpoints, why it stopped);
+    # -v adds TRUAV's own debug lines (not the libraries').
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if verbose:
+        logging.getLogger("truav").setLevel(logging.DEBUG)
 
 
 # -- the parts ---------------------------------------------------------------------
@@ -143,12 +173,24 @@ def cmd_router(args) -> int:
     stop = threading.Event()
     _stop_on_sigterm_or_orphaned(stop.set)
     listen = args.listen or [DEFAULT_ENDPOINT]
-    print(f"router listening on {', '.join(listen)}", flush=True)
     try:
-        run_router(listen, connect=args.connect, config_file=args.config, stop=stop)
+        # "router listening" is printed once the endpoints are open: `truav-swarm up` waits for that line.
+        run_router(listen, connect=args.connect, config_file=args.config, stop=stop,
+                   on_ready=lambda: print(f"router listening on {', '.join(listen)}", flush=True))
     except KeyboardInterrupt:
         pass
+    except zenoh.ZError as exc:
+        print(f"truav-swarm router: error: cannot listen on {', '.join(listen)}: {_zenoh_reason(exc)}",
+              file=sys.stderr, flush=True)
+        return 1
+    log.info("router stopped")
     return 0
+
+
+def _zenoh_reason(exc: Exception) -> str:
+    """The useful part of a Zenoh error ("Address already in use (os error 98)"), without source paths."""
+    text = str(exc).split(" at /")[0].strip()
+    return text.rsplit(": ", 1)[-1] if ": " in text else text
 
 
 def cmd_world(args) -> int:
@@ -164,15 +206,19 @@ def cmd_world(args) -> int:
                         fault_plan=args.fault_plan)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
         node = WorldNode(cfg, opts, bus)
-        _stop_on_sigterm_or_orphaned(node.stop)
+        reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
         try:
             stats = node.run()
         except KeyboardInterrupt:
-            node.stop()
+            reasons.because("interrupted")
             stats = node.stats
     if args.stats_out:
         write_stats(args.stats_out, stats)
-    return 0
+    log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
+             reasons.first or ("finished its episodes" if len(stats.episodes) == opts.episodes
+                               else "a shutdown request, see above"),
+             f"; statistics in {args.stats_out}" if args.stats_out else "")
+    return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
 def cmd_agent(args) -> int:
@@ -199,16 +245,33 @@ def cmd_agent(args) -> int:
                         tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s)
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
         node = AgentNode(cfg, opts, bus)
-        _stop_on_sigterm_or_orphaned(node.stop)
+        reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
+        log.info("uav %d joined run %s (%s)", args.id, args.run, "greedy" if args.greedy else "learning")
         try:
             node.run()
         except KeyboardInterrupt:
+            reasons.because("interrupted")
             node.checkpoint()
         node.write_stats()
-    return 0
+    log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", args.id, node.steps,
+             reasons.first or "shutdown", args.checkpoint or "(none: no --checkpoint)", args.stats_out or "(none)")
+    return EXIT_ROUTER_LOST if reasons.router_lost else 0
+
+
+def _endpoint_from_out(args, out: Path | None) -> None:
+    """Without -e, connect where the run writing ``out`` has its router (from its swarm.json)."""
+    from truav.swarm.outdir import read_run_file
+    if args.connect or args.config or out is None:
+        return
+    info = read_run_file(out)
+    if info and info.get("endpoint"):
+        args.connect = [info["endpoint"]]
 
 
 def cmd_status(args) -> int:
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    _endpoint_from_out(args, Path(args.out) if args.out else None)
     conf = config_from_args(args)
     pattern = keys.all_alive(args.run) if args.run else "truav/*/alive/**"
     with Bus("status", args.run or "status", conf) as bus:
@@ -222,14 +285,19 @@ def cmd_status(args) -> int:
 
 
 def cmd_down(args) -> int:
-    from truav.swarm.supervisor import stop_recorded_pids
+    from truav.swarm.supervisor import DOWN_IDENTITY, stop_recorded_pids
     from truav.bus import schema
     if args.out is not None:
         check_out_dir("--out", args.out)
-    with Bus("supervisor", args.run, config_from_args(args)) as bus:
+    out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
+    _endpoint_from_out(args, out)
+    with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
-    stopped = stop_recorded_pids(Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}")
-    print(f"shutdown sent to run {args.run}; {stopped} process(es) signalled from the pid file")
+    # The swarm stops itself on the shutdown (its supervisor stops the router and recorder last);
+    # only what still runs after a while is signalled, from the pid file.
+    stopped = stop_recorded_pids(out, wait_s=args.wait)
+    print(f"shutdown sent to run {args.run}" + (f"; {stopped} process(es) still running after {args.wait:g} s "
+                                                 f"were sent SIGTERM (from {out}/pids.json)" if stopped else ""))
     return 0
 
 
@@ -267,7 +335,8 @@ def _swarm_options(args):
                         out=args.out, listen=args.listen[0] if args.listen else None,
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
                         fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
-                        geo_origin=args.geo_origin)
+                        geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
+                        max_missed_share=args.max_missed, router_timeout_s=args.router_timeout)
     return cfg, opts
 
 
@@ -362,7 +431,17 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
     up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
     up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
-                    help="router endpoint (default: a free loopback port)")
+                    help=f"router endpoint (default {DEFAULT_ENDPOINT} if that port is free, else a free loopback port)")
+    up.add_argument("--resume", action="store_true",
+                    help="continue the run in --out (agents resume from its checkpoints; same scenario only)")
+    up.add_argument("--force", action="store_true",
+                    help="delete an earlier run's files in --out (and overwrite --record) instead of refusing")
+    up.add_argument("--max-missed", type=share, default=0.5, metavar="SHARE",
+                    help="fail the run when more than this share of actions is missing (default 0.5)")
+    up.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                    help=f"world and agents stop this long after losing their router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    up.add_argument("-v", "--verbose", action="store_true",
+                    help="debug lines in every process's log, and each process's start (PID, log file) on the console")
     up.add_argument("--wait-agents", type=positive_float, default=60.0,
                     help="seconds the world waits for all agents to join before the first tick (default 60)")
     up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
@@ -371,6 +450,17 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--foxglove", type=_port, nargs="?", const=8765, metavar="PORT",
                     help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")
     add_geo_origin_arg(up)
+
+
+def share(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -395,12 +485,16 @@ def build_parser() -> argparse.ArgumentParser:
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
     st.add_argument("--run", type=run_name, help="only this run")
     st.add_argument("--timeout", type=positive_float, default=1.0)
+    st.add_argument("--out", help="connect to the router of the run writing this directory (its swarm.json)")
     add_transport_args(st)
     st.set_defaults(func=cmd_status)
 
     dn = sub.add_parser("down", help="ask a running swarm to shut down")
     dn.add_argument("--run", type=run_name, default="demo")
-    dn.add_argument("--out", help="the swarm's output directory holding pids.json (default runs/swarm-<run>)")
+    dn.add_argument("--out", help="the swarm's output directory with swarm.json and pids.json "
+                                  "(default runs/swarm-<run>; gives the endpoint when -e is not given)")
+    dn.add_argument("--wait", type=positive_float, default=30.0, metavar="S",
+                    help="seconds to let the swarm stop itself before signalling what still runs (default 30)")
     add_transport_args(dn)
     dn.set_defaults(func=cmd_down)
 
@@ -425,7 +519,9 @@ def build_parser() -> argparse.ArgumentParser:
     wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
     wo.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the world receives")
-    wo.add_argument("-v", "--verbose", action="store_true")
+    wo.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                    help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    wo.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
     add_transport_args(wo)
     wo.set_defaults(func=cmd_world)
 
@@ -442,7 +538,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
     ag.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the agent receives")
-    ag.add_argument("-v", "--verbose", action="store_true")
+    ag.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                    help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    ag.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
     add_transport_args(ag)
     ag.set_defaults(func=cmd_agent)
 

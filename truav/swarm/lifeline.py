@@ -88,3 +88,41 @@ def signals_handled(signals: Iterable[signal.Signals], handler: Callable[[int, o
     finally:
         for sig, previous in old.items():
             signal.signal(sig, previous)
+
+
+DEFAULT_ROUTER_TIMEOUT_S = 10.0
+"""A world or agent that has had no router this long stops (agents checkpoint first)."""
+ROUTER_POLL_S = 0.5
+
+
+def watch_router(session, timeout_s: float, on_lost: Callable[[float], None],
+                 poll_s: float = ROUTER_POLL_S) -> threading.Thread | None:
+    """Call ``on_lost(seconds_without_router)`` once, from a daemon thread, when this Zenoh client
+    session has been connected to no router for ``timeout_s`` seconds.
+
+    A session connected to no router at the start (peer mode) is not watched: returns None.
+    Without this, a process whose router died would wait for messages forever."""
+    if not list(session.info.routers_zid()):
+        return None
+    thread = threading.Thread(target=_watch_router, args=(session, timeout_s, on_lost, poll_s),
+                              name="router-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _watch_router(session, timeout_s: float, on_lost: Callable[[float], None], poll_s: float) -> None:
+    lost_since = None
+    while True:
+        time.sleep(poll_s)
+        try:
+            connected = bool(list(session.info.routers_zid()))
+        except Exception:  # the session was closed: the process is stopping anyway
+            return
+        now = time.monotonic()
+        if connected:
+            lost_since = None
+        elif lost_since is None:
+            lost_since = now
+        elif now - lost_since >= timeout_s:
+            on_lost(now - lost_since)
+            return

@@ -1,13 +1,28 @@
 """`truav-swarm up`: start and watch a swarm of OS processes, then summarise.
 
-The supervisor starts a Zenoh router on loopback, optionally the recorder,
-the world process and one process per UAV agent (all `python -m
-truav.swarm.cli ...`, logs under <out>/logs/), watches the bus (liveliness,
-step metrics, beacons) for a live status table, and at the end (or on
-Ctrl-C, SIGTERM or SIGHUP) stops every process it started, by PID, and prints
-a summary with control-plane figures; it also draws <out>/summary.png.  Killed
-outright, it cannot: its children then notice it is gone and stop by
-themselves (:mod:`truav.swarm.lifeline`).
+The supervisor starts a Zenoh router on loopback (tcp/127.0.0.1:7447 when
+free), optionally the recorder, the world process and one process per UAV
+agent (all `python -m truav.swarm.cli ...`, logs under <out>/logs/), watches
+the bus (liveliness, step metrics, beacons, shutdown requests) for a live
+status table, and at the end (or on Ctrl-C, SIGTERM or SIGHUP) stops every
+process it started, by PID, and prints a summary; it also draws
+<out>/summary.png.  Killed outright, it cannot: its children then notice it is
+gone and stop by themselves (:mod:`truav.swarm.lifeline`).
+
+Honest outcomes.  The exit code is 0 only when the world ran all its
+episodes; 130 when the user stopped the run (Ctrl-C, SIGTERM, SIGHUP,
+`truav-swarm down`); 2 when it could not start because of a user mistake;
+1 when something went wrong: an agent or the world could not start, the
+router or the recorder died, the recorder could not finish its file, more
+than ``max_missed_share`` of the actions were missing, a shutdown came from
+an unknown sender, or a process had to be killed at shutdown.  The summary's
+last lines say what ended the run (and who sent its shutdown) and why it failed.
+
+Shutdown loses nothing.  Frozen agents are thawed first; agents get
+:data:`AGENT_EXIT_GRACE_S` to leave on the world's shutdown, then SIGTERM and
+:data:`AGENT_STOP_TIMEOUT_S` to write their final checkpoint and statistics;
+the recorder gets :data:`RECORDER_STOP_TIMEOUT_S` to finish its file.  Only a
+process still running after that is SIGKILLed, and the summary says so.
 """
 
 from __future__ import annotations
@@ -16,32 +31,45 @@ import contextlib
 import json
 import os
 import signal
-import socket
-import subprocess
 import sys
-import threading
 import time
-from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from truav.bus import keys, schema
+from truav.bus import keys
+from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
 from truav.faults import load_plan
-from truav.bus.inbox import Inbox
-from truav.swarm.lifeline import child_env, signals_handled
+from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
+                                  stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
 from truav.swarm.fault_control import FaultController
-from truav.bus.transport import Bus, make_config
+from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
+from truav.swarm.monitor import Monitor
+from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
+                                prepare_swarm_dir, write_run_file)
 
-PID_FILE = "pids.json"
-SCENARIO_FILE = "scenario.toml"
+__all__ = ["SwarmOptions", "run_swarm", "free_loopback_endpoint", "wait_for_port", "stop_recorded_pids",
+           "DOWN_IDENTITY", "PID_FILE", "SCENARIO_FILE"]
+
+DOWN_IDENTITY = "supervisor"
+"""The sender of `truav-swarm down`'s shutdown request."""
+SHUTDOWN_SENDERS = {keys.SRC_WORLD: "the world, after its last episode", DOWN_IDENTITY: "`truav-swarm down`"}
+"""Senders whose shutdown is expected; one from anyone else fails the run (and names the sender)."""
+
 STATUS_PERIOD_S = 1.0
 ROUTER_START_TIMEOUT_S = 15.0
-STOP_TIMEOUT_S = 5.0
-RECORDER_STOP_TIMEOUT_S = 60.0
-"""The recorder finishes its file, then rewrites it into big chunks (seconds per 10 MB)."""
+RECORDER_START_TIMEOUT_S = 30.0
+AGENT_EXIT_GRACE_S = 5.0
+"""Normal end: agents leave by themselves on the world's shutdown; SIGTERM after this long."""
+AGENT_STOP_TIMEOUT_S = 30.0
+"""After SIGTERM an agent writes its final checkpoint and statistics (an fsync each); SIGKILL after this long."""
+WORLD_STOP_TIMEOUT_S = 15.0
+RECORDER_STOP_TIMEOUT_S = 90.0
+"""The recorder writes its backlog and footer (its writer alone may take 60 s), then rewrites the
+file into big chunks (seconds per 10 MB); SIGKILL after this long."""
+ROUTER_STOP_TIMEOUT_S = 5.0
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
 CENTRAL_VALUE_BYTES = 4
@@ -65,206 +93,65 @@ class SwarmOptions:
     checkpoint_every: int = 50
     """Agents checkpoint their Q-table every this many steps."""
     verbose: bool = False
-    """Children log at INFO level (joins, losses, checkpoint resumes) to <out>/logs."""
+    """Children log at DEBUG level too; each process's start is printed."""
     fault_plan: str | None = None
     """Fault plan TOML (truav.faults): link faults applied by every process,
     crashes and freezes sent by this supervisor."""
+    resume: bool = False
+    """Continue the run already in ``out`` (agents resume from its checkpoints); else ``out`` must be empty."""
+    force: bool = False
+    """Delete an earlier run's files in ``out`` first, and overwrite ``record``."""
+    max_missed_share: float = 0.5
+    """The run fails when more than this share of the actions the world waited for did not come."""
+    router_timeout_s: float = DEFAULT_ROUTER_TIMEOUT_S
+    """World and agents stop by themselves this long after losing their router."""
     foxglove_port: int | None = None
     """Serve the run to the Foxglove app on ws://127.0.0.1:<port> (`truav-swarm view`)."""
     geo_origin: tuple[float, float] | None = None
     """(lat, lon) of the area's centre on Foxglove's map (recorder and view); None: Paris."""
 
 
-def free_loopback_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
-def wait_for_port(endpoint: str, timeout: float) -> bool:
-    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            with socket.create_connection((host, int(port)), timeout=0.5):
-                return True
-        except OSError:
-            time.sleep(0.1)
-    return False
-
-
-class Children:
-    """Processes this supervisor started; only these are ever signalled."""
-
-    def __init__(self, log_dir: Path):
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen] = {}
-        self.argv: dict[str, list[str]] = {}
-        self._logs: list = []
-
-    def start(self, name: str, argv: list[str]) -> subprocess.Popen:
-        log = open(self.log_dir / f"{name}.log", "ab")  # a restarted process appends
-        self._logs.append(log)
-        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True,  # Ctrl-C reaches the supervisor only...
-                                env=child_env())  # ...and each child stops if the supervisor dies (truav.swarm.lifeline)
-        self.procs[name] = proc
-        self.argv[name] = argv
-        return proc
-
-    def send(self, name: str, sig) -> None:
-        p = self.procs.get(name)
-        if p is not None and p.poll() is None:
-            p.send_signal(sig)
-            if sig == signal.SIGKILL:
-                p.wait(timeout=5)
-
-    def restart(self, name: str) -> None:
-        p = self.procs.get(name)
-        if p is not None and p.poll() is None:
-            return
-        self.start(name, self.argv[name])
-
-    def stop(self, names: list[str], sig=signal.SIGTERM, timeout: float = STOP_TIMEOUT_S) -> None:
-        live = [self.procs[n] for n in names if n in self.procs and self.procs[n].poll() is None]
-        for p in live:
-            p.send_signal(sig)
-        deadline = time.monotonic() + timeout
-        for p in live:
-            try:
-                p.wait(max(deadline - time.monotonic(), 0.01))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-
-    def stop_all(self) -> None:
-        self.stop(list(self.procs))
-        for f in self._logs:
-            f.close()
-
-    def pids(self) -> dict[str, int]:
-        return {n: p.pid for n, p in self.procs.items()}
-
-
-def stop_recorded_pids(out: Path) -> int:
-    """SIGTERM the processes listed in <out>/pids.json that still run a TRUAV command."""
-    path = out / PID_FILE
-    if not path.is_file():
-        return 0
-    count = 0
-    for pid in json.loads(path.read_text()).values():
-        try:
-            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
-        except OSError:
-            continue
-        if b"truav.swarm.cli" in cmdline or b"recorder.process" in cmdline:
-            os.kill(pid, signal.SIGTERM)
-            count += 1
-    return count
-
-
 @dataclass
-class Monitor:
-    """What the supervisor sees on the bus."""
+class Outcome:
+    """How a run ended: what ended it, what went wrong, what the user should know."""
 
-    n_uavs: int
-    alive: set = field(default_factory=set)
-    ticks: list = field(default_factory=list)  # (monotonic time, tick)
-    coverage: list = field(default_factory=list)  # (tick, %)
-    hovering: list = field(default_factory=list)  # (tick, UAVs without an action)
-    generated: float = 0.0
-    delivered: float = 0.0
-    energy: list = field(default_factory=list)
-    episodes: list = field(default_factory=list)
-    beacon_count: dict = field(default_factory=lambda: defaultdict(int))
-    beacon_bytes: dict = field(default_factory=lambda: defaultdict(int))
-    tracks: dict = field(default_factory=lambda: defaultdict(list))
-    vehicles: list = field(default_factory=list)
-    t0: float | None = None  # monotonic time of the world's tick 0
-    period_s: float = 0.1
-    first_beacon: float | None = None  # wall-clock seconds
-    last_beacon: float | None = None
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    beacon_inbox: Inbox | None = None
+    ended_by: str = ""
+    interrupted_by: str | None = None  # Ctrl-C, SIGTERM, SIGHUP or `truav-swarm down`
+    failures: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    shutdowns: list[tuple[float, str]] = field(default_factory=list)  # (s since start, sender)
+    ticked: bool = False
 
-    def attach(self, bus: Bus, run: str) -> None:
-        bus.subscribe(keys.metrics_step(run), self._on_step)
-        bus.subscribe(keys.metrics_episode(run), self._on_episode)
-        # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
-        # process from being a 21st subscriber callback in every beacon's fan-out.
-        self.beacon_inbox = bus.inbox(keys.all_beacons(run))
-        bus.subscribe(keys.world_positions(run), self._on_positions)
-        bus.subscribe(keys.world_tick(run), self._on_tick)
-        bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))
+    def fail(self, reason: str) -> None:
+        if reason not in self.failures:
+            self.failures.append(reason)
+        self.ended_by = self.ended_by or reason
 
-    def _live(self, key: str, up: bool) -> None:
-        with self.lock:
-            (self.alive.add if up else self.alive.discard)(key.split("/alive/", 1)[-1])
+    @property
+    def result(self) -> str:
+        return "failed" if self.failures else "interrupted" if self.interrupted_by else "ok"
 
-    def _on_step(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
-        v = msg.values
-        with self.lock:
-            self.ticks.append((time.monotonic(), msg.tick))
-            self.coverage.append((msg.tick, v.get("coverage_pct", 0.0)))
-            self.hovering.append((msg.tick, v.get("hovering_uavs", 0.0)))
-            self.generated += v.get("generated", 0.0)
-            self.delivered += v.get("delivered", 0.0)
-            self.energy.append(v.get("energy_j", 0.0))
+    def exit_code(self) -> int:
+        return 1 if self.failures else 130 if self.interrupted_by else 0
 
-    def _on_tick(self, key, msg: schema.Tick, raw, recv_ns) -> None:
-        with self.lock:
-            if self.t0 is None:
-                self.t0 = time.monotonic() - msg.tick * self.period_s
 
-    def _on_episode(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
-        with self.lock:
-            self.episodes.append(dict(msg.values))
+class _Interrupts:
+    """SIGINT, SIGTERM and SIGHUP stop the swarm (KeyboardInterrupt in the main thread), once: a signal
+    during the shutdown does not cut it short (the children would lose their final writes)."""
 
-    def poll(self) -> None:
-        """Take in the beacons heard since the last call (call it often: the inbox is bounded)."""
-        if self.beacon_inbox is None:
+    def __init__(self) -> None:
+        self.by: str | None = None
+        self.stopping = False
+
+    def __call__(self, signum: int, _frame: object) -> None:
+        name = {signal.SIGINT: "Ctrl-C"}.get(signum, signal.Signals(signum).name)
+        if self.stopping:
+            print(f"\n{name}: already stopping; waiting for every process to write its files "
+                  f"(at most {AGENT_STOP_TIMEOUT_S + RECORDER_STOP_TIMEOUT_S:.0f} s)", flush=True)
             return
-        heard = self.beacon_inbox.drain()
-        with self.lock:
-            for r in heard:
-                msg: schema.Beacon = r.msg
-                self.beacon_count[msg.uav] += 1
-                self.beacon_bytes[msg.uav] += len(r.raw)
-                self.tracks[msg.uav].append(msg.pos)
-                self.first_beacon = self.first_beacon or r.recv_ns / 1e9
-                self.last_beacon = r.recv_ns / 1e9
-
-    def _on_positions(self, key, msg: schema.Positions, raw, recv_ns) -> None:
-        with self.lock:
-            self.vehicles = list(msg.vehicles)
-
-    def status_lines(self) -> list[str]:
-        with self.lock:
-            now = time.monotonic()
-            recent = [t for t, _ in self.ticks if now - t <= 2.0]
-            rate = len(recent) / 2.0
-            tick = self.ticks[-1][1] if self.ticks else 0
-            agents = sorted(a for a in self.alive if a.startswith("uav/"))
-            misses = sum(h for _, h in self.hovering)
-            cov = self.coverage[-1][1] if self.coverage else float("nan")
-            pdr = self.delivered / self.generated if self.generated else float("nan")
-            energy = np.mean(self.energy[-10:]) if self.energy else float("nan")
-        return [f"tick {tick:6d}  {rate:5.1f} ticks/s  agents alive {len(agents)}/{self.n_uavs}  "
-                f"missed actions {int(misses)}",
-                f"coverage {cov:5.1f}%  PDR so far {pdr:6.3f}  energy/UAV/step {energy:6.1f} J",
-                "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
-
-    def control_plane(self) -> dict[str, float]:
-        self.poll()
-        with self.lock:
-            n = sum(self.beacon_count.values())
-            size = sum(self.beacon_bytes.values())
-            span = (self.last_beacon - self.first_beacon) if n > 1 else float("nan")
-            uavs = max(len(self.beacon_count), 1)
-        per_s = n / span if span and span > 0 else float("nan")
-        return {"beacons": n, "bytes_per_beacon": size / n if n else float("nan"),
-                "beacons_per_s_total": per_s, "beacons_per_s_per_uav": per_s / uavs,
-                "beacon_bytes_per_s_total": size / span if span and span > 0 else float("nan")}
+        self.by = name
+        self.stopping = True
+        raise KeyboardInterrupt
 
 
 def _python_module(*args: str) -> list[str]:
@@ -274,154 +161,315 @@ def _python_module(*args: str) -> list[str]:
 def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     """Run a swarm to its end (or Ctrl-C, SIGTERM, SIGHUP), stop every process it started, summarise.
 
-    Returns the exit code: 0, 130 if interrupted, 1-2 if it could not start."""
-    with _terminate_as_interrupt():
-        return _run_swarm(cfg, opts)
-
-
-@contextlib.contextmanager
-def _terminate_as_interrupt():
-    """SIGTERM and SIGHUP stop the swarm as Ctrl-C does (main thread only), once: a second
-    signal does not cut the shutdown short."""
-    fired: list[int] = []
-
-    def handler(signum: int, _frame: object) -> None:
-        if not fired:
-            fired.append(signum)
-            raise KeyboardInterrupt
-
-    with signals_handled((signal.SIGTERM, signal.SIGHUP), handler):
-        yield
-
-
-def _run_swarm(cfg: Config, opts: SwarmOptions) -> int:
+    Returns the exit code (see the module docstring)."""
     out = Path(opts.out or f"runs/swarm-{opts.run}")
-    if opts.record and Path(opts.record).exists():
-        print(f"truav-swarm: error: {opts.record} exists; choose another --record file (nothing was started)",
-              file=sys.stderr)
+    try:  # every check that needs no process, before anything starts or any file is touched
+        if opts.record:
+            check_record_path(opts.record, opts.force)
+        if opts.listen:
+            check_listen(opts.listen)
+        plan = load_plan(opts.fault_plan) if opts.fault_plan else None
+        prepare_swarm_dir(out, to_toml(cfg), resume=opts.resume, force=opts.force)
+        if opts.record:
+            Path(opts.record).absolute().parent.mkdir(parents=True, exist_ok=True)
+    except (OutDirError, ListenError, OSError) as exc:
+        print(f"truav-swarm: error: {exc}", file=sys.stderr)
         return 2
-    (out / "logs").mkdir(parents=True, exist_ok=True)
-    scenario = out / SCENARIO_FILE
-    scenario.write_text(to_toml(cfg))
-    endpoint = opts.listen or free_loopback_endpoint()
-    n = cfg.scenario.n_uavs
-    common = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", endpoint]
-    timing = (["--lockstep"] if opts.lockstep else []) + (["-v"] if opts.verbose else [])
-    children = Children(out / "logs")
-    monitor = Monitor(n, period_s=1.0 / opts.rate_hz)
-    plan = load_plan(opts.fault_plan) if opts.fault_plan else None
-    faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if plan else []
-    controller = None
-    interrupted = False
-    t0 = time.monotonic()
-    try:
-        children.start("router", _python_module("truav.swarm.cli", "router", "-l", endpoint))
-        if not wait_for_port(endpoint, ROUTER_START_TIMEOUT_S):
-            print(f"truav-swarm: error: the router did not open {endpoint} (see {out}/logs/router.log)", file=sys.stderr)
-            return 1
+    interrupts = _Interrupts()
+    with signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), interrupts):
+        return _Swarm(cfg, opts, out, plan, interrupts).run()
+
+
+class _Swarm:
+    def __init__(self, cfg: Config, opts: SwarmOptions, out: Path, plan, interrupts: _Interrupts):
+        self.cfg, self.opts, self.out, self.plan, self.interrupts = cfg, opts, out, plan, interrupts
+        self.n = cfg.scenario.n_uavs
+        self.agents = [f"agent{i}" for i in range(self.n)]
+        self.children = Children(out / "logs", out / PID_FILE, on_start=self._started if opts.verbose else None)
+        self.monitor = Monitor(self.n, period_s=1.0 / opts.rate_hz)
+        self.outcome = Outcome()
+        self.controller: FaultController | None = None
+        self.planned_exits: set[int] = set()  # PIDs the fault plan killed
+        self.endpoint = opts.listen
+        self.t0 = time.monotonic()
+
+    def _started(self, name: str, proc) -> None:
+        print(f"started {name} (pid {proc.pid}, log {self.children.log_dir / name}.log)", flush=True)
+
+    def _since(self) -> float:
+        return time.monotonic() - self.t0
+
+    # -- the run --
+    def run(self) -> int:
+        normal_end = False
+        try:
+            if self._start_router() and self._start_rest():
+                normal_end = True
+        except KeyboardInterrupt:
+            self.outcome.interrupted_by = self.interrupts.by or "Ctrl-C"
+            self.outcome.ended_by = f"interrupted ({self.outcome.interrupted_by})"
+            print(f"\n{self.outcome.ended_by}: stopping every process of the swarm", flush=True)
+        finally:
+            self.interrupts.stopping = True
+            self._shutdown(normal_end and not self.outcome.failures)
+        self._judge()
+        self._summary(time.monotonic() - self.t0)
+        return self.outcome.exit_code()
+
+    def _start_router(self) -> bool:
+        default = self.opts.listen is None
+        self.endpoint = self.opts.listen or default_endpoint()
+        ok, error = self._router_ready(ROUTER_START_TIMEOUT_S)
+        if not ok and default and "in use" in error:  # lost a race for 7447 to another process: any port will do
+            self.endpoint = free_loopback_endpoint()
+            ok, error = self._router_ready(ROUTER_START_TIMEOUT_S)
+        if not ok:
+            self.outcome.fail(f"the router could not listen on {self.endpoint}: {error}")
+        return ok
+
+    def _router_ready(self, timeout: float) -> tuple[bool, str]:
+        proc = self.children.start("router", _python_module("truav.swarm.cli", "router", "-l", self.endpoint))
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if ROUTER_READY_LINE in self.children.log_text("router"):
+                return True, ""
+            if proc.poll() is not None:
+                return False, self.children.last_line("router")
+            time.sleep(0.02)
+        return False, f"not listening after {timeout:.0f} s (see {self.children.log_dir}/router.log)"
+
+    def _start_rest(self) -> bool:
+        opts, out, ep = self.opts, self.out, self.endpoint
+        write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n})
+        scenario = out / SCENARIO_FILE
+        scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep]
+        common = [*scenario_args, "--router-timeout", str(opts.router_timeout_s)]
+        timing = (["--lockstep"] if opts.lockstep else []) + (["-v"] if opts.verbose else [])
+        faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if self.plan else []
         origin = ["--geo-origin", "%r,%r" % opts.geo_origin] if opts.geo_origin else []
         if opts.record:
-            children.start("recorder", _python_module("recorder.process", "--run", opts.run, "--out", opts.record,
-                                                        "--connect", endpoint, "--config-toml", str(scenario), *origin))
+            self.children.start("recorder", _python_module(
+                "recorder.process", "--run", opts.run, "--out", opts.record, "--connect", ep,
+                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else [])))
         if opts.foxglove_port is not None:
-            children.start("view", _python_module("truav.swarm.cli", "view", *common, *origin,
-                                                    "--port", str(opts.foxglove_port)))
-        with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
-            monitor.attach(bus, opts.run)
-            if opts.record:
-                from recorder.process import wait_until_recording
-                if not wait_until_recording(bus, opts.run, timeout=30.0):
-                    print(f"truav-swarm: error: the recorder did not start (see {out}/logs/recorder.log)",
-                          file=sys.stderr)
-                    return 1
-            if plan:
-                hooks = {"kill": lambda u: children.send(f"agent{u}", signal.SIGKILL),
-                         "restart": lambda u: children.restart(f"agent{u}"),
-                         "freeze": lambda u: children.send(f"agent{u}", signal.SIGSTOP),
-                         "thaw": lambda u: children.send(f"agent{u}", signal.SIGCONT)}
-                controller = FaultController(bus, opts.run, plan, hooks)
-            children.start("world", _python_module(
+            self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
+                                                        "--port", str(opts.foxglove_port)))
+        with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[ep], connect_timeout_ms=5000)) as bus:
+            self.monitor.attach(bus, opts.run)
+            if opts.record and not self._recorder_ready(bus):
+                return False
+            if self.plan:
+                hooks = {"kill": self._plan_kill, "restart": lambda u: self.children.restart(f"agent{u}"),
+                         "freeze": lambda u: self.children.send(f"agent{u}", signal.SIGSTOP),
+                         "thaw": lambda u: self.children.send(f"agent{u}", signal.SIGCONT)}
+                self.controller = FaultController(bus, opts.run, self.plan, hooks)
+            self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, "--episodes", str(opts.episodes),
                 "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
                 "--wait-agents", str(opts.wait_agents_s)))
-            for i in range(n):
+            for i in range(self.n):
                 extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json"),
                          "--checkpoint-every", str(opts.checkpoint_every)]
-                if opts.qtable:
-                    extra += ["--qtable", opts.qtable]
-                if opts.greedy:
-                    extra += ["--greedy"]
-                children.start(f"agent{i}", _python_module("truav.swarm.cli", "agent", "--id", str(i),
-                                                            *common, *timing, *faults_args, "--rate",
-                                                            str(opts.rate_hz), *extra))
-            (out / PID_FILE).write_text(json.dumps(children.pids()))
-            print(f"swarm '{opts.run}': router {endpoint}, world + {n} agents"
-                  f"{' + recorder -> ' + opts.record if opts.record else ''}; "
-                  f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {out}/logs", flush=True)
-            if opts.foxglove_port is not None:
-                print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)",
-                      flush=True)
-            _watch(children, monitor, opts, controller)
+                extra += ["--qtable", opts.qtable] if opts.qtable else []
+                extra += ["--greedy"] if opts.greedy else []
+                self.children.start(f"agent{i}", _python_module(
+                    "truav.swarm.cli", "agent", "--id", str(i), *common, *timing, *faults_args,
+                    "--rate", str(opts.rate_hz), *extra))
+            self._announce()
+            ok = self._watch()
+            self.monitor.poll()
+            if self.controller is not None:
+                self.controller.stop()
+            return ok
+
+    def _announce(self) -> None:
+        opts, ep = self.opts, self.endpoint
+        default_out = Path(f"runs/swarm-{opts.run}")
+        where = "" if self.out == default_out else f" --out {self.out}"
+        print(f"swarm '{opts.run}': router {ep}, world + {self.n} agents"
+              f"{' + recorder -> ' + opts.record if opts.record else ''}; "
+              f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {self.out}/logs\n"
+              f"  watch it: truav-swarm status -e {ep}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
+        if opts.foxglove_port is not None:
+            print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)", flush=True)
+
+    def _plan_kill(self, uav: int) -> None:
+        p = self.children.procs.get(f"agent{uav}")
+        if p is not None:
+            self.planned_exits.add(p.pid)
+        self.children.send(f"agent{uav}", signal.SIGKILL)
+
+    def _recorder_ready(self, bus: Bus) -> bool:
+        proc = self.children.procs["recorder"]
+        deadline = time.monotonic() + RECORDER_START_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if proc.poll() is not None:
+                self.outcome.fail(f"the recorder could not start: {self.children.last_line('recorder')}")
+                return False
+            if bus.alive(keys.alive_recorder(self.opts.run), timeout=0.3):
+                return True
+        self.outcome.fail(f"the recorder did not start within {RECORDER_START_TIMEOUT_S:.0f} s "
+                          f"(see {self.children.log_dir}/recorder.log)")
+        return False
+
+    def _watch(self) -> bool:
+        """Until the world exits; False (with the failure noted) if the run must end early."""
+        opts, monitor, children = self.opts, self.monitor, self.children
+        tty = sys.stdout.isatty() and not opts.quiet
+        drawn, last_print = 0, 0.0
+        world = children.procs["world"]
+        reported: set[int] = set()
+        while world.poll() is None:
+            faults_pending = self.controller is not None and not self.outcome.ticked
+            time.sleep(0.05 if faults_pending or not self.outcome.ticked else 0.2)
             monitor.poll()
-            if controller is not None:
-                controller.stop()
-            children.stop([f"agent{i}" for i in range(n)], sig=signal.SIGCONT, timeout=0.01)  # thaw frozen ones
-            children.stop([f"agent{i}" for i in range(n)])
-    except KeyboardInterrupt:
-        interrupted = True
-        print("\ninterrupted: stopping every process of the swarm", flush=True)
-    finally:
-        children.stop([name for name in children.procs if name not in ("router", "recorder")])
-        children.stop(["recorder"], sig=signal.SIGINT, timeout=RECORDER_STOP_TIMEOUT_S)
-        children.stop(["router"])
-        children.stop_all()
-    elapsed = time.monotonic() - t0
-    _summary(out, cfg, opts, monitor, elapsed, interrupted, controller)
-    return 130 if interrupted else 0
+            if not self.outcome.ticked and monitor.t0 is not None:
+                self.outcome.ticked = True
+                if self.controller is not None:
+                    self.controller.start(monitor.t0)
+            for name in ("router", "recorder"):
+                p = children.procs.get(name)
+                if p is not None and p.poll() is not None:
+                    what = "the router" if name == "router" else "the recorder"
+                    self.outcome.fail(f"{what} exited mid-run ({_exit_text(p.returncode)}) at {self._since():.1f} s"
+                                      + ("; the recording is incomplete" if name == "recorder" else ""))
+                    return False
+            for name in self.agents:
+                p = children.procs.get(name)
+                if p is None or p.poll() is None or p.pid in reported:
+                    continue
+                reported.add(p.pid)
+                if not self.outcome.ticked:  # before the first tick: it could not start
+                    self.outcome.fail(f"{name} could not start ({_exit_text(p.returncode)}): "
+                                      f"{children.last_line(name)}")
+                    return False
+                with monitor.lock:
+                    shut_down = bool(monitor.shutdowns)
+                if p.returncode == 0 and shut_down:  # left on a shutdown request: not news
+                    continue
+                if p.pid in self.planned_exits:
+                    if opts.verbose:
+                        print(f"{name} killed by the fault plan at {self._since():.1f} s", flush=True)
+                    continue
+                note = f"{name} exited mid-run ({_exit_text(p.returncode)}): {children.last_line(name)}"
+                self.outcome.warnings.append(note)
+                print(note, flush=True)
+            now = time.monotonic()
+            if opts.quiet or now - last_print < (STATUS_PERIOD_S if tty else 5.0):
+                continue
+            last_print = now
+            lines = monitor.status_lines()
+            if tty:
+                if drawn:
+                    sys.stdout.write(f"\x1b[{drawn}F")
+                sys.stdout.write("".join(f"\x1b[2K{line}\n" for line in lines))
+                sys.stdout.flush()
+                drawn = len(lines)
+            else:
+                print(" | ".join(lines[:2]), flush=True)
+        if world.returncode:
+            self.outcome.fail(f"the world exited with {_exit_text(world.returncode)}: {children.last_line('world')}")
+            return False
+        return True
 
+    # -- the end --
+    def _shutdown(self, normal_end: bool) -> None:
+        """Stop every process started, in an order that loses nothing (see the module docstring)."""
+        children = self.children
+        if self.controller is not None:
+            self.controller.stop()
+        children.thaw(self.agents)  # a frozen agent must run to stop; SIGTERM alone would wait for ever
+        if normal_end:
+            children.wait_exit(self.agents, AGENT_EXIT_GRACE_S)
+        killed = children.stop(["world"], timeout=WORLD_STOP_TIMEOUT_S)
+        children.thaw(self.agents)  # the plan's last thaw may have been cancelled
+        killed += children.stop(self.agents, timeout=AGENT_STOP_TIMEOUT_S)
+        for name in killed:
+            self.outcome.fail(f"{name} did not stop within {AGENT_STOP_TIMEOUT_S:.0f} s of SIGTERM and was killed: "
+                              f"its final checkpoint and statistics may be missing")
+        if "recorder" in children.procs:
+            if children.stop(["recorder"], sig=signal.SIGINT, timeout=RECORDER_STOP_TIMEOUT_S):
+                self.outcome.fail(f"the recorder did not finish {self.opts.record} within "
+                                  f"{RECORDER_STOP_TIMEOUT_S:.0f} s and was killed (try `truav log recover`)")
+            elif children.procs["recorder"].returncode and not any("recorder" in f for f in self.outcome.failures):
+                self.outcome.fail(f"the recorder failed to finish {self.opts.record} "
+                                  f"({_exit_text(children.procs['recorder'].returncode)}): "
+                                  f"{children.last_line('recorder')}")
+        others = [n for n in children.procs if n not in ("world", "recorder", "router", *self.agents)]  # the viewer
+        children.stop(others, timeout=WORLD_STOP_TIMEOUT_S)
+        if "router" in children.procs:
+            children.stop(["router"], timeout=ROUTER_STOP_TIMEOUT_S)
+        children.close_logs()
 
-def _watch(children: Children, monitor: Monitor, opts: SwarmOptions, controller=None) -> None:
-    tty = sys.stdout.isatty() and not opts.quiet
-    drawn = 0
-    last_print = 0.0
-    world = children.procs["world"]
-    reported_dead: set[int] = set()
-    faults_started = False
-    while world.poll() is None:
-        time.sleep(0.05 if controller is not None and not faults_started else 0.2)
-        monitor.poll()
-        if controller is not None and not faults_started and monitor.t0 is not None:
-            controller.start(monitor.t0)
-            faults_started = True
-        for name, p in children.procs.items():
-            if p.poll() is not None and p.pid not in reported_dead and name != "world":
-                reported_dead.add(p.pid)
-                if p.returncode:  # a clean exit (code 0) after the world's shutdown is not news
-                    print(f"{name} exited with code {p.returncode} (log: {children.log_dir / name}.log)", flush=True)
-        now = time.monotonic()
-        if opts.quiet or now - last_print < (STATUS_PERIOD_S if tty else 5.0):
-            continue
-        last_print = now
-        lines = monitor.status_lines()
-        if tty:
-            if drawn:
-                sys.stdout.write(f"\x1b[{drawn}F")
-            sys.stdout.write("".join(f"\x1b[2K{line}\n" for line in lines))
-            sys.stdout.flush()
-            drawn = len(lines)
+    def _judge(self) -> None:
+        """What ended the run, from what was seen; failures the watch could not see on its own."""
+        o, opts = self.outcome, self.opts
+        with self.monitor.lock:
+            o.shutdowns = [(round(t - self.t0, 2), src) for t, src in self.monitor.shutdowns]
+        foreign = [src for _, src in o.shutdowns if src != keys.SRC_WORLD]
+        for src in dict.fromkeys(foreign):
+            if src not in SHUTDOWN_SENDERS:
+                o.fail(f"a shutdown came from an unknown sender {src!r}")
+        world = _read_json(self.out / "world.json")
+        done = len((world or {}).get("episodes") or [])
+        if not o.ended_by:
+            if foreign:
+                first = foreign[0]
+                o.ended_by = f"a shutdown from {first!r} ({SHUTDOWN_SENDERS.get(first, 'unknown sender')})"
+                if first == DOWN_IDENTITY and done < opts.episodes:
+                    o.interrupted_by = SHUTDOWN_SENDERS[first]
+            elif done == opts.episodes:
+                o.ended_by = f"the world finished its {done} episode(s) (shutdown from 'world')"
+            else:
+                o.fail(f"the world stopped after {done} of {opts.episodes} episode(s)")
+        if world and o.ticked:
+            acting = world.get("ticks", 0) - done
+            expected = acting * self.n
+            if expected > 0:
+                missed = 1.0 - world.get("actions_received", 0) / expected
+                if missed > opts.max_missed_share:
+                    o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
+                           f"{opts.max_missed_share:g})")
+        killed_for_good = {f"agent{f.params['uav']}" for f in (self.plan.faults if self.plan else ())
+                           if f.kind == "crash" and "restart_after" not in f.params}
+        for i, name in enumerate(self.agents):
+            if o.ticked and not (self.out / f"agent{i}.json").is_file() and name not in killed_for_good:
+                o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{name}.log)")
+
+    def _summary(self, elapsed: float) -> None:
+        cfg, opts, out, monitor, o = self.cfg, self.opts, self.out, self.monitor, self.outcome
+        world = _read_json(out / "world.json")
+        agents = [_read_json(out / f"agent{i}.json") for i in range(self.n)]
+        cp = monitor.control_plane()
+        events = self.controller.events if self.controller is not None else []
+        with monitor.lock:
+            timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
+                   "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
+        (out / SUMMARY_FILE).write_text(json.dumps({
+            "world": world, "agents": agents, "control_plane": cp, "elapsed_s": elapsed,
+            "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
+            "fault_events": events, "timeline": timeline}, indent=1))
+        if o.ticked:
+            _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            if opts.plot and monitor.tracks:
+                from truav.swarm.plots import swarm_figure
+                print(f"picture: {swarm_figure(cfg, monitor, out / 'summary.png', title=f'swarm {opts.run!r}')}")
+            if opts.record:
+                print(f"recording: {opts.record}")
+        for note in o.warnings:
+            print(f"warning: {note}")
+        print(f"ended by: {o.ended_by}")
+        if o.failures:
+            print(f"result: FAILED ({'; '.join(o.failures)})", flush=True)
+            print(f"truav-swarm: error: {o.failures[0]}", file=sys.stderr, flush=True)
         else:
-            print(" | ".join(lines[:2]), flush=True)
-    if world.returncode:
-        print(f"world exited with code {world.returncode}", flush=True)
+            print(f"result: {o.result}", flush=True)
 
 
-def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elapsed: float, interrupted: bool,
-             controller=None) -> None:
-    world = _read_json(out / "world.json")
-    agents = [_read_json(out / f"agent{i}.json") for i in range(cfg.scenario.n_uavs)]
-    print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', interrupted' if interrupted else ''}) ==")
-    episodes = (world or {}).get("episodes") or monitor.episodes
-    for e, m in enumerate(episodes):
+def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
+    print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
+    for e, m in enumerate((world or {}).get("episodes") or []):
         print(f"episode {e}: coverage {m.get('coverage_pct', float('nan')):5.1f}%  PDR {m.get('pdr', float('nan')):.3f}  "
               f"delay {m.get('delay_ms', float('nan')):6.1f} ms  energy/UAV {m.get('energy_j', float('nan')) / 1e3:6.2f} kJ")
     if world:
@@ -434,7 +482,6 @@ def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elaps
     if lat:
         print(f"beacon one-way latency: p50 {np.median([x['p50'] for x in lat]):.2f} ms, "
               f"p99 {np.max([x['p99'] for x in lat]):.2f} ms (worst agent)")
-    cp = monitor.control_plane()
     if cp["beacons"]:
         n = cfg.scenario.n_uavs
         central = n * CENTRAL_STATE_VALUES * opts.rate_hz
@@ -442,20 +489,15 @@ def _summary(out: Path, cfg: Config, opts: SwarmOptions, monitor: Monitor, elaps
               f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s in total; a centralized critic would upload "
               f"{n} x {CENTRAL_STATE_VALUES} values x {opts.rate_hz:g} Hz = {central:,.0f} values/s "
               f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
-    events = controller.events if controller is not None else []
     for t, kind, phase in events:
         print(f"fault {kind} {phase} at {t:.1f} s")
-    with monitor.lock:
-        timeline = {"coverage": monitor.coverage, "hovering": monitor.hovering}
-    (out / "summary.json").write_text(json.dumps({"world": world, "agents": agents, "control_plane": cp,
-                                                  "elapsed_s": elapsed, "interrupted": interrupted,
-                                                  "fault_events": events, "timeline": timeline}, indent=1))
-    if opts.plot and monitor.tracks:
-        from truav.swarm.plots import swarm_figure
-        path = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm '{opts.run}'")
-        print(f"picture: {path}")
-    if opts.record:
-        print(f"recording: {opts.record}")
+
+
+def _exit_text(code: int | None) -> str:
+    if code is not None and code < 0:
+        with contextlib.suppress(ValueError):
+            return f"killed by {signal.Signals(-code).name}"
+    return f"exit code {code}"
 
 
 def _read_json(path: Path):

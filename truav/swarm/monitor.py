@@ -1,0 +1,127 @@
+"""What `truav-swarm up` sees on the bus: liveliness, step and episode metrics,
+beacons (for tracks and control-plane figures) and shutdown requests (who asked)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from truav.bus import keys, schema
+from truav.bus.inbox import Inbox
+from truav.bus.transport import Bus
+
+CONTROL_SHUTDOWN = "shutdown"
+
+
+@dataclass
+class Monitor:
+    """What the supervisor sees on the bus."""
+
+    n_uavs: int
+    alive: set = field(default_factory=set)
+    ticks: list = field(default_factory=list)  # (monotonic time, tick)
+    coverage: list = field(default_factory=list)  # (tick, %)
+    hovering: list = field(default_factory=list)  # (tick, UAVs without an action)
+    generated: float = 0.0
+    delivered: float = 0.0
+    energy: list = field(default_factory=list)
+    episodes: list = field(default_factory=list)
+    beacon_count: dict = field(default_factory=lambda: defaultdict(int))
+    beacon_bytes: dict = field(default_factory=lambda: defaultdict(int))
+    tracks: dict = field(default_factory=lambda: defaultdict(list))
+    vehicles: list = field(default_factory=list)
+    t0: float | None = None  # monotonic time of the world's tick 0
+    period_s: float = 0.1
+    first_beacon: float | None = None  # wall-clock seconds
+    last_beacon: float | None = None
+    shutdowns: list = field(default_factory=list)  # (monotonic time, sender) of every shutdown request heard
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    beacon_inbox: Inbox | None = None
+
+    def attach(self, bus: Bus, run: str) -> None:
+        bus.subscribe(keys.metrics_step(run), self._on_step)
+        bus.subscribe(keys.metrics_episode(run), self._on_episode)
+        # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
+        # process from being a 21st subscriber callback in every beacon's fan-out.
+        self.beacon_inbox = bus.inbox(keys.all_beacons(run))
+        bus.subscribe(keys.world_positions(run), self._on_positions)
+        bus.subscribe(keys.world_tick(run), self._on_tick)
+        bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))
+        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_shutdown)
+
+    def _on_shutdown(self, key, msg: schema.Control, raw, recv_ns) -> None:
+        with self.lock:
+            self.shutdowns.append((time.monotonic(), msg.src))
+
+    def _live(self, key: str, up: bool) -> None:
+        with self.lock:
+            (self.alive.add if up else self.alive.discard)(key.split("/alive/", 1)[-1])
+
+    def _on_step(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
+        v = msg.values
+        with self.lock:
+            self.ticks.append((time.monotonic(), msg.tick))
+            self.coverage.append((msg.tick, v.get("coverage_pct", 0.0)))
+            self.hovering.append((msg.tick, v.get("hovering_uavs", 0.0)))
+            self.generated += v.get("generated", 0.0)
+            self.delivered += v.get("delivered", 0.0)
+            self.energy.append(v.get("energy_j", 0.0))
+
+    def _on_tick(self, key, msg: schema.Tick, raw, recv_ns) -> None:
+        with self.lock:
+            if self.t0 is None:
+                self.t0 = time.monotonic() - msg.tick * self.period_s
+
+    def _on_episode(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
+        with self.lock:
+            self.episodes.append(dict(msg.values))
+
+    def poll(self) -> None:
+        """Take in the beacons heard since the last call (call it often: the inbox is bounded)."""
+        if self.beacon_inbox is None:
+            return
+        heard = self.beacon_inbox.drain()
+        with self.lock:
+            for r in heard:
+                msg: schema.Beacon = r.msg
+                self.beacon_count[msg.uav] += 1
+                self.beacon_bytes[msg.uav] += len(r.raw)
+                self.tracks[msg.uav].append(msg.pos)
+                self.first_beacon = self.first_beacon or r.recv_ns / 1e9
+                self.last_beacon = r.recv_ns / 1e9
+
+    def _on_positions(self, key, msg: schema.Positions, raw, recv_ns) -> None:
+        with self.lock:
+            self.vehicles = list(msg.vehicles)
+
+    def status_lines(self) -> list[str]:
+        with self.lock:
+            now = time.monotonic()
+            recent = [t for t, _ in self.ticks if now - t <= 2.0]
+            rate = len(recent) / 2.0
+            tick = self.ticks[-1][1] if self.ticks else 0
+            agents = sorted(a for a in self.alive if a.startswith("uav/"))
+            misses = sum(h for _, h in self.hovering)
+            cov = self.coverage[-1][1] if self.coverage else float("nan")
+            pdr = self.delivered / self.generated if self.generated else float("nan")
+            energy = np.mean(self.energy[-10:]) if self.energy else float("nan")
+        return [f"tick {tick:6d}  {rate:5.1f} ticks/s  agents alive {len(agents)}/{self.n_uavs}  "
+                f"missed actions {int(misses)}",
+                f"coverage {cov:5.1f}%  PDR so far {pdr:6.3f}  energy/UAV/step {energy:6.1f} J",
+                "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
+
+    def control_plane(self) -> dict[str, float]:
+        self.poll()
+        with self.lock:
+            n = sum(self.beacon_count.values())
+            size = sum(self.beacon_bytes.values())
+            span = (self.last_beacon - self.first_beacon) if n > 1 else float("nan")
+            uavs = max(len(self.beacon_count), 1)
+        per_s = n / span if span and span > 0 else float("nan")
+        return {"beacons": n, "bytes_per_beacon": size / n if n else float("nan"),
+                "beacons_per_s_total": per_s, "beacons_per_s_per_uav": per_s / uavs,
+                "beacon_bytes_per_s_total": size / span if span and span > 0 else float("nan")}

@@ -1,0 +1,145 @@
+"""A swarm run's output directory: fresh unless the user asks to resume.
+
+`truav-swarm up` writes checkpoints, statistics, logs and pictures under
+``--out``.  Agents resume from ``agent<i>.npz`` when it exists, so a second
+run into the same directory would silently continue the first (and mix a
+5-agent run's files with a 3-agent run's).  Hence:
+
+* a non-empty ``--out`` is refused (as `truav train` does) unless
+* ``--resume``: continue that run (its checkpoints), only with the same scenario; or
+* ``--force``: delete the earlier run's files first (only files a swarm run
+  writes: anything else in the directory is left alone).
+
+A run that failed before its first tick (logs, a summary, no checkpoint and
+no tick in the world's statistics) holds nothing to mix with: it is replaced without
+--force, so the corrected command just runs.
+
+Within one run a crashed agent that is restarted still resumes from its own
+checkpoint: nothing is deleted after the start.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+PID_FILE = "pids.json"
+SCENARIO_FILE = "scenario.toml"
+RUN_FILE = "swarm.json"
+"""Run name, router endpoint and supervisor PID of the run writing this directory
+(`truav-swarm status/down --out DIR` read the endpoint from it)."""
+SUMMARY_FILE = "summary.json"
+LOG_DIR = "logs"
+
+RESULT_PATTERNS = ("agent*.json", "agent*.json.tmp", "world.json", "world.json.tmp", "summary.json", "summary.png",
+                   PID_FILE, RUN_FILE)
+"""Results of one run: removed at every start (with --resume too), so a summary never shows an earlier run's."""
+STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
+"""What a resumed run continues from."""
+CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json")
+CHAOS_RUNS = ("baseline", "faulted")
+
+
+class OutDirError(ValueError):
+    """--out cannot be used as asked (a user mistake: one line, exit 2)."""
+
+
+def _remove(out: Path, patterns) -> None:
+    for pattern in patterns:
+        for path in out.glob(pattern):
+            if path.is_file() or path.is_symlink():
+                path.unlink()
+
+
+def clear_swarm_files(out: Path) -> None:
+    """Delete every file an earlier swarm run wrote into ``out`` (logs included)."""
+    _remove(out, RESULT_PATTERNS + STATE_PATTERNS + ("agent*.npz.tmp.npz",))
+    logs = out / LOG_DIR
+    if logs.is_dir():
+        _remove(logs, ("*.log",))
+        if not any(logs.iterdir()):
+            logs.rmdir()
+
+
+def _never_ran(out: Path) -> bool:
+    """True if ``out`` holds only what a run that failed before its first tick leaves: logs, a summary,
+    statistics of processes stopped while waiting (the world's with 0 ticks), and no checkpoint."""
+    for path in out.iterdir():
+        if path.name == LOG_DIR and path.is_dir():
+            if any(not (p.is_file() and p.suffix == ".log") for p in path.iterdir()):
+                return False
+        elif path.name.endswith(".npz") or not any(path.match(pattern) for pattern in RESULT_PATTERNS + (SCENARIO_FILE,)):
+            return False
+    try:
+        return json.loads((out / "world.json").read_text()).get("ticks", 0) == 0
+    except FileNotFoundError:
+        return True
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: bool) -> None:
+    """Make ``out`` ready for a run: refuse, resume or clear as described above (raises OutDirError)."""
+    if resume and force:
+        raise OutDirError("--resume and --force exclude each other (continue the run in --out, or replace it)")
+    if out.exists() and not out.is_dir():
+        raise OutDirError(f"--out {out} is a file, not a directory")
+    if out.is_dir() and any(out.iterdir()):
+        if force or (not resume and _never_ran(out)):
+            clear_swarm_files(out)
+        elif resume:
+            old = out / SCENARIO_FILE
+            if old.is_file() and old.read_text() != scenario_toml:
+                raise OutDirError(f"--resume: {out} holds a run with another scenario (agents, steps or --set "
+                                  f"differ from {old}); use the same options, or --force to start afresh")
+            _remove(out, RESULT_PATTERNS)
+        else:
+            raise OutDirError(f"--out {out} holds an earlier run; pass --resume to continue it, --force to replace "
+                              f"it, or choose another --out")
+    elif resume:
+        raise OutDirError(f"--resume: {out} holds no run to resume")
+    (out / LOG_DIR).mkdir(parents=True, exist_ok=True)
+    (out / SCENARIO_FILE).write_text(scenario_toml)
+
+
+def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
+    """The same rule for `truav-swarm chaos`, whose --out holds two swarm runs."""
+    if resume and force:
+        raise OutDirError("--resume and --force exclude each other (continue the run in --out, or replace it)")
+    if out.exists() and not out.is_dir():
+        raise OutDirError(f"--out {out} is a file, not a directory")
+    if out.is_dir() and any(out.iterdir()) and not resume:
+        if not force:
+            raise OutDirError(f"--out {out} holds an earlier chaos run; pass --resume to continue it, --force to "
+                              f"replace it, or choose another --out")
+        _remove(out, CHAOS_PATTERNS + tuple(f"{name}.mcap" for name in CHAOS_RUNS))
+        for name in CHAOS_RUNS:
+            if (out / name).is_dir():
+                clear_swarm_files(out / name)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def write_run_file(out: Path, info: dict) -> None:
+    (out / RUN_FILE).write_text(json.dumps(info, indent=1))
+
+
+def read_run_file(out: Path) -> dict | None:
+    try:
+        return json.loads((out / RUN_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def check_record_path(record: str, force: bool) -> None:
+    """Fail before anything starts when the recording cannot be written (a missing directory is made later)."""
+    path = Path(record)
+    if path.is_dir():
+        raise OutDirError(f"--record {record} is a directory; give a file name such as {path / 'run.mcap'}")
+    if path.exists() and not force:
+        raise OutDirError(f"--record {record} exists; choose another file, or --force to overwrite it")
+    for parent in path.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+                raise OutDirError(f"--record {record}: {parent} is not a writable directory")
+            return
