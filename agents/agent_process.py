@@ -43,7 +43,7 @@ from agents.qlearning import QLearners
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
-from truav.bus import keys, schema
+from truav.bus import guard, keys, schema
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
@@ -145,6 +145,7 @@ class AgentNode:
                                         self.n_uavs)
         self._warm_up()
         run, me = opts.run, opts.uav
+        bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
@@ -386,7 +387,7 @@ class AgentNode:
             data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
-                            "malformed": self.bus.dropped_malformed}}
+                            "malformed": self.bus.dropped_malformed, "rejected": st.rejected}}
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")
             tmp.write_text(json.dumps(data))

@@ -214,7 +214,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     from recorder.replay import (KeyboardControl, Replayer, ReplayOptions, ReplayUsageError, recording_info,
                                  replay_on_bus, split_patterns)
-    from truav.bus.transport import config_from_args
+    from truav.bus import keys
+    from truav.bus.transport import apply_creds, config_from_args
 
     problem = _mcap_file(args.file)
     if problem:
@@ -224,6 +225,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
                                 include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
                                 paused=args.paused, with_control=args.with_control)
+        apply_creds(args, keys.SRC_REPLAY)
         zconfig = config_from_args(args)
     except (ReplayUsageError, ValueError) as exc:
         return _fail("truav-swarm", str(exc))

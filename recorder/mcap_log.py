@@ -129,6 +129,11 @@ _OP_MESSAGE_INDEX = int(Opcode.MESSAGE_INDEX)
 
 
 # --- statistics -------------------------------------------------------------------------
+MAX_TRACKED_SENDERS = 4096
+"""(src, kind) pairs tracked one by one; further ones pool under OTHER_SENDERS (bounded memory)."""
+OTHER_SENDERS = "(other senders)"
+
+
 @dataclass(slots=True)
 class SeqStats:
     """Online sequence tracking for one (src, kind) sender.
@@ -321,6 +326,9 @@ class McapLog:
             chan.count += 1
             # sequence tracking, inlined (hot path); see SeqStats
             stats = self._senders.get((src, kind))
+            if stats is None and len(self._senders) >= MAX_TRACKED_SENDERS:  # src is the sender's choice
+                src = OTHER_SENDERS
+                stats = self._senders.get((src, kind))
             if stats is None:
                 self._senders[(src, kind)] = SeqStats(count=1, first_seq=seq, last_seq=seq)
                 if self._fox is not None and src not in self._srcs_seen:

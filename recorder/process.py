@@ -168,6 +168,7 @@ class RecorderSummary:
             "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
             "channels": dict(sorted(self.log.channels.items())),
             "senders": {f"{src} {kind}": asdict(s) for (src, kind), s in sorted(self.log.senders.items())},
+            "rejected": self.bus.rejected,
         }
 
     def format(self) -> str:
@@ -474,6 +475,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as documented above."""
     try:
         options = options_from_args(args)
+        transport.apply_creds(args, keys.SRC_RECORDER)
         zconfig = zenoh_config_from_args(args)
     except (RecorderUsageError, ValueError, OSError) as exc:
         print(f"recorder: error: {exc}", file=sys.stderr)

@@ -301,6 +301,10 @@ def _uav_of(identity: str) -> int | None:
     return None
 
 
+MAX_LINK_STATES = 16_384
+"""Per-link counters a PlanFilter keeps at most (a swarm of 20 agents uses a few hundred)."""
+
+
 class PlanFilter:
     """A transport LinkFilter applying a plan's link faults on the receive side.
 
@@ -370,7 +374,10 @@ class PlanFilter:
 
     def _draw(self, index: int, link: str, salt: int = 0) -> float:
         n = self._counts.get((index * 2 + salt, link), 0)
-        self._counts[(index * 2 + salt, link)] = n + 1
+        # Links are named by sender and key, which any sender chooses: past MAX_LINK_STATES links
+        # new ones keep no state (each draw is its first), so a flood of names cannot grow memory.
+        if n or len(self._counts) < MAX_LINK_STATES:
+            self._counts[(index * 2 + salt, link)] = n + 1
         return uniform(self.plan.seed, index, link, n, salt)
 
     def _lost(self, index: int, f: Fault, link: str) -> bool:
@@ -382,7 +389,8 @@ class PlanFilter:
         flip = p["p_bad_to_good"] if bad else p["p_good_to_bad"]
         if self._draw(index, link, salt=1) < flip:
             bad = not bad
-        self._bad[(index, link)] = bad
+        if (index, link) in self._bad or len(self._bad) < MAX_LINK_STATES:
+            self._bad[(index, link)] = bad
         return self._draw(index, link) < (p["loss_bad"] if bad else p["loss_good"])
 
     @staticmethod

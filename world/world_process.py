@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from truav import seeding
-from truav.bus import keys, schema
+from truav.bus import guard, keys, schema
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
+from truav.swarm.secure_cli import rejection_metrics
 from world.env import World
 from world.uavs import HOVER
 
@@ -79,6 +80,8 @@ class WorldStats:
     ticks: int = 0
     joins: list[str] = field(default_factory=list)
     losses: list[str] = field(default_factory=list)
+    rejected: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Messages the bus refused, {reason: {sender: count}} (truav.bus.guard)."""
 
 
 class WorldNode:
@@ -95,6 +98,7 @@ class WorldNode:
         self._alive: set[int] = set()
         self._stop = threading.Event()
         run = opts.run
+        bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
         plan = load_plan(opts.fault_plan) if opts.fault_plan else None
         self.faults = attach_plan(bus, run, plan, 1.0 / opts.rate_hz)
         bus.subscribe(keys.all_actions(run), self._on_action)
@@ -262,7 +266,8 @@ class WorldNode:
                   "delivered": float(m.delivered[0]), "dropped": float(m.dropped_overflow[0] + m.dropped_deadline[0]),
                   "delay_sum_s": float(m.delay_sum_s[0]), "energy_j": float(m.energy_j[0].mean()),
                   "hovering_uavs": float(np.sum(actions[0] == HOVER)),
-                  "coverage_pct": 100.0 * float(m.covered[0]) / self.cfg.scenario.n_vehicles}
+                  "coverage_pct": 100.0 * float(m.covered[0]) / self.cfg.scenario.n_vehicles,
+                  **rejection_metrics(self.bus.rejections)}
         self.bus.publish(keys.metrics_step(self.opts.run), schema.Metrics(
             scope=schema.SCOPE_STEP, tick=tick, episode=episode, values=values))
 

@@ -90,6 +90,9 @@ class Inbox:
             return
         arrival_mono = time.monotonic_ns()
         key = str(sample.key_expr)
+        if self._bus._refuse_replayed(key, sample):
+            self._bus._count_received(1, delivered=0)
+            return
         raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
         delay_s = None if raw is None else self._bus._admit(key, raw, recv_ns)
         self._bus._count_received(1, delivered=0)  # counted here; drain counts only what it delivers
@@ -126,6 +129,8 @@ class Inbox:
                     continue
                 unfiltered += 1
                 key = str(sample.key_expr)
+                if self._bus._refuse_replayed(key, sample):
+                    continue
                 raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
                 if raw is None:
                     continue

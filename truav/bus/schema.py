@@ -510,6 +510,23 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
 )
 
 
+# msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
+# of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
+_SMALL_LIMITS = {"max_map_len": 16, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+                 "max_ext_len": 0}
+_UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
+    KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,
+    KIND_METRICS: {**_SMALL_LIMITS, "max_map_len": MAX_METRIC_VALUES, "max_array_len": 0},
+    KIND_FAULT: {**_SMALL_LIMITS, "max_map_len": MAX_FAULT_PARAMS, "max_array_len": 0,
+                 "max_str_len": max(MAX_PARAM_STR_LEN, MAX_TARGET_LEN)},
+    KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
+    KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
+                   "max_str_len": MAX_ARGS_STR_LEN},
+})
+_LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
+    {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})
+
+
 def size_limit(kind: str) -> int:
     """Largest encoded size in bytes accepted for ``kind``."""
     return _SIZE_LIMIT[kind]
@@ -535,15 +552,35 @@ def encode(msg: Message) -> bytes:
     return data
 
 
-def decode(data: bytes | bytearray | memoryview) -> Message:
-    """Decode and validate one message; raises only SchemaError on bad input."""
+def unpack_limits(kind: str | None) -> Mapping[str, int]:
+    """msgpack Unpacker limits for a payload of ``kind`` (None: the loosest of any kind)."""
+    return _UNPACK_LIMITS.get(kind, _LOOSE_LIMITS) if kind is not None else _LOOSE_LIMITS
+
+
+def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> Message:
+    """Decode and validate one message; raises only SchemaError on bad input.
+
+    ``expect`` is the kind the key carries (see ``transport.expected_kind``):
+    the payload is then held to that kind's size and msgpack limits *before*
+    parsing (a 1 MB "observation" with 124k extra keys costs a length check,
+    not a parse).  Without it, the loosest limits of any kind apply."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise SchemaError(R_NOT_BYTES, f"expected bytes, got {type(data).__name__}")
-    if len(data) > MAX_PAYLOAD_BYTES:
-        raise SchemaError(R_TOO_LARGE, f"{len(data)} bytes, limit {MAX_PAYLOAD_BYTES}")
+    limit = _SIZE_LIMIT.get(expect, MAX_PAYLOAD_BYTES) if expect is not None else MAX_PAYLOAD_BYTES
+    if len(data) > limit:
+        raise SchemaError(R_TOO_LARGE, f"{len(data)} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
     try:
-        obj = msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=True)
-    except Exception as exc:  # msgpack raises many types (ExtraData, StackError, ValueError, ...)
+        unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, use_list=True,
+                                    max_buffer_size=max(limit, 1), **unpack_limits(expect))
+        unpacker.feed(data)
+        obj = unpacker.unpack()
+        if unpacker.tell() != len(data):
+            raise msgpack.ExtraData(obj, b"")
+    except ValueError as exc:
+        if "exceeds max" in str(exc):  # msgpack's own limits: refused while parsing, before building it
+            raise SchemaError(R_TOO_LARGE, str(exc)[:80]) from None
+        raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
+    except Exception as exc:  # msgpack raises many types (OutOfData, ExtraData, StackError, ...)
         raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
     if not isinstance(obj, dict):
         raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")

@@ -50,6 +50,7 @@ from typing import Protocol
 import zenoh
 
 from truav.bus import keys, schema
+from truav.bus.guard import R_REPLAYED, Guard, Rejections
 from truav.bus.inbox import DEFAULT_INBOX_CAPACITY, Inbox
 from truav.bus.schema import Message, SchemaError
 
@@ -63,6 +64,9 @@ MODE_ROUTER = "router"
 MODES = (MODE_CLIENT, MODE_PEER, MODE_ROUTER)
 
 DEFAULT_MAX_PENDING = 100_000
+MAX_LOG_ONCE_TAGS = 1024  # distinct "log once" tags remembered; tags can hold sender-chosen keys
+REPLAY_TAG = b"truav-replay"
+"""Zenoh attachment on every put of a ``replay`` Bus: receivers drop it unless they accept replays."""
 MAX_CACHED_PUBLISHERS = 4096
 DEFAULT_ALIVE_TIMEOUT_S = 1.0
 ALIVE_EMPTY_RETRY_S = (0.005, 0.01, 0.02, 0.05, 0.1)  # pauses before re-asking an empty liveliness query
@@ -144,7 +148,27 @@ def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
     group.add_argument("-c", "--config", metavar="FILE", default=None, help="zenoh JSON5 config file")
     group.add_argument("-m", "--mode", choices=MODES, default=None,
                        help="zenoh session mode (default: client, or the config file's)")
+    group.add_argument("--creds", metavar="DIR", default=None,
+                       help="credentials directory of a --secure swarm (truav-swarm certs): use this "
+                            "component's certificate and zenoh config from it (instead of -c)")
     return parser
+
+
+def apply_creds(args: argparse.Namespace, identity: str) -> None:
+    """With ``--creds DIR``: point ``args.config`` at ``identity``'s zenoh config in DIR.
+
+    ``truav.bus.security.CredentialsError`` (a ValueError) if DIR is not a
+    credentials directory, was made for another ``--run``, or has nothing for
+    ``identity``."""
+    creds_dir = getattr(args, "creds", None)
+    if not creds_dir:
+        return
+    from truav.bus import security
+    if getattr(args, "config", None):
+        raise security.CredentialsError("pass either --creds or -c/--config, not both")
+    run = getattr(args, "run", None)
+    creds = security.load(creds_dir, run if isinstance(run, str) else None)
+    args.config = str(creds.config_file(identity))
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:
@@ -191,6 +215,7 @@ class BusStats:
     callback_errors: int = 0
     filter_errors: int = 0
     overflow: int = 0  # dropped because max_pending deliveries were queued, or evicted from a full inbox
+    rejected: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {sender: n}}, bounded senders
 
     @property
     def dropped_malformed(self) -> int:
@@ -285,13 +310,22 @@ class RawReceiver:
 
     def try_recv(self) -> tuple[str, bytes, int] | None:
         """The next sample, or None if none is waiting. Its receive time is when it is pulled."""
-        sample = self._sub.try_recv()
-        while sample is not None and sample.kind != zenoh.SampleKind.PUT:
+        while True:
             sample = self._sub.try_recv()
-        if sample is None:
-            return None
-        self._bus._count_received(1)
-        return str(sample.key_expr), sample.payload.to_bytes(), self._bus._clock()
+            while sample is not None and sample.kind != zenoh.SampleKind.PUT:
+                sample = self._sub.try_recv()
+            if sample is None:
+                return None
+            key = str(sample.key_expr)
+            # Not even a recorder keeps a payload too large for its key's kind: checked before copying.
+            limit = _size_limit_of_key(key)
+            if len(sample.payload) > limit:
+                self._bus._count_received(1, delivered=0)
+                self._bus._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{len(sample.payload)} bytes, "
+                                                            f"limit {limit}", src=None))
+                continue
+            self._bus._count_received(1)
+            return key, sample.payload.to_bytes(), self._bus._clock()
 
     def recv(self, timeout: float) -> tuple[str, bytes, int] | None:
         """The next sample, waiting up to ``timeout`` seconds (polling at 1 ms)."""
@@ -342,6 +376,13 @@ class Bus:
         self._received = self._delivered = self._filtered = self._delayed = 0
         self._callback_errors = self._filter_errors = self._overflow = 0
         self._malformed: dict[str, int] = {}
+        self.rejections = Rejections(f"bus {self._identity}", logger=log)
+        """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
+        self.guard: Guard | None = None
+        """Sender/range checks applied after the schema (:mod:`truav.bus.guard`); None: schema only."""
+        self.accept_replay = False
+        """Deliver puts tagged by a ``replay`` Bus (dropped and counted by default)."""
+        self._tag = REPLAY_TAG if self._identity == keys.SRC_REPLAY else None
         self._closed = False
         self._session = _open_session(config if config is not None else make_config())
         self._sched = _Scheduler(f"truav-bus[{self._identity}]", max_pending)
@@ -407,6 +448,7 @@ class Bus:
                 callback_errors=self._callback_errors,
                 filter_errors=self._filter_errors,
                 overflow=self._overflow,
+                rejected=self.rejections.as_dict(),
             )
 
     @property
@@ -445,6 +487,8 @@ class Bus:
         stamped = self._seq.stamp(msg)
         _check_placement(key, stamped)
         self._put(key, schema.encode(stamped))
+        if self.guard is not None:
+            self.guard.sent(stamped)
         return stamped
 
     def prepare(self, *keys_: str) -> None:
@@ -471,9 +515,18 @@ class Bus:
     def _put(self, key: str, data: bytes) -> None:
         pub = self._publisher(key)
         if pub is not None:
-            pub.put(data)
+            pub.put(data, attachment=self._tag)
         else:
-            self._session.put(key, data, congestion_control=congestion_control(key))
+            self._session.put(key, data, congestion_control=congestion_control(key), attachment=self._tag)
+
+    def _refuse_replayed(self, key: str, sample: zenoh.Sample) -> bool:
+        """True (counted) if ``sample`` was put by a replay and this Bus does not accept replays."""
+        att = sample.attachment
+        if att is None or self.accept_replay or att.to_bytes() != REPLAY_TAG:
+            return False
+        self._count_malformed(key, SchemaError(R_REPLAYED, "replayed traffic in a live run (accept_replay is off)",
+                                               src=keys.SRC_REPLAY))
+        return True
 
     # -- subscribing --
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
@@ -540,6 +593,8 @@ class Bus:
             key = str(sample.key_expr)
             with self._lock:
                 self._received += 1
+            if self._refuse_replayed(key, sample):
+                return
             raw = self._payload(key, sample, max_bytes)
             if raw is None or self._closed:
                 return
@@ -565,8 +620,12 @@ class Bus:
     def _decode(self, key: str, raw: bytes) -> Message | None:
         """The valid message ``raw`` carries on ``key``, or None (dropped, counted, logged once per reason)."""
         try:
-            msg = schema.decode(raw)
+            msg = schema.decode(raw, _key_facts(key)[0])
             _check_placement(key, msg)
+            guard = self.guard
+            verdict = guard.check(key, msg) if guard is not None else None
+            if verdict is not None:
+                raise SchemaError(verdict[0], verdict[1], src=msg.src)
         except SchemaError as exc:
             self._count_malformed(key, exc)
             return None
@@ -639,11 +698,11 @@ class Bus:
                 self._delivered += 1
 
     def _count_malformed(self, key: str, exc: SchemaError) -> None:
+        """Count a refused message by reason (``malformed``) and by reason and sender (``rejections``,
+        which logs once per sender and reason)."""
         with self._lock:
             self._malformed[exc.reason] = self._malformed.get(exc.reason, 0) + 1
-        if self._first(f"malformed:{exc.reason}"):
-            log.warning("bus %s: dropping malformed message on %s from %s: %s (further '%s' drops only counted)",
-                        self._identity, key, exc.src or "unknown sender", exc, exc.reason)
+        self.rejections.add(exc.reason, exc.src, key, str(exc))
 
     def _count_overflow(self) -> None:
         with self._lock:
@@ -654,7 +713,7 @@ class Bus:
     def _first(self, tag: str) -> bool:
         """True the first time ``tag`` is seen: the log-once-per-reason gate."""
         with self._lock:
-            if tag in self._logged:
+            if tag in self._logged or len(self._logged) >= MAX_LOG_ONCE_TAGS:
                 return False
             self._logged.add(tag)
             return True
@@ -778,6 +837,12 @@ def _check_placement(key: str, msg: Message) -> None:
 def _key_facts(key: str) -> tuple[str | None, int | None]:
     """(expected_kind, UAV id) of a key."""
     return expected_kind(key), keys.parse_uav_id(key)
+
+
+@functools.lru_cache(maxsize=4096)
+def _size_limit_of_key(key: str) -> int:
+    kind = expected_kind(key)
+    return schema.size_limit(kind) if kind is not None else schema.MAX_PAYLOAD_BYTES
 
 
 @functools.lru_cache(maxsize=4096)

@@ -31,7 +31,7 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             non_negative_int, positive_float, positive_int, run_main, run_name, seed_int)
 from truav.config import Config, load_config
 from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
-from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
+from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
 
@@ -172,11 +172,13 @@ def cmd_router(args) -> int:
     _setup_logging(args.verbose)
     stop = threading.Event()
     _stop_on_sigterm_or_orphaned(stop.set)
-    listen = args.listen or [DEFAULT_ENDPOINT]
+    _creds(args, "router")
+    listen = args.listen or ([] if args.config else [DEFAULT_ENDPOINT])  # a config file keeps its own
     try:
         # "router listening" is printed once the endpoints are open: `truav-swarm up` waits for that line.
         run_router(listen, connect=args.connect, config_file=args.config, stop=stop,
-                   on_ready=lambda: print(f"router listening on {', '.join(listen)}", flush=True))
+                   on_ready=lambda: print(f"router listening on {', '.join(listen) or 'the endpoints of ' + args.config}",
+                                          flush=True))
     except KeyboardInterrupt:
         pass
     except zenoh.ZError as exc:
@@ -204,7 +206,9 @@ def cmd_world(args) -> int:
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
                         fault_plan=args.fault_plan)
+    _creds(args, keys.SRC_WORLD)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
+        bus.accept_replay = args.accept_replay
         node = WorldNode(cfg, opts, bus)
         reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
         try:
@@ -212,6 +216,7 @@ def cmd_world(args) -> int:
         except KeyboardInterrupt:
             reasons.because("interrupted")
             stats = node.stats
+        stats.rejected = bus.rejections.as_dict()
     if args.stats_out:
         write_stats(args.stats_out, stats)
     log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
@@ -243,7 +248,9 @@ def cmd_agent(args) -> int:
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
                         tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s)
+    _creds(args, keys.uav_identity(args.id))
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
+        bus.accept_replay = args.accept_replay
         node = AgentNode(cfg, opts, bus)
         reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
         log.info("uav %d joined run %s (%s)", args.id, args.run, "greedy" if args.greedy else "learning")
@@ -272,15 +279,21 @@ def cmd_status(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
     _endpoint_from_out(args, Path(args.out) if args.out else None)
+    from truav.swarm.secure_cli import rejections_heard
+    _creds(args, "supervisor")
     conf = config_from_args(args)
     pattern = keys.all_alive(args.run) if args.run else "truav/*/alive/**"
     with Bus("status", args.run or "status", conf) as bus:
+        heard = rejections_heard(bus, args.run)
         tokens = sorted(bus.alive(pattern, timeout=args.timeout))
+        rejected = heard(min(args.timeout, 0.5) if tokens else 0.0)
     if not tokens:
         print("no TRUAV process alive" + (f" in run {args.run}" if args.run else ""))
         return 1
     for token in tokens:
         print(token)
+    for line in rejected:
+        print(line)
     return 0
 
 
@@ -291,6 +304,7 @@ def cmd_down(args) -> int:
         check_out_dir("--out", args.out)
     out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
     _endpoint_from_out(args, out)
+    _creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
     # The swarm stops itself on the shutdown (its supervisor stops the router and recorder last);
@@ -299,6 +313,14 @@ def cmd_down(args) -> int:
     print(f"shutdown sent to run {args.run}" + (f"; {stopped} process(es) still running after {args.wait:g} s "
                                                  f"were sent SIGTERM (from {out}/pids.json)" if stopped else ""))
     return 0
+
+
+def _creds(args, identity: str) -> None:
+    """``--creds DIR``: this part's zenoh config from DIR (one line naming the flag if DIR is wrong)."""
+    try:
+        apply_creds(args, identity)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _swarm_options(args):
@@ -336,7 +358,8 @@ def _swarm_options(args):
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
                         fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
                         geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
-                        max_missed_share=args.max_missed, router_timeout_s=args.router_timeout)
+                        max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
+                        secure=args.secure)
     return cfg, opts
 
 
@@ -355,7 +378,8 @@ def cmd_faults(args) -> int:
     from truav.faults import CONTROL_FAULTS, load_plan
     check_in_file("--plan", args.plan)
     plan = load_plan(args.plan)
-    with Bus("fault", args.run, config_from_args(args)) as bus:
+    _creds(args, "supervisor")
+    with Bus("supervisor", args.run, config_from_args(args)) as bus:
         bus.publish(keys.control(args.run, CONTROL_FAULTS), schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
     print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run} "
           f"(crashes and freezes are scheduled by `truav-swarm up --fault-plan`)")
@@ -375,6 +399,7 @@ def cmd_view(args) -> int:
         print(f"Foxglove: open ws://127.0.0.1:{port} (run {args.run}); layout: deploy/foxglove-layout.json",
               flush=True)
 
+    _creds(args, "view")
     try:
         serve(args.run, config_from_args(args), mirror, port=args.port, stop=stop, ready=ready)
     except KeyboardInterrupt:
@@ -445,6 +470,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--wait-agents", type=positive_float, default=60.0,
                     help="seconds the world waits for all agents to join before the first tick (default 60)")
     up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
+    up.add_argument("--secure", action="store_true",
+                    help="lock the bus: a fresh CA and one certificate per component in <out>/creds, mutual TLS, "
+                         "and the router's access control (see `truav-swarm acl explain`)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=_port, nargs="?", const=8765, metavar="PORT",
@@ -521,6 +549,8 @@ def build_parser() -> argparse.ArgumentParser:
     wo.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the world receives")
     wo.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
                     help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    wo.add_argument("--accept-replay", action="store_true",
+                    help="act on traffic a replay puts into this run (dropped and counted by default)")
     wo.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
     add_transport_args(wo)
     wo.set_defaults(func=cmd_world)
@@ -540,9 +570,14 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the agent receives")
     ag.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
                     help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    ag.add_argument("--accept-replay", action="store_true",
+                    help="act on traffic a replay puts into this run (dropped and counted by default)")
     ag.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
     add_transport_args(ag)
     ag.set_defaults(func=cmd_agent)
+
+    from truav.swarm.secure_cli import add_security_commands
+    add_security_commands(sub)
 
     try:
         from recorder.cli import add_swarm_commands

@@ -1,0 +1,211 @@
+"""Defence in depth on the receive side, in every mode (with or without ``--secure``).
+
+A message that passed the schema (:mod:`truav.bus.schema`, which bounds sizes
+and msgpack lengths before parsing) is further checked by the :class:`Guard`
+a process installs on its Bus:
+
+* **who may send it**: ticks, observations, positions and metrics only from
+  ``world``; beacons and actions only from ``uav/<i>`` about UAV ``i``;
+  control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
+  fault announcements only from the supervisor.  Without ``--secure`` the
+  ``src`` field can be forged, so this stops mistakes and naive forgeries;
+  with ``--secure`` the router's ACL makes the key itself proof of the sender.
+* **values the world can produce** (:class:`Bounds`, from the scenario): UAV
+  ids below ``n_uavs``, positions inside the area, counts bounded by the
+  number of vehicles and their queues, speeds below the UAV's, ticks near the
+  current one, so a forged or buggy message cannot poison a Q-table or pin a
+  neighbour with a tick of 2^62;
+* **one action per UAV per tick**.
+
+:class:`Rejections` counts every rejected message by reason and sender, with
+a bounded number of distinct senders (a flood of unique names adds nothing
+past the cap) and one log line per (sender, reason).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+
+from truav.bus import keys, schema
+
+log = logging.getLogger("truav.bus.guard")
+
+MAX_TRACKED_SENDERS = 256
+"""Distinct senders counted (and logged) one by one; the rest are pooled under OTHER_SENDERS."""
+OTHER_SENDERS = "(other senders)"
+TICK_WINDOW = 64
+"""A message's tick must lie within this many ticks of the current one."""
+AREA_MARGIN_M = 1.0
+SPEED_MARGIN = 1.01
+
+# Rejection reasons added by the guard (schema.R_* and transport reasons are counted the same way).
+R_SENDER = "forbidden_sender"
+R_IMPLAUSIBLE = "implausible"
+R_TICK = "tick_out_of_window"
+R_DUPLICATE = "duplicate_action"
+R_REPLAYED = "replayed"
+
+SUPERVISOR = "supervisor"
+CONTROL_SHUTDOWN = "shutdown"
+
+
+class Rejections:
+    """Counts of rejected messages by (reason, sender); bounded; logs each pair once."""
+
+    def __init__(self, owner: str, max_senders: int = MAX_TRACKED_SENDERS, logger: logging.Logger = log) -> None:
+        self._owner = owner
+        self._log = logger
+        self._max = max_senders
+        self._senders: set[str] = set()
+        self._counts: dict[tuple[str, str], int] = {}
+        self._lock = threading.Lock()
+
+    def add(self, reason: str, sender: str | None, key: str = "", detail: str = "") -> None:
+        shown = sender or "unknown sender"
+        sender = sender or "?"
+        with self._lock:
+            if sender not in self._senders:
+                if len(self._senders) >= self._max:
+                    sender = OTHER_SENDERS
+                else:
+                    self._senders.add(sender)
+            pair = (reason, sender)
+            first = pair not in self._counts
+            self._counts[pair] = self._counts.get(pair, 0) + 1
+        if first:
+            self._log.warning("%s: dropping malformed message on %s from %s: %s (further '%s' drops from this "
+                              "sender only counted)", self._owner, key or "?",
+                              OTHER_SENDERS if sender == OTHER_SENDERS else shown, detail[:160] or reason, reason)
+
+    def total(self) -> int:
+        with self._lock:
+            return sum(self._counts.values())
+
+    def by_reason(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        with self._lock:
+            for (reason, _), n in self._counts.items():
+                out[reason] = out.get(reason, 0) + n
+        return out
+
+    def as_dict(self) -> dict[str, dict[str, int]]:
+        """``{reason: {sender: count}}``."""
+        out: dict[str, dict[str, int]] = {}
+        with self._lock:
+            for (reason, sender), n in sorted(self._counts.items()):
+                out.setdefault(reason, {})[sender] = n
+        return out
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """What the world of one scenario can produce."""
+
+    n_uavs: int
+    area_m: float
+    max_count: int
+    """Vehicles in range, covered: at most the number of vehicles."""
+    max_packets: int
+    """Queued or relayed packets: at most every vehicle's full queue."""
+    max_speed: float
+    max_energy_j: float
+
+    @classmethod
+    def from_config(cls, cfg) -> Bounds:
+        sc = cfg.scenario
+        return cls(n_uavs=sc.n_uavs, area_m=sc.area_m, max_count=sc.n_vehicles,
+                   max_packets=sc.n_vehicles * cfg.traffic.queue_limit, max_speed=sc.uav_speed_mps,
+                   # 100 kW for a step: far above any UAV's power, far below what poisons a table.
+                   max_energy_j=1e5 * sc.step_s)
+
+    def in_area(self, pos: tuple[float, float]) -> bool:
+        lo, hi = -AREA_MARGIN_M, self.area_m + AREA_MARGIN_M
+        return lo <= pos[0] <= hi and lo <= pos[1] <= hi
+
+
+class Guard:
+    """Sender, range and tick checks for one process; install with ``bus.guard = Guard(...)``.
+
+    ``check(key, msg)`` returns None to accept or ``(reason, detail)``; the Bus
+    counts the rejection.  The current tick is learnt from the world's ticks and
+    observations this process accepts and from what it publishes itself.
+    """
+
+    def __init__(self, bounds: Bounds) -> None:
+        self.bounds = bounds
+        self._tick: int | None = None
+        self._last_action = [-1] * bounds.n_uavs
+        self._lock = threading.Lock()
+
+    @property
+    def tick(self) -> int | None:
+        return self._tick
+
+    def sent(self, msg: schema.Message) -> None:
+        """Called by the Bus for each message this process publishes."""
+        tick = getattr(msg, "tick", None)
+        if isinstance(msg, (schema.Tick, schema.Obs, schema.Action, schema.Beacon)) and tick is not None:
+            self._advance(tick)
+
+    def _advance(self, tick: int) -> None:
+        with self._lock:
+            if self._tick is None or tick > self._tick:
+                self._tick = tick
+
+    def _near(self, tick: int) -> bool:
+        cur = self._tick
+        return cur is None or cur - TICK_WINDOW <= tick <= cur + TICK_WINDOW
+
+    def check(self, key: str, msg: schema.Message) -> tuple[str, str] | None:
+        b, src = self.bounds, msg.src
+        if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
+            if src != keys.SRC_WORLD:
+                return R_SENDER, f"{msg.KIND} from {src}"
+        elif isinstance(msg, (schema.Beacon, schema.Action)):
+            if src != f"uav/{msg.uav}":
+                return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
+        elif isinstance(msg, schema.Control):
+            if not (src == SUPERVISOR or (src == keys.SRC_WORLD and msg.command == CONTROL_SHUTDOWN)):
+                return R_SENDER, f"control {msg.command!r} from {src}"
+        elif isinstance(msg, schema.Fault):
+            if src != SUPERVISOR:
+                return R_SENDER, f"fault from {src}"
+        uav = getattr(msg, "uav", None)
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = getattr(msg, "tick", None)
+        if tick is not None and not self._near(tick):
+            return R_TICK, f"tick {tick}, current {self._tick}"
+        if isinstance(msg, schema.Obs):
+            if not b.in_area(msg.pos):
+                return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
+            if max(msg.vehicles_in_range, msg.covered) > b.max_count \
+                    or max(msg.queued_packets, msg.relayed) > b.max_packets:
+                return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
+            if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:
+                return R_IMPLAUSIBLE, f"energy {msg.energy_j} J or speed {msg.speed_max} m/s"
+            self._advance(msg.tick)
+        elif isinstance(msg, schema.Tick):
+            if msg.n_uavs != b.n_uavs:
+                return R_IMPLAUSIBLE, f"tick for {msg.n_uavs} UAVs, scenario has {b.n_uavs}"
+            self._advance(msg.tick)
+        elif isinstance(msg, schema.Beacon):
+            vx, vy = msg.vel
+            if not b.in_area(msg.pos) or (vx * vx + vy * vy) ** 0.5 > b.max_speed * SPEED_MARGIN:
+                return R_IMPLAUSIBLE, f"beacon pos {msg.pos} vel {msg.vel}"
+        elif isinstance(msg, schema.Action):
+            with self._lock:
+                if msg.tick <= self._last_action[msg.uav]:
+                    return R_DUPLICATE, f"second action of uav {msg.uav} for tick {msg.tick}"
+                self._last_action[msg.uav] = msg.tick
+        elif isinstance(msg, schema.Positions):
+            if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
+                return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"
+        return None
+
+
+def for_config(cfg) -> Guard:
+    """The guard of a world or agent process of scenario ``cfg``."""
+    return Guard(Bounds.from_config(cfg))
