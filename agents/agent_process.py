@@ -111,6 +111,8 @@ class AgentOptions:
     tick_period_s: float = 0.1
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this agent receives."""
+    accept_replay: bool = False
+    """Act on traffic a replay puts into this run (dropped and counted by default)."""
     stats_out: str | None = None
     debug_delay_s: float = 0.0
     """Testing only: pause this long per observation between sending the beacon and reading the peers'
@@ -146,6 +148,7 @@ class AgentNode:
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
+        bus.accept_replay = opts.accept_replay
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)

@@ -3,6 +3,7 @@
     python bench/bench_swarm.py                  # 20 agents, 10 Hz, 200 ticks
     python bench/bench_swarm.py --agents 5 --ticks 100
     python bench/bench_swarm.py --repeat 3       # the run-to-run spread
+    python bench/bench_swarm.py --secure         # plain and --secure (mutual TLS + ACL) in turn: the cost of TLS
 
 Prints world tick lateness p50/p99 (target p99 < 20 ms), one-way beacon
 latency p50/p99 over every beacon every agent heard (target p99 < 5 ms),
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -28,14 +30,20 @@ from truav.config import Config  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 
-def run_once(agents: int, rate: float, ticks: int) -> dict:
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its reaped children (router, world, agents)."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run_once(agents: int, rate: float, ticks: int, secure: bool = False) -> dict:
     """One swarm run; prints its figures and returns the headline ones."""
     cfg = Config().replace(scenario={"n_uavs": agents, "steps_per_episode": ticks})
     out = Path(tempfile.mkdtemp(prefix="truav-bench-swarm-"))
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu_s()
     run_swarm(cfg, SwarmOptions(run="bench", episodes=1, rate_hz=rate, out=str(out), plot=False, quiet=True,
-                                wait_agents_s=120.0))
-    wall = time.perf_counter() - t0
+                                wait_agents_s=120.0, secure=secure))
+    wall, cpu = time.perf_counter() - t0, _cpu_s() - cpu0
     world = json.loads((out / "world.json").read_text())
     samples, by_beacon = [], defaultdict(list)
     for i in range(agents):
@@ -51,8 +59,9 @@ def run_once(agents: int, rate: float, ticks: int) -> dict:
     tl = world["tick_lateness_ms"]
     cp = json.loads((out / "summary.json").read_text())["control_plane"]
     result = {"tick_p50": tl["p50"], "tick_p99": tl["p99"], "beacon_p50": float("nan"), "beacon_p99": float("nan"),
-              "last_receiver_p50": float("nan")}
-    print(f"\n{agents} agents at {rate:g} Hz, {world['ticks']} ticks, {wall:.1f} s wall (incl. start-up)")
+              "last_receiver_p50": float("nan"), "cpu_s": cpu}
+    print(f"\n{agents} agents at {rate:g} Hz{' --secure (mutual TLS + ACL)' if secure else ''}, {world['ticks']} "
+          f"ticks, {wall:.1f} s wall (incl. start-up), {cpu:.1f} CPU-s over every process")
     print(f"tick lateness:  p50 {tl['p50']:6.2f} ms   p99 {tl['p99']:6.2f} ms   max {tl['max']:6.2f} ms"
           f"   (target p99 < 20 ms: x{20 / max(tl['p99'], 1e-9):.1f} headroom)")
     if lat.size:
@@ -78,7 +87,18 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--ticks", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=1, help="runs (the tail moves from run to run on a shared VM)")
+    ap.add_argument("--secure", action="store_true",
+                    help="each repeat runs plain, then --secure, and prints the secure/plain ratios")
     args = ap.parse_args()
+    if args.secure:
+        pairs = [(run_once(args.agents, args.rate, args.ticks), run_once(args.agents, args.rate, args.ticks, True))
+                 for _ in range(args.repeat)]
+        print(f"\n--secure / plain, {len(pairs)} pair(s) run back to back (ratio per pair):")
+        for key, label in (("beacon_p50", "beacon latency p50"), ("beacon_p99", "beacon latency p99"),
+                           ("tick_p99", "tick lateness p99"), ("cpu_s", "CPU seconds")):
+            ratios = ", ".join(f"{sec[key]:.2f}/{plain[key]:.2f} = x{sec[key] / plain[key]:.2f}" for plain, sec in pairs)
+            print(f"  {label:20s} {ratios}")
+        return
     runs = [run_once(args.agents, args.rate, args.ticks) for _ in range(args.repeat)]
     if len(runs) > 1:
         print(f"\nover {len(runs)} runs (min / median / max):")

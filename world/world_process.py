@@ -69,6 +69,8 @@ class WorldOptions:
     """Write per-episode metrics and timing statistics as JSON here at exit."""
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this process receives."""
+    accept_replay: bool = False
+    """Act on traffic a replay puts into this run (dropped and counted by default)."""
 
 
 @dataclass
@@ -99,6 +101,7 @@ class WorldNode:
         self._stop = threading.Event()
         run = opts.run
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
+        bus.accept_replay = opts.accept_replay
         plan = load_plan(opts.fault_plan) if opts.fault_plan else None
         self.faults = attach_plan(bus, run, plan, 1.0 / opts.rate_hz)
         bus.subscribe(keys.all_actions(run), self._on_action)

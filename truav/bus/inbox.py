@@ -74,6 +74,8 @@ class Inbox:
                 self._cond.notify_all()
 
     def _push(self, entry: tuple) -> None:
+        if len(self._ready) == self._ready.maxlen:
+            self._compact()
         if len(self._ready) == self._ready.maxlen:  # deque evicts the oldest
             try:
                 oldest = self._ready[0]
@@ -84,6 +86,41 @@ class Inbox:
                 if len(oldest) == 2:  # an unfiltered sample is counted as received when drained, or here
                     self._bus._count_received(1, delivered=0)
         self._ready.append(entry)
+
+    def _compact(self) -> None:
+        """A full inbox validates what it holds and keeps only valid messages (decoded).
+
+        Only a flood fills an inbox that its reader drains every cycle: without this, junk
+        would evict the valid messages waiting among it (a lock-step agent would then miss a
+        neighbour's beacon).  Costs one decode per waiting message, and only when full."""
+        entries = []
+        while True:
+            try:
+                entries.append(self._ready.popleft())
+            except IndexError:
+                break
+        valid = [v for v in map(self._validate, entries) if v is not None]
+        self._ready.extend(valid)
+
+    def _validate(self, entry: tuple) -> tuple | None:
+        """``(recv_ns, key, raw, msg)`` for a valid entry, None (counted by the bus) otherwise."""
+        if len(entry) == 4:
+            return entry
+        if len(entry) == 2:
+            recv_ns, sample = entry
+            self._bus._count_received(1, delivered=0)
+            if sample.kind != zenoh.SampleKind.PUT:
+                return None
+            key = str(sample.key_expr)
+            if self._bus._refuse_replayed(key, sample):
+                return None
+            raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
+            if raw is None:
+                return None
+        else:
+            recv_ns, key, raw = entry
+        msg = self._bus._decode(key, raw)
+        return None if msg is None else (recv_ns, key, raw, msg)
 
     def _filtered_arrival(self, sample: zenoh.Sample, recv_ns: int) -> None:
         if sample.kind != zenoh.SampleKind.PUT:
@@ -112,7 +149,10 @@ class Inbox:
         Malformed messages are dropped and counted by the bus, as for ``Bus.subscribe``."""
         entries = []
         while self._ready:
-            entries.append(self._ready.popleft())
+            try:
+                entries.append(self._ready.popleft())
+            except IndexError:  # a full inbox compacting itself on the arrival thread took it
+                break
         arrived = len(entries)
         if self._delayed:
             now = time.monotonic_ns()
@@ -123,6 +163,9 @@ class Inbox:
         out: list[Received] = []
         unfiltered = 0
         for entry in entries:
+            if len(entry) == 4:  # validated when the inbox was full
+                out.append(Received(entry[1], entry[3], entry[2], entry[0]))
+                continue
             if len(entry) == 2:
                 recv_ns, sample = entry
                 if sample.kind != zenoh.SampleKind.PUT:

@@ -380,8 +380,9 @@ class Bus:
         """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
         self.guard: Guard | None = None
         """Sender/range checks applied after the schema (:mod:`truav.bus.guard`); None: schema only."""
-        self.accept_replay = False
-        """Deliver puts tagged by a ``replay`` Bus (dropped and counted by default)."""
+        self.accept_replay = True
+        """Deliver puts tagged by a ``replay`` Bus; the live run's world and agents set it False
+        (such puts are then dropped and counted)."""
         self._tag = REPLAY_TAG if self._identity == keys.SRC_REPLAY else None
         self._closed = False
         self._session = _open_session(config if config is not None else make_config())
@@ -607,6 +608,8 @@ class Bus:
     def _payload(self, key: str, sample: zenoh.Sample, max_bytes: int | None) -> bytes | None:
         """The sample's bytes; None (counted as too large) above ``max_bytes``, checked before copying."""
         size = len(sample.payload)
+        if max_bytes is not None:
+            max_bytes = min(max_bytes, _size_limit_of_key(key))  # the key's kind says how large it may be
         if max_bytes is not None and size > max_bytes:
             self._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{size} bytes, limit {max_bytes}"))
             return None

@@ -205,10 +205,9 @@ def cmd_world(args) -> int:
         check_out_file("--stats-out", args.stats_out)
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
-                        fault_plan=args.fault_plan)
+                        fault_plan=args.fault_plan, accept_replay=args.accept_replay)
     _creds(args, keys.SRC_WORLD)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
-        bus.accept_replay = args.accept_replay
         node = WorldNode(cfg, opts, bus)
         reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
         try:
@@ -247,10 +246,10 @@ def cmd_agent(args) -> int:
     opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
-                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s)
+                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s,
+                        accept_replay=args.accept_replay)
     _creds(args, keys.uav_identity(args.id))
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
-        bus.accept_replay = args.accept_replay
         node = AgentNode(cfg, opts, bus)
         reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
         log.info("uav %d joined run %s (%s)", args.id, args.run, "greedy" if args.greedy else "learning")
