@@ -478,6 +478,9 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
             print(f"tick lateness p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms over {lat['n']} ticks")
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
               f"missed (hovered) {world['deadline_misses']}, agent losses seen {len(world['losses'])}")
+    rejected = rejection_summary(world, agents)
+    if rejected:
+        print(rejected)
     lat = [a["beacon_latency_ms"] for a in agents if a and a.get("beacon_latency_ms", {}).get("n")]
     if lat:
         print(f"beacon one-way latency: p50 {np.median([x['p50'] for x in lat]):.2f} ms, "
@@ -498,6 +501,19 @@ def _exit_text(code: int | None) -> str:
         with contextlib.suppress(ValueError):
             return f"killed by {signal.Signals(-code).name}"
     return f"exit code {code}"
+
+
+def rejection_summary(world, agents) -> str:
+    """One line: how many messages the world and the agents refused, by reason (truav.bus.guard)."""
+    by_reason: dict[str, int] = {}
+    for stats in [(world or {}).get("rejected") or {}] + [((a or {}).get("bus") or {}).get("rejected") or {}
+                                                          for a in agents]:
+        for reason, senders in stats.items():
+            by_reason[reason] = by_reason.get(reason, 0) + sum(senders.values())
+    if not by_reason:
+        return ""
+    return (f"rejected messages (world + agents): {sum(by_reason.values())} ("
+            + ", ".join(f"{r} {n}" for r, n in sorted(by_reason.items())) + "); see world.json / agent<i>.json")
 
 
 def _read_json(path: Path):
