@@ -434,7 +434,8 @@ def world_stream_recording(path: Path, run: str, uav: int, ticks: int) -> None:
 
 
 def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str, bus_factory) -> None:
-    """A live agent process answers every replayed observation with a beacon and an action."""
+    """A live agent process asked to (--accept-replay; it drops replayed traffic by default) answers
+    every replayed observation with a beacon and an action."""
     uav, ticks, run = 1, 15, "drive"
     world_stream_recording(tmp_path / "world.mcap", run, uav, ticks)
     actions = Collector()
@@ -443,7 +444,7 @@ def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str
     repo = Path(__file__).resolve().parents[1]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")])}
     agent = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "agent", "--id", str(uav), "--run", run,
-                              "--greedy", "-e", endpoint], env=env, stdin=subprocess.DEVNULL,
+                              "--greedy", "--accept-replay", "-e", endpoint], env=env, stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         assert wait_until(lambda: bool(watcher.alive(keys.alive_uav(run, uav), timeout=0.5))), "agent never came up"
