@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("--malformed", type=int, default=100_000, help="garbage messages per live key")
     ap.add_argument("--large", type=int, default=300, help="1 MB hostile observations")
     ap.add_argument("--unique-senders", type=int, default=1_000_000)
+    ap.add_argument("--large-pace-ms", type=float, default=0.0, help="pause between 1 MB payloads")
     ap.add_argument("--steps", type=int, default=20_000, help="steps of the run (it is stopped after the flood)")
     args = ap.parse_args()
     out = Path(tempfile.mkdtemp(prefix="truav-bench-flood-"))
@@ -71,9 +72,10 @@ def main() -> None:
             time.sleep(2.0)  # settled
             phases = []
             alive = {}
-            for name, kw in (("malformed", {"malformed": args.malformed}), ("large", {"large": args.large}),
+            for name, kw in (("malformed", {"malformed": args.malformed}),
+                             ("large", {"large": args.large, "large_pace_s": args.large_pace_ms / 1e3}),
                              ("unique-senders", {"unique_senders": args.unique_senders})):
-                if not next(iter(kw.values())):
+                if not next(iter(kw.values())):  # the flood's size
                     continue
                 before = {n: rss_mb(p) for n, p in pids.items()}
                 peak = dict(before)

@@ -449,6 +449,5 @@ def test_plain_realtime_swarm_misses_at_most_one_percent_of_actions_under_flood(
     missed = sum(h for tick, h in hovering if tick > first)
     # The target is 1%; on a 2-core machine shared with other work a burst of junk can still cost
     # one tick's actions (5 of them), so the test allows 3% and bench/bench_flood.py measures the rest.
-    # Before this change the same flood cost most of the actions while it lasted.
     assert len(hovering) == 60 and missed <= 0.03 * (60 - first - 1) * n, hovering
     assert world["rejected"]
