@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from truav.bus import keys
+from truav.bus import guard, keys
+from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
 from truav.faults import load_plan
@@ -109,6 +110,8 @@ class SwarmOptions:
     """Serve the run to the Foxglove app on ws://127.0.0.1:<port> (`truav-swarm view`)."""
     geo_origin: tuple[float, float] | None = None
     """(lat, lon) of the area's centre on Foxglove's map (recorder and view); None: Paris."""
+    secure: bool = False
+    """Mutual TLS and the router's access control, with fresh credentials in <out>/creds (truav.bus.security)."""
 
 
 @dataclass
@@ -228,7 +231,13 @@ class _Swarm:
         return ok
 
     def _router_ready(self, timeout: float) -> tuple[bool, str]:
-        proc = self.children.start("router", _python_module("truav.swarm.cli", "router", "-l", self.endpoint))
+        router_args = ["-l", self.endpoint]
+        self.creds_args: list[str] = []
+        self.bus_config = make_config(connect=[self.endpoint], connect_timeout_ms=5000)
+        if self.opts.secure:  # fresh credentials for this endpoint; every process gets its own certificate
+            router_args, self.creds_args, self.bus_config = secure_setup(self.out, self.opts, self.n, self.endpoint)
+            self.endpoint = tls_endpoint(self.endpoint)
+        proc = self.children.start("router", _python_module("truav.swarm.cli", "router", *router_args))
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if ROUTER_READY_LINE in self.children.log_text("router"):
@@ -242,7 +251,8 @@ class _Swarm:
         opts, out, ep = self.opts, self.out, self.endpoint
         write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n})
         scenario = out / SCENARIO_FILE
-        scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep]
+        scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep,
+                         *self.creds_args]
         common = [*scenario_args, "--router-timeout", str(opts.router_timeout_s)]
         timing = (["--lockstep"] if opts.lockstep else []) + (["-v"] if opts.verbose else [])
         faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if self.plan else []
@@ -250,11 +260,12 @@ class _Swarm:
         if opts.record:
             self.children.start("recorder", _python_module(
                 "recorder.process", "--run", opts.run, "--out", opts.record, "--connect", ep,
-                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else [])))
+                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
-        with Bus(keys.SRC_FAULT, opts.run, make_config(connect=[ep], connect_timeout_ms=5000)) as bus:
+        with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
+            bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
             self.monitor.attach(bus, opts.run)
             if opts.record and not self._recorder_ready(bus):
                 return False
