@@ -31,6 +31,8 @@ class TruavController:
         self.action = np.zeros((len(seeds), U), np.int64)
         self._reward_sum = np.zeros(len(seeds))
         self._steps = 0
+        self.fused = True
+        """The driver runs whole episodes through run_episode; False steps through act/observe."""
 
     def _features(self, obs: LocalObs):
         nearest, overlap = neighbour_features(obs.pos, *all_peers(obs.pos), self.cfg.scenario.comm_range_m)
@@ -41,6 +43,12 @@ class TruavController:
         self.state, _ = self._features(obs)
         self._reward_sum[:] = 0.0
         self._steps = 0
+
+    def run_episode(self, world) -> None:
+        """Steps 0..T-1 of the world's current episode in one compiled kernel
+        (agents.fused): the same numbers as act/observe through World.step."""
+        from agents.fused import run_episode
+        run_episode(world, self)
 
     def act(self, t: int) -> np.ndarray:
         self.action = self.learners.act(self.state, t)

@@ -74,6 +74,25 @@ class QLearners:
 
 
 @njit(cache=True)
+def act_one(q_row, explore_u, random_a, epsilon):
+    """One agent's epsilon-greedy action from its row Q(s, .) and the step's draws."""
+    if explore_u < epsilon:
+        return random_a
+    return np.argmax(q_row)
+
+
+@njit(cache=True)
+def q_update_one(q, s, a, r, s_next, terminal, lr, discount):
+    """One agent's update of its table q (S, 16): Q(s,a) += lr (r + g max Q(s',.) - Q(s,a))."""
+    target = r
+    if not terminal:
+        target += discount * np.max(q[s_next])
+    q[s, a] += lr * (target - q[s, a])
+
+
+# The batch kernels below and the fused trainer (agents/fused.py) run the
+# per-agent functions above, so a swarm agent (B = U = 1) learns by the same code.
+@njit(cache=True)
 def _greedy(q, states):
     n_env, n_agent = states.shape
     out = np.empty((n_env, n_agent), np.int64)
@@ -85,11 +104,11 @@ def _greedy(q, states):
 
 @njit(cache=True)
 def _act(q, states, explore_u, random_a, epsilon):
-    out = _greedy(q, states)
-    for b in range(out.shape[0]):
-        for u in range(out.shape[1]):
-            if explore_u[b, u] < epsilon:
-                out[b, u] = random_a[b, u]
+    n_env, n_agent = states.shape
+    out = np.empty((n_env, n_agent), np.int64)
+    for b in range(n_env):
+        for u in range(n_agent):
+            out[b, u] = act_one(q[b, u, states[b, u]], explore_u[b, u], random_a[b, u], epsilon)
     return out
 
 
@@ -97,7 +116,4 @@ def _act(q, states, explore_u, random_a, epsilon):
 def _update(q, s, a, r, s_next, terminal, lr, discount):
     for b in range(s.shape[0]):
         for u in range(s.shape[1]):
-            target = r[b, u]
-            if not terminal:
-                target += discount * np.max(q[b, u, s_next[b, u]])
-            q[b, u, s[b, u], a[b, u]] += lr * (target - q[b, u, s[b, u], a[b, u]])
+            q_update_one(q[b, u], s[b, u], a[b, u], r[b, u], s_next[b, u], terminal, lr, discount)

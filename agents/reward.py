@@ -16,9 +16,37 @@ normalisation):
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numba import njit
 
 from truav.config import Config
+
+
+class RewardParams(NamedTuple):
+    relay_norm: float
+    cov_norm: float
+    eng_norm: float
+    w_relay: float
+    w_coverage: float
+    w_energy: float
+    w_overlap: float
+
+
+@njit(cache=True)
+def reward_one(relayed, covered, energy_j, overlap, p):
+    """One agent's r_i; the batch call and the fused trainer both use it."""
+    return (p.w_relay * (relayed / p.relay_norm) + p.w_coverage * (covered / p.cov_norm)
+            - p.w_energy * (energy_j / p.eng_norm) - p.w_overlap * overlap)
+
+
+@njit(cache=True)
+def _rewards(relayed, covered, energy_j, overlap, p):
+    out = np.empty(relayed.size)
+    for i in range(relayed.size):
+        out[i] = reward_one(relayed[i], covered[i], energy_j[i], overlap[i], p)
+    return out
 
 
 class Reward:
@@ -30,6 +58,8 @@ class Reward:
         self.cov_norm = sc.n_vehicles / sc.n_uavs
         self.eng_norm = max(e.move_w * sc.step_s, 1e-9)
         self.w = (lc.w_relay, lc.w_coverage, lc.w_energy, lc.w_overlap)
+        self.params = RewardParams(float(self.relay_norm), float(self.cov_norm), float(self.eng_norm),
+                                   *(float(w) for w in self.w))
 
     def terms(self, relayed, covered, energy_j, overlap) -> tuple[np.ndarray, ...]:
         """The four normalised terms (R_relay, R_cov, R_eng, R_ov)."""
@@ -37,6 +67,6 @@ class Reward:
                 energy_j / self.eng_norm, overlap)
 
     def __call__(self, relayed, covered, energy_j, overlap) -> np.ndarray:
-        relay, cov, eng, ov = self.terms(relayed, covered, energy_j, overlap)
-        a, b, g, d = self.w
-        return a * relay + b * cov - g * eng - d * ov
+        arrays = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in (relayed, covered, energy_j, overlap)))
+        flat = [np.ascontiguousarray(x).ravel() for x in arrays]
+        return _rewards(*flat, self.params).reshape(arrays[0].shape)

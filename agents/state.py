@@ -26,6 +26,21 @@ from world.network import rsu_positions
 
 
 @njit(cache=True)
+def neighbour_one(x, y, peers, heard, comm_range_m):
+    """One UAV at (x, y): nearest heard neighbour distance (m, inf if none) and
+    coverage overlap, from peers (M, 2) and heard (M,) (see neighbour_features)."""
+    nearest, overlap = np.inf, 0.0
+    for m in range(heard.size):
+        if not heard[m]:
+            continue
+        d = np.sqrt((peers[m, 0] - x) ** 2 + (peers[m, 1] - y) ** 2)
+        nearest = min(nearest, d)
+        c = min(d / (2.0 * comm_range_m), 1.0)
+        overlap += (2.0 / np.pi) * (np.arccos(c) - c * np.sqrt(1.0 - c * c))
+    return nearest, overlap
+
+
+@njit(cache=True)
 def neighbour_features(own, peers, heard, comm_range_m):
     """Nearest heard neighbour distance (m, inf if none) and coverage overlap.
 
@@ -33,18 +48,13 @@ def neighbour_features(own, peers, heard, comm_range_m):
     which of them were heard. Overlap is the sum over heard neighbours of the
     lens area two coverage discs of radius R share, as a fraction of one disc
     (0 beyond 2R apart, 1 when co-located). Returns two (B, U) arrays."""
-    n_env, n_uav, n_peer = heard.shape
+    n_env, n_uav, _ = heard.shape
     nearest = np.full((n_env, n_uav), np.inf)
     overlap = np.zeros((n_env, n_uav))
     for b in range(n_env):
         for u in range(n_uav):
-            for m in range(n_peer):
-                if not heard[b, u, m]:
-                    continue
-                d = np.sqrt((peers[b, u, m, 0] - own[b, u, 0]) ** 2 + (peers[b, u, m, 1] - own[b, u, 1]) ** 2)
-                nearest[b, u] = min(nearest[b, u], d)
-                x = min(d / (2.0 * comm_range_m), 1.0)
-                overlap[b, u] += (2.0 / np.pi) * (np.arccos(x) - x * np.sqrt(1.0 - x * x))
+            nearest[b, u], overlap[b, u] = neighbour_one(own[b, u, 0], own[b, u, 1], peers[b, u], heard[b, u],
+                                                         comm_range_m)
     return nearest, overlap
 
 
@@ -81,23 +91,29 @@ def _level(edges, value):
 
 
 @njit(cache=True)
+def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, p):
+    """One agent's state index from its position and features."""
+    cx = min(max(int(x // p.cell_m), 0), p.cells - 1)
+    cy = min(max(int(y // p.cell_m), 0), p.cells - 1)
+    rsu_d = np.inf
+    for k in range(p.rsu.shape[0]):
+        rsu_d = min(rsu_d, np.sqrt((x - p.rsu[k, 0]) ** 2 + (y - p.rsu[k, 1]) ** 2))
+    index = cx * p.cells + cy
+    index = index * (p.density_edges.size + 1) + _level(p.density_edges, vehicles_in_range)
+    index = index * (p.queue_edges.size + 1) + _level(p.queue_edges, queued)
+    index = index * (p.neighbour_edges.size + 1) + _level(p.neighbour_edges, nearest_neighbour_m)
+    return index * (p.rsu_edges.size + 1) + _level(p.rsu_edges, rsu_d)
+
+
+@njit(cache=True)
 def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, p):
     """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
     n_env, n_uav = vehicles_in_range.shape
     out = np.empty((n_env, n_uav), np.int64)
     for b in range(n_env):
         for u in range(n_uav):
-            x, y = pos[b, u, 0], pos[b, u, 1]
-            cx = min(max(int(x // p.cell_m), 0), p.cells - 1)
-            cy = min(max(int(y // p.cell_m), 0), p.cells - 1)
-            rsu_d = np.inf
-            for k in range(p.rsu.shape[0]):
-                rsu_d = min(rsu_d, np.sqrt((x - p.rsu[k, 0]) ** 2 + (y - p.rsu[k, 1]) ** 2))
-            index = cx * p.cells + cy
-            index = index * (p.density_edges.size + 1) + _level(p.density_edges, vehicles_in_range[b, u])
-            index = index * (p.queue_edges.size + 1) + _level(p.queue_edges, queued[b, u])
-            index = index * (p.neighbour_edges.size + 1) + _level(p.neighbour_edges, nearest_neighbour_m[b, u])
-            out[b, u] = index * (p.rsu_edges.size + 1) + _level(p.rsu_edges, rsu_d)
+            out[b, u] = encode_one(pos[b, u, 0], pos[b, u, 1], vehicles_in_range[b, u], queued[b, u],
+                                   nearest_neighbour_m[b, u], p)
     return out
 
 

@@ -8,6 +8,8 @@ no files, no progress bars (callbacks report episodes).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Protocol
 
 import numpy as np
@@ -43,27 +45,41 @@ class ControlPlane(Protocol):
         """(airtime_s (B, U) or None, action_delay_s scalar or (B, U)) of step t."""
 
 
+class FusedEpisode(Protocol):
+    """Optional extra of a controller without a control plane: if it has
+    `run_episode` and `fused` is true, the driver hands it each whole episode
+    (after begin_episode) instead of stepping act/observe."""
+
+    fused: bool
+
+    def run_episode(self, world: World) -> None:
+        """Run steps 0..T-1 of the world's current episode."""
+
+
 def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes: int,
                  on_episode: EpisodeCallback | None = None) -> dict[str, np.ndarray]:
     """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}."""
+    with ThreadPoolExecutor(max_workers=max(1, min(len(seeds), os.cpu_count() or 1))) as pool:
+        return _run(cfg, seeds, controller, episodes, on_episode, pool)
+
+
+def _run(cfg, seeds, controller, episodes, on_episode, pool) -> dict[str, np.ndarray]:
     world = World(cfg, len(seeds))
+    if len(seeds) > 1:
+        world.draw_map = pool.map  # each env's draws from its own generator, on threads
     control = getattr(controller, "control", None)  # see ControlPlane
+    fused = getattr(controller, "run_episode", None) if control is None and getattr(controller, "fused", False) \
+        else None  # see FusedEpisode
     history: dict[str, list[np.ndarray]] = {}
     obs = world.reset([seeding.world_rng(s) for s in seeds])
     for episode in range(episodes):
         if episode:
             obs = world.start_episode()
         controller.begin_episode(episode, obs)
-        done, t = False, 0
-        while not done:
-            if control is None:
-                obs, _, done = world.step(controller.act(t))
-            else:
-                actions = controller.act(t)
-                airtime, delay = control(t)
-                obs, _, done = world.step(actions, control_airtime_s=airtime, action_delay_s=delay)
-            controller.observe(obs, done)
-            t += 1
+        if fused is not None:
+            fused(world)
+        else:
+            _step_episode(world, controller, control)
         summary = {**world.episode_summary(), **controller.episode_stats()}
         for key, value in summary.items():
             history.setdefault(key, []).append(value)
@@ -72,4 +88,17 @@ def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes
     return {k: np.stack(v) for k, v in history.items()}
 
 
-__all__ = ["Controller", "ControlPlane", "EpisodeCallback", "EPISODE_FIELDS", "run_episodes"]
+def _step_episode(world: World, controller: Controller, control) -> None:
+    done, t = False, 0
+    while not done:
+        if control is None:
+            obs, _, done = world.step(controller.act(t))
+        else:
+            actions = controller.act(t)
+            airtime, delay = control(t)
+            obs, _, done = world.step(actions, control_airtime_s=airtime, action_delay_s=delay)
+        controller.observe(obs, done)
+        t += 1
+
+
+__all__ = ["Controller", "ControlPlane", "FusedEpisode", "EpisodeCallback", "EPISODE_FIELDS", "run_episodes"]

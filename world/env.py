@@ -22,10 +22,11 @@ import numpy as np
 from truav.config import Config
 from world import network, uavs
 from world.network import (COVERED, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
-                           E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED, TX_TIME,
+                           E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
 from world.packets import Queues
 from world.roads import RoadGrid, Vehicles
+from world.step import TOTAL_COLUMNS, uav_params, world_step
 
 
 @dataclass
@@ -71,7 +72,8 @@ EPISODE_FIELDS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "energy_above_h
 
 @dataclass
 class EpisodeTotals:
-    """Running sums over the current episode; arrays (B,)."""
+    """Running sums over the current episode; arrays (B,), views of the
+    columns of the world's (B, TOTAL_COLUMNS) totals that its step kernel adds to."""
 
     covered: np.ndarray
     generated: np.ndarray
@@ -83,19 +85,8 @@ class EpisodeTotals:
     energy_above_hover_j: np.ndarray
 
     @classmethod
-    def zeros(cls, batch: int) -> "EpisodeTotals":
-        return cls(*(np.zeros(batch) for _ in range(8)))
-
-    def add(self, m: StepMetrics) -> None:
-        self.covered += m.covered
-        self.generated += m.generated
-        self.delivered += m.delivered
-        self.dropped += m.dropped_overflow + m.dropped_deadline
-        self.delay_sum_s += m.delay_sum_s
-        self.wait_sum_s += m.wait_sum_s
-        n_uav = m.energy_j.shape[1]
-        self.energy_j += np.add.reduce(m.energy_j, axis=1) / n_uav
-        self.energy_above_hover_j += np.add.reduce(m.energy_above_hover_j, axis=1) / n_uav
+    def of(cls, table: np.ndarray) -> "EpisodeTotals":
+        return cls(*(table[:, k] for k in range(TOTAL_COLUMNS)))
 
 
 @dataclass
@@ -121,13 +112,21 @@ class World:
         self.queues = Queues.empty(batch, self.n_vehicles, cfg.traffic.deadline_steps)
         self.uav_pos = np.zeros((batch, self.n_uavs, 2))
         self._velocity = np.zeros((batch, self.n_uavs, 2))
+        self.uav = uav_params(cfg)
         self.t = 0
         self.episode = -1
-        self.totals = EpisodeTotals.zeros(batch)
+        self._totals = np.zeros((batch, TOTAL_COLUMNS))
+        self.totals = EpisodeTotals.of(self._totals)
         self._draws: _EpisodeDraws | None = None
         self._out_uav = np.zeros((batch, self.n_uavs, UAV_COLUMNS))
         self._out_env = np.zeros((batch, ENV_COLUMNS))
+        self._energy = np.zeros((batch, self.n_uavs))
+        self._above_hover = np.zeros((batch, self.n_uavs))
         self._no_arrivals = np.zeros((batch, self.n_vehicles), np.int64)
+        self._zeros_bu = np.zeros((batch, self.n_uavs))
+        self.draw_map = map
+        """How start_episode maps its per-env draws: a thread pool's map draws
+        envs in parallel (each env has its own generator, so nothing changes)."""
 
     # -- episode control ------------------------------------------------------
     def reset(self, rngs: list[np.random.Generator]) -> LocalObs:
@@ -148,24 +147,26 @@ class World:
         """Re-place the UAVs, empty the queues and draw this episode's randomness."""
         sc, T, N, U = self.cfg.scenario, self.cfg.scenario.steps_per_episode, self.n_vehicles, self.n_uavs
         lam = self.cfg.traffic.packet_rate_hz * sc.step_s
-        arrivals, turns, starts = [], [], []
         first = self.episode < 0
-        for b, rng in enumerate(self.rngs):
+
+        def draw(b: int):
+            rng = self.rngs[b]
             # Drawn every episode whatever the mode, so streams never depend on it.
             drawn = rng.random((U, 2)) * sc.area_m
             if sc.uav_start == "random" or (sc.uav_start == "persist" and first):
-                starts.append(drawn)
+                start = drawn
             elif sc.uav_start == "persist":
-                starts.append(self.uav_pos[b].copy())
+                start = self.uav_pos[b].copy()
             else:
-                starts.append(np.full((U, 2), sc.area_m / 2.0))
-            arrivals.append(rng.poisson(lam, (T, N)))
-            turns.append(rng.random((T, N, 2)))
+                start = np.full((U, 2), sc.area_m / 2.0)
+            return rng.poisson(lam, (T, N)), rng.random((T, N, 2)), start
+
+        arrivals, turns, starts = zip(*self.draw_map(draw, range(self.batch)))
         self._draws = _EpisodeDraws(np.stack(arrivals, 1), np.stack(turns, 1), np.stack(starts))
         self.uav_pos = self._draws.uav_start.copy()
         self._velocity = np.zeros((self.batch, U, 2))
         self.queues.clear()
-        self.totals = EpisodeTotals.zeros(self.batch)
+        self._totals[:] = 0.0
         self.t = 0
         self.episode += 1
         self._run_relay(self._no_arrivals, serve_packets=False)
@@ -191,19 +192,21 @@ class World:
         if actions.size and (actions.min() < uavs.HOVER or actions.max() >= uavs.N_ACTIONS):
             raise ValueError(f"actions must lie in [{uavs.HOVER}, {uavs.N_ACTIONS})")
         dt = sc.step_s
-        velocity = uavs.action_velocity(actions, sc.uav_speed_mps)
-        delay = np.clip(np.broadcast_to(np.asarray(action_delay_s, np.float64), actions.shape), 0.0, dt)
-        if np.any(delay > 0):
-            velocity = (self._velocity * delay[..., None] + velocity * (dt - delay)[..., None]) / dt
-        self._velocity = velocity
-        self.uav_pos, speed = uavs.move(self.uav_pos, velocity, dt, sc.area_m)
-        self.grid.step(self.vehicles, dt, self._draws.turn_u[t])
-        control = np.zeros(actions.shape) if control_airtime_s is None else \
+        if np.ndim(action_delay_s) == 0 and action_delay_s == 0.0:
+            delay, blend = self._zeros_bu, False
+        else:
+            delay = np.clip(np.broadcast_to(np.asarray(action_delay_s, np.float64), actions.shape), 0.0, dt)
+            blend = bool(np.any(delay > 0))
+        control = self._zeros_bu if control_airtime_s is None else \
             np.clip(np.asarray(control_airtime_s, np.float64), 0.0, dt)
-        self._run_relay(self._draws.arrivals[t], serve_packets=True, busy0=control)
-        out_uav, out_env = self._out_uav, self._out_env
-        tx_time = out_uav[:, :, TX_TIME] + control
-        energy = uavs.flight_energy(speed, dt, cfg.energy) + cfg.channel.uav_tx_w * tx_time
+        v, q, draws = self.vehicles, self.queues, self._draws
+        world_step(np.ascontiguousarray(actions, np.int64), blend, np.ascontiguousarray(delay),
+                   np.ascontiguousarray(control), self.uav_pos, self._velocity, v.heading, v.road, v.s, v.v,
+                   v.home, v.next_turn, draws.turn_u[t], q.slots, q.total, draws.arrivals[t], t, self.uav,
+                   self.grid.params, self.relay, self.channel, self._out_uav, self._out_env, self._energy,
+                   self._above_hover, self._totals)
+        out_env = self._out_env
+        energy = self._energy.copy()
         metrics = StepMetrics(
             covered=out_env[:, E_COVERED].copy(),
             generated=out_env[:, E_GENERATED].copy(),
@@ -213,9 +216,8 @@ class World:
             delay_sum_s=out_env[:, E_DELAY_S].copy(),
             wait_sum_s=out_env[:, E_WAIT_STEPS] * dt,
             energy_j=energy,
-            energy_above_hover_j=energy - cfg.energy.hover_w * dt,
+            energy_above_hover_j=self._above_hover.copy(),
         )
-        self.totals.add(metrics)
         self.t += 1
         return self._observe(energy), metrics, self.t >= sc.steps_per_episode
 

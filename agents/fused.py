@@ -1,0 +1,93 @@
+"""The TRUAV trainer's fused episode: one compiled kernel runs a whole episode
+of every environment of the batch, parallel over environments (numba prange),
+with no Python per step, vehicle or agent.
+
+Per env and step it does what the step-by-step driver does through
+`World.step` and `TruavController.act/observe`, by calling the same compiled
+functions: each agent's epsilon-greedy action (`qlearning.act_one`), the
+world's `step.env_step`, each agent's neighbour features, state and reward
+(`state.neighbour_one`, `state.encode_one`, `reward.reward_one`) and its Q
+update (`qlearning.q_update_one`). Environments share nothing, so running
+them on threads changes no number; tests/test_fused.py checks the two paths
+agree entry by entry. Randomness is drawn per episode in Python from the
+same generators, before the kernel runs.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from agents.qlearning import act_one, q_update_one
+from agents.reward import reward_one
+from agents.state import encode_one, neighbour_one
+from world.network import COVERED, IN_RANGE, QUEUED, RELAYED
+from world.step import env_step, pairwise_sum
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    # The experiment and trainer pools fork worker processes; GNU OpenMP (the
+    # default here) kills a child forked after the parent ran a parallel
+    # kernel. numba's own workqueue layer is fork-safe; only this kernel runs
+    # parallel, from one thread.
+    os.environ["NUMBA_THREADING_LAYER"] = "workqueue"  # numba re-reads its config from the environment
+    numba.config.THREADING_LAYER = "workqueue"
+
+
+@njit(parallel=True, nogil=True, cache=True)
+def truav_episode(q, state, explore_u, random_a, epsilon, train, lr, discount, others, comm_range, sp, rp_reward,
+                  pos, velocity, heading, road, s, v, home, next_turn, turn_u, slots, total, arrivals,
+                  up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
+    """Run steps 0..T-1 of the current episode for every env b, in place.
+
+    q (B, U, S, 16); state (B, U) the agents' states at the episode start,
+    left at the last step's; explore_u, random_a (T, B, U) exploration draws;
+    others (U, U) which peers each UAV hears (all but itself); turn_u
+    (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
+    as in `step.env_step`, with a leading B; reward_sum (B,) adds each step's
+    mean reward over UAVs."""
+    n_env, n_uav = state.shape
+    n_steps = turn_u.shape[0]
+    for b in prange(n_env):
+        actions = np.empty(n_uav, np.int64)
+        rewards = np.empty(n_uav)
+        no_delay = np.zeros(n_uav)
+        for t in range(n_steps):
+            for u in range(n_uav):
+                actions[u] = act_one(q[b, u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon)
+            env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
+                     home[b], next_turn[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t, up, mp, rp, ch,
+                     out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+            o = out_uav[b]
+            for u in range(n_uav):
+                x, y = pos[b, u, 0], pos[b, u, 1]
+                nearest, overlap = neighbour_one(x, y, pos[b], others[u], comm_range)
+                s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, sp)
+                rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy[b, u], overlap, rp_reward)
+                if train:
+                    q_update_one(q[b, u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)
+                state[b, u] = s_next
+            reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
+
+
+def run_episode(world, controller) -> None:
+    """The rest of the current episode (from step 0) of `world` under the
+    TruavController `controller`, as the driver's step loop would run it."""
+    if world.t != 0:
+        raise RuntimeError("the fused episode starts at step 0")
+    cfg, lc, ln = world.cfg, controller.cfg.learner, controller.learners
+    veh, queues, draws = world.vehicles, world.queues, world._draws
+    U = world.n_uavs
+    others = ~np.eye(U, dtype=np.bool_)
+    truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), bool(controller.train),
+                  float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
+                  controller.encoder.params, controller.reward.params,
+                  world.uav_pos, world._velocity, veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
+                  draws.turn_u, queues.slots, queues.total, draws.arrivals,
+                  world.uav, world.grid.params, world.relay, world.channel, world._out_uav, world._out_env,
+                  world._energy, world._above_hover, world._totals, controller._reward_sum)
+    steps = draws.turn_u.shape[0]
+    world.t = steps
+    controller._steps = steps
