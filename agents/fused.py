@@ -72,6 +72,11 @@ def truav_episode(q, state, explore_u, random_a, epsilon, train, lr, discount, o
             reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
 
 
+def set_threads(n: int) -> None:
+    """Run the fused kernel on n threads (at most the cores numba found)."""
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
+
+
 def run_episode(world, controller) -> None:
     """The rest of the current episode (from step 0) of `world` under the
     TruavController `controller`, as the driver's step loop would run it."""

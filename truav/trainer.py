@@ -1,8 +1,11 @@
 """Train and evaluate controllers over many seeds, using every core.
 
-Seeds are split into contiguous chunks, one worker process per chunk, each
-running `driver.run_episodes` on its chunk as one batch. A batch of seeds
-gives exactly what each seed gives alone, so the split changes no number.
+TRUAV runs all seeds as one batch in this process: its fused episode kernel
+(agents/fused.py) spreads the environments over `workers` threads. Other
+controllers split the seeds into contiguous chunks, one worker process per
+chunk, each running `driver.run_episodes` on its chunk as one batch. A batch
+of seeds gives exactly what each seed gives alone, so neither split changes a
+number.
 """
 
 from __future__ import annotations
@@ -89,6 +92,10 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
                  train: bool = True, q: np.ndarray | None = None,
                  on_progress: ProgressCallback | None = None) -> RunResult:
     """run_chunk over seed chunks in `workers` processes; results in seed order."""
+    if kind == "truav":  # one batch; the fused kernel's threads use the cores
+        from agents.fused import set_threads
+        set_threads(workers)
+        workers = 1
     chunks = split(list(seeds), workers)
     if len(chunks) == 1:
         return run_chunk(kind, cfg, list(seeds), episodes, train, q,

@@ -140,6 +140,8 @@ def _worker(base: Config, out: Path, tasks, results) -> None:
         torch.set_num_threads(1)
     except ImportError:
         pass
+    from agents.fused import set_threads
+    set_threads(1)  # the pool's processes already use the cores
     while True:
         try:
             cell = tasks.get(timeout=0.5)
