@@ -5,6 +5,7 @@ scalability experiment, resumable, on every core.
     truav experiment velocity --quick             # seconds: the CI-sized smoke run
     truav experiment velocity --episodes-for central=1000   # a smaller SAC budget
     truav experiment scale --episodes 1000        # 5/10/20 UAVs x 200/1000 vehicles, TRUAV vs centralized
+    truav experiment velocity --executor ray [--address HEAD:6379]   # cells as Ray tasks
 
 Re-running the same command resumes: finished cells (scheme, setting, seed
 chunk) are skipped. --report-only rewrites the tables and figures from the
@@ -74,6 +75,22 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
                         "explicitly still win)")
     p.add_argument("--report-only", action="store_true", help="only rewrite tables and figures from finished cells")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_executor_args(p)
+
+
+def add_executor_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local: a pool of worker processes (default); ray: cells as Ray tasks (extra `ray`)")
+    p.add_argument("--address", help="with --executor ray: the cluster to join, e.g. HEAD:6379 "
+                                     "(default: start a local Ray instance of --workers CPUs)")
+
+
+def check_executor(args) -> None:
+    from truav.cli import UsageError
+    if args.address and args.executor != "ray":
+        raise UsageError("--address needs --executor ray")
+    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
+        raise UsageError("--executor ray needs Ray: pip install -e '.[ray]'")
 
 
 def add_experiment_parser(sub) -> None:
@@ -113,6 +130,7 @@ def _setup(args, default_out: str, default_episodes: int | None):
     out = check_out_dir("--out", args.out if args.out is not None else default_out + ("-quick" if quick else ""))
     if not args.report_only:
         _check_schemes(args.schemes)
+        check_executor(args)
     return cfg, seeds, episodes, eval_episodes, window, out
 
 
@@ -124,8 +142,10 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
     if args.report_only:
         return 0.0
     total = sum(c.env_episodes for c in todo)
+    where = (f"Ray at {args.address}" if args.address else f"a local Ray instance of {args.workers} CPU(s)") \
+        if args.executor == "ray" else f"{max(1, min(args.workers, len(todo) or 1))} worker(s)"
     print(f"{label}: {len(cells)} cells, {len(cells) - len(todo)} already finished, {len(todo)} to run "
-          f"on {max(1, min(args.workers, len(todo) or 1))} worker(s) -> {out}", flush=True)
+          f"on {where} -> {out}", flush=True)
     if not todo:
         return 0.0
     from tqdm import tqdm
@@ -141,7 +161,8 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
                 print(f"  cell {finished[0]}/{len(todo)}: {cell.scheme} {cell.speed:g} m/s seeds "
                       f"{cell.seeds[0]}-{cell.seeds[-1]} in {wall:.1f} s", flush=True)
         try:
-            runner.run_cells(cfg, out, cells, args.workers, on_episode=bar.update, on_cell=on_cell)
+            runner.run_cells(cfg, out, cells, args.workers, on_episode=bar.update, on_cell=on_cell,
+                             executor=args.executor, address=args.address)
         except RuntimeError as exc:
             raise UsageError(f"{exc} (finished cells are kept; re-run the same command to resume)") from None
     return time.perf_counter() - t0

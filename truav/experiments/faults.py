@@ -11,7 +11,9 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -71,11 +73,35 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     return run
 
 
-def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str | None = None,
-              rate_hz: float = 10.0, keep_steps: bool = False) -> Path:
-    """The sweep of SIZES[size_name]; episodes of its length unless ``keep_steps`` (the user set
-    scenario.steps_per_episode explicitly)."""
+def run_point(cfg: Config, out: Path, seed: int, qtable: str, rate_hz: float, episodes: int, total: int,
+              n: int, kind: str, level: float) -> str:
+    """One sweep point's swarm run (skipped if finished); returns its summary.json text."""
     from truav.swarm.supervisor import SwarmOptions, run_swarm  # here: the parser loads this module
+    name = f"{kind}-{level:g}"
+    done = out / name / "summary.json"
+    if not done.is_file():  # resumable: finished points are kept
+        out.mkdir(parents=True, exist_ok=True)
+        plan = out / f"{name}.toml"
+        plan.write_text(plan_text(kind, level))
+        print(f"[{n + 1}/{total}] beacon {kind} {level:g}", flush=True)
+        rc = run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=episodes, rate_hz=rate_hz,
+                                         qtable=qtable, greedy=True, out=str(out / name), plot=False,
+                                         quiet=True, fault_plan=str(plan),
+                                         force=True))  # an unfinished point starts afresh
+        if rc:
+            raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
+    return done.read_text()
+
+
+SWARM_CPUS = 2
+"""CPUs a Ray task of one sweep point asks for: a swarm is a router, a world and an agent per UAV."""
+
+
+def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str | None = None,
+              rate_hz: float = 10.0, keep_steps: bool = False, executor: str = "local",
+              address: str | None = None) -> Path:
+    """The sweep of SIZES[size_name]; episodes of its length unless ``keep_steps`` (the user set
+    scenario.steps_per_episode explicitly). executor "ray": points as Ray tasks."""
     size = SIZES[size_name]
     out.mkdir(parents=True, exist_ok=True)
     if not keep_steps:
@@ -83,22 +109,23 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
     if qtable is None:
         print(f"training a policy in-process ({size.train_episodes} episodes) for the swarm to fly", flush=True)
         qtable = str(train_policy(cfg, out, size.train_episodes, seed))
-    rows = []
     points = [("loss", x) for x in size.loss] + [("latency", x) for x in size.latency_ms]
-    for n, (kind, level) in enumerate(points):
-        name = f"{kind}-{level:g}"
-        done = out / name / "summary.json"
-        if not done.is_file():  # resumable: finished points are kept
-            plan = out / f"{name}.toml"
-            plan.write_text(plan_text(kind, level))
-            print(f"[{n + 1}/{len(points)}] beacon {kind} {level:g}", flush=True)
-            rc = run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=size.episodes, rate_hz=rate_hz,
-                                             qtable=qtable, greedy=True, out=str(out / name), plot=False,
-                                             quiet=True, fault_plan=str(plan),
-                                             force=True))  # an unfinished point starts afresh
-            if rc:
-                raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
-        summary = json.loads(done.read_text())
+    point = partial(run_point, cfg, out, seed, qtable, rate_hz, size.episodes, len(points))
+    if executor == "ray":  # points as Ray tasks; --out (policy, recordings) on storage the nodes share
+        from truav.experiments.ray_executor import run_points_on_ray
+        cpus = os.cpu_count() or 1
+        texts = run_points_on_ray(lambda p: point(*p), [(n, k, x) for n, (k, x) in enumerate(points)],
+                                  cpus, address, cpus_per_task=min(SWARM_CPUS, cpus))
+        for (kind, level), text in zip(points, texts):
+            done = out / f"{kind}-{level:g}" / "summary.json"
+            if not done.is_file():
+                done.parent.mkdir(parents=True, exist_ok=True)
+                done.write_text(text)
+    else:
+        texts = [point(n, kind, level) for n, (kind, level) in enumerate(points)]
+    rows = []
+    for (kind, level), text in zip(points, texts):
+        summary = json.loads(text)
         eps = (summary.get("world") or {}).get("episodes") or []
         row = {"kind": kind, "level": level}
         for key, _, _ in METRICS:
@@ -154,6 +181,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default 0)")
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default 10)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
+    from truav.experiments.cli import add_executor_args
+    add_executor_args(p)
     p.set_defaults(func=cmd_fault_sweep)
 
 
@@ -172,10 +201,13 @@ def cmd_fault_sweep(args) -> int:
             runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
         except runio.RunDirError as exc:
             raise UsageError(f"--qtable: {exc}") from None
+    from truav.experiments.cli import check_executor
+    check_executor(args)
     from truav.cli import parse_sets
     from truav.config import read_toml, ConfigError
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
     keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
-    path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate, keep_steps=keep_steps)
+    path = run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate, keep_steps=keep_steps,
+                     executor=args.executor, address=args.address)
     print(f"\n{out / 'faults.csv'}\n{path}")
     return 0

@@ -7,7 +7,10 @@ trained policy (greedy) on held-out traffic (world seed + EVAL_SEED_OFFSET).
 Its results go to `<out>/cells/<key>.npz`, written atomically; the key
 names the scheme, setting, seeds and budget and hashes the cell's effective
 config, so a restarted run skips exactly the cells already finished with the
-same inputs. Worker processes (fork) take cells from a queue, one at a time.
+same inputs. Worker processes (fork) take cells from a queue, one at a time;
+or, with the Ray executor (truav.experiments.ray_executor), Ray tasks on a
+local instance or a cluster run them and return their results to this
+process, which writes the cell files.
 """
 
 from __future__ import annotations
@@ -134,14 +137,19 @@ def load_cell(path: Path, cell: Cell) -> CellResult:
     return CellResult(cell, train, ev, wall, meta)
 
 
-def _worker(base: Config, out: Path, tasks, results) -> None:
+def single_threaded() -> None:
+    """One compute thread in this process: a pool of them already uses the cores."""
     try:
-        import torch  # noqa: F401  (if installed: one thread per worker process)
+        import torch  # noqa: F401  (if installed)
         torch.set_num_threads(1)
     except ImportError:
         pass
     from agents.fused import set_threads
-    set_threads(1)  # the pool's processes already use the cores
+    set_threads(1)
+
+
+def _worker(base: Config, out: Path, tasks, results) -> None:
+    single_threaded()
     while True:
         try:
             cell = tasks.get(timeout=0.5)
@@ -164,10 +172,17 @@ def pending_cells(base: Config, out: Path, cells: list[Cell]) -> list[Cell]:
 
 def run_cells(base: Config, out: Path, cells: list[Cell], workers: int,
               on_episode: Callable[[int], None] | None = None,
-              on_cell: Callable[[Cell, float], None] | None = None) -> None:
-    """Run the unfinished cells on `workers` processes (in this process if 1)."""
+              on_cell: Callable[[Cell, float], None] | None = None,
+              executor: str = "local", address: str | None = None) -> None:
+    """Run the unfinished cells on `workers` processes (in this process if 1),
+    or as Ray tasks (executor "ray": on the cluster at `address`, or on a
+    local instance of `workers` CPUs if None)."""
     todo = sorted(pending_cells(base, out, cells), key=lambda c: (COST_ORDER.get(c.scheme, 9), -c.speed))
     if not todo:
+        return
+    if executor == "ray":
+        from truav.experiments.ray_executor import run_cells_on_ray
+        run_cells_on_ray(base, out, todo, workers, address, on_episode, on_cell)
         return
     workers = max(1, min(workers, len(todo)))
     if workers == 1:
