@@ -127,19 +127,59 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
 
 @njit(cache=True)
 def _lane_sort(h, road, s, p):
+    """Vehicles ordered by lane, then along the lane in driving direction:
+    (order, key, lane_start) with lane_start (4 n_roads + 1,) the first
+    position in `order` of each lane (lane = heading * n_roads + road).
+    A counting sort by lane then an insertion sort within each (a lane
+    holds a few vehicles): the order of np.argsort(key), keys being distinct
+    (vehicles on a lane never overlap), at a fraction of its cost."""
     span = 4.0 * (p.extent + 1.0)
-    key = np.empty(s.size)
-    for i in range(s.size):
+    n, n_lanes = s.size, 4 * p.n_roads
+    key = np.empty(n)
+    lane_start = np.zeros(n_lanes + 1, np.int64)
+    for i in range(n):
         key[i] = (h[i] * p.n_roads + road[i]) * span + HEADING_DIR[h[i]] * s[i]
-    order = np.argsort(key)
-    return order, key
+        lane_start[h[i] * p.n_roads + road[i] + 1] += 1
+    for lane in range(n_lanes):
+        lane_start[lane + 1] += lane_start[lane]
+    fill = lane_start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        lane = h[i] * p.n_roads + road[i]
+        order[fill[lane]] = i
+        fill[lane] += 1
+    for lane in range(n_lanes):
+        for k in range(lane_start[lane] + 1, lane_start[lane + 1]):
+            x = order[k]
+            j = k - 1
+            while j >= lane_start[lane] and key[order[j]] > key[x]:
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = x
+    return order, key, lane_start
+
+
+@njit(cache=True)
+def _overlaps(x, h, road, s, length, order, lane_start, lane_n_roads, is_turner, turners):
+    """Whether vehicle x (a turner) overlaps another vehicle of its current
+    lane: the vehicles that did not turn are still where the lane sort put
+    them (their lane is unchanged), the turners are checked one by one."""
+    lane = h[x] * lane_n_roads + road[x]
+    for k in range(lane_start[lane], lane_start[lane + 1]):
+        y = order[k]
+        if not is_turner[y] and abs(s[y] - s[x]) < length:
+            return True
+    for y in turners:
+        if y != x and h[y] == h[x] and road[y] == road[x] and abs(s[y] - s[x]) < length:
+            return True
+    return False
 
 
 @njit(cache=True)
 def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
     n = s.size
     same_lane = 2.0 * p.extent + 1.0
-    order, key = _lane_sort(h, road, s, p)
+    order, key, lane_start = _lane_sort(h, road, s, p)
     gap = np.full(n, np.inf)
     v_lead = np.zeros(n)
     for k in range(n - 1):
@@ -195,23 +235,20 @@ def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
     # overlap anyone: within a lane, the IDM step above keeps every gap >= 0.
     waiting = np.zeros(n, np.bool_)
     turners = np.flatnonzero(active)
+    is_turner = active.copy()
     changed = turners.size > 0
     while changed:
         changed = False
         for x in turners:
-            if not active[x]:
-                continue
-            for y in range(n):
-                if y != x and h[y] == h[x] and road[y] == road[x] and abs(s[y] - s[x]) < p.length:
-                    active[x] = False
-                    changed = True
-                    h[x], road[x] = old_h[x], old_road[x]
-                    if straight_ok[x]:
-                        s[x], v[x] = s_lane[x], v_new[x]
-                    else:
-                        s[x], v[x] = s_int[x], 0.0
-                        waiting[x] = True
-                    break
+            if active[x] and _overlaps(x, h, road, s, p.length, order, lane_start, p.n_roads, is_turner, turners):
+                active[x] = False
+                changed = True
+                h[x], road[x] = old_h[x], old_road[x]
+                if straight_ok[x]:
+                    s[x], v[x] = s_lane[x], v_new[x]
+                else:
+                    s[x], v[x] = s_int[x], 0.0
+                    waiting[x] = True
     for x in range(n):
         if crossing[x] and not waiting[x]:
             next_turn[x] = choose_turn(h[x], road[x], s[x], home[x], u[x, 0], u[x, 1], p)
@@ -277,7 +314,7 @@ class RoadGrid:
         none; (B, N). Negative would mean a collision."""
         out = np.full(veh.s.shape, np.inf)
         for b in range(veh.s.shape[0]):
-            order, key = _lane_sort(veh.heading[b], veh.road[b], veh.s[b], self.params)
+            order, key, _ = _lane_sort(veh.heading[b], veh.road[b], veh.s[b], self.params)
             ks = key[order]
             d = ks[1:] - ks[:-1]
             out[b, order[:-1]] = np.where(d < 2 * self.extent + 1, d - self.cfg.idm.vehicle_length_m, np.inf)
