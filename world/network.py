@@ -93,10 +93,9 @@ def routes(uav_pos, p, ch):
     hop = best.copy()
     t_uu = np.full((n_uav, n_uav), np.inf)
     for u in range(n_uav):
-        for j in range(n_uav):
-            if u != j:
-                d = np.sqrt((uav_pos[u, 0] - uav_pos[j, 0]) ** 2 + (uav_pos[u, 1] - uav_pos[j, 1]) ** 2)
-                t_uu[u, j] = p.bits / a2a_rate(d, p.uav_tx_w, ch) + d / SPEED_OF_LIGHT
+        for j in range(u + 1, n_uav):  # symmetric: (a - b)^2 == (b - a)^2 exactly
+            d = np.sqrt((uav_pos[u, 0] - uav_pos[j, 0]) ** 2 + (uav_pos[u, 1] - uav_pos[j, 1]) ** 2)
+            t_uu[u, j] = t_uu[j, u] = p.bits / a2a_rate(d, p.uav_tx_w, ch) + d / SPEED_OF_LIGHT
     for _ in range(n_uav - 1):
         changed = False
         for u in range(n_uav):
