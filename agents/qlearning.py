@@ -40,8 +40,11 @@ class QLearners:
         self.lc = lc
         self.batch, self.n_agents, self.n_states = batch, n_agents, n_states
         self.rngs = list(rngs)
-        if q is None:
-            q = np.stack([rng.random((n_states, N_ACTIONS)) * lc.q_init_scale for rng in self.rngs])
+        if q is None:  # each agent's table drawn in place: no stacked copy of B x U tables
+            q = np.empty((batch * n_agents, n_states, N_ACTIONS))
+            for table, rng in zip(q, self.rngs):
+                rng.random(out=table)
+                table *= lc.q_init_scale
         self.q = np.ascontiguousarray(q, dtype=np.float64).reshape(batch, n_agents, n_states, N_ACTIONS)
         self.epsilon = lc.epsilon_start
         self._explore_u = np.zeros((0, batch, n_agents))
