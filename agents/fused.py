@@ -1,6 +1,7 @@
-"""The TRUAV trainer's fused episode: one compiled kernel runs a whole episode
-of every environment of the batch, parallel over environments (numba prange),
-with no Python per step, vehicle or agent.
+"""Fused episodes: one compiled kernel runs a whole episode of every
+environment of the batch, parallel over environments (numba prange), with no
+Python per step, vehicle or agent. For the TRUAV learners (`truav_episode`)
+and the patrol baseline (`patrol_episode`).
 
 Per env and step it does what the step-by-step driver does through
 `World.step` and `TruavController.act/observe`, by calling the same compiled
@@ -72,6 +73,63 @@ def truav_episode(q, state, explore_u, random_a, epsilon, train, lr, discount, o
             reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
 
 
+@njit(parallel=True, nogil=True, cache=True)
+def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, home, next_turn, turn_u, slots,
+                   total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, err_sum):
+    """The patrol baseline's episode, as PatrolController.act/observe step it:
+    each UAV takes the candidate action (cand (17, 2) velocities) landing
+    closest to its planned position plan (T + 1, B, U, 2) of the next step;
+    err_sum (B,) adds each step's mean distance to the plan."""
+    n_env, n_uav = pos.shape[0], pos.shape[1]
+    n_steps = turn_u.shape[0]
+    dt, area = up.dt, up.area
+    for b in prange(n_env):
+        actions = np.empty(n_uav, np.int64)
+        err = np.empty(n_uav)
+        no_delay = np.zeros(n_uav)
+        for t in range(n_steps):
+            for u in range(n_uav):
+                best, best_c = np.inf, 0
+                for c in range(cand.shape[0]):
+                    # np.clip(pos + cand * dt, 0, area), then the squared miss summed over x, y.
+                    lx, ly = pos[b, u, 0] + cand[c, 0] * dt, pos[b, u, 1] + cand[c, 1] * dt
+                    lx = lx if lx > 0.0 else 0.0
+                    ly = ly if ly > 0.0 else 0.0
+                    lx = lx if lx < area else area
+                    ly = ly if ly < area else area
+                    dx, dy = lx - plan[t + 1, b, u, 0], ly - plan[t + 1, b, u, 1]
+                    miss = dx * dx + dy * dy
+                    if miss < best:  # np.argmin: the first of equal misses
+                        best, best_c = miss, c
+                actions[u] = cand_action[best_c]
+            env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
+                     home[b], next_turn[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t, up, mp, rp, ch,
+                     out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+            for u in range(n_uav):
+                ex, ey = pos[b, u, 0] - plan[t + 1, b, u, 0], pos[b, u, 1] - plan[t + 1, b, u, 1]
+                err[u] = np.sqrt(ex * ex + ey * ey)
+            err_sum[b] += pairwise_sum(err, 0, n_uav) / n_uav
+
+
+def _world_args(world):
+    veh, queues, draws = world.vehicles, world.queues, world._draws
+    return (world.uav_pos, world._velocity, veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
+            draws.turn_u, queues.slots, queues.total, draws.arrivals, world.uav, world.grid.params, world.relay,
+            world.channel, world._out_uav, world._out_env, world._energy, world._above_hover, world._totals)
+
+
+def run_patrol_episode(world, controller) -> None:
+    """The current episode (from step 0) under the PatrolController `controller`."""
+    if world.t != 0:
+        raise RuntimeError("the fused episode starts at step 0")
+    patrol_episode(controller.plan, controller._cand, controller._cand_action.astype(np.int64),
+                   *_world_args(world), controller._err_sum)
+    steps = world._draws.turn_u.shape[0]
+    world.t = steps
+    controller._err_n = steps
+    controller.pos = world.uav_pos.copy()
+
+
 def set_threads(n: int) -> None:
     """Run the fused kernel on n threads (at most the cores numba found)."""
     numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
@@ -83,16 +141,10 @@ def run_episode(world, controller) -> None:
     if world.t != 0:
         raise RuntimeError("the fused episode starts at step 0")
     cfg, lc, ln = world.cfg, controller.cfg.learner, controller.learners
-    veh, queues, draws = world.vehicles, world.queues, world._draws
-    U = world.n_uavs
-    others = ~np.eye(U, dtype=np.bool_)
+    others = ~np.eye(world.n_uavs, dtype=np.bool_)
     truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), bool(controller.train),
                   float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
-                  controller.encoder.params, controller.reward.params,
-                  world.uav_pos, world._velocity, veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
-                  draws.turn_u, queues.slots, queues.total, draws.arrivals,
-                  world.uav, world.grid.params, world.relay, world.channel, world._out_uav, world._out_env,
-                  world._energy, world._above_hover, world._totals, controller._reward_sum)
-    steps = draws.turn_u.shape[0]
+                  controller.encoder.params, controller.reward.params, *_world_args(world), controller._reward_sum)
+    steps = world._draws.turn_u.shape[0]
     world.t = steps
     controller._steps = steps

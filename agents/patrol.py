@@ -121,6 +121,14 @@ class PatrolController:
         self._err_sum = np.zeros(self.batch)
         self._err_n = 0
         self._channel, self._relay = network.relay_params(cfg)
+        self.fused = True
+        """The driver runs whole episodes through run_episode; False steps through act/observe."""
+
+    def run_episode(self, world) -> None:
+        """Steps 0..T-1 of the world's current episode in one compiled kernel
+        (agents.fused): the same numbers as act/observe through World.step."""
+        from agents.fused import run_patrol_episode
+        run_patrol_episode(world, self)
 
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
         sc, pc = self.cfg.scenario, self.cfg.patrol

@@ -42,3 +42,19 @@ def test_pairwise_sum_is_numpys(n):
     for _ in range(20):
         x = rng.random(n) * rng.choice([1e-3, 1.0, 1e3], n)
         assert pairwise_sum(x, 0, n) == np.add.reduce(x)
+
+
+@pytest.mark.parametrize("scenario", [{}, {"n_uavs": 9, "uav_speed_mps": 25.0}])
+def test_fused_patrol_equals_the_step_path(small_cfg, scenario):
+    from agents.patrol import PatrolController
+    cfg = small_cfg.replace(scenario=scenario)
+    seeds = [2, 4]
+    runs = []
+    for fused in (False, True):
+        ctrl = PatrolController(cfg, seeds)
+        ctrl.fused = fused
+        runs.append(run_episodes(cfg, seeds, ctrl, 3))
+    ref, got = runs
+    assert ref.keys() == got.keys()
+    for k in ref:
+        np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
