@@ -48,7 +48,8 @@ def test_leader_slows_follower():
     grid = RoadGrid(cfg)
     # Two vehicles on lane heading +x of road 1, between intersections (0, 250): leader stopped at 150 m.
     veh = Vehicles(heading=np.array([[0, 0]]), road=np.array([[1, 1]]), s=np.array([[100.0, 150.0]]),
-                   v=np.array([[12.0, 0.0]]), home=np.array([[0, 0]]), next_turn=np.array([[0, 0]]))
+                   v=np.array([[12.0, 0.0]]), home=grid.major_index[[[0, 0]]], next_turn=np.array([[0, 0]]),
+                   cluster=np.array([[0, 0]]))
     grid.params.is_major[:] = False
     u = np.full((1, 2, 2), 0.99)
     speeds = []

@@ -51,15 +51,35 @@ def parse_sets(items: list[str]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def add_preset_arg(p: argparse.ArgumentParser, help_text: str | None = None) -> None:
+    from truav.presets import PRESETS
+    p.add_argument("--preset", metavar="NAME", help=help_text or (
+        f"scenario preset applied before --config and --set: {' or '.join(PRESETS)} (default literal: "
+        "the paper's Table read literally); `truav config show --preset paper` lists each choice and its source"))
+
+
+def preset_from(args) -> dict[str, dict[str, Any]]:
+    """The overrides of --preset ({} if not given); an unknown name is a UsageError."""
+    from truav.presets import preset_overrides
+    name = getattr(args, "preset", None)
+    if name is None:
+        return {}
+    try:
+        return preset_overrides(name)
+    except KeyError as exc:
+        raise UsageError(f"--preset: {exc.args[0]}") from None
+
+
 def add_config_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", "-c", metavar="FILE", help="TOML file overriding the defaults")
+    add_preset_arg(p)
+    p.add_argument("--config", "-c", metavar="FILE", help="TOML file overriding the defaults (or the preset)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one config value (repeatable), e.g. --set scenario.n_uavs=8")
 
 
 def config_from(args, extra: dict[str, dict[str, Any]] | None = None,
                 base: dict[str, dict[str, Any]] | None = None) -> Config:
-    """Defaults < ``base`` (e.g. --quick) < --config file < --set < ``extra`` (dedicated flags)."""
+    """Defaults < --preset < ``base`` (e.g. --quick) < --config file < --set < ``extra`` (dedicated flags)."""
     overrides = parse_sets(args.set)
     for section, values in (extra or {}).items():
         for key, value in values.items():
@@ -67,7 +87,10 @@ def config_from(args, extra: dict[str, dict[str, Any]] | None = None,
                 raise UsageError(f"--set {section}.{key}={overrides[section][key]} contradicts the flag that sets "
                                  f"it to {value}; give one of them")
         overrides.setdefault(section, {}).update(values)
-    return load_config(args.config, overrides, base)
+    layered = preset_from(args)
+    for section, values in (base or {}).items():
+        layered[section] = {**layered.get(section, {}), **values}
+    return load_config(args.config, overrides, layered)
 
 
 def seed_list(args) -> list[int]:
@@ -94,19 +117,21 @@ def progress_bar(total: int, desc: str, quiet: bool):
                 bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} env-episodes [{elapsed}<{remaining}{postfix}]")
 
 
-def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet):
+def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet, start_pos=None):
     from truav.trainer import run_parallel
     with progress_bar(len(seeds) * episodes, desc, quiet) as bar:
         def on_progress(n, live):
             bar.update(n)
             bar.set_postfix_str("cov {coverage_pct:.1f}% pdr {pdr:.3f} delay {delay_ms:.0f}ms "
                                 "E {energy_j:.0f}J".format(**live), refresh=False)
-        return run_parallel(kind, cfg, seeds, episodes, workers, train, q, on_progress)
+        return run_parallel(kind, cfg, seeds, episodes, workers, train, q, on_progress, start_pos)
 
 
 # -- commands -----------------------------------------------------------------
 def cmd_config_show(args) -> int:
-    sys.stdout.write(to_toml(config_from(args)))
+    from truav.presets import DEFAULT_PRESET, preset_header
+    cfg = config_from(args)
+    sys.stdout.write(preset_header(args.preset or DEFAULT_PRESET) + to_toml(cfg))
     return 0
 
 
@@ -130,7 +155,7 @@ def cmd_train(args) -> int:
     result = run_with_progress("truav", cfg, seeds, episodes, workers, True, None, "train", args.quiet)
     elapsed = time.perf_counter() - t0
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
-    runio.write_qtables(out, seeds, result.q)
+    runio.write_qtables(out, seeds, result.q, result.uav_pos)
     window = min(500, episodes)
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
                        title=f"TRUAV at {cfg.scenario.uav_speed_mps:g} m/s")

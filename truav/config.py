@@ -96,6 +96,18 @@ class RoadConfig:
     """Grid indices (i, j) of the city's major intersections (a fixed map):
     the four RSU sites near the corners and the city centre. Each vehicle has
     one as its home; traffic clusters around them."""
+    hotspot_move_prob: float = param(0.0, 0.0, 1.0)
+    """Probability that each traffic hotspot (the intersection a cluster of
+    vehicles gathers at; at first the major intersections) moves at the start
+    of an episode, by hotspot_step_blocks to a neighbouring intersection inside
+    the box of the major intersections; its vehicles then head for the new
+    site. 0 (default): fixed hotspots, the literal reading of "higher vehicle
+    densities near major intersections". The paper's introduction speaks of
+    spatio-temporal hotspot dynamics that fixed patrol paths cannot follow
+    (`--preset paper`)."""
+    hotspot_step_blocks: int = param(4, 1, 1000)
+    """How far a hotspot moves at once, in blocks (4 x 250 m = 1 km: two
+    comm ranges, so a moved cluster leaves the coverage of a UAV parked on it)."""
     turn_speed_mps: float = param(5.5, 0.5, 50.0)
     """Speed for turning and for crossing a major (signalised) intersection
     (~20 km/h, the usual urban turning speed in SUMO's junction model)."""

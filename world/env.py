@@ -8,7 +8,9 @@ alone, whatever the batch size.
 
 Time: `reset` spawns the vehicles and runs `warmup_steps` of traffic so the
 city starts clustered, then starts episode 0. Traffic keeps flowing across
-episodes (the city does not restart); each new episode re-places the UAVs and
+episodes (the city does not restart); each new episode re-places the UAVs
+(`scenario.uav_start`), may move the traffic hotspots
+(`roads.hotspot_move_prob`, their vehicles then drive to the new sites) and
 empties the packet queues, so every episode's packet accounting closes:
 generated = delivered + dropped + queued at the end.
 """
@@ -127,12 +129,20 @@ class World:
         self.draw_map = map
         """How start_episode maps its per-env draws: a thread pool's map draws
         envs in parallel (each env has its own generator, so nothing changes)."""
+        self._deployed: np.ndarray | None = None
 
     # -- episode control ------------------------------------------------------
-    def reset(self, rngs: list[np.random.Generator]) -> LocalObs:
-        """Spawn traffic from each env's generator, warm it up, start episode 0."""
+    def reset(self, rngs: list[np.random.Generator], uav_pos: np.ndarray | None = None) -> LocalObs:
+        """Spawn traffic from each env's generator, warm it up, start episode 0.
+
+        uav_pos (B, U, 2): with scenario.uav_start = "persist", a swarm already
+        deployed there (e.g. where training left it) instead of a random first
+        deployment; the random draw is made anyway, so the streams do not change."""
         if len(rngs) != self.batch:
             raise ValueError(f"need {self.batch} generators, got {len(rngs)}")
+        if uav_pos is not None and np.shape(uav_pos) != (self.batch, self.n_uavs, 2):
+            raise ValueError(f"uav_pos must be shaped {(self.batch, self.n_uavs, 2)}, got {np.shape(uav_pos)}")
+        self._deployed = None if uav_pos is None else np.array(uav_pos, np.float64)
         self.rngs = list(rngs)
         self.vehicles = Vehicles.concat([self.grid.spawn(rng, self.n_vehicles) for rng in self.rngs])
         warm = self.cfg.roads.warmup_steps
@@ -141,6 +151,8 @@ class World:
             for k in range(warm):
                 self.grid.step(self.vehicles, self.cfg.scenario.step_s, u[k])
         self.episode = -1
+        self.hotspots = np.repeat(self.grid.majors[None], self.batch, axis=0)
+        """(B, K, 2) grid indices of each env's traffic-cluster sites."""
         return self.start_episode()
 
     def start_episode(self) -> LocalObs:
@@ -153,13 +165,20 @@ class World:
             rng = self.rngs[b]
             # Drawn every episode whatever the mode, so streams never depend on it.
             drawn = rng.random((U, 2)) * sc.area_m
-            if sc.uav_start == "random" or (sc.uav_start == "persist" and first):
+            if sc.uav_start == "persist" and first and self._deployed is not None:
+                start = self._deployed[b].copy()
+            elif sc.uav_start == "random" or (sc.uav_start == "persist" and first):
                 start = drawn
             elif sc.uav_start == "persist":
                 start = self.uav_pos[b].copy()
             else:
                 start = np.full((U, 2), sc.area_m / 2.0)
-            return rng.poisson(lam, (T, N)), rng.random((T, N, 2)), start
+            arrivals, turns = rng.poisson(lam, (T, N)), rng.random((T, N, 2))
+            if self.cfg.roads.hotspot_move_prob > 0.0:  # drawn only then: fixed-hotspot streams unchanged
+                moves = rng.random((len(self.grid.majors), 2))
+                if not first:  # env b's rows only, so the envs may be drawn on threads
+                    self.grid.move_hotspots(self.vehicles, b, self.hotspots[b], moves)
+            return arrivals, turns, start
 
         arrivals, turns, starts = zip(*self.draw_map(draw, range(self.batch)))
         self._draws = _EpisodeDraws(np.stack(arrivals, 1), np.stack(turns, 1), np.stack(starts))

@@ -10,8 +10,11 @@ Longitudinal motion is the Intelligent Driver Model (Treiber et al. 2000)
 behind the leader on the same lane; drivers slow to the turning speed before
 an intersection where they will turn or that is major (signalised). At an
 intersection a driver takes the turn chosen when it entered the block: with
-probability p_attract the one that brings it closest to its home major
-intersection, otherwise a Manhattan draw (straight/left/right). A turner
+probability p_attract the one that brings it closest to its home (the
+intersection its traffic cluster gathers at), otherwise a Manhattan draw
+(straight/left/right). Each vehicle belongs to one cluster; clusters start at
+the major intersections and, if `roads.hotspot_move_prob` > 0, move between
+intersections over time (`move_hotspots`), their vehicles following. A turner
 whose landing spot on the new lane is taken goes straight instead, or waits
 at the road end, so no lane ever holds overlapping vehicles.
 
@@ -46,10 +49,11 @@ class Vehicles:
     road: np.ndarray  # int64
     s: np.ndarray  # float64, m along the road
     v: np.ndarray  # float64, m/s
-    home: np.ndarray  # int64, index into the major intersections
+    home: np.ndarray  # int64, intersection i * n_roads + j its cluster gathers at
     next_turn: np.ndarray  # int64, STRAIGHT/LEFT/RIGHT at the next intersection
+    cluster: np.ndarray  # int64, index of its traffic cluster (a major intersection at the start)
 
-    FIELDS = ("heading", "road", "s", "v", "home", "next_turn")
+    FIELDS = ("heading", "road", "s", "v", "home", "next_turn", "cluster")
 
     def xy(self, block_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Planar positions (x, y), each (B, N)."""
@@ -81,8 +85,8 @@ class MobilityParams(NamedTuple):
     p_left: float
     p_right: float
     is_major: np.ndarray  # (n_roads, n_roads) bool
-    major_i: np.ndarray  # (n_major,) int64
-    major_j: np.ndarray
+    home_i: np.ndarray  # (n_roads**2,) int64: grid i of intersection index i * n_roads + j
+    home_j: np.ndarray
 
 
 @njit(cache=True)
@@ -110,7 +114,7 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
             feasible[c] = True
             # Euclidean, so that past its home a driver turns back around the
             # block instead of driving straight on; ties prefer straight, left, right.
-            score = (ni - p.major_i[home]) ** 2 + (nj - p.major_j[home]) ** 2 + 0.1 * c
+            score = (ni - p.home_i[home]) ** 2 + (nj - p.home_j[home]) ** 2 + 0.1 * c
             if score < best_score:
                 best, best_score = c, score
             total += probs[c]
@@ -279,6 +283,10 @@ class RoadGrid:
         self.n_roads = n_grid_roads(cfg)
         self.extent = (self.n_roads - 1) * self.block
         majors = np.array(cfg.roads.major_intersections, dtype=np.int64).reshape(-1, 2)
+        self.majors = majors
+        self.major_index = majors[:, 0] * self.n_roads + majors[:, 1]
+        """Intersection index of each major intersection (the clusters' first homes)."""
+        sites = np.arange(self.n_roads * self.n_roads)
         is_major = np.zeros((self.n_roads, self.n_roads), dtype=np.bool_)
         is_major[majors[:, 0], majors[:, 1]] = True
         r, idm = cfg.roads, cfg.idm
@@ -286,11 +294,11 @@ class RoadGrid:
             float(self.block), int(self.n_roads), float(self.extent), idm.vehicle_length_m,
             idm.desired_speed_mps, idm.time_headway_s, idm.max_accel, idm.comfort_decel, idm.min_gap_m,
             idm.exponent, r.turn_speed_mps, r.p_attract, r.p_straight, r.p_left, r.p_right,
-            is_major, majors[:, 0].copy(), majors[:, 1].copy())
+            is_major, sites // self.n_roads, sites % self.n_roads)
 
     def spawn(self, rng: np.random.Generator, n: int) -> Vehicles:
         """N vehicles on distinct 25 m slots of random lanes, at rest, one env
-        (arrays shaped (1, N)); homes uniform over the major intersections."""
+        (arrays shaped (1, N)); clusters uniform over the major intersections."""
         slot_m = 25.0
         slots_per_lane = int(self.extent // slot_m)
         n_lanes = 4 * self.n_roads
@@ -300,9 +308,32 @@ class RoadGrid:
         lane, slot = np.divmod(pick, slots_per_lane)
         heading, road = np.divmod(lane, self.n_roads)
         s = (slot + 0.5) * slot_m
-        home = rng.integers(0, len(self.params.major_i), size=n)
+        cluster = rng.integers(0, len(self.majors), size=n)
+        home = self.major_index[cluster]
         turn = choose_turns(heading, road, s, home, rng.random((n, 2)), self.params)
-        return Vehicles(heading[None], road[None], s[None], np.zeros((1, n)), home[None], turn[None])
+        return Vehicles(heading[None], road[None], s[None], np.zeros((1, n)), home[None], turn[None], cluster[None])
+
+    def move_hotspots(self, veh: Vehicles, b: int, site: np.ndarray, u: np.ndarray) -> None:
+        """Move env b's traffic hotspots in place and re-home their vehicles.
+
+        site (K, 2) grid indices of the K cluster sites (updated); u (K, 2)
+        uniforms: with probability roads.hotspot_move_prob (u[:, 0]) a site
+        steps roads.hotspot_step_blocks along one of the four directions
+        (u[:, 1]) that keep it inside the box spanned by the major
+        intersections, so clusters shift between intersections of the city
+        map while its RSUs and signals stay put."""
+        r = self.cfg.roads
+        lo, hi = self.majors.min(axis=0), self.majors.max(axis=0)
+        steps = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]) * r.hotspot_step_blocks
+        for k in range(site.shape[0]):
+            if u[k, 0] >= r.hotspot_move_prob:
+                continue
+            targets = site[k] + steps
+            ok = np.all((targets >= lo) & (targets <= hi), axis=1)
+            if ok.any():
+                choices = targets[ok]
+                site[k] = choices[min(int(u[k, 1] * len(choices)), len(choices) - 1)]
+        veh.home[b] = (site[:, 0] * self.n_roads + site[:, 1])[veh.cluster[b]]
 
     def step(self, veh: Vehicles, dt: float, u_turn: np.ndarray) -> None:
         """Advance all vehicles by dt in place; u_turn (B, N, 2) uniforms."""
