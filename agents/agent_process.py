@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.beacon_schedule import BeaconSchedule
-from agents.qlearning import QLearners
+from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
@@ -183,7 +183,7 @@ class AgentNode:
             from truav.runio import read_qtables
             _, tables = read_qtables(o.qtable)
             q = tables[o.qtable_index, o.uav][None, None]
-        learners = QLearners(self.cfg.learner, self.encoder.n_states, [rng], 1, 1, q=q)
+        learners = QLearners(self.cfg.learner, self.encoder.n_states, [rng], 1, 1, q=q, fence=geofence(self.cfg))
         if o.checkpoint and Path(o.checkpoint).is_file():
             with np.load(o.checkpoint) as ck:
                 learners.q[0, 0] = ck["q"]
@@ -267,7 +267,7 @@ class AgentNode:
                 self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick,
                                                                              action=DONE_ACK_ACTION))
             return
-        self._action = int(self.learners.act(state, min(self._t, T - 1))[0, 0])
+        self._action = int(self.learners.act(state, min(self._t, T - 1), pos)[0, 0])
         self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
         self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
 

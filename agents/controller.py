@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.qlearning import QLearners
+from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, all_peers, neighbour_features
 from truav import seeding
@@ -26,8 +26,9 @@ class TruavController:
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         U = cfg.scenario.n_uavs
         rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(U)]
-        self.learners = QLearners(cfg.learner, self.encoder.n_states, rngs, len(seeds), U, q=q)
+        self.learners = QLearners(cfg.learner, self.encoder.n_states, rngs, len(seeds), U, q=q, fence=geofence(cfg))
         self.state = np.zeros((len(seeds), U), np.int64)
+        self.pos = np.zeros((len(seeds), U, 2))
         self.action = np.zeros((len(seeds), U), np.int64)
         self._reward_sum = np.zeros(len(seeds))
         self._steps = 0
@@ -41,6 +42,7 @@ class TruavController:
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
         self.learners.begin_episode(episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
         self.state, _ = self._features(obs)
+        self.pos = obs.pos
         self._reward_sum[:] = 0.0
         self._steps = 0
 
@@ -51,7 +53,7 @@ class TruavController:
         run_episode(world, self)
 
     def act(self, t: int) -> np.ndarray:
-        self.action = self.learners.act(self.state, t)
+        self.action = self.learners.act(self.state, t, self.pos)
         return self.action
 
     def observe(self, obs: LocalObs, done: bool) -> None:
@@ -62,6 +64,7 @@ class TruavController:
         self._reward_sum += r.mean(axis=1)
         self._steps += 1
         self.state = next_state
+        self.pos = obs.pos
 
     def episode_stats(self) -> dict[str, np.ndarray]:
         n = len(self._reward_sum)

@@ -38,13 +38,14 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def truav_episode(q, state, explore_u, random_a, epsilon, train, lr, discount, others, comm_range, sp, rp_reward,
+def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
                   pos, velocity, heading, road, s, v, home, next_turn, turn_u, slots, total, arrivals,
                   up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
     """Run steps 0..T-1 of the current episode for every env b, in place.
 
     q (B, U, S, 16); state (B, U) the agents' states at the episode start,
     left at the last step's; explore_u, random_a (T, B, U) exploration draws;
+    fence the agents' geofence (qlearning.Fence);
     others (U, U) which peers each UAV hears (all but itself); turn_u
     (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
     as in `step.env_step`, with a leading B; reward_sum (B,) adds each step's
@@ -57,7 +58,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, train, lr, discount, o
         no_delay = np.zeros(n_uav)
         for t in range(n_steps):
             for u in range(n_uav):
-                actions[u] = act_one(q[b, u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon)
+                actions[u] = act_one(q[b, u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon,
+                                     pos[b, u, 0], pos[b, u, 1], fence)
             env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
                      home[b], next_turn[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t, up, mp, rp, ch,
                      out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
@@ -142,7 +144,8 @@ def run_episode(world, controller) -> None:
         raise RuntimeError("the fused episode starts at step 0")
     cfg, lc, ln = world.cfg, controller.cfg.learner, controller.learners
     others = ~np.eye(world.n_uavs, dtype=np.bool_)
-    truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), bool(controller.train),
+    truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), ln.fence,
+                  bool(controller.train),
                   float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
                   controller.encoder.params, controller.reward.params, *_world_args(world), controller._reward_sum)
     steps = world._draws.turn_u.shape[0]

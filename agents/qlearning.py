@@ -9,15 +9,43 @@ epsilon_start to epsilon_end over epsilon_decay_fraction of the episodes,
 then stays. The per-step exploration draws of an episode are made up front
 from each agent's generator (fixed shapes), so results do not depend on the
 batch an agent is trained in.
+
+Geofence: an agent never picks an action whose full move would leave the
+area (it knows its own position and the area it may fly in). Without it, a
+move into the border is clipped, the UAV hovers there at lower energy cost,
+its state never changes, and a greedy policy whose argmax points into the
+border is trapped for good (docs/reproduction.md, "The greedy collapse").
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from truav.config import LearnerConfig
-from world.uavs import N_ACTIONS
+from truav.config import Config, LearnerConfig
+from world.uavs import ACTION_UNIT_VELOCITY, N_ACTIONS
+
+
+class Fence(NamedTuple):
+    """The area an agent may fly in and how far an action moves it."""
+
+    area: float
+    """Side of the square area (m)."""
+    reach: float
+    """Full-speed move per step (m); 0 disables the fence."""
+    unit: np.ndarray
+    """(16+1, 2) action velocities per unit speed (world.uavs.ACTION_UNIT_VELOCITY)."""
+
+
+def geofence(cfg: Config) -> Fence:
+    """The fence of the scenario's area at its UAV speed."""
+    sc = cfg.scenario
+    return Fence(float(sc.area_m), float(sc.uav_speed_mps * sc.step_s), ACTION_UNIT_VELOCITY)
+
+
+NO_FENCE = Fence(np.inf, 0.0, ACTION_UNIT_VELOCITY)
 
 
 def epsilon_at(episode: int, lc: LearnerConfig) -> float:
@@ -34,7 +62,7 @@ class QLearners:
     """Tables q (B, U, S, 16) and per-agent generators (B*U of them, row-major)."""
 
     def __init__(self, lc: LearnerConfig, n_states: int, rngs: list[np.random.Generator],
-                 batch: int, n_agents: int, q: np.ndarray | None = None):
+                 batch: int, n_agents: int, q: np.ndarray | None = None, fence: Fence = NO_FENCE):
         if len(rngs) != batch * n_agents:
             raise ValueError(f"need {batch * n_agents} generators, got {len(rngs)}")
         self.lc = lc
@@ -46,6 +74,7 @@ class QLearners:
                 rng.random(out=table)
                 table *= lc.q_init_scale
         self.q = np.ascontiguousarray(q, dtype=np.float64).reshape(batch, n_agents, n_states, N_ACTIONS)
+        self.fence = fence
         self.epsilon = lc.epsilon_start
         self._explore_u = np.zeros((0, batch, n_agents))
         self._random_a = np.zeros((0, batch, n_agents), np.int64)
@@ -59,13 +88,22 @@ class QLearners:
         self._explore_u = np.stack(u, axis=1).reshape(shape)
         self._random_a = np.stack(a, axis=1).reshape(shape)
 
-    def greedy(self, states: np.ndarray) -> np.ndarray:
-        """argmax_a Q(s, a), (B, U)."""
-        return _greedy(self.q, states)
+    def greedy(self, states: np.ndarray, pos: np.ndarray | None = None) -> np.ndarray:
+        """argmax_a Q(s, a) over the actions the fence allows at pos (B, U, 2), (B, U)."""
+        return self.act(states, 0, pos, epsilon=0.0)
 
-    def act(self, states: np.ndarray, t: int) -> np.ndarray:
-        """Epsilon-greedy actions (B, U) for step t of the episode."""
-        return _act(self.q, states, self._explore_u[t], self._random_a[t], self.epsilon)
+    def act(self, states: np.ndarray, t: int, pos: np.ndarray | None = None,
+            epsilon: float | None = None) -> np.ndarray:
+        """Epsilon-greedy actions (B, U) for step t of the episode, within the
+        fence at the agents' positions pos (B, U, 2) (required with a fence)."""
+        if pos is None:
+            if self.fence.reach > 0.0:
+                raise ValueError("a fenced learner needs the agents' positions")
+            pos = np.zeros(states.shape + (2,))
+        eps = self.epsilon if epsilon is None else epsilon
+        return _act(self.q, states, self._explore_u[t] if len(self._explore_u) else np.ones(states.shape),
+                    self._random_a[t] if len(self._random_a) else np.zeros(states.shape, np.int64), eps,
+                    np.ascontiguousarray(pos, dtype=np.float64), self.fence)
 
     def update(self, s: np.ndarray, a: np.ndarray, r: np.ndarray, s_next: np.ndarray,
                terminal: bool) -> None:
@@ -77,11 +115,33 @@ class QLearners:
 
 
 @njit(cache=True)
-def act_one(q_row, explore_u, random_a, epsilon):
-    """One agent's epsilon-greedy action from its row Q(s, .) and the step's draws."""
+def allowed_one(a, x, y, fence):
+    """Whether action a's full move from (x, y) stays inside the fenced area."""
+    if fence.reach <= 0.0:
+        return True
+    nx = x + fence.unit[a, 0] * fence.reach
+    ny = y + fence.unit[a, 1] * fence.reach
+    tol = 1e-9 * fence.area
+    return -tol <= nx <= fence.area + tol and -tol <= ny <= fence.area + tol
+
+
+@njit(cache=True)
+def act_one(q_row, explore_u, random_a, epsilon, x, y, fence):
+    """One agent's epsilon-greedy action from its row Q(s, .), the step's
+    draws and its position (x, y): the argmax over allowed actions (first on
+    ties, as np.argmax), or when exploring the drawn action, the next allowed
+    one (cyclically) if it would leave the area."""
+    n = q_row.size
     if explore_u < epsilon:
-        return random_a
-    return np.argmax(q_row)
+        for k in range(n):
+            a = (random_a + k) % n
+            if allowed_one(a, x, y, fence):
+                return a
+    best, best_q = -1, -np.inf
+    for a in range(n):
+        if (best < 0 or q_row[a] > best_q) and allowed_one(a, x, y, fence):
+            best, best_q = a, q_row[a]
+    return best
 
 
 @njit(cache=True)
@@ -96,22 +156,13 @@ def q_update_one(q, s, a, r, s_next, terminal, lr, discount):
 # The batch kernels below and the fused trainer (agents/fused.py) run the
 # per-agent functions above, so a swarm agent (B = U = 1) learns by the same code.
 @njit(cache=True)
-def _greedy(q, states):
+def _act(q, states, explore_u, random_a, epsilon, pos, fence):
     n_env, n_agent = states.shape
     out = np.empty((n_env, n_agent), np.int64)
     for b in range(n_env):
         for u in range(n_agent):
-            out[b, u] = np.argmax(q[b, u, states[b, u]])
-    return out
-
-
-@njit(cache=True)
-def _act(q, states, explore_u, random_a, epsilon):
-    n_env, n_agent = states.shape
-    out = np.empty((n_env, n_agent), np.int64)
-    for b in range(n_env):
-        for u in range(n_agent):
-            out[b, u] = act_one(q[b, u, states[b, u]], explore_u[b, u], random_a[b, u], epsilon)
+            out[b, u] = act_one(q[b, u, states[b, u]], explore_u[b, u], random_a[b, u], epsilon,
+                                pos[b, u, 0], pos[b, u, 1], fence)
     return out
 
 

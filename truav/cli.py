@@ -174,17 +174,22 @@ def cmd_evaluate(args) -> int:
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     seeds, q = runio.read_qtables(run)
     runio.check_qtables(run, q.shape, cfg)
+    cfg = cfg.replace(**preset_from(args))
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
+    # A persist swarm goes on from its station, as in training; a fresh random
+    # deployment would put its agents in states they never visited (docs/reproduction.md).
+    start = runio.read_uav_positions(run) if cfg.scenario.uav_start == "persist" else None
     rows = {}
     for kind in ["truav"] + list(args.against):
         result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
-                                   q if kind == "truav" else None, kind, args.quiet)
+                                   q if kind == "truav" else None, kind, args.quiet, start)
         rows[kind] = {k: np.nanmean(v, axis=0) for k, v in result.metrics.items()}
     print(f"greedy evaluation: {len(seeds)} seeds x {args.episodes} episodes on held-out traffic "
-          f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds")
+          f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds"
+          + ("; the swarm starts where training left it" if start is not None else ""))
     print(format_table(rows))
     return 0
 
@@ -216,6 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
     ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default 20)")
     ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
+    add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)

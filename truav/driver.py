@@ -57,23 +57,36 @@ class FusedEpisode(Protocol):
 
 
 def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes: int,
-                 on_episode: EpisodeCallback | None = None) -> dict[str, np.ndarray]:
-    """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}."""
+                 on_episode: EpisodeCallback | None = None, start_pos: np.ndarray | None = None,
+                 end_pos: np.ndarray | None = None, world: World | None = None) -> dict[str, np.ndarray]:
+    """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}.
+
+    start_pos (B, U, 2): under scenario.uav_start = "persist", the swarm starts
+    deployed there (World.reset); end_pos, if given, receives the UAV
+    positions at the end, so an evaluation can continue a trained swarm.
+    world: run in this World instead of a new one: reset here if it never
+    was, otherwise gone on with (e.g. the one training ran in; every episode
+    then starts with start_episode)."""
+    world = World(cfg, len(seeds)) if world is None else world
     with ThreadPoolExecutor(max_workers=max(1, min(len(seeds), os.cpu_count() or 1))) as pool:
-        return _run(cfg, seeds, controller, episodes, on_episode, pool)
+        if len(seeds) > 1:
+            world.draw_map = pool.map  # each env's draws from its own generator, on threads
+        try:
+            return _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos)
+        finally:
+            world.draw_map = map  # the pool ends here; a world gone on with later draws without it
 
 
-def _run(cfg, seeds, controller, episodes, on_episode, pool) -> dict[str, np.ndarray]:
-    world = World(cfg, len(seeds))
-    if len(seeds) > 1:
-        world.draw_map = pool.map  # each env's draws from its own generator, on threads
+def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos) -> dict[str, np.ndarray]:
+    fresh = world.episode < 0
     control = getattr(controller, "control", None)  # see ControlPlane
     fused = getattr(controller, "run_episode", None) if control is None and getattr(controller, "fused", False) \
         else None  # see FusedEpisode
     history: dict[str, list[np.ndarray]] = {}
-    obs = world.reset([seeding.world_rng(s) for s in seeds])
+    if fresh:
+        obs = world.reset([seeding.world_rng(s) for s in seeds], start_pos)
     for episode in range(episodes):
-        if episode:
+        if episode or not fresh:
             obs = world.start_episode()
         controller.begin_episode(episode, obs)
         if fused is not None:
@@ -85,6 +98,8 @@ def _run(cfg, seeds, controller, episodes, on_episode, pool) -> dict[str, np.nda
             history.setdefault(key, []).append(value)
         if on_episode is not None:
             on_episode(episode, summary)
+    if end_pos is not None:
+        end_pos[...] = world.uav_pos
     return {k: np.stack(v) for k, v in history.items()}
 
 

@@ -94,9 +94,12 @@ def read_metrics(path: Path) -> tuple[list[int], dict[str, np.ndarray]]:
     return seeds, out
 
 
-def write_qtables(run: Path, seeds: list[int], q: np.ndarray) -> None:
+def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarray | None = None) -> None:
+    """Q-tables and, if given, where the UAVs ended training (B, U, 2): a
+    persist-trained swarm is evaluated from there (read_uav_positions)."""
     tmp = run / (QTABLE_FILE + ".tmp.npz")
-    np.savez_compressed(tmp, q=q.astype(np.float32), seeds=np.asarray(seeds))
+    extra = {} if uav_pos is None else {"uav_pos": np.asarray(uav_pos, np.float64)}
+    np.savez_compressed(tmp, q=q.astype(np.float32), seeds=np.asarray(seeds), **extra)
     os.replace(tmp, run / QTABLE_FILE)
 
 
@@ -168,3 +171,12 @@ def check_qtables(path: str | Path, shape: tuple[int, ...], cfg: Config, exact_u
     if tuple(shape[2:]) != (n_states, N_ACTIONS):
         raise RunDirError(f"{path}: Q-tables have {shape[2]} states x {shape[3]} actions but this "
                           f"config's state encoding needs {n_states} x {N_ACTIONS}")
+
+
+def read_uav_positions(path: str | Path) -> np.ndarray | None:
+    """(B, U, 2) UAV positions at the end of training, or None if the run has none."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / QTABLE_FILE
+    with np.load(p) as data:
+        return data["uav_pos"].astype(np.float64) if "uav_pos" in data.files else None

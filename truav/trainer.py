@@ -36,6 +36,8 @@ class RunResult:
     seeds: list[int]
     metrics: dict[str, np.ndarray]
     q: np.ndarray | None
+    uav_pos: np.ndarray | None = None
+    """(B, U, 2) where the UAVs were at the end: a persist-trained swarm's station."""
 
 
 def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np.ndarray | None):
@@ -59,12 +61,13 @@ def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np
 
 
 def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bool = True,
-              q: np.ndarray | None = None, on_episode=None) -> RunResult:
-    """One batch of seeds in this process."""
+              q: np.ndarray | None = None, on_episode=None, start_pos: np.ndarray | None = None) -> RunResult:
+    """One batch of seeds in this process (start_pos: see driver.run_episodes)."""
     controller = make_controller(kind, cfg, seeds, train, q)
-    metrics = run_episodes(cfg, seeds, controller, episodes, on_episode)
+    end_pos = np.zeros((len(seeds), cfg.scenario.n_uavs, 2))
+    metrics = run_episodes(cfg, seeds, controller, episodes, on_episode, start_pos, end_pos)
     table = controller.learners.q if isinstance(controller, TruavController) else None
-    return RunResult(list(seeds), metrics, table)
+    return RunResult(list(seeds), metrics, table, end_pos)
 
 
 def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
@@ -72,10 +75,10 @@ def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
             for k in LIVE_METRICS}
 
 
-def _worker(index, kind, cfg, seeds, episodes, train, q, out):
+def _worker(index, kind, cfg, seeds, episodes, train, q, start_pos, out):
     try:
         result = run_chunk(kind, cfg, seeds, episodes, train, q,
-                           lambda e, m: out.put(("episode", index, len(seeds), _live(m))))
+                           lambda e, m: out.put(("episode", index, len(seeds), _live(m))), start_pos)
         out.put(("done", index, result))
     except BaseException as exc:  # report, then let the process end
         out.put(("error", index, f"{type(exc).__name__}: {exc}"))
@@ -90,7 +93,7 @@ def split(seq: list, parts: int) -> list[list]:
 
 def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, workers: int = 1,
                  train: bool = True, q: np.ndarray | None = None,
-                 on_progress: ProgressCallback | None = None) -> RunResult:
+                 on_progress: ProgressCallback | None = None, start_pos: np.ndarray | None = None) -> RunResult:
     """run_chunk over seed chunks in `workers` processes; results in seed order."""
     if kind == "truav":  # one batch; the fused kernel's threads use the cores
         from agents.fused import set_threads
@@ -99,12 +102,13 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     chunks = split(list(seeds), workers)
     if len(chunks) == 1:
         return run_chunk(kind, cfg, list(seeds), episodes, train, q,
-                         None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)))
+                         None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)), start_pos)
     ctx = mp.get_context("fork")
     out = ctx.Queue()
     bounds = np.cumsum([0] + [len(c) for c in chunks])
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi], out))
+                         args=(i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi],
+                               None if start_pos is None else start_pos[lo:hi], out))
              for i, (c, lo, hi) in enumerate(zip(chunks, bounds[:-1], bounds[1:]))]
     for p in procs:
         p.start()
@@ -132,4 +136,4 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     ordered = [results[i] for i in range(len(procs))]
     metrics = {k: np.concatenate([r.metrics[k] for r in ordered], axis=1) for k in ordered[0].metrics}
     q_all = None if ordered[0].q is None else np.concatenate([r.q for r in ordered])
-    return RunResult(list(seeds), metrics, q_all)
+    return RunResult(list(seeds), metrics, q_all, np.concatenate([r.uav_pos for r in ordered]))

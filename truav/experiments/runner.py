@@ -85,7 +85,9 @@ def cell_path(out: Path, base: Config, cell: Cell) -> Path:
     return Path(out) / CELLS_DIR / f"{cell.key(base)}.npz"
 
 
-def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: int, on_episode):
+def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: int, on_episode,
+              world=None):
+    from truav import seeding
     from truav.driver import run_episodes  # here, like the trainer: the CLI's parser loads this module
     from truav.trainer import make_controller
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
@@ -96,21 +98,28 @@ def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: 
         ctrl = controller
     else:
         ctrl = make_controller(scheme, cfg, eval_seeds, False, None)
-    return run_episodes(cfg, eval_seeds, ctrl, episodes, on_episode)
+    if world is not None:
+        world.rngs = [seeding.world_rng(s) for s in eval_seeds]
+    return run_episodes(cfg, eval_seeds, ctrl, episodes, on_episode, world=world)
 
 
 def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None = None) -> CellResult:
     """Train then evaluate one cell in this process."""
     from truav.driver import run_episodes
+    from world.env import World
     from truav.trainer import make_controller
     cfg = cell.config(base)
     seeds = list(cell.seeds)
     cb = None if on_episode is None else (lambda e, m: on_episode(len(seeds)))
     t0 = time.perf_counter()
     controller = make_controller(cell.scheme, cfg, seeds, True, None)
-    train = run_episodes(cfg, seeds, controller, cell.episodes, cb)
+    world = World(cfg, len(seeds))
+    train = run_episodes(cfg, seeds, controller, cell.episodes, cb, world=world)
     t_train = time.perf_counter() - t0
-    ev = _evaluate(cell.scheme, cfg, seeds, controller, cell.eval_episodes, cb) if cell.eval_episodes else {}
+    # Under "persist" the swarm and the city go on: every scheme is evaluated in
+    # the world its training ran in, its future drawn from the held-out streams.
+    go_on = world if cfg.scenario.uav_start == "persist" else None
+    ev = _evaluate(cell.scheme, cfg, seeds, controller, cell.eval_episodes, cb, go_on) if cell.eval_episodes else {}
     wall = time.perf_counter() - t0
     steps = len(seeds) * cell.episodes * cfg.scenario.steps_per_episode
     return CellResult(cell, train, ev, wall, {"train_s": t_train, "train_env_steps_per_s": steps / max(t_train, 1e-9)})
