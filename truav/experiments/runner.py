@@ -106,8 +106,8 @@ def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: 
 def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None = None) -> CellResult:
     """Train then evaluate one cell in this process."""
     from truav.driver import run_episodes
-    from world.env import World
     from truav.trainer import make_controller
+    from world.env import World
     cfg = cell.config(base)
     seeds = list(cell.seeds)
     cb = None if on_episode is None else (lambda e, m: on_episode(len(seeds)))
