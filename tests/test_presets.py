@@ -73,3 +73,19 @@ def test_moving_hotspots_keep_a_batch_equal_to_its_seeds_alone():
         np.testing.assert_array_equal(batch.vehicle_xy()[b], w.vehicle_xy()[0])
         for key, value in w.episode_summary().items():
             np.testing.assert_array_equal(batch.episode_summary()[key][b], value[0])
+
+
+def test_train_with_the_paper_preset_saves_the_swarm_and_evaluate_starts_it_there(tmp_path, capsys):
+    run = tmp_path / "run"
+    small = ["--set", "scenario.n_vehicles=30", "--set", "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=5"]
+    assert main(["train", "--preset", "paper", "--seeds", "2", "--episodes", "2", "--workers", "1", "--quiet",
+                 "--out", str(run), *small]) == 0
+    cfg = load_config(run / "config.toml")
+    assert cfg.scenario.uav_start == "persist" and cfg.roads.hotspot_move_prob == 0.5
+    with np.load(run / "qtables.npz") as data:
+        assert data["uav_pos"].shape == (2, cfg.scenario.n_uavs, 2)
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--episodes", "1", "--workers", "1", "--quiet"]) == 0
+    assert "the swarm starts where training left it" in capsys.readouterr().out
+    assert main(["evaluate", str(run), "--preset", "nope", "--quiet"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
