@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from agents.qlearning import QLearners, epsilon_at
+from agents.qlearning import QLearners, epsilon_at, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, all_peers, neighbour_features
 from truav.config import Config
@@ -24,6 +24,29 @@ def test_epsilon_schedule():
     assert epsilon_at(int(0.8 * lc.episodes), lc) == pytest.approx(0.05)
     assert epsilon_at(lc.episodes - 1, lc) == 0.05
     assert epsilon_at(100, lc) > epsilon_at(200, lc)
+
+
+def test_geofence_keeps_a_cornered_agent_inside_the_area():
+    """At the corner (0, 0) only actions with no negative x or y component are
+    allowed: the greedy pick skips a better action into the corner, and an
+    exploratory draw that would leave goes to the next allowed action."""
+    cfg = Config()
+    lc = cfg.learner
+    q = np.zeros((1, 1, 1, 16))
+    q[0, 0, 0, 5] = 9.0  # 225 degrees at half speed: into the corner
+    q[0, 0, 0, 1] = 1.0  # 45 degrees at half speed: away from it
+    learners = QLearners(lc, 1, [np.random.default_rng(0)], 1, 1, q=q, fence=geofence(cfg))
+    corner, middle = np.zeros((1, 1, 2)), np.full((1, 1, 2), 2500.0)
+    state = np.zeros((1, 1), np.int64)
+    assert learners.greedy(state, middle)[0, 0] == 5
+    assert learners.greedy(state, corner)[0, 0] == 1
+    learners._explore_u = np.zeros((1, 1, 1))  # explore
+    learners._random_a = np.full((1, 1, 1), 4)  # 180 degrees, half speed: out of the area from x = 0
+    learners.epsilon = 1.0
+    assert learners.act(state, 0, corner)[0, 0] == 8  # 4..7 leave it (180, 225, 270 degrees; 315 dips below y = 0)
+    assert learners.act(state, 0, middle)[0, 0] == 4
+    with pytest.raises(ValueError):
+        learners.act(state, 0)  # a fenced learner needs positions
 
 
 def test_greedy_without_exploration():
