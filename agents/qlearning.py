@@ -10,8 +10,8 @@ then stays. The per-step exploration draws of an episode are made up front
 from each agent's generator (fixed shapes), so results do not depend on the
 batch an agent is trained in.
 
-Geofence: an agent never picks an action whose full move would leave the
-area (it knows its own position and the area it may fly in). Without it, a
+Geofence (learner.geofence, on in the `paper` preset): an agent never picks an
+action whose full move would leave the area (it knows its own position and the area it may fly in). Without it, a
 move into the border is clipped, the UAV hovers there at lower energy cost,
 its state never changes, and a greedy policy whose argmax points into the
 border is trapped for good (docs/reproduction.md, "The greedy collapse").
@@ -39,13 +39,15 @@ class Fence(NamedTuple):
     """(16+1, 2) action velocities per unit speed (world.uavs.ACTION_UNIT_VELOCITY)."""
 
 
+NO_FENCE = Fence(np.inf, 0.0, ACTION_UNIT_VELOCITY)
+
+
 def geofence(cfg: Config) -> Fence:
-    """The fence of the scenario's area at its UAV speed."""
+    """The fence of the scenario's area at its UAV speed, or none unless learner.geofence is on."""
+    if not cfg.learner.geofence:
+        return NO_FENCE
     sc = cfg.scenario
     return Fence(float(sc.area_m), float(sc.uav_speed_mps * sc.step_s), ACTION_UNIT_VELOCITY)
-
-
-NO_FENCE = Fence(np.inf, 0.0, ACTION_UNIT_VELOCITY)
 
 
 def epsilon_at(episode: int, lc: LearnerConfig) -> float:

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from agents.qlearning import QLearners, epsilon_at, geofence
+from agents.qlearning import NO_FENCE, QLearners, epsilon_at, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, all_peers, neighbour_features
 from truav.config import Config
@@ -30,8 +30,9 @@ def test_geofence_keeps_a_cornered_agent_inside_the_area():
     """At the corner (0, 0) only actions with no negative x or y component are
     allowed: the greedy pick skips a better action into the corner, and an
     exploratory draw that would leave goes to the next allowed action."""
-    cfg = Config()
+    cfg = Config().replace(learner={"geofence": True})
     lc = cfg.learner
+    assert geofence(Config()) is NO_FENCE  # off by default: the literal preset's results stay as they were
     q = np.zeros((1, 1, 1, 16))
     q[0, 0, 0, 5] = 9.0  # 225 degrees at half speed: into the corner
     q[0, 0, 0, 1] = 1.0  # 45 degrees at half speed: away from it

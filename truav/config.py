@@ -214,6 +214,10 @@ class LearnerConfig:
     """Training episodes. Paper: 5000."""
     q_init_scale: float = param(0.01, 0.0, 10.0)
     """Q-tables start uniform in [0, q_init_scale) ("small random values")."""
+    geofence: bool = param(False)
+    """Never pick an action whose full move would leave the area (agents/qlearning.py). The paper is
+    silent; off keeps the literal preset's results as they were, the `paper` preset turns it on
+    (a greedy UAV pushing into a wall or corner keeps its state and stays there)."""
     w_relay: float = param(1.0, -100.0, 100.0)
     """alpha, weight of the relay term. Paper: 1.0."""
     w_coverage: float = param(0.25, -100.0, 100.0)

@@ -36,6 +36,9 @@ PRESETS: dict[str, tuple[Choice, ...]] = {
                "Related work: static deployment 'fails to cope with spatio-temporal hotspot dynamics' (Cho et al.); "
                "Evaluation: UAVs 'follow moving vehicle clusters', 'fixed patrol paths cannot adapt to spatial "
                "traffic variations'. No rate is given: 0.5 per 100 s episode, a hotspot dwells 200 s on average"),
+        Choice("learner.geofence", True,
+               "Not in the paper (silent on boundaries): a greedy UAV that pushes into a wall keeps its state "
+               "and stays there; the fence removes that corner trap (docs/reproduction.md, greedy collapse)"),
         Choice("roads.hotspot_step_blocks", 4,
                "System model: clusters gather at intersections; a move of 4 blocks (1 km, two comm ranges) takes a "
                "cluster out of the coverage of a UAV parked on its old site"),

@@ -1,6 +1,6 @@
 """Greedy collapse under persist: train (keeping the world), then compare
 evaluation variants on held-out traffic. Usage: diag2.py SEEDS EPISODES TAG [overrides]"""
-import os, sys, time, numpy as np
+import json, os, sys, time, numpy as np
 from truav.config import load_config
 from truav import seeding
 from agents.controller import TruavController
@@ -9,7 +9,7 @@ from world.uavs import ACTION_UNIT_VELOCITY, N_ACTIONS
 
 os.makedirs("runs/diag", exist_ok=True)
 seeds = list(range(int(sys.argv[1]))); episodes = int(sys.argv[2]); tag = sys.argv[3]
-extra = eval(sys.argv[4]) if len(sys.argv) > 4 else {}
+extra = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
 ov = {"scenario": {"uav_start": "persist", "uav_speed_mps": 15.0}, "learner": {"episodes": episodes}}
 for k, v in extra.items():
     ov.setdefault(k, {}).update(v)

@@ -1,6 +1,6 @@
 """Diagnose the greedy collapse under uav_start=persist: train, then run greedily
 while recording positions, states, actions; print stuck/self-loop stats; map."""
-import os, sys, time, numpy as np
+import json, os, sys, time, numpy as np
 from truav.config import load_config
 from truav.driver import run_episodes
 from truav import seeding
@@ -11,7 +11,7 @@ os.makedirs("runs/diag", exist_ok=True)
 seeds = list(range(int(sys.argv[1]) if len(sys.argv) > 1 else 2))
 episodes = int(sys.argv[2]) if len(sys.argv) > 2 else 1000
 tag = sys.argv[3] if len(sys.argv) > 3 else "base"
-extra = eval(sys.argv[4]) if len(sys.argv) > 4 else {}
+extra = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
 ov = {"scenario": {"uav_start": "persist", "uav_speed_mps": 15.0}, "learner": {"episodes": episodes}}
 for k, v in extra.items():
     ov.setdefault(k, {}).update(v)

@@ -1,12 +1,12 @@
 """Continuing evaluation of saved persist Q-tables: where is the rest of the gap?"""
-import os, sys, numpy as np
+import json, os, sys, numpy as np
 from truav.config import load_config
 from truav import seeding
 from agents.controller import TruavController
 from world.env import World
 from world.uavs import N_ACTIONS
 os.makedirs("runs/diag", exist_ok=True)
-tag = sys.argv[1]; extra = eval(sys.argv[2]) if len(sys.argv) > 2 else {}
+tag = sys.argv[1]; extra = json.loads(sys.argv[2]) if len(sys.argv) > 2 else {}
 d = np.load(f"runs/diag/d2_{tag}.npz"); q, visits, final_pos = d["q"], d["visits"], d["final_pos"]
 B, U = q.shape[:2]
 ov = {"scenario": {"uav_start": "persist", "uav_speed_mps": 15.0}, "learner": {"episodes": len(d["train_cov"])}}
