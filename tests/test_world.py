@@ -140,3 +140,16 @@ def test_control_plane_hooks_cost_airtime_energy_and_delay(small_cfg):
     np.testing.assert_allclose(talk.energy_j - quiet.energy_j, idle.channel.uav_tx_w * 0.25)
     _, late = one(loaded, None, 0.5)  # the previous action was "stand still": half the step lost
     np.testing.assert_allclose(np.linalg.norm(late, axis=-1), 0.5 * np.linalg.norm(moved, axis=-1), rtol=1e-9)
+
+
+@pytest.mark.parametrize("lam", [0.0, 0.05, 0.2, 3.0, 9.99, 12.0])
+def test_compiled_draws_consume_the_generator_as_numpy_does(lam):
+    from world.draws import poisson_into, uniform_into
+    ours, theirs = np.random.default_rng(7), np.random.default_rng(7)
+    arrivals, turns = np.empty((30, 3, 40), np.int64), np.empty((30, 3, 40, 2))
+    for b in range(3):  # strided views, as start_episode fills them
+        poisson_into(ours, lam, arrivals[:, b])
+        uniform_into(ours, turns[:, b])
+        assert np.array_equal(arrivals[:, b], theirs.poisson(lam, (30, 40)))
+        assert np.array_equal(turns[:, b], theirs.random((30, 40, 2)))
+    assert ours.random() == theirs.random()  # the streams end in the same place

@@ -23,6 +23,7 @@ import numpy as np
 
 from truav.config import Config
 from world import network, uavs
+from world.draws import poisson_into, uniform_into
 from world.network import (COVERED, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
                            E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
@@ -173,15 +174,18 @@ class World:
                 start = self.uav_pos[b].copy()
             else:
                 start = np.full((U, 2), sc.area_m / 2.0)
-            arrivals, turns = rng.poisson(lam, (T, N)), rng.random((T, N, 2))
+            poisson_into(rng, lam, arrivals[:, b])  # = rng.poisson(lam, (T, N)), in place
+            uniform_into(rng, turns[:, b])  # = rng.random((T, N, 2))
             if self.cfg.roads.hotspot_move_prob > 0.0:  # drawn only then: fixed-hotspot streams unchanged
                 moves = rng.random((len(self.grid.majors), 2))
                 if not first:  # env b's rows only, so the envs may be drawn on threads
                     self.grid.move_hotspots(self.vehicles, b, self.hotspots[b], moves)
-            return arrivals, turns, start
+            return start
 
-        arrivals, turns, starts = zip(*self.draw_map(draw, range(self.batch)))
-        self._draws = _EpisodeDraws(np.stack(arrivals, 1), np.stack(turns, 1), np.stack(starts))
+        arrivals = np.empty((T, self.batch, N), np.int64)
+        turns = np.empty((T, self.batch, N, 2))
+        starts = list(self.draw_map(draw, range(self.batch)))
+        self._draws = _EpisodeDraws(arrivals, turns, np.stack(starts))
         self.uav_pos = self._draws.uav_start.copy()
         self._velocity = np.zeros((self.batch, U, 2))
         self.queues.clear()
