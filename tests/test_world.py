@@ -153,3 +153,21 @@ def test_compiled_draws_consume_the_generator_as_numpy_does(lam):
         assert np.array_equal(arrivals[:, b], theirs.poisson(lam, (30, 40)))
         assert np.array_equal(turns[:, b], theirs.random((30, 40, 2)))
     assert ours.random() == theirs.random()  # the streams end in the same place
+
+
+def test_routes_evaluating_the_nearest_rsu_only_change_no_number():
+    cfg = Config()
+    ch, p = relay_params(cfg)
+    assert p.nearest_rsu_only
+    full = p._replace(nearest_rsu_only=False)
+    rng = np.random.default_rng(3)
+    area = cfg.scenario.area_m
+    mid = (p.rsu.min(axis=0) + p.rsu.max(axis=0)) / 2.0  # equidistant from RSU pairs: ties
+    for trial in range(300):
+        pos = rng.random((cfg.scenario.n_uavs, 2)) * area
+        if trial % 3 == 0:
+            pos[:, 0] = mid[0] + rng.normal(0.0, 1e-7, pos.shape[0]) * (trial % 2)
+        if trial % 5 == 0:
+            pos[0] = mid
+        for a, b in zip(routes(pos, p, ch), routes(pos, full, ch)):
+            assert np.array_equal(a, b)

@@ -37,6 +37,8 @@ UAV_COLUMNS = 5
 E_COVERED, E_GENERATED, E_OVERFLOW, E_DELIVERED, E_EXPIRED, E_DELAY_S, E_WAIT_STEPS = range(7)
 ENV_COLUMNS = 7
 TABLE_RESOLUTION_M = 0.5
+RSU_TIE_MARGIN, RSU_TIE_MARGIN_M = 1e-6, 1e-3
+"""RSUs this close to a UAV's nearest (relative, absolute) are all evaluated in `routes`."""
 
 
 class RelayParams(NamedTuple):
@@ -49,6 +51,7 @@ class RelayParams(NamedTuple):
     uav_tx_w: float
     rsu: np.ndarray  # (K, 2)
     uplink_rate: np.ndarray  # vehicle->UAV rate sampled every TABLE_RESOLUTION_M
+    nearest_rsu_only: bool  # the UAV-RSU hop time grows with distance: see `routes`
 
 
 def rsu_positions(cfg: Config) -> np.ndarray:
@@ -63,9 +66,13 @@ def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
     # between 0.5 m samples): the exact formula costs ~10 transcendental calls.
     samples = np.arange(0.0, sc.comm_range_m + 2 * TABLE_RESOLUTION_M, TABLE_RESOLUTION_M)
     table = a2g_rate(samples, sc.uav_altitude_m, ch.vehicle_tx_w, cp)
+    height = sc.uav_altitude_m - sc.rsu_height_m
+    # With the UAVs above the RSUs and NLoS no better than LoS, a farther RSU
+    # means a lower elevation (less LoS), more path loss and more propagation:
+    # a longer hop, always (los_a, los_b >= 0 by the config's bounds).
+    nearest_only = height >= 0.0 and ch.eta_nlos_db >= ch.eta_los_db
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
-                       cfg.roads.block_m, sc.uav_altitude_m - sc.rsu_height_m, ch.uav_tx_w,
-                       rsu_positions(cfg), table)
+                       cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only)
 
 
 @njit(cache=True)
@@ -81,12 +88,24 @@ def routes(uav_pos, p, ch):
     """Min-time routes of all UAVs (U, 2) of one env to any RSU. Returns
     per-packet route time (U,), next hop (U,) as a UAV index or -1 for an RSU,
     and the per-packet time of the first hop (U,)."""
-    n_uav = uav_pos.shape[0]
+    n_uav, n_rsu = uav_pos.shape[0], p.rsu.shape[0]
     best = np.full(n_uav, np.inf)
     next_hop = np.full(n_uav, -1)
     for u in range(n_uav):
-        for k in range(p.rsu.shape[0]):
+        # Under p.nearest_rsu_only the min over RSUs is that of the nearest:
+        # the (transcendental) hop time is computed only for RSUs within a
+        # margin of the nearest distance, far wider than any rounding, so the
+        # minimum taken is the very number the full loop takes.
+        cutoff = np.inf
+        if p.nearest_rsu_only:
+            h_min = np.inf
+            for k in range(n_rsu):
+                h_min = min(h_min, np.sqrt((uav_pos[u, 0] - p.rsu[k, 0]) ** 2 + (uav_pos[u, 1] - p.rsu[k, 1]) ** 2))
+            cutoff = h_min * (1.0 + RSU_TIE_MARGIN) + RSU_TIE_MARGIN_M
+        for k in range(n_rsu):
             h = np.sqrt((uav_pos[u, 0] - p.rsu[k, 0]) ** 2 + (uav_pos[u, 1] - p.rsu[k, 1]) ** 2)
+            if h > cutoff:
+                continue
             t = p.bits / a2g_rate(h, p.uav_rsu_height, p.uav_tx_w, ch) \
                 + np.sqrt(h * h + p.uav_rsu_height ** 2) / SPEED_OF_LIGHT
             best[u] = min(best[u], t)
