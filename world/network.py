@@ -167,13 +167,24 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
         # sends one (oldest first) while its UAV has radio time left this step.
         clock = busy0.copy()  # radio time already taken (e.g. control-plane traffic)
         start = t % n  # rotate who goes first, so no vehicle is favoured
-        served_any = True
-        while served_any:
-            served_any = False
-            for k in range(n):
-                i = (start + k) % n
+        # Each round visits the vehicles still able to send, in rotation order.
+        # One that cannot send now never can again this step (its queue only
+        # shrinks, its UAV's clock only grows), so it leaves the list: the same
+        # sends in the same order as visiting all n every round, at the cost
+        # of the senders only.
+        senders = np.empty(n, np.int64)
+        n_senders = 0
+        for k in range(n):
+            i = start + k if start + k < n else start + k - n
+            if nearest[i] >= 0 and total[i] > 0:
+                senders[n_senders] = i
+                n_senders += 1
+        while n_senders > 0:
+            kept = 0
+            for k in range(n_senders):
+                i = senders[k]
                 u = nearest[i]
-                if u < 0 or total[i] == 0 or clock[u] + cost[i] > p.dt:
+                if total[i] == 0 or clock[u] + cost[i] > p.dt:
                     continue
                 served, age = packets.serve(slots[i], t, 1)
                 total[i] -= served
@@ -181,7 +192,9 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                 out_uav[u, RELAYED] += 1.0
                 out_env[E_DELAY_S] += clock[u]  # its completion time in the frame
                 out_env[E_WAIT_STEPS] += age
-                served_any = True
+                senders[kept] = i
+                kept += 1
+            n_senders = kept
         flow = np.zeros(n_uav)
         for u in range(n_uav):
             out_env[E_DELIVERED] += out_uav[u, RELAYED]
