@@ -36,7 +36,8 @@ def neighbour_one(x, y, peers, heard, comm_range_m):
         d = np.sqrt((peers[m, 0] - x) ** 2 + (peers[m, 1] - y) ** 2)
         nearest = min(nearest, d)
         c = min(d / (2.0 * comm_range_m), 1.0)
-        overlap += (2.0 / np.pi) * (np.arccos(c) - c * np.sqrt(1.0 - c * c))
+        if c < 1.0:  # at c = 1 the lens term is (2/pi) (acos(1) - 1 sqrt(0)) = +0.0 exactly: adds nothing
+            overlap += (2.0 / np.pi) * (np.arccos(c) - c * np.sqrt(1.0 - c * c))
     return nearest, overlap
 
 
