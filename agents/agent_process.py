@@ -168,12 +168,13 @@ class AgentNode:
         pos = np.zeros((1, 1, 2))
         nearest, overlap = neighbour_features(pos, np.zeros((1, 1, 0, 2)), np.ones((1, 1, 0), np.bool_), 1.0)
         state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest)
-        probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)))
+        r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap)
+        probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)),
+                          fence=geofence(self.cfg))
         probe.begin_episode(0, 1)
-        probe.act(np.zeros((1, 1), np.int64), 0)
-        probe.update(np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64), np.zeros((1, 1)),
-                     np.zeros((1, 1), np.int64), False)
-        del state, overlap
+        probe.act(np.zeros((1, 1), np.int64), 0, pos)
+        probe.update(np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64), r, np.zeros((1, 1), np.int64), False)
+        del state
 
     def _make_learners(self) -> QLearners:
         o = self.opts

@@ -86,6 +86,20 @@ class WorldStats:
     """Messages the bus refused, {reason: {sender: count}} (truav.bus.guard)."""
 
 
+def warm_up_kernels(cfg: Config) -> None:
+    """Compile (or load from the cache) every kernel a world step runs, on a throwaway two-step
+    world, before joining: on a cold cache that takes seconds, which would otherwise land in
+    tick 0 and make the first ticks late and their actions missed."""
+    small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2},
+                        roads={"warmup_steps": min(cfg.roads.warmup_steps, 2)})
+    world = World(small, 1)
+    world.reset([seeding.world_rng(0)])
+    done = False
+    while not done:
+        _, _, done = world.step(np.full((1, small.scenario.n_uavs), HOVER, np.int64))
+    world.start_episode()
+
+
 class WorldNode:
     """Drives a one-environment World from bus traffic."""
 
@@ -93,6 +107,7 @@ class WorldNode:
         self.cfg, self.opts, self.bus, self.clock = cfg, opts, bus, clock
         self.n_uavs = cfg.scenario.n_uavs
         self.world = World(cfg, 1)
+        warm_up_kernels(cfg)
         self.stats = WorldStats()
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
