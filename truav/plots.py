@@ -54,8 +54,8 @@ def convergence_figure(metrics: dict[str, np.ndarray], path: Path, window: int =
     for ax in axes.ravel()[len(panels):]:
         ax.axis("off")
     episodes, n_seeds = next(iter(metrics.values())).shape[:2]
-    band = "95% band" if n_seeds > 1 else "1 seed, no band"
-    fig.suptitle(f"{title}: {window_text(window, episodes)}; mean of {n_seeds} seed{'s' * (n_seeds != 1)}, {band}")
+    seeds = f"mean of {n_seeds} seeds, 95% band" if n_seeds > 1 else "1 seed, no band"
+    fig.suptitle(f"{title}: {window_text(window, episodes)}; {seeds}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
