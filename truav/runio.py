@@ -103,13 +103,19 @@ def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarra
     os.replace(tmp, run / QTABLE_FILE)
 
 
-def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
-    """(seeds, q (B, U, S, 16) float64) from a run directory or a .npz file."""
+def qtable_file(path: str | Path) -> Path:
+    """The Q-table file of a run directory, or the .npz file itself; RunDirError if there is none."""
     p = Path(path)
     if p.is_dir():
         p = p / QTABLE_FILE
     if not p.is_file():
         raise RunDirError(f"no Q-tables at {p}")
+    return p
+
+
+def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
+    """(seeds, q (B, U, S, 16) float64) from a run directory or a .npz file."""
+    p = qtable_file(path)
     # What np.load raises on an empty, truncated or foreign file: a user's file, not a bug.
     try:
         data = np.load(p, allow_pickle=False)
@@ -135,11 +141,7 @@ def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
 def qtable_shapes(path: str | Path) -> tuple[int, tuple[int, ...]]:
     """(number of seeds, shape of q) from the array headers alone: the cheap check an agent
     process makes before it loads the tables (`truav-swarm up` has read them in full)."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / QTABLE_FILE
-    if not p.is_file():
-        raise RunDirError(f"no Q-tables at {p}")
+    p = qtable_file(path)
     try:
         with zipfile.ZipFile(p) as z:
             shapes = {}
