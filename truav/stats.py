@@ -3,6 +3,8 @@ and the paper's sliding-window smoothing."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 # Two-sided 95% Student-t critical values for 1..30 degrees of freedom.
@@ -22,7 +24,9 @@ def mean_ci(values, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """Mean and 95% half-width over `axis`, ignoring NaNs."""
     v = np.asarray(values, dtype=np.float64)
     n = np.sum(np.isfinite(v), axis=axis)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # One seed (or an all-NaN column) has no spread: the half-width is NaN, not a warning to the user.
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         mean = np.nanmean(v, axis=axis) if v.size else np.nan
         sd = np.nanstd(v, axis=axis, ddof=1) if v.size else np.nan
         half = np.vectorize(t95)(np.maximum(n - 1, 0)) * sd / np.sqrt(n)
