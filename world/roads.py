@@ -106,12 +106,12 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
     _, i, j = next_intersection(h, road, s, p.block)
     probs = (p.p_straight, p.p_left, p.p_right)
     best, best_score, total = -1, np.inf, 0.0
-    feasible = np.zeros(3, np.bool_)
+    feasible = 0  # bit c: turn c stays on the grid (a bit mask, not an array: no allocation per vehicle)
     for c in range(3):
         hc = (h + TURN_OFFSET[c]) & 3
         ni, nj = i + HEADING_DI[hc], j + HEADING_DJ[hc]
         if 0 <= ni < p.n_roads and 0 <= nj < p.n_roads:
-            feasible[c] = True
+            feasible |= 1 << c
             # Euclidean, so that past its home a driver turns back around the
             # block instead of driving straight on; ties prefer straight, left, right.
             score = (ni - p.home_i[home]) ** 2 + (nj - p.home_j[home]) ** 2 + 0.1 * c
@@ -122,7 +122,7 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
         return best
     x, acc = u_pick * total, 0.0
     for c in range(3):
-        if feasible[c] and probs[c] > 0.0:
+        if feasible >> c & 1 and probs[c] > 0.0:
             acc += probs[c]
             if x < acc:
                 return c
