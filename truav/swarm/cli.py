@@ -479,6 +479,17 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     add_geo_origin_arg(up)
 
 
+def add_swarm_process_args(p: argparse.ArgumentParser, who: str) -> None:
+    """Flags the world and an agent process share: faults, router loss, replay, logging, transport."""
+    p.add_argument("--fault-plan", metavar="FILE", help=f"apply this plan's link faults to what {who} receives")
+    p.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                   help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    p.add_argument("--accept-replay", action="store_true",
+                   help="act on traffic a replay puts into this run (dropped and counted by default)")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
+    add_transport_args(p)
+
+
 def share(text: str) -> float:
     """argparse type: a number in [0, 1]."""
     try:
@@ -545,13 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
     wo.add_argument("--rate", type=positive_float, default=10.0)
     wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
-    wo.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the world receives")
-    wo.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
-                    help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
-    wo.add_argument("--accept-replay", action="store_true",
-                    help="act on traffic a replay puts into this run (dropped and counted by default)")
-    wo.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
-    add_transport_args(wo)
+    add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)
 
     ag = sub.add_parser("agent", help="run one UAV agent process")
@@ -566,13 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--qtable-index", type=non_negative_int, default=0,
                     help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
-    ag.add_argument("--fault-plan", metavar="FILE", help="apply this plan's link faults to what the agent receives")
-    ag.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
-                    help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
-    ag.add_argument("--accept-replay", action="store_true",
-                    help="act on traffic a replay puts into this run (dropped and counted by default)")
-    ag.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
-    add_transport_args(ag)
+    add_swarm_process_args(ag, "the agent")
     ag.set_defaults(func=cmd_agent)
 
     from truav.swarm.secure_cli import add_security_commands
