@@ -86,6 +86,10 @@ seed_int = int_in(0, MAX_SEED)
 """argparse type: a seed (an integer >= 0)."""
 
 
+tcp_port = int_in(0, 65535)
+"""argparse type: a TCP port number (0: any free port)."""
+
+
 def _finite_float(text: str, allow_zero: bool) -> float:
     try:
         value = float(text)
@@ -104,6 +108,14 @@ def positive_float(text: str) -> float:
 def non_negative_float(text: str) -> float:
     """argparse type: a finite number >= 0."""
     return _finite_float(text, allow_zero=True)
+
+
+def share(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    value = non_negative_float(text)
+    if value > 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
+    return value
 
 
 def run_name(text: str) -> str:

@@ -28,7 +28,8 @@ import zenoh
 from truav.bus import keys
 from truav.cli import UsageError, parse_sets
 from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
-                            non_negative_int, positive_float, positive_int, run_main, run_name, seed_int)
+                            non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
+                            tcp_port)
 from truav.config import Config, load_config
 from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
@@ -416,16 +417,6 @@ def _origin(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _port(text: str) -> int:
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a TCP port number, got {text!r}") from None
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"a TCP port is in [0, 65535], got {port}")
-    return port
-
-
 def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
     from recorder.foxglove import DEFAULT_ORIGIN
     p.add_argument("--geo-origin", type=_origin, default=DEFAULT_ORIGIN, metavar="LAT,LON",
@@ -474,7 +465,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                          "and the router's access control (see `truav-swarm acl explain`)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
-    up.add_argument("--foxglove", type=_port, nargs="?", const=8765, metavar="PORT",
+    up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                     help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")
     add_geo_origin_arg(up)
 
@@ -488,17 +479,6 @@ def add_swarm_process_args(p: argparse.ArgumentParser, who: str) -> None:
                    help="act on traffic a replay puts into this run (dropped and counted by default)")
     p.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
     add_transport_args(p)
-
-
-def share(text: str) -> float:
-    """argparse type: a number in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -538,7 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     vw = sub.add_parser("view", help="serve a live run or a replay to the Foxglove app (WebSocket, loopback)")
     add_scenario_args(vw)
-    vw.add_argument("--port", type=_port, default=8765, help="WebSocket port on 127.0.0.1 (default 8765; 0: any)")
+    vw.add_argument("--port", type=tcp_port, default=8765, help="WebSocket port on 127.0.0.1 (default 8765; 0: any)")
     add_geo_origin_arg(vw)
     vw.add_argument("-v", "--verbose", action="store_true")
     add_transport_args(vw)
