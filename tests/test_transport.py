@@ -170,7 +170,9 @@ def test_malformed_messages_are_dropped_counted_and_logged_once(bus_factory, cap
         world.publish_raw(key, payload)
     stray = schema.Sequencer("world").stamp(beacon(uav=1))  # a valid beacon on an obs key
     world.publish_raw(key, schema.encode(stray))
-    world.publish_raw(key, b"\x00" * (schema.MAX_PAYLOAD_BYTES + 1))  # dropped before it is even copied
+    # Just over an observation's limit: within the router's slack, so the application refuses it by length
+    # (anything much bigger never leaves the router: test_router_drops_oversized_puts_...).
+    world.publish_raw(key, b"\x00" * (schema.MAX_SMALL_PAYLOAD_BYTES + 1))
     assert transport.congestion_control(key) == zenoh.CongestionControl.BLOCK  # so none of this is lost
     world.publish(key, obs(uav=1, tick=99))  # the subscriber keeps working afterwards
 
@@ -348,3 +350,22 @@ def test_run_router_serves_clients_until_stopped() -> None:
     stop.set()
     thread.join(WAIT_S)
     assert not thread.is_alive()
+
+
+def test_router_drops_oversized_puts_before_any_subscriber_sees_them(endpoint) -> None:
+    """The router's low-pass filter (Zenoh's own) refuses a put larger than its key's kind may be:
+    an attacker's 1 MB observation is never copied to the agent or the recorder."""
+    conf = transport.make_config("client", connect=[endpoint])
+    small_limit = schema.size_limit(schema.KIND_OBS)
+    with zenoh.open(conf) as attacker, zenoh.open(transport.make_config("client", connect=[endpoint])) as victim:
+        got: list[tuple[str, int]] = []
+        victim.declare_subscriber(f"truav/{RUN}/**", lambda s: got.append((str(s.key_expr), len(s.payload))))
+        time.sleep(0.3)  # the subscription reaches the router
+        obs_key, pos_key = keys.uav_obs(RUN, 0), keys.world_positions(RUN)
+        attacker.put(obs_key, b"x" * (small_limit + 2048))  # too big for an observation
+        attacker.put(pos_key, b"x" * (small_limit + 2048))  # fine for positions (up to 1 MiB)
+        attacker.put(pos_key, b"x" * (schema.MAX_PAYLOAD_BYTES + 4096))  # too big for anything
+        attacker.put(obs_key, b"x" * 100)  # a small one still passes
+        assert wait_until(lambda: len(got) >= 2)
+        time.sleep(0.3)
+    assert got == [(pos_key, small_limit + 2048), (obs_key, 100)]

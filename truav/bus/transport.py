@@ -860,13 +860,42 @@ def _open_session(config: zenoh.Config) -> zenoh.Session:
 
 
 # --- router --------------------------------------------------------------------------
+# Zenoh counts payload + attachment against a low-pass limit; ours carry at most a short replay tag.
+ROUTER_SIZE_SLACK_BYTES = 1024
+
+
+def router_size_filters() -> list[dict]:
+    """Zenoh ``low_pass_filter`` items: the router drops, on ingress from any link, a put larger
+    than its key's message kind may be (:func:`truav.bus.schema.size_limit`), so an oversized
+    payload costs one router check instead of a copy to every subscriber."""
+    by_limit: dict[int, list[str]] = {}
+    for parts, kind in _KIND_BY_KEY.items():
+        if parts[0] == "uav":
+            expr = f"{keys.ROOT}/*/uav/*/{parts[1]}"
+        elif len(parts) == 2:
+            expr = f"{keys.ROOT}/*/{parts[0]}/{parts[1]}"
+        else:
+            expr = f"{keys.ROOT}/*/{parts[0]}/**"
+        by_limit.setdefault(schema.size_limit(kind), []).append(expr)
+    by_limit.setdefault(schema.MAX_PAYLOAD_BYTES, []).append(f"{keys.ROOT}/**")  # anything else under truav
+    return [{"id": f"truav-size-{limit}", "flows": ["ingress"], "messages": ["put"],
+             "key_exprs": sorted(exprs), "size_limit": limit + ROUTER_SIZE_SLACK_BYTES}
+            for limit, exprs in sorted(by_limit.items())]
+
+
 def open_router(
     listen: Sequence[str] = (DEFAULT_ENDPOINT,),
     connect: Sequence[str] = (),
     config_file: str | os.PathLike[str] | None = None,
 ) -> zenoh.Session:
-    """Open a session in Zenoh ``router`` mode (zenoh-python 1.x supports it); caller closes it."""
-    return _open_session(make_config(MODE_ROUTER, connect, listen, config_file))
+    """Open a session in Zenoh ``router`` mode (zenoh-python 1.x supports it); caller closes it.
+
+    Unless the config file sets its own ``low_pass_filter``, the router gets
+    :func:`router_size_filters` (plain and secure alike)."""
+    conf = make_config(MODE_ROUTER, connect, listen, config_file)
+    if json.loads(conf.get_json("low_pass_filter") or "[]") == []:
+        conf.insert_json5("low_pass_filter", json.dumps(router_size_filters()))
+    return _open_session(conf)
 
 
 def run_router(
