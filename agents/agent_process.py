@@ -117,6 +117,14 @@ class AgentOptions:
     debug_delay_s: float = 0.0
     """Testing only: pause this long per observation between sending the beacon and reading the peers'
     (a deliberately slow agent: lock-step results must not change)."""
+    scheme: str = "truav"
+    """truav (this class) | patrol | central (agents.scheme_agents): what flies the UAV."""
+    command_hold_s: float = 1.0
+    """Scheme central: without a fresh command, keep flying the last one for this long (s of the
+    world's clock, from the tick it was for), then hover: what an autopilot does when its link stops."""
+    command_wait_frac: float = 0.7
+    """Scheme central, real time: wait for the tick's command until this fraction of the tick period
+    after the world stamped the observation (the world takes actions until deadline_frac, 0.8)."""
 
 
 class AgentNode:
@@ -158,10 +166,18 @@ class AgentNode:
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         bus.prepare(keys.uav_beacon(run, me), keys.uav_action(run, me))
+        self._setup_scheme(bus)
         # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
         # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
         gc.freeze()
         bus.declare_liveliness(keys.alive_uav(run, me))
+
+    def _setup_scheme(self, bus: Bus) -> None:
+        """Subscriptions and publishers another scheme's agent adds (agents.scheme_agents), before it joins."""
+
+    def scheme_stats(self) -> dict:
+        """Statistics another scheme's agent adds to its stats file."""
+        return {}
 
     def _warm_up(self) -> None:
         """Load the compiled kernels before joining, so the first tick is not missed."""
@@ -391,7 +407,8 @@ class AgentNode:
             data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
-                            "malformed": self.bus.dropped_malformed, "rejected": st.rejected}}
+                            "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
+                    "scheme": self.opts.scheme, **self.scheme_stats()}
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")
             tmp.write_text(json.dumps(data))

@@ -131,15 +131,19 @@ class PatrolController:
         run_patrol_episode(world, self)
 
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
-        sc, pc = self.cfg.scenario, self.cfg.patrol
         self.pos = obs.pos.copy()
         for b in range(self.batch):
-            slot = assign_slots(self.pos[b], self.centre, pc.radius_m, pc.assignment)
-            plan, meet = plan_trajectories(self.pos[b], self.centre[slot], self.phase[slot], pc.radius_m,
-                                           self.speed, sc.step_s, sc.steps_per_episode)
-            self.plan[:, b], self.slot[b], self.meet[b] = plan, slot, meet
+            self.plan_env(b, self.pos[b])
         self._err_sum[:] = 0.0
         self._err_n = 0
+
+    def plan_env(self, b: int, start: np.ndarray) -> None:
+        """Env b's plan from the UAVs' start positions (U, 2): made once, at deployment."""
+        sc, pc = self.cfg.scenario, self.cfg.patrol
+        slot = assign_slots(start, self.centre, pc.radius_m, pc.assignment)
+        plan, meet = plan_trajectories(start, self.centre[slot], self.phase[slot], pc.radius_m,
+                                       self.speed, sc.step_s, sc.steps_per_episode)
+        self.plan[:, b], self.slot[b], self.meet[b] = plan, slot, meet
 
     def act(self, t: int) -> np.ndarray:
         """The discrete action landing closest to each UAV's planned position at t+1."""
@@ -147,6 +151,14 @@ class PatrolController:
         land = np.clip(self.pos[:, :, None, :] + self._cand[None, None] * sc.step_s, 0.0, sc.area_m)
         miss = np.sum((land - self.plan[t + 1][:, :, None, :]) ** 2, axis=-1)  # (B, U, 17)
         return self._cand_action[np.argmin(miss, axis=-1)]
+
+    def act_one(self, t: int, b: int, u: int, pos) -> int:
+        """act(t) for UAV u of env b alone, from its own position (2,): the same arithmetic, so the
+        swarm's patrol agent (agents.scheme_agents) flies exactly what this controller flies."""
+        sc = self.cfg.scenario
+        land = np.clip(np.asarray(pos, np.float64)[None, :] + self._cand * sc.step_s, 0.0, sc.area_m)
+        miss = np.sum((land - self.plan[t + 1, b, u][None, :]) ** 2, axis=-1)  # (17,)
+        return int(self._cand_action[np.argmin(miss)])
 
     def observe(self, obs: LocalObs, done: bool) -> None:
         self.pos = obs.pos.copy()

@@ -54,6 +54,9 @@ def samples() -> list[schema.Message]:
         Control(command="fault_plan", args={"events": [{"at": 1.5, "kind": "loss", "p": 0.2}], "dry": True,
                                             "note": None}),
         Positions(tick=7, uavs=((0.0, 1.0), (2.0, 3.0)), vehicles=((5.0, 6.0),)),
+        schema.State(uav=3, tick=7, episode=2, step=4, pos=(10.5, 2.25), vehicles_in_range=4, queued_packets=12,
+                     relayed=3, covered=2, energy_j=0.75, done=False, pad=bytes(20)),
+        schema.Command(uav=3, tick=7, action=5, pad=bytes(8)),
     ]
 
 
@@ -148,7 +151,7 @@ def test_constructors_normalise_numpy_and_ints() -> None:
     "build",
     [
         lambda: Action(uav=0, tick=0, action=16),
-        lambda: Action(uav=0, tick=0, action=-1),
+        lambda: Action(uav=0, tick=0, action=-2),  # -1 is an explicit hover
         lambda: Action(uav=1024, tick=0, action=0),
         lambda: Action(uav=True, tick=0, action=0),
         lambda: Action(uav=0, tick=-1, action=0),
@@ -421,3 +424,18 @@ def test_parse_identity_and_run() -> None:
     assert keys.parse_uav_identity("uav/2000") is None
     assert keys.parse_run("truav/abc/world/tick") == "abc"
     assert keys.parse_run("nope/abc") is None
+
+
+@pytest.mark.parametrize("size", [78, 200, 255, 258, 300, 4096])
+def test_padded_state_and_command_have_the_models_sizes(size: int) -> None:
+    """Scheme central's uploads and commands are padded to the control-plane model's message sizes
+    (central.upload_bytes / download_bytes), so the bytes measured on the bus are the modelled ones."""
+    seq = Sequencer("uav/3")
+    state = seq.stamp(schema.State(uav=3, tick=123456, episode=9, step=99, pos=(1.5, 2.5), vehicles_in_range=3,
+                                   queued_packets=4, relayed=1, covered=2, energy_j=12.5, done=False, pad=b""))
+    command = Sequencer("controller").stamp(schema.Command(uav=3, tick=123456, action=5, pad=b""))
+    for msg in (state, command):
+        data = encode(schema.padded(msg, size))
+        assert size - 2 <= len(data) <= size or len(encode(msg)) > size
+        assert decode(data).pad == bytes(len(decode(data).pad))
+    assert len(encode(schema.padded(state, 200))) == 200 and len(encode(schema.padded(command, 78))) == 78

@@ -149,22 +149,27 @@ def cmd_train(args) -> int:
     runio.write_config(out, cfg)
     episodes = cfg.learner.episodes
     workers = min(args.workers, len(seeds))
-    print(f"training {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
+    scheme = args.scheme
+    print(f"training {scheme}: {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
           f"at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) -> {out}", flush=True)
     t0 = time.perf_counter()
-    result = run_with_progress("truav", cfg, seeds, episodes, workers, True, None, "train", args.quiet)
+    result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet)
     elapsed = time.perf_counter() - t0
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
-    runio.write_qtables(out, seeds, result.q, result.uav_pos)
+    if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
+        runio.write_policy(out, seeds, result.policy)
+    else:
+        runio.write_qtables(out, seeds, result.q, result.uav_pos)
     window = min(500, episodes)
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
-                       title=f"TRUAV at {cfg.scenario.uav_speed_mps:g} m/s")
+                       title=f"{'TRUAV' if scheme == 'truav' else 'centralized SAC'} at {cfg.scenario.uav_speed_mps:g} m/s")
     steps = len(seeds) * episodes * cfg.scenario.steps_per_episode
     print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s)")
     last = {k: np.nanmean(v[-window:], axis=0) for k, v in result.metrics.items()}
     print(f"last {window} episodes, mean ± 95% interval over seeds:")
-    print(format_table({"truav": last}))
-    for name in (runio.METRICS_FILE, runio.QTABLE_FILE, runio.CONVERGENCE_FILE, runio.CONFIG_FILE):
+    print(format_table({scheme: last}))
+    for name in (runio.METRICS_FILE, runio.QTABLE_FILE if scheme == "truav" else runio.POLICY_FILE,
+                 runio.CONVERGENCE_FILE, runio.CONFIG_FILE):
         print(f"  {out / name}")
     return 0
 
@@ -206,6 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser("train", help="train TRUAV agents for many seeds (one batch per core)")
     add_config_args(tr)
+    tr.add_argument("--scheme", choices=("truav", "central"), default="truav",
+                    help="truav (Q-tables, default) or central (the centralized SAC; writes policy.npz for "
+                         "`truav-swarm up --scheme central --policy RUN`)")
     tr.add_argument("--speed", type=positive_float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
     tr.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (default 10, as the paper)")
     tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")

@@ -43,7 +43,12 @@ start of the run:
     kind = "freeze"           # SIGSTOP, then SIGCONT
     start = 30.0
     duration = 3.0
-    uav = 4
+    uav = 4                   # or target = "controller" (scheme central), for crash too
+
+Scheme central adds the controller's links: its uplink is `keys = "uav/*/state"`
+(received by `dst = "controller"`), its downlink `keys = "controller/cmd/*"`;
+a partition group may hold "controller" (`groups = [[0, 1], ["controller", 2, 3, 4]]`:
+UAVs 0 and 1 lose the controller, both ways).
 
 Patterns are checked on load (chunks of key characters and the globs * ** ?
 [...], starting with a TRUAV key root or a *), and `truav-swarm` refuses a
@@ -82,10 +87,13 @@ _ALLOWED = {
     "latency": {"fixed_ms", "jitter_ms", "keys", "src", "dst"},
     "partition": {"groups"},
     "obs_loss": {"probability", "uavs"},
-    "crash": {"uav", "restart_after"},
-    "freeze": {"uav"},
+    "crash": {"uav", "target", "restart_after"},
+    "freeze": {"uav", "target"},
 }
 _COMMON = {"kind", "start", "duration"}
+CONTROLLER = "controller"
+"""The one process a crash or freeze may name by ``target`` (scheme central), and a partition's group member."""
+PROCESS_TARGETS = (CONTROLLER,)
 
 
 class PlanError(UserError):
@@ -179,9 +187,9 @@ def plan_from_dict(data: dict[str, Any]) -> FaultPlan:
 _PATTERN_CHUNK = re.compile(r"(?:[A-Za-z0-9_*?-]|\[!?[A-Za-z0-9_-]+\])+")
 """One chunk of a key or sender pattern: key characters, the globs * ? and [...] classes."""
 _PATTERN_ROOTS = {
-    "keys": ("world", "uav", "metrics", "fault", "control", "alive"),  # after truav/<run>/, see truav.bus.keys
-    "src": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status"),  # sender identities
-    "dst": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status"),
+    "keys": ("world", "uav", "metrics", "fault", "control", "alive", "controller"),  # after truav/<run>/ (keys)
+    "src": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status", "controller"),  # senders
+    "dst": ("world", "uav", "recorder", "fault", "replay", "supervisor", "status", "controller"),
 }
 
 
@@ -224,10 +232,11 @@ def _check_params(where: str, kind: str, p: dict[str, Any]) -> dict[str, Any]:
         groups = p.get("groups")
         if not isinstance(groups, list) or len(groups) < 2 or not all(isinstance(g, list) and g for g in groups):
             raise PlanError(f"{where}: groups must be a list of at least two non-empty lists of UAV ids")
-        seen: set[int] = set()
+        seen: set = set()
         for g in groups:
             for u in g:
-                _uav(where, "groups", u)
+                if u != CONTROLLER:
+                    _uav(where, "groups", u)
                 if u in seen:
                     raise PlanError(f"{where}: UAV {u} is in two groups")
                 seen.add(u)
@@ -240,9 +249,15 @@ def _check_params(where: str, kind: str, p: dict[str, Any]) -> dict[str, Any]:
             for u in p["uavs"]:
                 _uav(where, "uavs", u)
     else:  # crash, freeze
-        if "uav" not in p:
-            _missing(where, "uav")
-        _uav(where, "uav", p["uav"])
+        if "uav" not in p and "target" not in p:
+            raise PlanError(f"{where}: missing uav (an agent's id) or target (\"controller\")")
+        if "uav" in p and "target" in p:
+            raise PlanError(f"{where}: give uav (an agent's id) or target (\"controller\"), not both")
+        if "target" in p and p["target"] not in PROCESS_TARGETS:
+            raise PlanError(f"{where}: target must be one of {', '.join(map(repr, PROCESS_TARGETS))}, "
+                            f"got {p['target']!r}")
+        if "uav" in p:
+            _uav(where, "uav", p["uav"])
         if "restart_after" in p:
             p["restart_after"] = _number(where, "restart_after", p["restart_after"], 0.0)
     return p
@@ -268,15 +283,28 @@ def plan_uavs(fault: Fault) -> list[int]:
     """The UAV ids a fault names explicitly (ids, groups, and uav/<i> in its patterns)."""
     p = fault.params
     ids = [p["uav"]] if "uav" in p else []
-    ids += list(p.get("uavs", [])) + [u for g in p.get("groups", []) for u in g]
+    ids += list(p.get("uavs", [])) + [u for g in p.get("groups", []) for u in g if u != CONTROLLER]
     for key in ("keys", "src", "dst"):
         ids += [int(m) for m in _UAV_IN_PATTERN.findall(p.get(key, ""))]
     return ids
 
 
-def check_plan_for(plan: FaultPlan, n_uavs: int, path: str | Path | None = None) -> FaultPlan:
-    """A plan that names only UAVs of a swarm of ``n_uavs`` (a fault on UAV 99 of 5 is a typo)."""
+def names_controller(fault: Fault) -> bool:
+    """Whether a fault acts on the central controller (its process, its group or its links by name)."""
+    p = fault.params
+    return p.get("target") == CONTROLLER or any(CONTROLLER in g for g in p.get("groups", [])) \
+        or any(CONTROLLER in p.get(k, "") for k in ("keys", "src", "dst"))
+
+
+def check_plan_for(plan: FaultPlan, n_uavs: int, path: str | Path | None = None,
+                   scheme: str | None = None) -> FaultPlan:
+    """A plan that names only UAVs of a swarm of ``n_uavs`` (a fault on UAV 99 of 5 is a typo) and,
+    unless ``scheme`` is "central" (or None: not known here), not the controller."""
     for n, f in enumerate(plan.faults):
+        if scheme is not None and scheme != "central" and names_controller(f):
+            where = f"fault plan {path}: " if path is not None else ""
+            raise PlanError(f"{where}fault #{n + 1} ({f.kind}) names the controller, but --scheme {scheme} has none "
+                            f"(only --scheme central)")
         bad = sorted({u for u in plan_uavs(f) if u >= n_uavs})
         if bad:
             where = f"fault plan {path}: " if path is not None else ""
@@ -395,7 +423,8 @@ class PlanFilter:
 
     @staticmethod
     def _partitioned(f: Fault, src: str, dst: str) -> bool:
-        a, b = _uav_of(src), _uav_of(dst)
+        a = CONTROLLER if src == CONTROLLER else _uav_of(src)
+        b = CONTROLLER if dst == CONTROLLER else _uav_of(dst)
         if a is None or b is None:
             return False
         groups = f.params["groups"]

@@ -182,3 +182,47 @@ def read_uav_positions(path: str | Path) -> np.ndarray | None:
         p = p / QTABLE_FILE
     with np.load(p) as data:
         return data["uav_pos"].astype(np.float64) if "uav_pos" in data.files else None
+
+
+POLICY_FILE = "policy.npz"
+"""`truav train --scheme central`: the trained actors of the centralized SAC, actor0..actor5
+(weights and biases of its three layers, seed axis first) and seeds (B,)."""
+ACTOR_ARRAYS = tuple(f"actor{i}" for i in range(6))
+
+
+def write_policy(run: Path, seeds: list[int], params: dict[str, np.ndarray]) -> None:
+    """The actors of a central run (agents.sac.BatchedSAC.state_dict, seed axis first)."""
+    tmp = run / (POLICY_FILE + ".tmp.npz")
+    np.savez_compressed(tmp, seeds=np.asarray(seeds), **{k: np.asarray(params[k], np.float32) for k in ACTOR_ARRAYS})
+    os.replace(tmp, run / POLICY_FILE)
+
+
+def read_policy(path: str | Path, index: int, cfg: Config) -> dict[str, np.ndarray]:
+    """Seed ``index``'s actor (arrays with a seed axis of 1, for a one-env controller) from a run of
+    `truav train --scheme central` or its policy.npz; RunDirError if it is none or does not fit ``cfg``."""
+    from agents.central import STATE_DIM
+    from world.uavs import N_ACTIONS
+    p = Path(path)
+    p = p / POLICY_FILE if p.is_dir() else p
+    if not p.is_file():
+        raise RunDirError(f"no trained controller at {p} (make one with `truav train --scheme central`)")
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            if not {"seeds", *ACTOR_ARRAYS} <= set(data.files):
+                raise RunDirError(f"{p}: not a policy file of 'truav train --scheme central' (needs seeds, "
+                                  f"actor0..actor5)")
+            seeds = data["seeds"]
+            arrays = {k: data[k] for k in ACTOR_ARRAYS}
+    except RunDirError:
+        raise
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, zlib.error) as exc:
+        raise RunDirError(f"{p}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
+    if not 0 <= index < len(seeds):
+        raise RunDirError(f"{p} holds {len(seeds)} policies (indices 0-{len(seeds) - 1}), not index {index}")
+    u, h = cfg.scenario.n_uavs, cfg.central.hidden
+    want = {"actor0": (u * STATE_DIM, h), "actor2": (h, h), "actor4": (h, u * N_ACTIONS)}
+    for k, shape in want.items():
+        if arrays[k].shape[1:] != shape:
+            raise RunDirError(f"{p}: {k} is {arrays[k].shape[1:]}, this scenario ({u} UAVs, central.hidden {h}) "
+                              f"needs {shape}")
+    return {k: v[index:index + 1].astype(np.float32) for k, v in arrays.items()}

@@ -38,6 +38,8 @@ class RunResult:
     q: np.ndarray | None
     uav_pos: np.ndarray | None = None
     """(B, U, 2) where the UAVs were at the end: a persist-trained swarm's station."""
+    policy: dict[str, np.ndarray] | None = None
+    """The central scheme: its trained actors {actor0..actor5: (B, ...)} (agents.sac.BatchedSAC.state_dict)."""
 
 
 def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np.ndarray | None):
@@ -67,7 +69,10 @@ def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bo
     end_pos = np.zeros((len(seeds), cfg.scenario.n_uavs, 2))
     metrics = run_episodes(cfg, seeds, controller, episodes, on_episode, start_pos, end_pos)
     table = controller.learners.q if isinstance(controller, TruavController) else None
-    return RunResult(list(seeds), metrics, table, end_pos)
+    policy = None
+    if kind == "central":
+        policy = {k: v for k, v in controller.sac.state_dict().items() if k.startswith("actor")}
+    return RunResult(list(seeds), metrics, table, end_pos, policy)
 
 
 def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
@@ -136,4 +141,6 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     ordered = [results[i] for i in range(len(procs))]
     metrics = {k: np.concatenate([r.metrics[k] for r in ordered], axis=1) for k in ordered[0].metrics}
     q_all = None if ordered[0].q is None else np.concatenate([r.q for r in ordered])
-    return RunResult(list(seeds), metrics, q_all, np.concatenate([r.uav_pos for r in ordered]))
+    policy = None if ordered[0].policy is None else \
+        {k: np.concatenate([r.policy[k] for r in ordered]) for k in ordered[0].policy}
+    return RunResult(list(seeds), metrics, q_all, np.concatenate([r.uav_pos for r in ordered]), policy)

@@ -15,6 +15,7 @@ it alone with `truav-swarm world`, or let `truav-swarm up` start it.
 from __future__ import annotations
 
 import gc
+import hashlib
 import json
 import logging
 import threading
@@ -71,6 +72,11 @@ class WorldOptions:
     """Fault plan (TOML) whose link faults apply to what this process receives."""
     accept_replay: bool = False
     """Act on traffic a replay puts into this run (dropped and counted by default)."""
+    scheme: str = "truav"
+    """truav | patrol | central. Under central the world also waits for the controller before
+    tick 0 and, on every control round, applies the in-process control-plane model's radio
+    effects (agents.central.ControlCounters: airtime of the uploads and commands, action delay):
+    they happen on the simulated radio, which loopback messages do not cross."""
 
 
 @dataclass
@@ -78,12 +84,27 @@ class WorldStats:
     episodes: list[dict[str, float]] = field(default_factory=list)
     tick_lateness_ms: list[float] = field(default_factory=list)
     deadline_misses: int = 0
+    """Actions that did not come (in time): those UAVs hovered."""
     actions_received: int = 0
     ticks: int = 0
     joins: list[str] = field(default_factory=list)
     losses: list[str] = field(default_factory=list)
     rejected: dict[str, dict[str, int]] = field(default_factory=dict)
     """Messages the bus refused, {reason: {sender: count}} (truav.bus.guard)."""
+    actions_digest: list[str] = field(default_factory=list)
+    """Per episode: blake2b of the (U,) int64 actions applied at every step (HOVER where missing),
+    to compare a run's actions with another's or the in-process driver's (action_digest)."""
+    end_positions: list[list[list[float]]] = field(default_factory=list)
+    """Per episode: every UAV's position at its end (m)."""
+    hover_answers: int = 0
+    """Actions that were an agent's explicit hover (the central scheme's autopilot without commands)."""
+    controller_losses: list[float] = field(default_factory=list)
+    """Scheme central: seconds since the first tick at which the controller's liveliness token vanished."""
+
+
+def action_digest():
+    """The hash WorldStats.actions_digest keeps: update it with each step's actions as int64 bytes."""
+    return hashlib.blake2b(digest_size=16)
 
 
 def warm_up_kernels(cfg: Config) -> None:
@@ -113,8 +134,15 @@ class WorldNode:
         self._actions: dict[int, int] = {}
         self._tick = -1
         self._alive: set[int] = set()
+        self._controller_alive = False
+        self._t0 = None
         self._stop = threading.Event()
         run = opts.run
+        self.central = opts.scheme == "central"
+        self._plane = None
+        if self.central:
+            from agents.central import ControlCounters
+            self._plane = ControlCounters(cfg, 1)
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
         bus.accept_replay = opts.accept_replay
         plan = load_plan(opts.fault_plan) if opts.fault_plan else None
@@ -122,6 +150,9 @@ class WorldNode:
         bus.subscribe(keys.all_actions(run), self._on_action)
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        if self.central:
+            bus.watch_liveliness(keys.alive_controller(run), lambda k: self._on_controller(True),
+                                 lambda k: self._on_controller(False))
         bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
                     *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
         gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
@@ -157,6 +188,14 @@ class WorldNode:
                 self._cond.notify_all()
         log.warning("agent lost: %s", key)
 
+    def _on_controller(self, up: bool) -> None:
+        with self._cond:
+            self._controller_alive = up
+            if not up and self._t0 is not None:
+                self.stats.controller_losses.append(round(self.clock() - self._t0, 2))
+            self._cond.notify_all()
+        (log.info if up else log.warning)("controller %s", "joined" if up else "lost: UAVs fly on without commands")
+
     def stop(self) -> None:
         self._stop.set()
         with self._cond:
@@ -166,7 +205,8 @@ class WorldNode:
     def wait_for_agents(self) -> int:
         deadline = self.clock() + self.opts.wait_agents_s
         with self._cond:
-            while len(self._alive) < self.n_uavs and not self._stop.is_set():
+            while (len(self._alive) < self.n_uavs or (self.central and not self._controller_alive)) \
+                    and not self._stop.is_set():
                 left = deadline - self.clock()
                 if left <= 0:
                     break
@@ -177,12 +217,18 @@ class WorldNode:
         opts = self.opts
         period = 1.0 / opts.rate_hz
         n = self.wait_for_agents()
-        log.info("%d/%d agents alive; starting %s", n, self.n_uavs, "lock-step" if opts.lockstep else f"{opts.rate_hz:g} Hz")
+        log.info("%d/%d agents alive%s; starting %s", n, self.n_uavs,
+                 ("" if not self.central else ", controller " + ("alive" if self._controller_alive else "MISSING")),
+                 "lock-step" if opts.lockstep else f"{opts.rate_hz:g} Hz")
         obs = self.world.reset([seeding.world_rng(opts.seed)])
         tick, next_due = 0, self.clock()
+        self._t0 = self.clock()
         for episode in range(opts.episodes):
             if episode:
                 obs = self.world.start_episode()
+            if self._plane is not None:
+                self._plane.reset()
+            digest = action_digest()
             done = False
             while not done and not self._stop.is_set():
                 if not opts.lockstep:
@@ -190,7 +236,8 @@ class WorldNode:
                     next_due = self._await_tick(next_due, period)
                 actions = self._tick_round(tick, episode, obs, False,
                                            None if opts.lockstep else deadline)
-                obs, metrics, done = self.world.step(actions)
+                digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
+                obs, metrics, done = self.world.step(actions, *self._control_round(obs))
                 self._publish_step(tick, episode, metrics, actions)
                 tick += 1
             if self._stop.is_set():
@@ -203,7 +250,11 @@ class WorldNode:
             self._tick_round(tick, episode, obs, True, None)
             tick += 1
             summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
+            if self._plane is not None:  # the modelled control plane, as the in-process central reports it
+                summary.update({k: float(v[0]) for k, v in self._plane.stats().items()})
             self.stats.episodes.append(summary)
+            self.stats.actions_digest.append(digest.hexdigest())
+            self.stats.end_positions.append(obs.pos[0].tolist())
             self.bus.publish(keys.metrics_episode(opts.run), schema.Metrics(
                 scope=schema.SCOPE_EPISODE, tick=tick, episode=episode,
                 values={k: v for k, v in summary.items() if np.isfinite(v)}))
@@ -214,6 +265,13 @@ class WorldNode:
             self._sleep_until(next_due)
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
+
+    def _control_round(self, obs) -> tuple:
+        """(control_airtime_s, action_delay_s) for World.step: the model's round on the central scheme's
+        round steps (as agents.central.CentralController.control does in process), else none."""
+        if self._plane is None or self.world.t % self.cfg.central.update_period_steps:
+            return None, 0.0
+        return self._plane.round(obs.pos)
 
     def _await_tick(self, due: float, period: float) -> float:
         """Real time: sleep until the tick due at ``due``, record how late it starts; the next one's due time."""
@@ -275,8 +333,9 @@ class WorldNode:
             return actions
         for uav, a in answered.items():
             actions[0, uav] = a
+        self.stats.hover_answers += sum(1 for a in answered.values() if a == HOVER)
         self.stats.actions_received += len(answered)
-        self.stats.deadline_misses += int(np.sum(actions[0] == HOVER))
+        self.stats.deadline_misses += self.n_uavs - len(answered)  # no answer: hovers
         return actions
 
     def _publish_step(self, tick, episode, m, actions) -> None:

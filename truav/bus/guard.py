@@ -5,7 +5,8 @@ and msgpack lengths before parsing) is further checked by the :class:`Guard`
 a process installs on its Bus:
 
 * **who may send it**: ticks, observations, positions and metrics only from
-  ``world``; beacons and actions only from ``uav/<i>`` about UAV ``i``;
+  ``world``; beacons, actions and state uploads only from ``uav/<i>`` about UAV ``i``;
+  commands only from ``controller``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
   fault announcements only from the supervisor.  Without ``--secure`` the
   ``src`` field can be forged, so this stops mistakes and naive forgeries;
@@ -146,7 +147,8 @@ class Guard:
     def sent(self, msg: schema.Message) -> None:
         """Called by the Bus for each message this process publishes."""
         tick = getattr(msg, "tick", None)
-        if isinstance(msg, (schema.Tick, schema.Obs, schema.Action, schema.Beacon)) and tick is not None:
+        if isinstance(msg, (schema.Tick, schema.Obs, schema.Action, schema.Beacon, schema.State, schema.Command)) \
+                and tick is not None:
             self._advance(tick)
 
     def _advance(self, tick: int) -> None:
@@ -163,7 +165,7 @@ class Guard:
         if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
             if src != keys.SRC_WORLD:
                 return R_SENDER, f"{msg.KIND} from {src}"
-        elif isinstance(msg, (schema.Beacon, schema.Action)):
+        elif isinstance(msg, (schema.Beacon, schema.Action, schema.State)):
             if src != f"uav/{msg.uav}":
                 return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
         elif isinstance(msg, schema.Control):
@@ -172,6 +174,9 @@ class Guard:
         elif isinstance(msg, schema.Fault):
             if src != SUPERVISOR:
                 return R_SENDER, f"fault from {src}"
+        elif isinstance(msg, schema.Command):
+            if src != keys.SRC_CONTROLLER:
+                return R_SENDER, f"command from {src}"
         uav = getattr(msg, "uav", None)
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
@@ -191,6 +196,10 @@ class Guard:
             if msg.n_uavs != b.n_uavs:
                 return R_IMPLAUSIBLE, f"tick for {msg.n_uavs} UAVs, scenario has {b.n_uavs}"
             self._advance(msg.tick)
+        elif isinstance(msg, schema.State):
+            if not b.in_area(msg.pos) or max(msg.vehicles_in_range, msg.covered) > b.max_count \
+                    or max(msg.queued_packets, msg.relayed) > b.max_packets or msg.energy_j > b.max_energy_j:
+                return R_IMPLAUSIBLE, f"state of uav {msg.uav}: values the world cannot produce"
         elif isinstance(msg, schema.Beacon):
             vx, vy = msg.vel
             if not b.in_area(msg.pos) or (vx * vx + vy * vy) ** 0.5 > b.max_speed * SPEED_MARGIN:

@@ -10,6 +10,8 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``uav/<i>/obs``                 world -> agent i    ``obs``
 ``uav/<i>/beacon``              agent i -> all      ``beacon``
 ``uav/<i>/action``              agent i -> world    ``action``
+``uav/<i>/state``               agent i -> ctrl     ``state`` (scheme central: the state upload)
+``controller/cmd/<i>``          ctrl -> agent i     ``command`` (scheme central)
 ``metrics/step``                world -> recorder   ``metrics`` (scope "step")
 ``metrics/episode``             world -> recorder   ``metrics`` (scope "episode")
 ``fault/<kind>``                faults -> all       ``fault``
@@ -17,11 +19,12 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``alive/world``                 liveliness token of the world process
 ``alive/uav/<i>``               liveliness token of agent i
 ``alive/recorder``              liveliness token of the recorder
+``alive/controller``            liveliness token of the central controller
 ==============================  ==================  ===========================
 
 Sender identities (the ``src`` field of every message and the identity of a
 :class:`truav.bus.transport.Bus`) are ``world``, ``recorder``, ``fault``,
-``replay`` or ``uav/<i>``; helpers for those live here too.
+``replay``, ``controller`` or ``uav/<i>``; helpers for those live here too.
 
 Nothing here talks to Zenoh: these are plain string builders and parsers, so
 run names and ids are validated with a clear :class:`ValueError`.
@@ -45,11 +48,15 @@ SRC_WORLD = "world"
 SRC_RECORDER = "recorder"
 SRC_FAULT = "fault"
 SRC_REPLAY = "replay"
+SRC_CONTROLLER = "controller"
 
 # Last chunks of the per-UAV keys.
 OBS = "obs"
 BEACON = "beacon"
 ACTION = "action"
+STATE = "state"
+CONTROLLER = "controller"
+COMMAND = "cmd"
 
 # Metric scopes (also the last chunk of the metrics keys).
 SCOPE_STEP = "step"
@@ -113,6 +120,24 @@ def uav_beacon(run: str, i: int) -> str:
 
 def uav_action(run: str, i: int) -> str:
     return f"{uav_prefix(run, i)}/{ACTION}"
+
+
+def uav_state(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>/state``: agent i's state upload to the central controller."""
+    return f"{uav_prefix(run, i)}/{STATE}"
+
+
+def all_states(run: str) -> str:
+    return f"{prefix(run)}/uav/*/{STATE}"
+
+
+def controller_cmd(run: str, i: int) -> str:
+    """``truav/<run>/controller/cmd/<i>``: the central controller's command to UAV i."""
+    return f"{prefix(run)}/{CONTROLLER}/{COMMAND}/{validate_uav_id(i)}"
+
+
+def all_commands(run: str) -> str:
+    return f"{prefix(run)}/{CONTROLLER}/{COMMAND}/*"
 
 
 def all_obs(run: str) -> str:
@@ -179,6 +204,10 @@ def alive_uav(run: str, i: int) -> str:
 
 def alive_recorder(run: str) -> str:
     return f"{prefix(run)}/alive/recorder"
+
+
+def alive_controller(run: str) -> str:
+    return f"{prefix(run)}/alive/{CONTROLLER}"
 
 
 def all_alive(run: str) -> str:

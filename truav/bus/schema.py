@@ -10,7 +10,8 @@ Every message on the bus is a msgpack map.  Five envelope entries come first:
 
 followed by the fields of that kind; one frozen dataclass per kind below
 (:class:`Tick`, :class:`Obs`, :class:`Beacon`, :class:`Action`,
-:class:`Metrics`, :class:`Fault`, :class:`Control`, :class:`Positions`).  The
+:class:`Metrics`, :class:`Fault`, :class:`Control`, :class:`Positions`, and
+the centralized scheme's :class:`State` upload and :class:`Command`).  The
 envelope fields ``src``/``seq``/``t`` are keyword-only with "unstamped"
 defaults; a :class:`Sequencer` (or :class:`truav.bus.transport.Bus`, which owns
 one) stamps them just before sending.
@@ -20,7 +21,7 @@ from untrusted bytes, so any message object that exists is valid.  ``decode``
 raises only :class:`SchemaError` (a ``ValueError``) for hostile input: not
 msgpack, not a map, wrong/missing version, unknown kind, missing or extra
 fields, wrong types, out-of-range values (negative counts, NaN/inf, an action
-outside ``[0, 16)``, a UAV id outside ``[0, 1024)``) and oversized payloads.
+outside ``[-1, 16)`` (-1: hover), a UAV id outside ``[0, 1024)``) and oversized payloads.
 ``SchemaError.reason`` is one of the short ``R_*`` codes, handy as a counter
 key.
 
@@ -66,6 +67,8 @@ KIND_METRICS = "metrics"
 KIND_FAULT = "fault"
 KIND_CONTROL = "control"
 KIND_POSITIONS = "positions"
+KIND_STATE = "state"
+KIND_COMMAND = "command"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -84,7 +87,8 @@ FAULT_FREEZE = "freeze"
 FAULT_KINDS = (FAULT_LOSS, FAULT_LATENCY, FAULT_PARTITION, FAULT_CRASH, FAULT_FREEZE)
 
 # --- limits -------------------------------------------------------------------
-N_ACTIONS = 16  # an action is an int in [0, N_ACTIONS)
+N_ACTIONS = 16  # an action is an int in [0, N_ACTIONS), or HOVER
+HOVER = -1  # an agent's explicit hover (world.uavs.HOVER): the central scheme's autopilot without commands
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: the largest payload of any kind (positions)
 MAX_CONTROL_PAYLOAD_BYTES = 256 << 10  # control messages may carry plans
 MAX_SMALL_PAYLOAD_BYTES = 16 << 10  # everything else
@@ -215,8 +219,18 @@ _int64 = _int(-INT64_MAX - 1, INT64_MAX)
 _uav_id = _int(0, MAX_UAVS - 1)
 _n_uavs = _int(0, MAX_UAVS)
 _action = _int(0, N_ACTIONS - 1)
+_action_or_hover = _int(HOVER, N_ACTIONS - 1)
 _name = _text(MAX_NAME_LEN, _NAME_RE)
 _src = _text(MAX_SRC_LEN, _SRC_RE, allow_empty=True)
+
+
+def _pad(name: str, v: Any) -> bytes:
+    """Opaque padding bytes (the rest of a fixed-size report), at most a small payload."""
+    if not isinstance(v, (bytes, bytearray)):
+        raise SchemaError(R_BAD_TYPE, f"{name} must be bytes, got {type(v).__name__}")
+    if len(v) > MAX_SMALL_PAYLOAD_BYTES:
+        raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(v)} bytes, cap is {MAX_SMALL_PAYLOAD_BYTES}")
+    return bytes(v)
 
 
 def _vec2(name: str, v: Any) -> tuple[float, float]:
@@ -406,10 +420,65 @@ class Action(Envelope):
     """Agent ``uav`` -> world: chosen action for ``tick``, in ``[0, N_ACTIONS)``."""
 
     KIND: ClassVar[str] = KIND_ACTION
-    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({"uav": _uav_id, "tick": _uint63, "action": _action})
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "action": _action_or_hover})
     uav: int
     tick: int
     action: int
+
+
+@dataclass(frozen=True)
+class State(Envelope):
+    """Agent ``uav`` -> central controller: its local state report for ``tick`` (scheme central).
+
+    The values the controller's joint state and reward need (agents.central.uav_states), and
+    ``pad``: the message is padded to ``central.upload_bytes``, the report size the in-process
+    control-plane model charges, so the traffic measured on the bus is the modelled one."""
+
+    KIND: ClassVar[str] = KIND_STATE
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "tick": _uint63,
+            "episode": _uint63,
+            "step": _uint63,
+            "pos": _vec2,
+            "vehicles_in_range": _uint63,
+            "queued_packets": _uint63,
+            "relayed": _uint63,
+            "covered": _uint63,
+            "energy_j": _nonneg,
+            "done": _bool,
+            "pad": _pad,
+        }
+    )
+    uav: int
+    tick: int
+    episode: int
+    step: int
+    """Step within the episode (the world's t when the observation was made)."""
+    pos: tuple[float, float]
+    vehicles_in_range: int
+    queued_packets: int
+    relayed: int
+    covered: int
+    energy_j: float
+    done: bool
+    pad: bytes
+
+
+@dataclass(frozen=True)
+class Command(Envelope):
+    """Central controller -> agent ``uav``: the action to fly from ``tick`` on, padded to
+    ``central.download_bytes`` (see :class:`State`)."""
+
+    KIND: ClassVar[str] = KIND_COMMAND
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "action": _action, "pad": _pad})
+    uav: int
+    tick: int
+    action: int
+    pad: bytes
 
 
 @dataclass(frozen=True)
@@ -473,7 +542,7 @@ class Positions(Envelope):
     vehicles: tuple[tuple[float, float], ...]
 
 
-Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions]
+Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -481,7 +550,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
-    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions):
+    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, **cls.CHECKS}
@@ -520,6 +589,8 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_FAULT: {**_SMALL_LIMITS, "max_map_len": MAX_FAULT_PARAMS, "max_array_len": 0,
                  "max_str_len": max(MAX_PARAM_STR_LEN, MAX_TARGET_LEN)},
     KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
+    KIND_STATE: {**_SMALL_LIMITS, "max_map_len": 20, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
+    KIND_COMMAND: {**_SMALL_LIMITS, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
 })
@@ -640,6 +711,24 @@ def _from_map(obj: dict[Any, Any], size: int) -> Message:
     msg = object.__new__(cls)
     msg.__dict__.update({name: check(path, obj[name]) for name, path, check in cls._PLAN})
     return msg  # type: ignore[return-value]
+
+
+def padded(msg: M, size: int) -> M:
+    """A copy of a stamped ``msg`` whose ``pad`` makes its encoding ``size`` bytes long (or up to
+    2 bytes short, where msgpack's bin length header grows), or unpadded when it is longer anyway."""
+    rest = len(encode(_with_pad(msg, b""))) - 2  # without the empty bin's 2 bytes
+
+    def total(n: int) -> int:
+        return rest + n + (2 if n < 256 else 3 if n < 65536 else 5)
+
+    fits = [n for n in range(max(size - rest - 5, 0), max(size - rest - 1, 0)) if total(n) <= size]
+    return _with_pad(msg, bytes(max(fits, default=0)))
+
+
+def _with_pad(msg: M, pad: bytes) -> M:
+    out = copy.copy(msg)
+    object.__setattr__(out, "pad", pad)
+    return out
 
 
 # --- stamping ---------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Security material for a locked bus: one CA, one certificate per component, the router's ACL.
 
 Everything the router enforces comes from ONE table, :func:`grants`: for each
-identity (``world``, ``uav/<i>``, ``recorder``, ``supervisor``, ``replay``)
+identity (``world``, ``uav/<i>``, ``recorder``, ``supervisor``, ``replay``, ``controller``)
 the keys it may put, the key expressions it may subscribe to, the liveliness
 tokens it may declare and the tokens it may watch.  From that table
 
@@ -47,6 +47,7 @@ WORLD = keys.SRC_WORLD
 RECORDER = keys.SRC_RECORDER
 SUPERVISOR = "supervisor"
 REPLAY = keys.SRC_REPLAY
+CONTROLLER = keys.SRC_CONTROLLER  # the central scheme's controller (agents.central_process)
 VIEW = "view"  # the Foxglove bridge (truav.swarm.view)
 
 CA_CERT = "ca.pem"
@@ -94,12 +95,17 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
                    # The world announces the end of the run: its only control key.
                    keys.control(run, "shutdown")),
               subscribe=(keys.all_actions(run), keys.all_control(run), keys.world_tick(run)),
-              tokens=(keys.alive_world(run),), watch=(keys.all_alive_uavs(run),)),
+              tokens=(keys.alive_world(run),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))),
+        # Scheme central: every UAV's state upload in, one command per UAV out.
+        Grant(CONTROLLER, put=(keys.all_commands(run),),
+              subscribe=(keys.all_states(run), keys.all_control(run), keys.world_tick(run)),
+              tokens=(keys.alive_controller(run),), watch=(keys.all_alive_uavs(run),)),
         Grant(RECORDER, subscribe=(keys.everything(run),), tokens=(keys.alive_recorder(run),),
               watch=(keys.all_alive(run),)),
         Grant(SUPERVISOR,
               put=(keys.all_control(run), keys.all_faults(run)),
-              subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_control(run)),
+              subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_control(run),
+                         keys.all_states(run), keys.all_commands(run)),  # traffic measured for the summary
               watch=(keys.all_alive(run),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),
         Grant(REPLAY, put=(f"{r}/**",), subscribe=(keys.control(replay_run(run), "replay"),),
@@ -108,16 +114,16 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
     for i in range(n_uavs):
         table.append(Grant(
             keys.uav_identity(i),
-            put=(keys.uav_beacon(run, i), keys.uav_action(run, i), f"{keys.uav_prefix(run, i)}/state"),
+            put=(keys.uav_beacon(run, i), keys.uav_action(run, i), keys.uav_state(run, i)),
             subscribe=(keys.uav_obs(run, i), keys.all_beacons(run), keys.world_tick(run), keys.all_control(run),
-                       f"{p}/controller/cmd/{i}"),
-            tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run),)))
+                       keys.controller_cmd(run, i)),
+            tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))
     return tuple(table)
 
 
 def component_names(n_uavs: int) -> tuple[str, ...]:
     """File stems of the credentials: router, world, ..., uav-0, uav-1, ..."""
-    return (ROUTER, WORLD, RECORDER, SUPERVISOR, VIEW, REPLAY, *(file_stem(keys.uav_identity(i)) for i in range(n_uavs)))
+    return (ROUTER, WORLD, RECORDER, SUPERVISOR, VIEW, REPLAY, CONTROLLER, *(file_stem(keys.uav_identity(i)) for i in range(n_uavs)))
 
 
 def file_stem(identity: str) -> str:
@@ -354,7 +360,7 @@ class Credentials:
         path = self.directory / (ROUTER_CONFIG if identity == ROUTER else f"{file_stem(identity)}.json5")
         if not path.is_file():
             raise CredentialsError(f"--creds {self.directory}: no {path.name} (identities there: "
-                                   f"router, world, recorder, supervisor, view, replay, uav/0..uav/{self.n_uavs - 1})")
+                                   f"router, world, recorder, supervisor, view, replay, controller, uav/0..uav/{self.n_uavs - 1})")
         return path
 
     def table(self) -> tuple[Grant, ...]:

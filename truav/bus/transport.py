@@ -478,14 +478,17 @@ class Bus:
                 )
         return key
 
-    def publish(self, key: str, msg: Message) -> Message:
+    def publish(self, key: str, msg: Message, pad_to: int | None = None) -> Message:
         """Stamp ``msg`` (src=identity, next seq, t=clock), encode and put it; return the stamped message.
 
-        PermissionError/ValueError from :meth:`check_publish`; SchemaError if
-        ``msg`` does not belong on ``key`` (receivers would drop it).
+        ``pad_to``: a message with a ``pad`` field (state, command) is padded to that many bytes
+        once stamped (:func:`truav.bus.schema.padded`). PermissionError/ValueError from
+        :meth:`check_publish`; SchemaError if ``msg`` does not belong on ``key`` (receivers would drop it).
         """
         self.check_publish(key)
         stamped = self._seq.stamp(msg)
+        if pad_to is not None:
+            stamped = schema.padded(stamped, pad_to)
         _check_placement(key, stamped)
         self._put(key, schema.encode(stamped))
         if self.guard is not None:
@@ -789,6 +792,8 @@ _KIND_BY_KEY = {
     ("uav", keys.OBS): schema.KIND_OBS,
     ("uav", keys.BEACON): schema.KIND_BEACON,
     ("uav", keys.ACTION): schema.KIND_ACTION,
+    ("uav", keys.STATE): schema.KIND_STATE,
+    (keys.CONTROLLER,): schema.KIND_COMMAND,
 }
 
 
@@ -832,6 +837,8 @@ def _check_placement(key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.scope} metrics on {key}", src=msg.src)
     if kind == schema.KIND_FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
+    if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
+        raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
 
 
 # A process sees the same few keys and senders over and over: parse each once (bounded caches,

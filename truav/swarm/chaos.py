@@ -54,7 +54,7 @@ def fault_lanes(plan, end_s: float) -> list[tuple[str, float, float | None, bool
     """(label, start, stop or None for an instant, lasts to the end of the run) per fault, for one lane each."""
     lanes = []
     for f in plan.faults:
-        target = f.params.get("uav", f.params.get("key", f.params.get("target", "")))
+        target = f.params.get("uav", f.params.get("target", f.params.get("keys", "")))
         label = f"{f.kind} {target}".strip()
         if f.kind == "crash":
             restart = f.params.get("restart_after")

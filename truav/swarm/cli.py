@@ -11,6 +11,7 @@ and the parts, for other hosts or terminals (zenoh-example style flags):
     truav-swarm router -l tcp/0.0.0.0:7447
     truav-swarm world --run demo -e tcp/HOST:7447
     truav-swarm agent --id 3 --run demo -e tcp/HOST:7447
+    truav-swarm controller --run demo -e tcp/HOST:7447 --policy RUN   # --scheme central's controller
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import zenoh
 from truav.bus import keys
 from truav.cli import UsageError, parse_sets
 from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
-                            non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
+                            non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
 from truav.config import Config, load_config
 from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
@@ -36,6 +37,9 @@ from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply
 
 log = logging.getLogger("truav.swarm")
 
+SCHEMES = ("truav", "central", "patrol")
+"""What flies the UAVs: TRUAV's agents, the central controller's commands, the patrol plan."""
+DEFAULT_COMMAND_HOLD_S = 1.0
 MAX_AGENTS = 50
 """Agent processes `up` and `chaos` start without --force-agents. On the 2-core reference
 machine 20 agents at 10 Hz keep every deadline with a wide margin, and 50 already miss 2.4%
@@ -71,11 +75,11 @@ def check_transport(args, listen_flag: str = "-l/--listen") -> None:
             raise UserError(f"-c/--config {args.config}: not a Zenoh config ({reason})") from None
 
 
-def check_plan(flag: str, path: str, n_uavs: int):
-    """A fault plan file that is valid and names only UAVs of this swarm."""
+def check_plan(flag: str, path: str, n_uavs: int, scheme: str | None = None):
+    """A fault plan file that is valid and names only UAVs (and a controller) this swarm has."""
     from truav.faults import check_plan_for, load_plan
     check_in_file(flag, path)
-    return check_plan_for(load_plan(path), n_uavs, path)
+    return check_plan_for(load_plan(path), n_uavs, path, scheme)
 
 
 def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, full: bool = True) -> None:
@@ -93,6 +97,43 @@ def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, ful
         raise UsageError(f"{flag}: {exc}") from None
     if index is not None and index >= n_seeds:
         raise UsageError(f"--qtable-index {index}: {run} holds {n_seeds} table(s) (indices 0-{n_seeds - 1})")
+
+
+def check_scheme_flags(args) -> None:
+    """Flags that belong to one scheme only, given with another (one line, before anything starts)."""
+    scheme = args.scheme
+    if scheme != "truav":
+        for flag, given in (("--qtable", args.qtable), ("--greedy", args.greedy)):
+            if given:
+                raise UsageError(f"{flag}: only --scheme truav flies Q-tables (this is --scheme {scheme})")
+    if scheme != "central":
+        if getattr(args, "policy", None) is not None:
+            raise UsageError(f"--policy: only --scheme central flies a trained controller (this is --scheme {scheme})")
+        if getattr(args, "command_hold", None) != DEFAULT_COMMAND_HOLD_S:
+            raise UsageError(f"--command-hold: only --scheme central has commands (this is --scheme {scheme})")
+
+
+def check_policy(flag: str, run: str, cfg: Config, index: int) -> None:
+    """A trained central controller (`truav train --scheme central`) that fits this scenario."""
+    from truav import runio
+    try:
+        runio.read_policy(run, index, cfg)
+    except runio.RunDirError as exc:
+        raise UsageError(f"{flag}: {exc}") from None
+
+
+def check_central_sizes(cfg: Config) -> None:
+    """The central scheme's messages are padded to the model's sizes: they must fit one bus message,
+    and the controller needs torch."""
+    from truav.bus import schema
+    limit = schema.MAX_SMALL_PAYLOAD_BYTES
+    for key in ("upload_bytes", "download_bytes"):
+        value = getattr(cfg.central, key)
+        if value > limit:
+            raise UsageError(f"central.{key} = {value}: a message on the bus holds at most {limit} bytes")
+    import importlib.util
+    if importlib.util.find_spec("torch") is None:
+        raise UsageError("--scheme central: the controller needs PyTorch: pip install -e '.[central]'")
 
 
 def check_checkpoint(path: str, cfg: Config) -> None:
@@ -201,12 +242,12 @@ def cmd_world(args) -> int:
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     if args.fault_plan:
-        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs)
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
     if args.stats_out:
         check_out_file("--stats-out", args.stats_out)
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
-                        fault_plan=args.fault_plan, accept_replay=args.accept_replay)
+                        fault_plan=args.fault_plan, accept_replay=args.accept_replay, scheme=args.scheme)
     _creds(args, keys.SRC_WORLD)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
         node = WorldNode(cfg, opts, bus)
@@ -227,7 +268,8 @@ def cmd_world(args) -> int:
 
 
 def cmd_agent(args) -> int:
-    from agents.agent_process import DELAY_ENV, AgentNode, AgentOptions, debug_delay_s
+    from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
+    from agents.scheme_agents import make_agent_node
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     if not 0 <= args.id < cfg.scenario.n_uavs:
@@ -237,7 +279,8 @@ def cmd_agent(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.fault_plan:
-        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs)
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
+    check_scheme_flags(args)
     if args.qtable:
         check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
     if args.checkpoint:
@@ -248,12 +291,13 @@ def cmd_agent(args) -> int:
                         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
                         qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
                         tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s,
-                        accept_replay=args.accept_replay)
+                        accept_replay=args.accept_replay, scheme=args.scheme, command_hold_s=args.command_hold)
     _creds(args, keys.uav_identity(args.id))
     with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
-        node = AgentNode(cfg, opts, bus)
+        node = make_agent_node(cfg, opts, bus)
         reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
-        log.info("uav %d joined run %s (%s)", args.id, args.run, "greedy" if args.greedy else "learning")
+        log.info("uav %d joined run %s (%s)", args.id, args.run, args.scheme if args.scheme != "truav"
+                 else "greedy" if args.greedy else "learning")
         try:
             node.run()
         except KeyboardInterrupt:
@@ -262,6 +306,35 @@ def cmd_agent(args) -> int:
         node.write_stats()
     log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", args.id, node.steps,
              reasons.first or "shutdown", args.checkpoint or "(none: no --checkpoint)", args.stats_out or "(none)")
+    return EXIT_ROUTER_LOST if reasons.router_lost else 0
+
+
+def cmd_controller(args) -> int:
+    from agents.central_process import ControllerNode, ControllerOptions
+    _setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, "central")
+    if args.policy is not None:
+        check_policy("--policy", args.policy, cfg, args.policy_index)
+    check_central_sizes(cfg)
+    if args.stats_out:
+        check_out_file("--stats-out", args.stats_out)
+    opts = ControllerOptions(run=args.run, seed=args.seed, lockstep=args.lockstep, policy=args.policy,
+                             policy_index=args.policy_index, tick_period_s=1.0 / args.rate,
+                             stats_out=args.stats_out, fault_plan=args.fault_plan, accept_replay=args.accept_replay)
+    _creds(args, keys.SRC_CONTROLLER)
+    with Bus(keys.SRC_CONTROLLER, args.run, config_from_args(args)) as bus:
+        node = ControllerNode(cfg, opts, bus)
+        reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
+        log.info("controller joined run %s (%s)", args.run, f"policy {args.policy}" if args.policy else "learning online")
+        try:
+            node.run()
+        except KeyboardInterrupt:
+            reasons.because("interrupted")
+        node.write_stats()
+    log.info("controller stopped after %d tick(s), %d command(s) (%s)", node.stats["ticks"], node.stats["commands"],
+             reasons.first or "shutdown")
     return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
@@ -348,10 +421,15 @@ def _swarm_options(args):
         check_out_dir("--out", args.out)
     if args.record is not None:
         check_out_file("--record", args.record)
+    check_scheme_flags(args)
     if args.qtable is not None:
         check_qtable("--qtable", args.qtable, cfg)
+    if args.policy is not None:
+        check_policy("--policy", args.policy, cfg, args.policy_index)
+    if args.scheme == "central":
+        check_central_sizes(cfg)
     if args.fault_plan is not None:
-        check_plan("--fault-plan", args.fault_plan, n)
+        check_plan("--fault-plan", args.fault_plan, n, args.scheme)
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
@@ -359,7 +437,8 @@ def _swarm_options(args):
                         fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
                         geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
-                        secure=args.secure)
+                        secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
+                        command_hold_s=args.command_hold)
     return cfg, opts
 
 
@@ -369,7 +448,7 @@ def cmd_chaos(args) -> int:
         raise UsageError("--fault-plan: chaos takes its plan from --plan (the baseline run has none); "
                          "drop --fault-plan")
     cfg, opts = _swarm_options(args)
-    check_plan("--plan", args.plan, cfg.scenario.n_uavs)
+    check_plan("--plan", args.plan, cfg.scenario.n_uavs, args.scheme)
     return run_chaos(cfg, opts, args.plan)
 
 
@@ -431,8 +510,29 @@ def cmd_up(args) -> int:
 
 
 # -- parser ------------------------------------------------------------------------
+def add_scheme_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheme", choices=SCHEMES, default="truav",
+                   help="what flies the UAVs: truav (independent Q-learning agents, default), central (a controller "
+                        "process commands every UAV each tick), patrol (the pre-planned patrol)")
+
+
+def add_command_hold_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--command-hold", type=non_negative_float, default=DEFAULT_COMMAND_HOLD_S, metavar="S",
+                   help="--scheme central: without a fresh command a UAV keeps its last one this many seconds "
+                        f"(world clock), then hovers (default {DEFAULT_COMMAND_HOLD_S:g})")
+
+
+def add_policy_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--policy", metavar="RUN", help="--scheme central: fly this trained controller (`truav train "
+                                                   "--scheme central` output); default: learn online")
+    p.add_argument("--policy-index", type=non_negative_int, default=0, help="which seed's policy of that run (default 0)")
+
+
 def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
+    add_scheme_arg(up)
+    add_policy_args(up)
+    add_command_hold_arg(up)
     up.add_argument("--agents", type=positive_int,
                     help=f"number of UAV agents (default scenario.n_uavs, 5; at most {MAX_AGENTS} without --force-agents)")
     up.add_argument("--force-agents", action="store_true",
@@ -536,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
     wo.add_argument("--rate", type=positive_float, default=10.0)
     wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
+    add_scheme_arg(wo)
     add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)
 
@@ -551,8 +652,19 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--qtable-index", type=non_negative_int, default=0,
                     help="which seed's table of that run (default 0)")
     ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
+    add_scheme_arg(ag)
+    add_command_hold_arg(ag)
     add_swarm_process_args(ag, "the agent")
     ag.set_defaults(func=cmd_agent)
+
+    co = sub.add_parser("controller", help="run the central scheme's controller process")
+    add_scenario_args(co)
+    co.add_argument("--lockstep", action="store_true")
+    co.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (default 10)")
+    add_policy_args(co)
+    co.add_argument("--stats-out", metavar="FILE", help="write the controller's statistics as JSON at exit")
+    add_swarm_process_args(co, "the controller")
+    co.set_defaults(func=cmd_controller)
 
     from truav.swarm.secure_cli import add_security_commands
     add_security_commands(sub)

@@ -23,6 +23,8 @@ log = logging.getLogger("truav.faults")
 
 
 def _target(f: Fault) -> str:
+    if "target" in f.params:
+        return f.params["target"]
     if "uav" in f.params:
         return keys.uav_identity(f.params["uav"])
     if f.kind == "partition":
@@ -39,8 +41,9 @@ def _params(f: Fault) -> dict:
 class FaultController:
     """Runs a plan's schedule against the processes of one swarm.
 
-    kill(uav) / freeze(uav) / thaw(uav) / restart(uav) are the supervisor's
-    process hooks (they act only on processes the supervisor started)."""
+    kill(who) / freeze(who) / thaw(who) / restart(who) are the supervisor's
+    process hooks (they act only on processes the supervisor started); ``who``
+    is a UAV id (its agent) or a process target such as "controller"."""
 
     def __init__(self, bus: Bus, run: str, plan: FaultPlan, hooks: dict[str, Callable[[int], None]]):
         self.bus, self.run, self.plan, self.hooks = bus, run, plan, hooks
@@ -84,7 +87,7 @@ class FaultController:
             self.events.append((time.monotonic() - t0, f.kind, phase))
 
     def _apply(self, f: Fault, phase: str) -> None:
-        uav = f.params.get("uav")
+        uav = f.params.get("target", f.params.get("uav"))
         if f.kind == "crash":
             (self.hooks["kill"] if phase == schema.PHASE_START else self.hooks["restart"])(uav)
         elif f.kind == "freeze":

@@ -41,13 +41,19 @@ class Monitor:
     shutdowns: list = field(default_factory=list)  # (monotonic time, sender) of every shutdown request heard
     lock: threading.Lock = field(default_factory=threading.Lock)
     beacon_inbox: Inbox | None = None
+    control_inboxes: list = field(default_factory=list)  # scheme central: state uploads, commands
+    control_count: dict = field(default_factory=lambda: defaultdict(int))  # kind -> messages
+    control_bytes: dict = field(default_factory=lambda: defaultdict(int))  # kind -> payload bytes
+    control_span: list = field(default_factory=list)  # [first, last] receive time (s) of any of them
 
-    def attach(self, bus: Bus, run: str) -> None:
+    def attach(self, bus: Bus, run: str, central: bool = False) -> None:
         bus.subscribe(keys.metrics_step(run), self._on_step)
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
         # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
         # process from being a 21st subscriber callback in every beacon's fan-out.
         self.beacon_inbox = bus.inbox(keys.all_beacons(run))
+        if central:  # the control plane's real messages, measured as they cross the bus
+            self.control_inboxes = [bus.inbox(keys.all_states(run)), bus.inbox(keys.all_commands(run))]
         bus.subscribe(keys.world_positions(run), self._on_positions)
         bus.subscribe(keys.world_tick(run), self._on_tick)
         bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))
@@ -85,7 +91,14 @@ class Monitor:
         if self.beacon_inbox is None:
             return
         heard = self.beacon_inbox.drain()
+        control = [r for box in self.control_inboxes for r in box.drain()]
         with self.lock:
+            for r in control:
+                self.control_count[r.msg.KIND] += 1
+                self.control_bytes[r.msg.KIND] += len(r.raw)
+                t = r.recv_ns / 1e9
+                self.control_span = [min(self.control_span[0], t), max(self.control_span[1], t)] \
+                    if self.control_span else [t, t]
             for r in heard:
                 msg: schema.Beacon = r.msg
                 self.beacon_count[msg.uav] += 1
@@ -121,7 +134,13 @@ class Monitor:
             size = sum(self.beacon_bytes.values())
             span = (self.last_beacon - self.first_beacon) if n > 1 else float("nan")
             uavs = max(len(self.beacon_count), 1)
+            ups, downs = self.control_count[schema.KIND_STATE], self.control_count[schema.KIND_COMMAND]
+            up_b, down_b = self.control_bytes[schema.KIND_STATE], self.control_bytes[schema.KIND_COMMAND]
+            cspan = self.control_span[1] - self.control_span[0] if len(self.control_span) == 2 else 0.0
         per_s = n / span if span and span > 0 else float("nan")
-        return {"beacons": n, "bytes_per_beacon": size / n if n else float("nan"),
+        return {"states": ups, "bytes_per_state": up_b / ups if ups else float("nan"),
+                "commands": downs, "bytes_per_command": down_b / downs if downs else float("nan"),
+                "central_bytes_per_s": (up_b + down_b) / cspan if cspan > 0 else float("nan"),
+                "beacons": n, "bytes_per_beacon": size / n if n else float("nan"),
                 "beacons_per_s_total": per_s, "beacons_per_s_per_uav": per_s / uavs,
                 "beacon_bytes_per_s_total": size / span if span and span > 0 else float("nan")}

@@ -112,6 +112,13 @@ class SwarmOptions:
     """(lat, lon) of the area's centre on Foxglove's map (recorder and view); None: Paris."""
     secure: bool = False
     """Mutual TLS and the router's access control, with fresh credentials in <out>/creds (truav.bus.security)."""
+    scheme: str = "truav"
+    """truav (Q-learning agents) | central (a controller process commands every UAV) | patrol (the plan)."""
+    policy: str | None = None
+    """Scheme central: the trained controller to fly (`truav train --scheme central` run); None: learn online."""
+    policy_index: int = 0
+    command_hold_s: float = 1.0
+    """Scheme central: how long a UAV keeps its last command once commands stop, then hovers."""
 
 
 @dataclass
@@ -188,6 +195,9 @@ class _Swarm:
         self.cfg, self.opts, self.out, self.plan, self.interrupts = cfg, opts, out, plan, interrupts
         self.n = cfg.scenario.n_uavs
         self.agents = [f"agent{i}" for i in range(self.n)]
+        self.central = opts.scheme == "central"
+        self.fleet = self.agents + (["controller"] if self.central else [])
+        """The processes a fault plan may kill or freeze; a frozen one is thawed before it is stopped."""
         self.children = Children(out / "logs", out / PID_FILE, on_start=self._started if opts.verbose else None)
         self.monitor = Monitor(self.n, period_s=1.0 / opts.rate_hz)
         self.outcome = Outcome()
@@ -266,23 +276,31 @@ class _Swarm:
                                                         "--port", str(opts.foxglove_port)))
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
             bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
-            self.monitor.attach(bus, opts.run)
+            self.monitor.attach(bus, opts.run, central=self.central)
             if opts.record and not self._recorder_ready(bus):
                 return False
             if self.plan:
-                hooks = {"kill": self._plan_kill, "restart": lambda u: self.children.restart(f"agent{u}"),
-                         "freeze": lambda u: self.children.send(f"agent{u}", signal.SIGSTOP),
-                         "thaw": lambda u: self.children.send(f"agent{u}", signal.SIGCONT)}
+                hooks = {"kill": self._plan_kill, "restart": lambda u: self.children.restart(_process(u)),
+                         "freeze": lambda u: self.children.send(_process(u), signal.SIGSTOP),
+                         "thaw": lambda u: self.children.send(_process(u), signal.SIGCONT)}
                 self.controller = FaultController(bus, opts.run, self.plan, hooks)
+            scheme = ["--scheme", opts.scheme]
+            if self.central:  # before the world, which waits for it (and the agents) before tick 0
+                policy = ["--policy", str(Path(opts.policy).resolve()), "--policy-index", str(opts.policy_index)] \
+                    if opts.policy else []
+                self.children.start("controller", _python_module(
+                    "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
+                    *policy, "--stats-out", str(out / "controller.json")))
             self.children.start("world", _python_module(
-                "truav.swarm.cli", "world", *common, *timing, *faults_args, "--episodes", str(opts.episodes),
+                "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme, "--episodes", str(opts.episodes),
                 "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
                 "--wait-agents", str(opts.wait_agents_s)))
             for i in range(self.n):
                 extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json"),
-                         "--checkpoint-every", str(opts.checkpoint_every)]
+                         "--checkpoint-every", str(opts.checkpoint_every), *scheme]
                 extra += ["--qtable", opts.qtable] if opts.qtable else []
                 extra += ["--greedy"] if opts.greedy else []
+                extra += ["--command-hold", str(opts.command_hold_s)] if self.central else []
                 self.children.start(f"agent{i}", _python_module(
                     "truav.swarm.cli", "agent", "--id", str(i), *common, *timing, *faults_args,
                     "--rate", str(opts.rate_hz), *extra))
@@ -297,18 +315,20 @@ class _Swarm:
         opts, ep = self.opts, self.endpoint
         default_out = Path(f"runs/swarm-{opts.run}")
         where = "" if self.out == default_out else f" --out {self.out}"
-        print(f"swarm '{opts.run}': router {ep}, world + {self.n} agents"
+        print(f"swarm '{opts.run}' ({opts.scheme}): router {ep}, world + {self.n} agents"
+              f"{' + controller (' + (opts.policy or 'learning online') + ')' if self.central else ''}"
               f"{' + recorder -> ' + opts.record if opts.record else ''}; "
               f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {self.out}/logs\n"
               f"  watch it: truav-swarm status -e {ep}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
         if opts.foxglove_port is not None:
             print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)", flush=True)
 
-    def _plan_kill(self, uav: int) -> None:
-        p = self.children.procs.get(f"agent{uav}")
+    def _plan_kill(self, who) -> None:
+        name = _process(who)
+        p = self.children.procs.get(name)
         if p is not None:
             self.planned_exits.add(p.pid)
-        self.children.send(f"agent{uav}", signal.SIGKILL)
+        self.children.send(name, signal.SIGKILL)
 
     def _recorder_ready(self, bus: Bus) -> bool:
         proc = self.children.procs["recorder"]
@@ -345,7 +365,7 @@ class _Swarm:
                     self.outcome.fail(f"{what} exited mid-run ({_exit_text(p.returncode)}) at {self._since():.1f} s"
                                       + ("; the recording is incomplete" if name == "recorder" else ""))
                     return False
-            for name in self.agents:
+            for name in self.fleet:
                 p = children.procs.get(name)
                 if p is None or p.poll() is None or p.pid in reported:
                     continue
@@ -359,10 +379,12 @@ class _Swarm:
                 if p.returncode == 0 and shut_down:  # left on a shutdown request: not news
                     continue
                 if p.pid in self.planned_exits:
-                    if opts.verbose:
-                        print(f"{name} killed by the fault plan at {self._since():.1f} s", flush=True)
+                    if opts.verbose or name == "controller":
+                        print(f"{name} killed by the fault plan at {self._since():.1f} s"
+                              + ("; the UAVs fly on without commands" if name == "controller" else ""), flush=True)
                     continue
-                note = f"{name} exited mid-run ({_exit_text(p.returncode)}): {children.last_line(name)}"
+                note = f"{name} exited mid-run ({_exit_text(p.returncode)}): {children.last_line(name)}" \
+                    + ("; the UAVs fly on without commands" if name == "controller" else "")
                 self.outcome.warnings.append(note)
                 print(note, flush=True)
             now = time.monotonic()
@@ -389,12 +411,12 @@ class _Swarm:
         children = self.children
         if self.controller is not None:
             self.controller.stop()
-        children.thaw(self.agents)  # a frozen agent must run to stop; SIGTERM alone would wait for ever
+        children.thaw(self.fleet)  # a frozen agent must run to stop; SIGTERM alone would wait for ever
         if normal_end:
-            children.wait_exit(self.agents, AGENT_EXIT_GRACE_S)
+            children.wait_exit(self.fleet, AGENT_EXIT_GRACE_S)
         killed = children.stop(["world"], timeout=WORLD_STOP_TIMEOUT_S)
-        children.thaw(self.agents)  # the plan's last thaw may have been cancelled
-        killed += children.stop(self.agents, timeout=AGENT_STOP_TIMEOUT_S)
+        children.thaw(self.fleet)  # the plan's last thaw may have been cancelled
+        killed += children.stop(self.fleet, timeout=AGENT_STOP_TIMEOUT_S)
         for name in killed:
             self.outcome.fail(f"{name} did not stop within {AGENT_STOP_TIMEOUT_S:.0f} s of SIGTERM and was killed: "
                               f"its final checkpoint and statistics may be missing")
@@ -406,7 +428,7 @@ class _Swarm:
                 self.outcome.fail(f"the recorder failed to finish {self.opts.record} "
                                   f"({_exit_text(children.procs['recorder'].returncode)}): "
                                   f"{children.last_line('recorder')}")
-        others = [n for n in children.procs if n not in ("world", "recorder", "router", *self.agents)]  # the viewer
+        others = [n for n in children.procs if n not in ("world", "recorder", "router", *self.fleet)]  # the viewer
         children.stop(others, timeout=WORLD_STOP_TIMEOUT_S)
         if "router" in children.procs:
             children.stop(["router"], timeout=ROUTER_STOP_TIMEOUT_S)
@@ -441,16 +463,23 @@ class _Swarm:
                 if missed > opts.max_missed_share:
                     o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
                            f"{opts.max_missed_share:g})")
-        killed_for_good = {f"agent{f.params['uav']}" for f in (self.plan.faults if self.plan else ())
+        killed_for_good = {_process(f.params.get("target", f.params.get("uav")))
+                           for f in (self.plan.faults if self.plan else ())
                            if f.kind == "crash" and "restart_after" not in f.params}
-        for i, name in enumerate(self.agents):
-            if o.ticked and not (self.out / f"agent{i}.json").is_file() and name not in killed_for_good:
+        for name in self.fleet:
+            if o.ticked and not (self.out / f"{name}.json").is_file() and name not in killed_for_good:
                 o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{name}.log)")
+        lost = ((world or {}).get("controller_losses") or []) if self.central else []
+        if lost:
+            o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
+                              f"UAVs held their last command for {opts.command_hold_s:g} s, then hovered "
+                              f"(the world ran on)")
 
     def _summary(self, elapsed: float) -> None:
         cfg, opts, out, monitor, o = self.cfg, self.opts, self.out, self.monitor, self.outcome
         world = _read_json(out / "world.json")
         agents = [_read_json(out / f"agent{i}.json") for i in range(self.n)]
+        controller = _read_json(out / "controller.json") if self.central else None
         cp = monitor.control_plane()
         events = self.controller.events if self.controller is not None else []
         with monitor.lock:
@@ -458,11 +487,14 @@ class _Swarm:
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         (out / SUMMARY_FILE).write_text(json.dumps({
-            "world": world, "agents": agents, "control_plane": cp, "elapsed_s": elapsed,
+            "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
+            "control_plane": cp, "elapsed_s": elapsed,
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            if self.central:
+                _print_central(cfg, opts, world, agents, controller, cp)
             if opts.plot and monitor.tracks:
                 from truav.swarm.plots import swarm_figure
                 print(f"picture: {swarm_figure(cfg, monitor, out / 'summary.png', title=f'swarm {opts.run!r}')}")
@@ -505,6 +537,50 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
               f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
     for t, kind, phase in events:
         print(f"fault {kind} {phase} at {t:.1f} s")
+
+
+def _process(who) -> str:
+    """The supervisor's name of a fault plan's process: agent<i> for a UAV id, else the target's name."""
+    return who if isinstance(who, str) else f"agent{who}"
+
+
+def central_model_bytes_per_s(cfg: Config, rate_hz: float) -> float:
+    """What the in-process control-plane model sends per second of real time: every UAV's upload and
+    command each round (agents.central.ControlPlaneModel.messages), rate_hz / update_period rounds."""
+    c = cfg.central
+    up_m, up_b, down_m, down_b = cfg.scenario.n_uavs, cfg.scenario.n_uavs * c.upload_bytes, \
+        cfg.scenario.n_uavs, cfg.scenario.n_uavs * c.download_bytes
+    return (up_b + down_b) * rate_hz / c.update_period_steps
+
+
+def _print_central(cfg, opts, world, agents, controller, cp) -> None:
+    c = cfg.central
+    model = central_model_bytes_per_s(cfg, opts.rate_hz)
+    ctl = controller or {}
+    print(f"controller ({ctl.get('policy', opts.policy or 'learning online')}): {ctl.get('ticks', 0)} tick(s) decided, "
+          f"{ctl.get('commands', 0)} command(s) sent, {ctl.get('stale_states', 0)} missing upload(s) filled from "
+          f"the last one" + (f", decision p99 {ctl['decide_ms']['p99']:.1f} ms" if ctl.get("decide_ms") else ""))
+    counts = {"fresh": 0, "held": 0, "hovered": 0}
+    for a in agents:
+        for k, v in ((a or {}).get("commands") or {}).items():
+            counts[k] = counts.get(k, 0) + v
+    print(f"UAVs flew a fresh command {counts['fresh']} time(s), held the last one {counts['held']}, hovered without "
+          f"one {counts['hovered']} (hold {opts.command_hold_s:g} s)")
+    if cp.get("states") or cp.get("commands"):
+        if opts.lockstep:
+            rate = "lock-step: per second of wall time, not of the world's"
+        else:
+            rate = f"model at {opts.rate_hz:g} Hz: {model / 1e3:.1f} kB/s"
+        print(f"control plane measured on the bus: {cp['states']} uploads x {cp['bytes_per_state']:.0f} B + "
+              f"{cp['commands']} commands x {cp['bytes_per_command']:.0f} B = "
+              f"{cp['central_bytes_per_s'] / 1e3:.1f} kB/s; the in-process model: {cfg.scenario.n_uavs} x "
+              f"({c.upload_bytes} + {c.download_bytes}) B per round = "
+              f"{cfg.scenario.n_uavs * (c.upload_bytes + c.download_bytes):,} B ({rate})")
+    eps = (world or {}).get("episodes") or []
+    if eps and "ctrl_delay_ms" in eps[0]:
+        print(f"modelled radio effects applied by the world: action delay {np.mean([e['ctrl_delay_ms'] for e in eps]):.1f}"
+              f" ms, control airtime {np.mean([e['ctrl_airtime_s'] for e in eps]):.2f} s/UAV/episode "
+              f"({np.mean([e['ctrl_energy_j'] for e in eps]):.1f} J)")
 
 
 def _exit_text(code: int | None) -> str:

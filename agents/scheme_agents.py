@@ -1,0 +1,218 @@
+"""The agent processes of the two baselines on the bus: the same process as TRUAV's
+(agents.agent_process.AgentNode: observations in, one action per tick out, the same
+lock-step protocol), flying another scheme's code.
+
+- ``patrol`` (:class:`PatrolAgentNode`): the trajectory-knowledge plan of
+  agents.patrol.PatrolController, the in-process driver's own object with B = 1.
+  At each deployment (an episode's first tick) every agent sends one beacon with
+  its start position and plans from the start positions heard: the plan's
+  matching of UAVs to orbits (``patrol.assignment = "nearest"``) and its horizon
+  depend on all of them, exactly as in process. After that it needs nothing but
+  its own observation: no beacons, no controller.
+- ``central`` (:class:`CentralAgentNode`): uploads its local state to the
+  controller (agents.central_process) on every control round, ``uav/<i>/state``,
+  padded to ``central.upload_bytes``, and flies the latest command
+  (``controller/cmd/<i>``). Without a fresh command it does what an autopilot
+  does when its link stops: keeps the last commanded action for
+  ``command_hold_s`` seconds of the world's clock after the tick it was for,
+  then hovers (an explicit HOVER action). It never learns and has no checkpoint.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from agents.agent_process import DONE_ACK_ACTION, LOCKSTEP_BEACON_WAIT_S, AgentNode, AgentOptions
+from truav.bus import keys, schema
+from truav.bus.transport import Bus
+from truav.config import Config
+
+log = logging.getLogger("truav.agent")
+
+SCHEMES = ("truav", "patrol", "central")
+DEPLOY_WAIT_FRAC = 0.3
+"""Patrol, real time: wait up to this fraction of the tick period for the peers' deployment beacons."""
+LOCKSTEP_COMMAND_WAIT_S = 2.0
+"""Central, lock-step: how long to wait for the tick's command while the controller is alive."""
+
+
+class _NoLearner(AgentNode):
+    """An agent without a Q-table: nothing to warm up, load or checkpoint."""
+
+    def _make_learners(self):
+        return None
+
+    def _warm_up(self) -> None:
+        pass
+
+    def checkpoint(self) -> None:
+        pass
+
+    def _ack_done(self, obs: schema.Obs) -> None:
+        if self.opts.lockstep:  # the world waits for every agent's acknowledgement before the next tick
+            self.bus.publish(keys.uav_action(self.opts.run, self.opts.uav),
+                             schema.Action(uav=self.opts.uav, tick=obs.tick, action=DONE_ACK_ACTION))
+
+    def _next_step(self, obs: schema.Obs) -> bool:
+        """Count the step; True at an episode's first observation."""
+        if obs.episode != self._episode:
+            self._episode, self._t = obs.episode, 0
+            return True
+        self._t += 1
+        self.steps += 1
+        return False
+
+    def _act(self, obs: schema.Obs, action: int) -> None:
+        self._action = action
+        self.bus.publish(keys.uav_action(self.opts.run, self.opts.uav),
+                         schema.Action(uav=self.opts.uav, tick=obs.tick, action=action))
+
+
+class PatrolAgentNode(_NoLearner):
+    def _make_learners(self):
+        from agents.patrol import PatrolController
+        self.patrol = PatrolController(self.cfg, [self.opts.seed])
+        self.deployments = 0
+        self.deployments_incomplete = 0
+        return None
+
+    def handle(self, obs: schema.Obs) -> None:
+        T = self.cfg.scenario.steps_per_episode
+        if self._next_step(obs):
+            self.patrol.plan_env(0, self._deployment(obs))
+        if obs.done:
+            self._ack_done(obs)
+            return
+        self._act(obs, self.patrol.act_one(min(self._t, T - 1), 0, self.opts.uav, obs.pos))
+
+    def _deployment(self, obs: schema.Obs) -> np.ndarray:
+        """Every UAV's start position (U, 2): own, and the peers' from this tick's beacons (a peer
+        not heard in time is placed at the centre of the area, and the plan may then differ)."""
+        o, sc = self.opts, self.cfg.scenario
+        starts = np.full((self.n_uavs, 2), sc.area_m / 2.0)
+        starts[o.uav] = obs.pos
+        self.bus.publish(keys.uav_beacon(o.run, o.uav), schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos,
+                                                                      vel=(0.0, 0.0)))
+        heard = self._lockstep_beacons(obs.tick) if o.lockstep else self._realtime_beacons(obs.tick)
+        for j, b in heard.items():
+            starts[j] = b.pos
+        self.deployments += 1
+        missing = [j for j in range(self.n_uavs) if j != o.uav and j not in heard]
+        if missing:
+            self.deployments_incomplete += 1
+            log.warning("uav %d, episode %d: no deployment beacon from %s; planning them at the centre",
+                        o.uav, obs.episode, missing)
+        return starts
+
+    def _realtime_beacons(self, tick: int) -> dict[int, schema.Beacon]:
+        deadline = time.monotonic() + DEPLOY_WAIT_FRAC * self.opts.tick_period_s
+        while True:
+            self._take_beacons()
+            with self._lock:
+                got = {j: b for j, b in self._beacons.items() if b.tick == tick}
+                missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone and j not in got]
+            left = deadline - time.monotonic()
+            if not missing or left <= 0 or self._stop.is_set():
+                return got
+            self._beacon_inbox.wait(min(left, 0.01))
+
+    def scheme_stats(self) -> dict:
+        return {"deployments": self.deployments, "deployments_incomplete": self.deployments_incomplete}
+
+
+class CentralAgentNode(_NoLearner):
+    def _make_learners(self):
+        self.commands_fresh = self.commands_held = self.commands_hovered = 0
+        self._latest: tuple[int, int] | None = None  # (tick, action) of the newest command heard
+        self._round_tick = -1
+        self._cmd = threading.Condition()
+        self._controller_up = False
+        return None
+
+    def _setup_scheme(self, bus: Bus) -> None:
+        run, me = self.opts.run, self.opts.uav
+        bus.subscribe(keys.controller_cmd(run, me), self._on_command)
+        bus.watch_liveliness(keys.alive_controller(run), lambda k: self._on_controller(True),
+                             lambda k: self._on_controller(False))
+        bus.prepare(keys.uav_state(run, me))
+
+    def _on_command(self, key, msg: schema.Command, raw, recv_ns) -> None:
+        with self._cmd:
+            if self._latest is None or msg.tick > self._latest[0]:
+                self._latest = (msg.tick, msg.action)
+                self._cmd.notify_all()
+
+    def _on_controller(self, up: bool) -> None:
+        with self._cmd:
+            self._controller_up = up
+            self._cmd.notify_all()
+        (log.info if up else log.warning)("uav %d: controller %s", self.opts.uav, "joined" if up else "lost")
+
+    def stop(self) -> None:
+        super().stop()
+        with self._cmd:
+            self._cmd.notify_all()
+
+    def handle(self, obs: schema.Obs) -> None:
+        o, c = self.opts, self.cfg.central
+        self._next_step(obs)
+        is_round = self._t % c.update_period_steps == 0
+        if is_round or obs.done:  # the done state too: an online learner learns from the last step
+            self.bus.publish(keys.uav_state(o.run, o.uav), schema.State(
+                uav=o.uav, tick=obs.tick, episode=obs.episode, step=self._t, pos=obs.pos,
+                vehicles_in_range=obs.vehicles_in_range, queued_packets=obs.queued_packets, relayed=obs.relayed,
+                covered=obs.covered, energy_j=obs.energy_j, done=obs.done, pad=b""), pad_to=c.upload_bytes)
+        if obs.done:
+            self._ack_done(obs)
+            return
+        if is_round:
+            self._round_tick = obs.tick
+            self._await_command(obs)
+        self._act(obs, self._fly(obs))
+
+    def _await_command(self, obs: schema.Obs) -> None:
+        if self.opts.lockstep:
+            deadline = time.monotonic() + LOCKSTEP_COMMAND_WAIT_S
+        else:  # the world's stamp of the observation is the tick's start, in its wall clock
+            deadline = time.monotonic() + obs.t / 1e9 + self.opts.command_wait_frac * self.opts.tick_period_s \
+                - time.time()
+        with self._cmd:
+            while not self._stop.is_set():
+                if self._latest is not None and self._latest[0] >= obs.tick:
+                    return
+                if self.opts.lockstep and not self._controller_up:
+                    return  # no one will answer: fly on without waiting
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._cmd.wait(min(left, 0.05))
+
+    def _fly(self, obs: schema.Obs) -> int:
+        """The action to fly: the current round's command, else the last one while it is recent enough, else hover."""
+        with self._cmd:
+            latest = self._latest
+        if latest is not None and latest[0] >= self._round_tick:
+            self.commands_fresh += 1
+            return latest[1]
+        if latest is not None and (obs.tick - latest[0]) * self.cfg.scenario.step_s <= self.opts.command_hold_s:
+            self.commands_held += 1
+            return latest[1]
+        self.commands_hovered += 1
+        return schema.HOVER
+
+    def scheme_stats(self) -> dict:
+        return {"commands": {"fresh": self.commands_fresh, "held": self.commands_held,
+                             "hovered": self.commands_hovered}}
+
+
+def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus) -> AgentNode:
+    """The agent process's node for ``opts.scheme``."""
+    cls = {"truav": AgentNode, "patrol": PatrolAgentNode, "central": CentralAgentNode}[opts.scheme]
+    return cls(cfg, opts, bus)
+
+
+__all__ = ["SCHEMES", "PatrolAgentNode", "CentralAgentNode", "make_agent_node", "LOCKSTEP_BEACON_WAIT_S"]
