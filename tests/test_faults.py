@@ -20,7 +20,7 @@ def at(seconds: float) -> int:
 
 
 def test_example_plans_load():
-    for name in ("beacon-loss", "crash-and-freeze", "partition-latency"):
+    for name in ("beacon-loss", "crash-and-freeze", "partition-latency", "controller-crash", "controller-links"):
         plan = load_plan(f"deploy/plans/{name}.toml")
         assert plan.faults
 
@@ -111,3 +111,20 @@ def test_a_plan_without_link_faults_lets_the_bus_skip_the_filter():
     assert f.passes_everything  # process faults are the supervisor's business, not the link's
     f.set_plan(plan_from_dict({"fault": [{"kind": "latency", "fixed_ms": 100}]}))
     assert not f.passes_everything
+
+
+def test_controller_faults_need_the_central_scheme_and_cut_its_links():
+    from truav.faults import check_plan_for
+    plan = plan_from_dict({"fault": [{"kind": "crash", "start": 1.0, "target": "controller"}]})
+    assert check_plan_for(plan, 5, scheme="central") is plan
+    with pytest.raises(PlanError, match="names the controller, but --scheme truav has none"):
+        check_plan_for(plan, 5, scheme="truav")
+    f = filt({"kind": "partition", "start": 0.0, "groups": [[0, 1], ["controller", 2]]})
+    up, down = "truav/r/uav/0/state", "truav/r/controller/cmd/0"
+    assert f.decide(up, "uav/0", "controller", at(1))[0] is False  # uplink of a cut-off UAV
+    assert f.decide(down, "controller", "uav/0", at(1))[0] is False  # and its downlink
+    assert f.decide("truav/r/uav/2/state", "uav/2", "controller", at(1))[0] is True
+    assert f.decide("truav/r/uav/1/beacon", "uav/1", "uav/0", at(1))[0] is True  # within a group
+    loss = filt({"kind": "loss", "start": 0.0, "probability": 1.0, "keys": "uav/*/state", "dst": "controller"})
+    assert loss.decide(up, "uav/0", "controller", at(1))[0] is False
+    assert loss.decide("truav/r/uav/0/beacon", "uav/0", "uav/1", at(1))[0] is True

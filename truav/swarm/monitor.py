@@ -46,7 +46,10 @@ class Monitor:
     control_bytes: dict = field(default_factory=lambda: defaultdict(int))  # kind -> payload bytes
     control_span: list = field(default_factory=list)  # [first, last] receive time (s) of any of them
 
-    def attach(self, bus: Bus, run: str, central: bool = False) -> None:
+    def attach(self, bus: Bus, run: str, central: bool = False, tracks_from_world: bool = False) -> None:
+        """central: also measure the state uploads and commands; tracks_from_world: UAV tracks from the
+        world's positions (schemes whose agents send no beacons), else from the beacons heard."""
+        self.tracks_from_world = tracks_from_world
         bus.subscribe(keys.metrics_step(run), self._on_step)
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
         # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
@@ -103,13 +106,17 @@ class Monitor:
                 msg: schema.Beacon = r.msg
                 self.beacon_count[msg.uav] += 1
                 self.beacon_bytes[msg.uav] += len(r.raw)
-                self.tracks[msg.uav].append(msg.pos)
+                if not getattr(self, "tracks_from_world", False):
+                    self.tracks[msg.uav].append(msg.pos)
                 self.first_beacon = self.first_beacon or r.recv_ns / 1e9
                 self.last_beacon = r.recv_ns / 1e9
 
     def _on_positions(self, key, msg: schema.Positions, raw, recv_ns) -> None:
         with self.lock:
             self.vehicles = list(msg.vehicles)
+            if getattr(self, "tracks_from_world", False):
+                for i, pos in enumerate(msg.uavs):
+                    self.tracks[i].append(pos)
 
     def status_lines(self) -> list[str]:
         with self.lock:

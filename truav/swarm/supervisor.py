@@ -276,7 +276,7 @@ class _Swarm:
                                                         "--port", str(opts.foxglove_port)))
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
             bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
-            self.monitor.attach(bus, opts.run, central=self.central)
+            self.monitor.attach(bus, opts.run, central=self.central, tracks_from_world=opts.scheme != "truav")
             if opts.record and not self._recorder_ready(bus):
                 return False
             if self.plan:

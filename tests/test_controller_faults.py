@@ -1,0 +1,52 @@
+"""A centralized swarm whose controller is SIGKILLed by the fault plan: the world runs all its
+episodes, the UAVs fall back (hold the last command, then hover), the run ends ok and its
+summary says what happened. One real-time `truav-swarm up` on a free loopback port."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from truav.config import Config, to_toml
+
+STEPS = 40
+CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": STEPS, "n_uavs": 3},
+                       roads={"warmup_steps": 10}, central={"hidden": 16})
+TIMEOUT_S = 180.0
+
+
+def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
+    pytest.importorskip("torch")
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text(to_toml(CFG))
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[[fault]]\nkind = "crash"\nstart = 1.5\ntarget = "controller"\n')  # never restarted
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--scheme", "central", "--scenario", str(scenario),
+           "--episodes", "1", "--out", str(out), "--fault-plan", str(plan), "--command-hold", "1", "--quiet",
+           "--no-plot"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        text, _ = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)  # its supervisor stops every process it started
+            proc.communicate(timeout=60)
+    text = text.decode(errors="replace")
+    assert proc.returncode == 0, text
+    assert "controller killed by the fault plan" in text and "the UAVs fly on without commands" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outcome"]["result"] == "ok"
+    assert any("the controller was lost" in w for w in summary["outcome"]["warnings"]), summary["outcome"]
+    world = summary["world"]
+    assert len(world["episodes"]) == 1 and world["ticks"] == STEPS + 1  # the world ran its episode to the end
+    assert len(world["controller_losses"]) == 1
+    commands = [a["commands"] for a in summary["agents"]]
+    # Before the crash fresh commands; after it one held tick (hold 1 s = one 1 s step), then hovering.
+    assert all(c["fresh"] > 0 and c["held"] >= 1 and c["hovered"] > 0 for c in commands), commands
+    assert 0 < world["hover_answers"] <= sum(c["hovered"] for c in commands)  # some late, under load
+    assert [(kind, phase) for _, kind, phase in summary["fault_events"]] == [("crash", "start")]
