@@ -122,9 +122,9 @@ class AgentOptions:
     command_hold_s: float = 1.0
     """Scheme central: without a fresh command, keep flying the last one for this long (s of the
     world's clock, from the tick it was for), then hover: what an autopilot does when its link stops."""
-    command_wait_frac: float = 0.7
+    command_wait_frac: float = 0.5
     """Scheme central, real time: wait for the tick's command until this fraction of the tick period
-    after the world stamped the observation (the world takes actions until deadline_frac, 0.8)."""
+    after the world stamped the observation (the world takes actions until deadline_frac, 0.8: the rest is for the action to get there on a busy host)."""
 
 
 class AgentNode:

@@ -290,10 +290,10 @@ def plan_uavs(fault: Fault) -> list[int]:
 
 
 def names_controller(fault: Fault) -> bool:
-    """Whether a fault acts on the central controller (its process, its group or its links by name)."""
+    """Whether a fault needs the central controller: it kills or freezes it, or partitions it off. (A link
+    pattern naming its keys is allowed anywhere: one plan can then stress every scheme's links alike.)"""
     p = fault.params
-    return p.get("target") == CONTROLLER or any(CONTROLLER in g for g in p.get("groups", [])) \
-        or any(CONTROLLER in p.get(k, "") for k in ("keys", "src", "dst"))
+    return p.get("target") == CONTROLLER or any(CONTROLLER in g for g in p.get("groups", []))
 
 
 def check_plan_for(plan: FaultPlan, n_uavs: int, path: str | Path | None = None,

@@ -1,0 +1,209 @@
+"""`truav experiment faults --schemes truav central patrol`: the comparative stress test.
+
+Every scheme flies real swarm runs (router, world, agent processes, and the
+controller for central; real time) of the same seed under the same fault levels:
+
+- link loss: a share p of every message on the schemes' radio links lost at the
+  receiver: beacons (truav; patrol only at deployment), state uploads and
+  commands (central, each direction on its own draw);
+- link latency: the same links delayed by a fixed time;
+- process crash: one process SIGKILLed at 20% of the run and restarted after a
+  share of the run has passed (at 0.8: never): agent 0 for truav and patrol,
+  the controller for central.
+
+One plan per level serves every scheme (a fault on another scheme's links
+matches nothing), so the schemes meet the same faults with the same seeds. The
+policies: truav flies a greedy Q-table and central a greedy trained actor, each
+trained in process first (or given: --qtable, --policy); the patrol needs none.
+Writes comparison.csv (tidy: scheme, kind, level and the metrics) and one figure
+per metric, comparison-<metric>.png (panels loss, latency, crash; a line per scheme).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from truav.config import Config
+
+SCHEMES = ("truav", "central", "patrol")
+KINDS = (("loss", "link loss (%)", 100.0), ("latency", "link latency (ms)", 1.0),
+         ("crash", "process down (% of the run)", 100.0))
+METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0), ("delay_ms", "relay delay (ms)", 1.0),
+           ("energy_j", "energy (kJ/UAV/episode)", 1e-3), ("missed_actions", "missed actions (% of UAV-ticks)", 100.0))
+CRASH_AT = 0.2
+"""Share of the run after which the crash fault kills its process."""
+LINK_KEYS = ("uav/*/beacon", "uav/*/state", "controller/cmd/*")
+"""The schemes' radio links: TRUAV's (and the patrol's deployment) beacons, central's uplink and downlink."""
+
+
+@dataclass(frozen=True)
+class CompareSize:
+    loss: tuple[float, ...]
+    latency_ms: tuple[float, ...]
+    down_share: tuple[float, ...]
+    episodes: int
+    steps: int
+    train_episodes: dict[str, int]
+
+
+SIZES = {
+    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 1, 60, {"truav": 200, "central": 150}),
+    "full": CompareSize((0.0, 0.1, 0.3, 0.5), (0.0, 100.0, 300.0, 500.0), (0.0, 0.2, 0.4, 0.8), 2, 100,
+                        {"truav": 2000, "central": 500}),
+}
+
+
+def run_seconds(size: CompareSize, rate_hz: float) -> float:
+    """Wall time of one run's ticks: every step and every episode's `done` tick."""
+    return size.episodes * (size.steps + 1) / rate_hz
+
+
+def plan_text(scheme: str, kind: str, level: float, run_s: float) -> str:
+    """The plan of one fault level, for ``scheme`` (only the crash target depends on it)."""
+    if level == 0.0:
+        return ""
+    if kind == "loss":
+        return "".join(f'[[fault]]\nkind = "loss"\nstart = 0.0\nprobability = {level}\nkeys = "{k}"\n\n'
+                       for k in LINK_KEYS)
+    if kind == "latency":
+        return "".join(f'[[fault]]\nkind = "latency"\nstart = 0.0\nfixed_ms = {level}\nkeys = "{k}"\n\n'
+                       for k in LINK_KEYS)
+    target = 'target = "controller"' if scheme == "central" else "uav = 0"
+    restart = "" if CRASH_AT + level >= 1.0 else f"restart_after = {level * run_s:.3f}\n"
+    return f'[[fault]]\nkind = "crash"\nstart = {CRASH_AT * run_s:.3f}\n{target}\n{restart}'
+
+
+def points(size: CompareSize, schemes: tuple[str, ...]) -> list[tuple[str, str, float]]:
+    """(scheme, kind, level) of every swarm run; level 0 is one no-fault run per scheme."""
+    out = []
+    for scheme in schemes:
+        out.append((scheme, "none", 0.0))
+        for kind, levels in (("loss", size.loss), ("latency", size.latency_ms), ("crash", size.down_share)):
+            out += [(scheme, kind, x) for x in levels if x > 0]
+    return out
+
+
+def train_central(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
+    """A centralized SAC trained in process for the swarm's controller to fly (one seed)."""
+    from truav import runio
+    from truav.trainer import run_chunk
+    run = out / "policy-central"
+    run.mkdir(parents=True, exist_ok=True)
+    result = run_chunk("central", cfg, [seed], episodes)
+    runio.write_config(run, cfg)
+    runio.write_metrics(run / runio.METRICS_FILE, [seed], result.metrics)
+    runio.write_policy(run, [seed], result.policy)
+    return run
+
+
+def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None], rate_hz: float, size: CompareSize,
+              total: int, n: int, scheme: str, kind: str, level: float) -> str:
+    """One swarm run (skipped if finished); its summary.json text."""
+    from truav.swarm.supervisor import SwarmOptions, run_swarm
+    name = f"{scheme}-{kind}-{level:g}"
+    done = out / name / "summary.json"
+    if not done.is_file():
+        text = plan_text(scheme, kind, level, run_seconds(size, rate_hz))
+        plan = None
+        if text:
+            plan = out / f"{name}.toml"
+            plan.write_text(text)
+        print(f"[{n + 1}/{total}] {scheme}: {kind} {level:g}", flush=True)
+        rc = run_swarm(cfg, SwarmOptions(
+            run=f"cmp{n}", seed=seed, episodes=size.episodes, rate_hz=rate_hz, out=str(out / name), plot=False,
+            quiet=True, fault_plan=str(plan) if plan else None, force=True, scheme=scheme,
+            qtable=policies["truav"] if scheme == "truav" else None, greedy=scheme == "truav",
+            policy=policies["central"] if scheme == "central" else None,
+            max_missed_share=1.0))  # a point whose actions went missing is a result here, not a failure
+        if rc:
+            raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
+    return done.read_text()
+
+
+def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> dict:
+    world = summary.get("world") or {}
+    eps = world.get("episodes") or []
+    row = {"scheme": scheme, "kind": kind, "level": level}
+    for key, _, _ in METRICS[:-1]:
+        vals = [e.get(key, math.nan) for e in eps]
+        row[key] = float(np.nanmean(vals)) if vals else math.nan
+    acting = world.get("ticks", 0) - len(eps)
+    held = sum(((a or {}).get("commands") or {}).get("held", 0) for a in summary.get("agents") or [])
+    # No fresh decision of the scheme's policy for that UAV and tick: no action in time (the world hovered it),
+    # an autopilot's hover without commands, or a held stale command (central).
+    missed = world.get("deadline_misses", 0) + world.get("hover_answers", 0) + held
+    row["missed_actions"] = missed / (acting * n_uavs) if acting > 0 else math.nan
+    return row
+
+
+def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, ...], seed: int = 0,
+                   qtable: str | None = None, policy: str | None = None, rate_hz: float = 10.0,
+                   keep_steps: bool = False, executor: str = "local", address: str | None = None) -> list[Path]:
+    size = SIZES[size_name]
+    out.mkdir(parents=True, exist_ok=True)
+    if not keep_steps:
+        cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
+    policies: dict[str, str | None] = {"truav": qtable, "central": policy}
+    if "truav" in schemes and qtable is None:
+        from truav.experiments.faults import train_policy
+        n = size.train_episodes["truav"]
+        print(f"training TRUAV in process ({n} episodes) for the swarm to fly", flush=True)
+        policies["truav"] = str(train_policy(cfg, out, n, seed))
+    if "central" in schemes and policy is None:
+        n = size.train_episodes["central"]
+        print(f"training the centralized SAC in process ({n} episodes) for the controller to fly", flush=True)
+        policies["central"] = str(train_central(cfg, out, n, seed))
+    todo = points(size, schemes)
+    point = partial(run_point, cfg, out, seed, policies, rate_hz, size, len(todo))
+    if executor == "ray":
+        from truav.experiments.faults import SWARM_CPUS
+        from truav.experiments.ray_executor import run_points_on_ray
+        cpus = os.cpu_count() or 1
+        texts = run_points_on_ray(lambda p: point(*p), [(n, *p) for n, p in enumerate(todo)], cpus, address,
+                                  cpus_per_task=min(SWARM_CPUS, cpus))
+    else:
+        texts = [point(n, *p) for n, p in enumerate(todo)]
+    rows = []
+    for (scheme, kind, level), text in zip(todo, texts):
+        row = row_of(scheme, kind, level, json.loads(text), cfg.scenario.n_uavs)
+        for k in ([kind] if kind != "none" else [k for k, _, _ in KINDS]):  # the baseline is level 0 of every kind
+            rows.append({**row, "kind": k})
+    rows.sort(key=lambda r: (schemes.index(r["scheme"]), [k for k, _, _ in KINDS].index(r["kind"]), r["level"]))
+    with open(out / "comparison.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    (out / "policies.json").write_text(json.dumps(policies, indent=1))
+    return [metric_figure(rows, schemes, key, label, scale, out / f"comparison-{key}.png",
+                          title=f"{label}: {', '.join(schemes)} under the same faults, seed {seed}")
+            for key, label, scale in METRICS]
+
+
+def metric_figure(rows: list[dict], schemes, key: str, label: str, scale: float, path: Path, title: str) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(KINDS), figsize=(13, 3.8), sharey=True)
+    for ax, (kind, xlabel, xscale) in zip(axes, KINDS):
+        for c, scheme in enumerate(schemes):
+            pts = sorted((r for r in rows if r["scheme"] == scheme and r["kind"] == kind), key=lambda r: r["level"])
+            x = np.array([p["level"] for p in pts]) * xscale
+            y = np.array([p[key] for p in pts], dtype=float) * scale
+            ax.plot(x, y, marker="o", color=f"C{c}", label=scheme)
+        ax.set_xlabel(xlabel)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(label)
+    axes[0].legend()
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
