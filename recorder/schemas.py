@@ -19,7 +19,7 @@ import msgpack
 
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
-KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions")
+KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -85,7 +85,7 @@ _POINTS = {"type": "array", "items": _XY}
 _ENVELOPE_PROPS = {
     "v": {**_INT, "description": "schema version"},
     "kind": {**_STR, "description": "message kind"},
-    "src": {**_STR, "description": "sender id: world, uav/<i>, recorder, fault, replay"},
+    "src": {**_STR, "description": "sender id: world, uav/<i>, controller, recorder, fault, replay"},
     "seq": {**_INT, "description": "per-sender, per-kind counter; a jump means messages were lost"},
     "t": {**_INT, "description": "sender wall clock when stamped, ns since the Unix epoch"},
 }
@@ -108,6 +108,13 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
     },
     "control": {"command": _STR, "args": {"type": "object"}},
     "positions": {"tick": _INT, "uavs": _POINTS, "vehicles": _POINTS},
+    "state": {
+        "uav": _INT, "tick": _INT, "episode": _INT, "step": _INT, "pos": _XY, "vehicles_in_range": _INT,
+        "queued_packets": _INT, "relayed": _INT, "covered": _INT, "energy_j": _NUM, "done": {"type": "boolean"},
+        "pad": {"description": "padding bytes to central.upload_bytes (the modelled report size)"},
+    },
+    "command": {"uav": _INT, "tick": _INT, "action": _INT,
+                "pad": {"description": "padding bytes to central.download_bytes"}},
 }
 
 

@@ -47,6 +47,7 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "badglob.toml").write_text('[[fault]]\nkind = "loss"\nprobability = 0.5\nkeys = "uav/[*/beacon"\n')
     (d / "typoglob.toml").write_text('[[fault]]\nkind = "loss"\nprobability = 0.5\nkeys = "uavs/*/beacon"\n')
     (d / "plan.toml").write_text(GOOD_PLAN)
+    (d / "ctrl.toml").write_text('[[fault]]\nkind = "crash"\nstart = 1.0\ntarget = "controller"\n')
     (d / "empty.npz").write_bytes(b"")
     cfg = to_toml(Config())
     for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):
@@ -153,6 +154,15 @@ ROWS = [
     ("up-qtable-empty", "swarm", "up --qtable {run_empty}", 2, "--qtable"),
     ("up-qtable-wrong-shape", "swarm", "up --qtable {run_shape}", 2, "--qtable"),
     ("up-run-slash", "swarm", "up --run a/b", 2, "--run"),
+    ("up-patrol-qtable", "swarm", "up --scheme patrol --qtable {run_shape}", 2, "--qtable"),
+    ("up-truav-policy", "swarm", "up --policy {dir}", 2, "--policy"),
+    ("up-central-policy-missing", "swarm", "up --scheme central --policy {dir}", 2, "--policy"),
+    ("up-truav-command-hold", "swarm", "up --command-hold 3", 2, "--command-hold"),
+    ("up-truav-plan-kills-controller", "swarm", "up --fault-plan {ctrl_toml}", 2, "names the controller"),
+    ("up-central-upload-too-big", "swarm", "up --scheme central --set central.upload_bytes=100000", 2,
+     "central.upload_bytes"),
+    ("faults-policy-without-central", "truav", "experiment faults --quick --schemes truav --policy {dir}", 2,
+     "--policy"),
     ("chaos-fault-plan-ignored", "swarm", "chaos --plan {plan_toml} --fault-plan {plan_toml}", 2, "--fault-plan"),
     ("chaos-plan-random-bytes", "swarm", "chaos --plan {random_toml}", 2, "random.toml"),
     ("chaos-plan-uav-99", "swarm", "chaos --plan {uav99_toml}", 2, "UAV 99"),

@@ -136,6 +136,7 @@ class WorldNode:
         self._alive: set[int] = set()
         self._controller_alive = False
         self._t0 = None
+        self._ending = False
         self._stop = threading.Event()
         run = opts.run
         self.central = opts.scheme == "central"
@@ -191,7 +192,7 @@ class WorldNode:
     def _on_controller(self, up: bool) -> None:
         with self._cond:
             self._controller_alive = up
-            if not up and self._t0 is not None:
+            if not up and self._t0 is not None and not self._ending:  # leaving on the shutdown is no loss
                 self.stats.controller_losses.append(round(self.clock() - self._t0, 2))
             self._cond.notify_all()
         (log.info if up else log.warning)("controller %s", "joined" if up else "lost: UAVs fly on without commands")
@@ -263,6 +264,8 @@ class WorldNode:
         self.stats.ticks = tick
         if not opts.lockstep:  # let the last tick run its period: agents are still learning from it
             self._sleep_until(next_due)
+        with self._cond:
+            self._ending = True
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
 
