@@ -4,11 +4,15 @@ lock-step protocol), flying another scheme's code.
 
 - ``patrol`` (:class:`PatrolAgentNode`): the trajectory-knowledge plan of
   agents.patrol.PatrolController, the in-process driver's own object with B = 1.
-  At each deployment (an episode's first tick) every agent sends one beacon with
-  its start position and plans from the start positions heard: the plan's
-  matching of UAVs to orbits (``patrol.assignment = "nearest"``) and its horizon
-  depend on all of them, exactly as in process. After that it needs nothing but
-  its own observation: no beacons, no controller.
+  At each deployment (an episode's first tick) every agent sends a beacon with
+  its start position (stamped with that tick) and plans from the start
+  positions heard: the plan's matching of UAVs to orbits
+  (``patrol.assignment = "nearest"``) and its horizon depend on all of them,
+  exactly as in process. In real time it repeats that deployment beacon on the
+  next DEPLOY_REPEATS ticks and re-plans whenever a start it lacked arrives, so
+  a lost or delayed deployment beacon costs a few ticks of a worse plan, not the
+  episode. Apart from that it needs nothing but its own observation: no
+  beacons, no controller.
 - ``central`` (:class:`CentralAgentNode`): uploads its local state to the
   controller (agents.central_process) on every control round, ``uav/<i>/state``,
   padded to ``central.upload_bytes``, and flies the latest command
@@ -36,6 +40,8 @@ log = logging.getLogger("truav.agent")
 SCHEMES = ("truav", "patrol", "central")
 DEPLOY_WAIT_FRAC = 0.3
 """Patrol, real time: wait up to this fraction of the tick period for the peers' deployment beacons."""
+DEPLOY_REPEATS = 5
+"""Patrol, real time: the deployment beacon goes out again on this many ticks after the first."""
 LOCKSTEP_COMMAND_WAIT_S = 2.0
 """Central, lock-step: how long to wait for the tick's command while the controller is alive."""
 
@@ -78,35 +84,57 @@ class PatrolAgentNode(_NoLearner):
         self.patrol = PatrolController(self.cfg, [self.opts.seed])
         self.deployments = 0
         self.deployments_incomplete = 0
+        self.replans = 0
+        self._known: set[int] = set()
         return None
 
     def handle(self, obs: schema.Obs) -> None:
         T = self.cfg.scenario.steps_per_episode
         if self._next_step(obs):
-            self.patrol.plan_env(0, self._deployment(obs))
+            self._deployment(obs)
+        elif not self.opts.lockstep:
+            self._late_starts(obs)
         if obs.done:
             self._ack_done(obs)
             return
         self._act(obs, self.patrol.act_one(min(self._t, T - 1), 0, self.opts.uav, obs.pos))
 
-    def _deployment(self, obs: schema.Obs) -> np.ndarray:
-        """Every UAV's start position (U, 2): own, and the peers' from this tick's beacons (a peer
-        not heard in time is placed at the centre of the area, and the plan may then differ)."""
+    def _deployment(self, obs: schema.Obs) -> None:
+        """Plan from every UAV's start position (U, 2): own, and the peers' from this tick's beacons (a
+        peer not heard yet is planned at the centre of the area, until its start arrives)."""
         o, sc = self.opts, self.cfg.scenario
-        starts = np.full((self.n_uavs, 2), sc.area_m / 2.0)
-        starts[o.uav] = obs.pos
-        self.bus.publish(keys.uav_beacon(o.run, o.uav), schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos,
-                                                                      vel=(0.0, 0.0)))
+        self._starts = np.full((self.n_uavs, 2), sc.area_m / 2.0)
+        self._starts[o.uav] = obs.pos
+        self._deploy = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=(0.0, 0.0))
+        self.bus.publish(keys.uav_beacon(o.run, o.uav), self._deploy)
         heard = self._lockstep_beacons(obs.tick) if o.lockstep else self._realtime_beacons(obs.tick)
         for j, b in heard.items():
-            starts[j] = b.pos
+            self._starts[j] = b.pos
+        self._known = {o.uav, *heard}
         self.deployments += 1
-        missing = [j for j in range(self.n_uavs) if j != o.uav and j not in heard]
+        missing = [j for j in range(self.n_uavs) if j not in self._known]
         if missing:
             self.deployments_incomplete += 1
-            log.warning("uav %d, episode %d: no deployment beacon from %s; planning them at the centre",
+            log.warning("uav %d, episode %d: no deployment beacon from %s yet; planning them at the centre",
                         o.uav, obs.episode, missing)
-        return starts
+        self.patrol.plan_env(0, self._starts)
+
+    def _late_starts(self, obs: schema.Obs) -> None:
+        """Real time: repeat the deployment beacon for a few ticks; re-plan when a missing start arrives."""
+        o = self.opts
+        if self._t <= DEPLOY_REPEATS and not obs.done:
+            self.bus.publish(keys.uav_beacon(o.run, o.uav), self._deploy)
+        if len(self._known) == self.n_uavs:
+            return
+        self._take_beacons()
+        with self._lock:
+            late = {j: b for j, b in self._beacons.items() if b.tick == self._deploy.tick and j not in self._known}
+        if late:
+            for j, b in late.items():
+                self._starts[j] = b.pos
+            self._known |= set(late)
+            self.replans += 1
+            self.patrol.plan_env(0, self._starts)
 
     def _realtime_beacons(self, tick: int) -> dict[int, schema.Beacon]:
         deadline = time.monotonic() + DEPLOY_WAIT_FRAC * self.opts.tick_period_s
@@ -121,7 +149,8 @@ class PatrolAgentNode(_NoLearner):
             self._beacon_inbox.wait(min(left, 0.01))
 
     def scheme_stats(self) -> dict:
-        return {"deployments": self.deployments, "deployments_incomplete": self.deployments_incomplete}
+        return {"deployments": self.deployments, "deployments_incomplete": self.deployments_incomplete,
+                "replans": self.replans}
 
 
 class CentralAgentNode(_NoLearner):
