@@ -13,7 +13,12 @@ tokens it may declare and the tokens it may watch.  From that table
   the CA and the certificates with the ``cryptography`` library and writes
   ``router.json5`` plus one ``<name>.json5`` client config per component into
   a credentials directory, so parts started by hand (``-c DIR/world.json5``
-  or ``--creds DIR``) use the same material.
+  or ``--creds DIR``) use the same material;
+* with ``sites`` (a router per host, ``truav-swarm certs --deployment``),
+  :func:`site_configs` writes each host's router config (listening on its
+  address, dialling the routers listed before it, trusting them as relays)
+  and its components' client configs; :func:`issue` puts them, with that
+  host's keys only, into one bundle per host (``deploy/README.md``).
 
 How Zenoh applies the table (zenoh 1.10, checked by ``tests/test_security.py``):
 the router's ACL interceptor sees every message at *ingress* (from the client
@@ -80,6 +85,30 @@ class Grant:
     """Liveliness key expressions it may watch or query."""
 
 
+@dataclass(frozen=True)
+class Site:
+    """One host of a multi-host swarm: its router and the components started there."""
+
+    name: str
+    """Short host name: the bundle's directory and the router's identity ``router/<name>``."""
+    address: str
+    """IP address or DNS name the host's router listens on and the other routers dial."""
+    port: int
+    """TCP port of that router's TLS endpoint."""
+    identities: tuple[str, ...] = ()
+    """Components run on this host (``world``, ``recorder``, ``uav/<i>`` ...): their keys go only there."""
+
+    @property
+    def router(self) -> str:
+        """The router's identity and certificate common name."""
+        return f"{ROUTER}/{self.name}"
+
+    @property
+    def endpoint(self) -> str:
+        host = f"[{self.address}]" if ":" in self.address else self.address  # IPv6 literal
+        return f"tls/{host}:{self.port}"
+
+
 def replay_run(run: str) -> str:
     """The run a replay publishes into under --secure: its own, next to the live one."""
     return keys.validate_run(run + REPLAY_RUN_SUFFIX)
@@ -137,8 +166,18 @@ def _rule(rid: str, messages: Sequence[str], flow: str, key_exprs: Iterable[str]
             "key_exprs": sorted(set(key_exprs))}
 
 
-def acl_config(table: Sequence[Grant]) -> dict:
-    """Zenoh ``access_control`` (default deny) that allows exactly what ``table`` says."""
+ALL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "declare_queryable", "reply", "liveliness_token",
+                "declare_liveliness_subscriber", "liveliness_query")
+PEER_ROUTERS = "peer-routers"
+
+
+def acl_config(table: Sequence[Grant], peer_routers: Sequence[str] = ()) -> dict:
+    """Zenoh ``access_control`` (default deny) that allows exactly what ``table`` says.
+
+    ``peer_routers`` (certificate CNs of the other routers of a deployment) may relay
+    everything of the table's runs both ways: the router a client connects to enforces
+    that client's grant, so a put from ``uav/1`` on host B was checked by B's router
+    before A's router sees it arrive from ``router/b``."""
     rules, subjects, policies = [], [], []
     for g in table:
         sid = file_stem(g.identity)
@@ -161,6 +200,12 @@ def acl_config(table: Sequence[Grant]) -> dict:
         add("watch-receive", ("liveliness_token", "reply"), "egress", g.watch)
         if mine:
             policies.append({"id": sid, "rules": mine, "subjects": [sid]})
+    if peer_routers:
+        spaces = sorted({_run_of(e) for g in table for e in (*g.put, *g.subscribe, *g.tokens, *g.watch)})
+        subjects.append({"id": PEER_ROUTERS, "cert_common_names": sorted(peer_routers)})
+        rules.append({"id": f"{PEER_ROUTERS}-relay", "messages": list(ALL_MESSAGES), "flows": ["ingress", "egress"],
+                      "permission": "allow", "key_exprs": spaces})
+        policies.append({"id": PEER_ROUTERS, "rules": [f"{PEER_ROUTERS}-relay"], "subjects": [PEER_ROUTERS]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -177,7 +222,8 @@ def _matches(key_expr: str, pattern: str) -> bool:
     return zenoh.KeyExpr(pattern).includes(zenoh.KeyExpr(key_expr))
 
 
-def explain(table: Sequence[Grant], identity: str | None = None, key: str | None = None) -> list[str]:
+def explain(table: Sequence[Grant], identity: str | None = None, key: str | None = None,
+            peer_routers: Sequence[str] = ()) -> list[str]:
     """Lines telling who may put / subscribe where (optionally one identity, or who may use ``key``)."""
     ids = [g.identity for g in table]
     if identity is not None and not any(fnmatch.fnmatchcase(i, identity) for i in ids):
@@ -194,6 +240,9 @@ def explain(table: Sequence[Grant], identity: str | None = None, key: str | None
         out.append(f"{g.identity}  (certificate CN={g.identity!r})")
         for verb, exprs in (("put", g.put), ("subscribe", g.subscribe), ("token", g.tokens), ("watch", g.watch)):
             out.append(f"  {verb:<9} " + (", ".join(exprs) if exprs else "- (denied)"))
+    if peer_routers and identity is None:
+        out.append(f"{', '.join(sorted(peer_routers))} (the other routers): relay everything of the run both ways; "
+                   f"each router enforces the grants of the clients connected to it")
     out.append("anyone else (no certificate, another CA, an expired certificate): cannot connect; "
                "anything not listed: denied by the router (default_permission deny)")
     return out
@@ -272,37 +321,91 @@ def write_pair(directory: Path, stem: str, key, cert) -> tuple[Path, Path]:
 
 
 # --- zenoh configs ------------------------------------------------------------------------------------
-def router_config(directory: Path, listen: Sequence[str], table: Sequence[Grant]) -> dict:
+TLS_FILE_KEYS = ("root_ca_certificate", "listen_private_key", "listen_certificate", "connect_private_key",
+                 "connect_certificate")
+"""The TLS settings that name files; a relative one is read next to its config file (transport.make_config)."""
+
+
+def _file_namer(directory: Path | None):
+    """Absolute paths into ``directory`` (one host's credentials, made where they are used), or bare
+    file names (a bundle copied to another host: resolved against the config file's own directory)."""
+    if directory is None:
+        return lambda name: name
     d = directory.resolve()
-    return {
-        "mode": "router",
-        "listen": {"endpoints": list(listen)},
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {
-            "root_ca_certificate": str(d / CA_CERT),
-            "listen_private_key": str(d / f"{ROUTER}.key"),
-            "listen_certificate": str(d / f"{ROUTER}.pem"),
-            "enable_mtls": True,
-            "close_link_on_expiration": True,
-        }}},
-        "access_control": acl_config(table),
+    return lambda name: str(d / name)
+
+
+def router_config(directory: Path | None, listen: Sequence[str], table: Sequence[Grant], *,
+                  connect: Sequence[str] = (), peer_routers: Sequence[str] = ()) -> dict:
+    """The router's zenoh config: mutual TLS on ``listen``, the ACL of ``table``; with ``connect``,
+    it also dials those routers (mutual TLS, their names verified), and ``peer_routers`` relay."""
+    f = _file_namer(directory)
+    tls = {
+        "root_ca_certificate": f(CA_CERT),
+        "listen_private_key": f(f"{ROUTER}.key"),
+        "listen_certificate": f(f"{ROUTER}.pem"),
+        "enable_mtls": True,
+        "close_link_on_expiration": True,
     }
+    conf: dict = {"mode": "router", "listen": {"endpoints": list(listen)}}
+    if connect:
+        conf["connect"] = {"endpoints": list(connect)}
+        tls.update({"connect_private_key": f(f"{ROUTER}.key"), "connect_certificate": f(f"{ROUTER}.pem"),
+                    "verify_name_on_connect": True})
+    conf.update({"scouting": {"multicast": {"enabled": False}}, "transport": {"link": {"tls": tls}},
+                 "access_control": acl_config(table, peer_routers)})
+    return conf
 
 
-def client_config(directory: Path, identity: str, connect: Sequence[str]) -> dict:
-    d, stem = directory.resolve(), file_stem(identity)
+def client_config(directory: Path | None, identity: str, connect: Sequence[str]) -> dict:
+    f, stem = _file_namer(directory), file_stem(identity)
     return {
         "mode": "client",
         "connect": {"endpoints": list(connect)},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tls": {
-            "root_ca_certificate": str(d / CA_CERT),
-            "connect_private_key": str(d / f"{stem}.key"),
-            "connect_certificate": str(d / f"{stem}.pem"),
+            "root_ca_certificate": f(CA_CERT),
+            "connect_private_key": f(f"{stem}.key"),
+            "connect_certificate": f(f"{stem}.pem"),
             "enable_mtls": True,
             "verify_name_on_connect": True,
         }}},
     }
+
+
+def site_configs(run: str, n_uavs: int, sites: Sequence[Site]) -> dict[str, dict[str, dict]]:
+    """Per host, its config files by name: ``router.json5`` and one ``<identity>.json5`` per component
+    placed there.  Router ``k`` dials routers ``0..k-1`` (one link per pair, a full mesh); each client
+    connects to its own host's router.  File names are relative (the bundle can live anywhere), and
+    nothing here is secret or random: ``truav-swarm deploy-configs`` writes exactly these."""
+    table = grants(run, n_uavs)
+    by_identity = {g.identity: g for g in table}
+    routers = [site.router for site in sites]
+    out: dict[str, dict[str, dict]] = {}
+    for k, site in enumerate(sites):
+        unknown = [i for i in site.identities if i not in by_identity]
+        if unknown:
+            raise CredentialsError(f"host {site.name}: no such identity {unknown[0]!r} "
+                                   f"(known: {', '.join(list(by_identity)[:6])}, uav/0..uav/{n_uavs - 1})")
+        files = {ROUTER_CONFIG: router_config(None, [site.endpoint], table,
+                                              connect=[s.endpoint for s in sites[:k]],
+                                              peer_routers=[r for r in routers if r != site.router])}
+        for identity in site.identities:
+            files[f"{file_stem(identity)}.json5"] = client_config(None, identity, [site.endpoint])
+        out[site.name] = files
+    return out
+
+
+def site_manifest(run: str, n_uavs: int, sites: Sequence[Site], site: Site) -> dict:
+    return {"run": run, "n_uavs": n_uavs, "endpoint": site.endpoint, "hosts": [site.address, *DEFAULT_HOSTS],
+            "identities": list(site.identities), "site": site.name, "router": site.router,
+            "peer_routers": [s.router for s in sites if s is not site]}
+
+
+def write_configs(directory: Path, files: dict[str, dict]) -> None:
+    directory.mkdir(parents=True, exist_ok=True)
+    for name, conf in files.items():
+        _write_json(directory / name, conf)
 
 
 def tls_endpoint(endpoint: str) -> str:
@@ -317,23 +420,35 @@ def _write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=1) + "\n")  # JSON is JSON5
 
 
-def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: str, *,
-          hosts: Sequence[str] = DEFAULT_HOSTS, days: int = DEFAULT_VALID_DAYS) -> Path:
+def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: str | None = None, *,
+          hosts: Sequence[str] = DEFAULT_HOSTS, days: int = DEFAULT_VALID_DAYS, sites: Sequence[Site] = ()) -> Path:
     """Create the CA, one key + certificate per component and every zenoh config, in ``directory``.
 
     ``endpoint`` is where the router listens and clients connect (made ``tls/``);
     ``hosts`` (names or IPs) go into the router certificate's SANs, so clients
-    verify the router's name.  The CA key stays in the directory (mode 0600):
-    keep the directory private, or delete ca.key once issued.
+    verify the router's name.  With ``sites`` instead (a router per host), each
+    host gets a bundle ``directory/<site>/`` (itself a credentials directory for
+    ``--creds``): the CA certificate, its router's key and certificate (CN
+    ``router/<site>``, SANs its address), the keys of the components placed
+    there and the configs of :func:`site_configs`.  The CA key stays in
+    ``directory`` (mode 0600), in no bundle: keep it private, or delete it.
     """
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     os.chmod(d, 0o700)
-    ep = tls_endpoint(endpoint)
     table = grants(run, n_uavs)
     ca_key, ca_cert = make_ca(days=days)
     write_pair(d, "ca", ca_key, ca_cert)
     os.replace(d / "ca.key", d / CA_KEY)
+    if sites:
+        configs = site_configs(run, n_uavs, sites)
+        for site in sites:
+            _issue_site(d / site.name, ca_key, ca_cert, site, configs[site.name],
+                        site_manifest(run, n_uavs, sites, site))
+        return d
+    if endpoint is None:
+        raise CredentialsError("issue: give the router's endpoint, or sites")
+    ep = tls_endpoint(endpoint)
     host = ep.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
     all_hosts = tuple(dict.fromkeys([*hosts, host]))
     write_pair(d, ROUTER, *make_leaf(ca_key, ca_cert, ROUTER, all_hosts, server=True))
@@ -346,6 +461,18 @@ def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: st
     return d
 
 
+def _issue_site(d: Path, ca_key, ca_cert, site: Site, files: dict[str, dict], manifest: dict) -> None:
+    from cryptography.hazmat.primitives import serialization
+    d.mkdir(parents=True, exist_ok=True)
+    os.chmod(d, 0o700)
+    (d / CA_CERT).write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+    write_pair(d, ROUTER, *make_leaf(ca_key, ca_cert, site.router, tuple(manifest["hosts"]), server=True))
+    for identity in site.identities:
+        write_pair(d, file_stem(identity), *make_leaf(ca_key, ca_cert, identity, ()))
+    write_configs(d, files)
+    _write_json(d / MANIFEST, manifest)
+
+
 @dataclass(frozen=True)
 class Credentials:
     """A credentials directory made by :func:`issue`."""
@@ -354,13 +481,19 @@ class Credentials:
     run: str
     n_uavs: int
     endpoint: str
+    identities: tuple[str, ...] = ()
+    """The components with a key here (a host's bundle holds only its own)."""
+    peer_routers: tuple[str, ...] = ()
+    """The other routers of a multi-host deployment (empty for one host)."""
 
     def config_file(self, identity: str) -> Path:
         """The zenoh client config of ``identity`` (``router`` for the router's)."""
         path = self.directory / (ROUTER_CONFIG if identity == ROUTER else f"{file_stem(identity)}.json5")
         if not path.is_file():
+            ids = ", ".join(self.identities[:8]) + (f" ... ({len(self.identities)} in all)"
+                                                     if len(self.identities) > 8 else "")
             raise CredentialsError(f"--creds {self.directory}: no {path.name} (identities there: "
-                                   f"router, world, recorder, supervisor, view, replay, controller, uav/0..uav/{self.n_uavs - 1})")
+                                   f"router, {ids or 'no other'})")
         return path
 
     def table(self) -> tuple[Grant, ...]:
@@ -372,7 +505,8 @@ def load(directory: str | os.PathLike[str], run: str | None = None) -> Credentia
     d = Path(directory)
     try:
         data = json.loads((d / MANIFEST).read_text())
-        creds = Credentials(d, str(data["run"]), int(data["n_uavs"]), str(data["endpoint"]))
+        creds = Credentials(d, str(data["run"]), int(data["n_uavs"]), str(data["endpoint"]),
+                            tuple(map(str, data.get("identities", ()))), tuple(map(str, data.get("peer_routers", ()))))
     except FileNotFoundError:
         raise CredentialsError(f"--creds {d}: no {MANIFEST}; create it with `truav-swarm certs --out {d}`") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:

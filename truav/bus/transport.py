@@ -115,11 +115,15 @@ def make_config(
     ephemeral loopback port; with a config file, its endpoints (or Zenoh's
     defaults) are kept unless overridden.  ``connect_timeout_ms`` lets a
     client wait for a router that is not up yet (-1: forever); Zenoh's client
-    default (0) fails at once.
+    default (0) fails at once.  A relative certificate or key file named in
+    ``config_file`` is read next to that file (a host's credentials bundle can
+    be copied anywhere), not from the current directory as Zenoh would.
     """
     if mode is not None and mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     conf = zenoh.Config.from_file(os.fspath(config_file)) if config_file is not None else zenoh.Config()
+    if config_file is not None:
+        _files_next_to(conf, os.path.dirname(os.path.abspath(config_file)))
     if mode is not None:
         conf.insert_json5("mode", json.dumps(mode))
     loopback_defaults = config_file is None
@@ -136,6 +140,14 @@ def make_config(
         conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     return conf
+
+
+def _files_next_to(conf: zenoh.Config, directory: str) -> None:
+    from truav.bus.security import TLS_FILE_KEYS
+    for name in TLS_FILE_KEYS:
+        value = json.loads(conf.get_json(f"transport/link/tls/{name}"))
+        if isinstance(value, str) and value and not os.path.isabs(value):
+            conf.insert_json5(f"transport/link/tls/{name}", json.dumps(os.path.join(directory, value)))
 
 
 def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:

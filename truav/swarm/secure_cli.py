@@ -5,6 +5,11 @@
     truav-swarm world --run demo --creds creds  # each part with its own certificate
     truav-swarm acl explain --creds creds --identity 'uav/1'
     truav-swarm acl explain --run demo --agents 5 --key truav/demo/control/shutdown
+
+and for a router per host (deploy/README.md):
+
+    truav-swarm certs --deployment deploy/three-hosts.toml --out creds     # creds/<host>/ per host, ca.key in creds/
+    truav-swarm deploy-configs deploy/three-hosts.toml --out deploy/three-hosts   # the same configs, no keys
 """
 
 from __future__ import annotations
@@ -18,23 +23,37 @@ from truav.cli import UsageError
 from truav.cli_args import positive_int
 
 
-def _table(args) -> tuple[security.Grant, ...]:
+def _table(args) -> tuple[tuple[security.Grant, ...], tuple[str, ...]]:
+    """The grants and the peer routers (a host's bundle) to explain."""
     if args.creds:
         try:
-            return security.load(args.creds).table()
+            creds = security.load(args.creds)
         except security.CredentialsError as exc:
             raise UsageError(str(exc)) from None
+        return creds.table(), creds.peer_routers
     try:
         keys.validate_run(args.run)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return security.grants(args.run, args.agents)
+    return security.grants(args.run, args.agents), ()
+
+
+def _empty_out(args) -> Path:
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file, not a directory")
+    if out.exists() and any(out.iterdir()) and not args.force:
+        raise UsageError(f"--out {out} is not empty; choose another directory or pass --force")
+    return out
 
 
 def cmd_certs(args) -> int:
-    out = Path(args.out)
-    if out.exists() and any(out.iterdir()) and not args.force:
-        raise UsageError(f"--out {out} is not empty; choose another directory or pass --force")
+    out = _empty_out(args)
+    if args.deployment:
+        return _certs_per_host(args, out)
+    args.run = "demo" if args.run is None else args.run
+    args.agents = 5 if args.agents is None else args.agents
+    args.connect = "tcp/127.0.0.1:7447" if args.connect is None else args.connect
     try:
         keys.validate_run(args.run)
         security.issue(out, args.run, args.agents, args.connect, hosts=[*security.DEFAULT_HOSTS, *args.host],
@@ -49,13 +68,48 @@ def cmd_certs(args) -> int:
     return 0
 
 
+def _certs_per_host(args, out: Path) -> int:
+    from truav.swarm import deploy
+    given = [flag for flag, value in (("--run", args.run), ("--agents", args.agents), ("-e/--connect", args.connect),
+                                      ("--host", args.host or None)) if value is not None]
+    if given:
+        raise UsageError(f"{given[0]}: comes from --deployment {args.deployment}; drop it")
+    plan = deploy.load(args.deployment)
+    try:
+        security.issue(out, plan.run, plan.agents, sites=plan.sites(), days=args.days)
+    except (ValueError, OSError) as exc:
+        raise UsageError(str(exc)) from None
+    print(f"credentials for run {plan.run!r} ({plan.agents} agents, {len(plan.hosts)} hosts) in {out}:")
+    print(f"  {out}/ca.key: the CA key, in no bundle: keep it here (it signs new certificates) or delete it")
+    for h in plan.hosts:
+        print(f"  {out}/{h.name}/  -> host {h.name} ({h.address}): router, {', '.join(h.runs) or 'no component'}")
+    print("  copy each bundle to its host (e.g. scp -r), then start its router with `truav-swarm router --creds DIR` "
+          "and every part with `--creds DIR` (deploy/README.md)")
+    return 0
+
+
+def cmd_deploy_configs(args) -> int:
+    from truav.swarm import deploy
+    out = _empty_out(args)
+    plan = deploy.load(args.deployment, "deployment file")
+    try:
+        configs = security.site_configs(plan.run, plan.agents, plan.sites())
+        for host, files in configs.items():
+            security.write_configs(out / host, files)
+    except (ValueError, OSError) as exc:
+        raise UsageError(str(exc)) from None
+    print(f"zenoh configs of {len(configs)} hosts in {out}/<host>/ (no keys; `truav-swarm certs --deployment "
+          f"{args.deployment}` writes the same files next to the keys)")
+    return 0
+
+
 def cmd_acl(args) -> int:
-    table = _table(args)
+    table, peers = _table(args)
     if args.json:
-        print(json.dumps(security.acl_config(table), indent=1))
+        print(json.dumps(security.acl_config(table, peers), indent=1))
         return 0
     try:
-        lines = security.explain(table, args.identity, args.key)
+        lines = security.explain(table, args.identity, args.key, peers)
     except security.CredentialsError as exc:
         raise UsageError(str(exc)) from None
     print("\n".join(lines))
@@ -65,9 +119,12 @@ def cmd_acl(args) -> int:
 def add_security_commands(sub) -> None:
     ce = sub.add_parser("certs", help="create a CA, one certificate per component and the router's access control")
     ce.add_argument("--out", required=True, metavar="DIR", help="credentials directory to create")
-    ce.add_argument("--run", default="demo", help="run the access control is written for (default demo)")
-    ce.add_argument("--agents", type=positive_int, default=5, help="number of UAV agents (default 5)")
-    ce.add_argument("-e", "--connect", default="tcp/127.0.0.1:7447", metavar="ENDPOINT",
+    ce.add_argument("--deployment", metavar="FILE",
+                    help="a router per host (deploy/three-hosts.toml): one bundle DIR/<host>/ per host with only "
+                         "that host's keys; the run, agents and addresses come from FILE")
+    ce.add_argument("--run", help="run the access control is written for (default demo)")
+    ce.add_argument("--agents", type=positive_int, help="number of UAV agents (default 5)")
+    ce.add_argument("-e", "--connect", metavar="ENDPOINT",
                     help="where the router listens and clients connect (made tls/; default tcp/127.0.0.1:7447)")
     ce.add_argument("--host", action="append", default=[], metavar="NAME",
                     help="extra host name or IP of the router for its certificate (repeatable; "
@@ -76,6 +133,12 @@ def add_security_commands(sub) -> None:
                     help=f"validity of the certificates in days (default {security.DEFAULT_VALID_DAYS})")
     ce.add_argument("--force", action="store_true", help="write into a non-empty directory")
     ce.set_defaults(func=cmd_certs)
+
+    dc = sub.add_parser("deploy-configs", help="write the zenoh configs of a multi-host deployment (no keys)")
+    dc.add_argument("deployment", metavar="FILE", help="deployment file (deploy/three-hosts.toml)")
+    dc.add_argument("--out", required=True, metavar="DIR", help="directory for <host>/router.json5 and the clients'")
+    dc.add_argument("--force", action="store_true", help="write into a non-empty directory")
+    dc.set_defaults(func=cmd_deploy_configs)
 
     acl = sub.add_parser("acl", help="explain the access control: which identity may put or subscribe where")
     acl_sub = acl.add_subparsers(dest="acl_command", required=True, metavar="ACTION")
