@@ -84,6 +84,93 @@ def test_deploy_configs_are_what_the_command_writes(tmp_path):
         assert (out / rel).read_text() == (COMMITTED_CONFIGS / rel).read_text(), rel
 
 
+def _run_cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *argv], capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.parametrize("edit, complaint", [
+    (lambda t: t.replace('port = 7447', 'port = 7447\nsecure = false'), "unknown key 'secure'"),
+    (lambda t: t.replace('runs = ["uav/2-3"]', 'runs = ["uav/1-3"]'), "uav/1 is already placed on host 'b'"),
+    (lambda t: t.replace('runs = ["uav/2-3"]', 'runs = ["uav/2-4"]'), "uav/4 is outside uav/0..uav/3"),
+    (lambda t: t.replace('"world", ', ''), "world runs on no host"),
+    (lambda t: t.replace('198.51.100.3', '198.51.100.2'), "already the address of another host"),
+    (lambda t: t.replace('name = "c"', 'name = "C"'), "host[2].name"),
+    (lambda t: t.replace('"recorder"', '"recorda"'), "unknown component 'recorda'"),
+])
+def test_deployment_mistakes_are_one_line_naming_the_key(tmp_path, edit, complaint):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(edit(DEPLOYMENT.read_text()))
+    for argv in (["certs", "--deployment", str(bad), "--out", str(tmp_path / "creds")],
+                 ["deploy-configs", str(bad), "--out", str(tmp_path / "configs")]):
+        got = _run_cli(*argv)
+        assert got.returncode == 2 and got.stderr.count("\n") == 1 and complaint in got.stderr, got.stderr
+        assert str(bad) in got.stderr and not (tmp_path / "creds").exists()
+
+
+def test_each_host_bundle_holds_only_its_own_keys_and_moves_anywhere(tmp_path):
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    from truav.bus import security, transport
+    creds = tmp_path / "creds"
+    assert _run_cli("certs", "--deployment", str(DEPLOYMENT), "--out", str(creds)).returncode == 0
+    assert sorted(p.name for p in creds.iterdir()) == ["a", "b", "c", "ca.key", "ca.pem"]
+    for h in PLAN.hosts:
+        keys_there = sorted(p.stem for p in (creds / h.name).glob("*.key"))
+        assert keys_there == sorted(["router", *(security.file_stem(i) for i in h.runs)]), h.name
+        cert = x509.load_pem_x509_certificate((creds / h.name / "router.pem").read_bytes())
+        assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == f"router/{h.name}"
+        sans = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert h.address in [str(ip) for ip in sans.get_values_for_type(x509.IPAddress)]
+        assert oct((creds / h.name).stat().st_mode & 0o777) == "0o700"
+    # A bundle copied elsewhere still finds its files: relative names are read next to the config.
+    moved = tmp_path / "elsewhere" / "truav-creds"
+    moved.parent.mkdir()
+    (creds / "b").rename(moved)
+    conf = transport.make_config(None, config_file=moved / "uav-0.json5")
+    assert json.loads(conf.get_json("transport/link/tls/connect_certificate")) == str(moved / "uav-0.pem")
+    explained = _run_cli("acl", "explain", "--creds", str(moved))
+    assert "router/a, router/c (the other routers): relay everything" in explained.stdout
+    # The scenario must fly the agents the credentials were made for.
+    wrong = _run_cli("agent", "--id", "0", "--run", PLAN.run, "--creds", str(moved))
+    assert wrong.returncode == 2 and "made for 4 agents, the scenario has 5" in wrong.stderr, wrong.stderr
+
+
+def test_routers_relay_between_hosts_and_each_enforces_its_own_clients(tmp_path):
+    """Two routers on loopback ports: what uav/0 on b may put reaches the recorder on a, the rest never leaves b."""
+    import zenoh
+
+    from tests.conftest import free_port
+    from truav.bus import keys, security, transport
+    sites = (security.Site("a", "127.0.0.1", free_port(), ("recorder",)),
+             security.Site("b", "127.0.0.1", free_port(), ("uav/0",)))
+    security.issue(tmp_path, PLAN.run, 2, sites=sites)
+
+    def open_(host: str, name: str) -> zenoh.Session:
+        return zenoh.open(transport.make_config(None, config_file=tmp_path / host / name))
+
+    opened = [open_("a", "router.json5"), open_("b", "router.json5")]
+    try:
+        recorder, agent0 = open_("a", "recorder.json5"), open_("b", "uav-0.json5")
+        opened += [recorder, agent0]
+        got: list[str] = []
+        recorder.declare_subscriber(keys.everything(PLAN.run), lambda sample: got.append(str(sample.key_expr)))
+        own = keys.uav_beacon(PLAN.run, 0)
+        deadline = time.monotonic() + 10  # the routers link and learn of the subscription
+        while own not in got and time.monotonic() < deadline:
+            agent0.put(own, b"own")
+            time.sleep(0.05)
+        assert own in got
+        for key in (keys.uav_beacon(PLAN.run, 1), keys.uav_action(PLAN.run, 1), keys.control(PLAN.run, "shutdown"),
+                    keys.world_tick(PLAN.run)):
+            agent0.put(key, b"forged")
+        time.sleep(1.0)
+        assert set(got) == {own}
+    finally:
+        for s in reversed(opened):
+            s.close()
+
+
 def _wait_for(what: str, check, timeout: float, procs=()) -> None:
     deadline = time.monotonic() + timeout
     while not check():

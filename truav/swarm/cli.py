@@ -241,6 +241,7 @@ def cmd_world(args) -> int:
     from world.world_process import WorldNode, WorldOptions, write_stats
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
+    _check_creds_fit(args, cfg)
     if args.fault_plan:
         check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
     if args.stats_out:
@@ -272,6 +273,7 @@ def cmd_agent(args) -> int:
     from agents.scheme_agents import make_agent_node
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
+    _check_creds_fit(args, cfg)
     if not 0 <= args.id < cfg.scenario.n_uavs:
         raise UsageError(f"--id {args.id} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
     try:
@@ -386,6 +388,20 @@ def cmd_down(args) -> int:
     print(f"shutdown sent to run {args.run}" + (f"; {stopped} process(es) still running after {args.wait:g} s "
                                                  f"were sent SIGTERM (from {out}/pids.json)" if stopped else ""))
     return 0
+
+
+def _check_creds_fit(args, cfg: Config) -> None:
+    """``--creds`` made for another number of agents than the scenario flies: one line, before anything starts."""
+    if not getattr(args, "creds", None):
+        return
+    from truav.bus import security
+    try:
+        creds = security.load(args.creds, args.run)
+    except security.CredentialsError as exc:
+        raise UsageError(str(exc)) from None
+    if creds.n_uavs != cfg.scenario.n_uavs:
+        raise UsageError(f"--creds {args.creds} was made for {creds.n_uavs} agents, the scenario has "
+                         f"{cfg.scenario.n_uavs} (scenario.n_uavs): pass --set scenario.n_uavs={creds.n_uavs}")
 
 
 def _creds(args, identity: str) -> None:
