@@ -343,7 +343,7 @@ def cmd_controller(args) -> int:
 def _endpoint_from_out(args, out: Path | None) -> None:
     """Without -e, connect where the run writing ``out`` has its router (from its swarm.json)."""
     from truav.swarm.outdir import read_run_file
-    if args.connect or args.config or out is None:
+    if args.connect or args.config or getattr(args, "creds", None) or out is None:  # --creds has its router
         return
     info = read_run_file(out)
     if info and info.get("endpoint"):
