@@ -369,3 +369,19 @@ def test_router_drops_oversized_puts_before_any_subscriber_sees_them(endpoint) -
         assert wait_until(lambda: len(got) >= 2)
         time.sleep(0.3)
     assert got == [(pos_key, small_limit + 2048), (obs_key, 100)]
+
+
+def test_await_subscribers_says_whether_someone_listens_before_a_one_shot_put(bus_factory):
+    # `truav-swarm down` sends one message from a fresh session: without the wait its publisher
+    # drops it when the router has not yet told it of the world's subscription.
+    sender, listener = bus_factory("supervisor"), bus_factory("world")
+    key = keys.control(RUN, "shutdown")
+    assert sender.await_subscribers(key, 0.3) is False
+    got = []
+    listener.subscribe(keys.all_control(RUN), lambda k, msg, raw, t: got.append(msg.command))
+    assert sender.await_subscribers(key, 5.0) is True
+    sender.publish(key, schema.Control(command="shutdown", args={}))
+    deadline = time.monotonic() + 5
+    while not got and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert got == ["shutdown"]

@@ -513,6 +513,20 @@ class Bus:
         for key in keys_:
             self._publisher(self.check_publish(key))
 
+    def await_subscribers(self, key: str, timeout: float) -> bool:
+        """Wait until someone subscribes to ``key`` (at most ``timeout`` s); whether anyone does.
+
+        A one-shot sender (`truav-swarm down`) needs it: a freshly declared publisher drops
+        what it puts until its router has told it of a matching subscriber, which over
+        linked routers takes longer than opening the session."""
+        pub = self._publisher(self.check_publish(key))
+        deadline = time.monotonic() + timeout
+        while pub is not None and not pub.matching_status.matching:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
     def publish_raw(self, key: str, data: bytes) -> None:
         """Put pre-encoded bytes as they are (replay, tests); same permission check, no validation."""
         self._put(self.check_publish(key), bytes(data))

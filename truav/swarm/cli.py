@@ -372,6 +372,10 @@ def cmd_status(args) -> int:
     return 0
 
 
+DOWN_LISTENER_WAIT_S = 5.0
+"""How long `down` waits for the run's processes to be known as listeners before it sends."""
+
+
 def cmd_down(args) -> int:
     from truav.swarm.supervisor import DOWN_IDENTITY, stop_recorded_pids
     from truav.bus import schema
@@ -381,7 +385,10 @@ def cmd_down(args) -> int:
     _endpoint_from_out(args, out)
     _creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
-        bus.publish(keys.control(args.run, "shutdown"), schema.Control(command="shutdown", args={}))
+        key = keys.control(args.run, "shutdown")
+        if not bus.await_subscribers(key, DOWN_LISTENER_WAIT_S):
+            log.warning("no process of run %s listens for its shutdown (yet); sending it anyway", args.run)
+        bus.publish(key, schema.Control(command="shutdown", args={}))
     # The swarm stops itself on the shutdown (its supervisor stops the router and recorder last);
     # only what still runs after a while is signalled, from the pid file.
     stopped = stop_recorded_pids(out, wait_s=args.wait)
@@ -475,7 +482,10 @@ def cmd_faults(args) -> int:
     plan = load_plan(args.plan)
     _creds(args, "supervisor")
     with Bus("supervisor", args.run, config_from_args(args)) as bus:
-        bus.publish(keys.control(args.run, CONTROL_FAULTS), schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
+        key = keys.control(args.run, CONTROL_FAULTS)
+        if not bus.await_subscribers(key, DOWN_LISTENER_WAIT_S):
+            log.warning("no process of run %s listens for fault plans (yet); sending it anyway", args.run)
+        bus.publish(key, schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
     print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run} "
           f"(crashes and freezes are scheduled by `truav-swarm up --fault-plan`)")
     return 0
