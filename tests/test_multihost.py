@@ -40,6 +40,7 @@ import pytest
 from tests import netns
 from truav.config import Config, to_toml
 from truav.swarm import deploy
+from truav.swarm.lifeline import child_env
 from truav.trainer import run_chunk
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,7 +54,7 @@ CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_u
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
 CUT_AFTER_EPISODES = 4
 CUT_HOST = "b"
-CUT_S = 2.0
+CUT_S = 1.0  # under agents.agent_process.LOCKSTEP_BEACON_WAIT_S (2 s) with TCP's retransmission back-off
 START_TIMEOUT_S = 30.0
 RUN_TIMEOUT_S = 90.0
 EPISODE_LINE = re.compile(r"^(\S+ \S+) truav\.world\S* INFO episode (\d+):", re.M)
@@ -208,8 +209,9 @@ def test_three_hosts_lockstep_equals_one_host_and_rides_out_a_cut_link(hosts, tm
     def start(host: str, name: str, *argv: str) -> subprocess.Popen:
         log = open(logs / f"{name}.log", "wb")
         try:
+            # child_env: each process also stops by itself if this test process dies (truav/swarm/lifeline.py).
             return hosts.popen(host, [*CLI, *argv, "--creds", str(creds / host)], stdout=log,
-                               stderr=subprocess.STDOUT, cwd=tmp_path)
+                               stderr=subprocess.STDOUT, cwd=tmp_path, env=child_env())
         finally:
             log.close()
 
@@ -225,7 +227,8 @@ def test_three_hosts_lockstep_equals_one_host_and_rides_out_a_cut_link(hosts, tm
                                                           str(creds / "a")]).stdout,
               START_TIMEOUT_S, [*routers, recorder])
     common = ["--run", PLAN.run, "--lockstep", "--seed", str(SEED), "--scenario", str(scenario)]
-    world = start("a", "world", "world", *common, "--episodes", str(EPISODES), "--stats-out", "world.json")
+    world = start("a", "world", "world", *common, "--episodes", str(EPISODES), "--stats-out", "world.json",
+                  "--wait-agents", str(RUN_TIMEOUT_S))  # agents compile for a while on a loaded machine
     agents = [start(PLAN.host_of(f"uav/{i}").name, f"agent{i}", "agent", *common, "--id", str(i),
                     "--checkpoint", f"agent{i}.npz") for i in range(PLAN.agents)]
     everyone = [*routers, recorder, world, *agents]
