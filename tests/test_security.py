@@ -447,3 +447,13 @@ def test_plain_realtime_swarm_misses_at_most_one_percent_of_actions_under_flood(
     # one tick's actions (5 of them), so the test allows 3% and bench/bench_flood.py measures the rest.
     assert len(hovering) == 60 and missed <= 0.03 * (60 - first - 1) * n, hovering
     assert world["rejected"]
+
+
+def test_certs_command_writes_a_single_router_directory(tmp_path) -> None:
+    out = tmp_path / "creds"
+    assert swarm_cli.main(["certs", "--out", str(out), "--agents", "2", "-e", "tcp/10.0.0.1:7447",
+                           "--host", "router.lan"]) == 0
+    creds = security.load(out)
+    assert (creds.n_uavs, creds.endpoint) == (2, "tls/10.0.0.1:7447")
+    assert creds.config_file("uav/1").is_file() and (out / security.CA_KEY).is_file()
+    assert swarm_cli.main(["certs", "--out", str(tmp_path / "other"), "-e", "10.0.0.1:7447"]) == 2  # no protocol

@@ -62,7 +62,8 @@ def scenario_from(args) -> Config:
 # -- validation before anything starts -----------------------------------------------
 def check_transport(args, listen_flag: str = "-l/--listen") -> None:
     """The zenoh-example flags: endpoints well formed, a -c file Zenoh can read."""
-    for ep in getattr(args, "connect", None) or []:
+    connect = getattr(args, "connect", None) or []
+    for ep in [connect] if isinstance(connect, str) else connect:  # `certs -e` takes one endpoint
         check_endpoint("-e/--connect", ep)
     for ep in getattr(args, "listen", None) or []:
         check_endpoint(listen_flag, ep)
