@@ -47,6 +47,7 @@ REPO = Path(__file__).resolve().parents[1]
 DEPLOYMENT = REPO / "deploy" / "three-hosts.toml"
 COMMITTED_CONFIGS = REPO / "deploy" / "three-hosts"
 PLAN = deploy.load(DEPLOYMENT)
+REGENERATE = "truav-swarm deploy-configs deploy/three-hosts.toml --out deploy/three-hosts --force"
 SEED = 5
 EPISODES = 24
 CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": PLAN.agents},
@@ -80,9 +81,10 @@ def test_deploy_configs_are_what_the_command_writes(tmp_path):
     subprocess.run([*CLI, "deploy-configs", str(DEPLOYMENT), "--out", str(out)], check=True, capture_output=True)
     written = sorted(p.relative_to(out) for p in out.rglob("*.json5"))
     committed = sorted(p.relative_to(COMMITTED_CONFIGS) for p in COMMITTED_CONFIGS.rglob("*.json5"))
-    assert written == committed
+    stale = f"deploy/three-hosts/ is stale: {REGENERATE}"
+    assert written == committed, stale
     for rel in written:
-        assert (out / rel).read_text() == (COMMITTED_CONFIGS / rel).read_text(), rel
+        assert (out / rel).read_text() == (COMMITTED_CONFIGS / rel).read_text(), (rel, stale)
 
 
 def _run_cli(*argv: str) -> subprocess.CompletedProcess:
@@ -200,7 +202,7 @@ def test_three_hosts_lockstep_equals_one_host_and_rides_out_a_cut_link(hosts, tm
                    capture_output=True)
     for h in PLAN.hosts:  # the bundles carry exactly the committed configs
         for f in (COMMITTED_CONFIGS / h.name).glob("*.json5"):
-            assert (creds / h.name / f.name).read_text() == f.read_text()
+            assert (creds / h.name / f.name).read_text() == f.read_text(), (f, REGENERATE)
     scenario = tmp_path / "scenario.toml"
     scenario.write_text(to_toml(CFG))
     logs = tmp_path / "logs"
