@@ -45,7 +45,15 @@ def unavailable() -> str | None:
     made = _ip("netns", "add", probe, check=False)
     if made.returncode != 0:
         return f"cannot create a network namespace: {made.stderr.strip()}"
-    _ip("netns", "del", probe, check=False)
+    try:  # everything the hosts need: a veth pair, a bridge, running a program inside
+        for what, argv in (("a veth pair", ["-n", probe, "link", "add", "v0", "type", "veth", "peer", "name", "v1"]),
+                           ("a bridge", ["-n", probe, "link", "add", "br0", "type", "bridge"]),
+                           ("ip netns exec", ["netns", "exec", probe, "true"])):
+            got = _ip(*argv, check=False)
+            if got.returncode != 0:
+                return f"cannot make {what} in a namespace: {got.stderr.strip()}"
+    finally:
+        _ip("netns", "del", probe, check=False)
     return None
 
 

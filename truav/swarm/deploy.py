@@ -32,7 +32,8 @@ from truav.cli_args import UserError
 
 DEFAULT_PORT = 7447
 _HOST_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,30}$")
-_DNS_NAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
+_LABEL = r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+_DNS_NAME = re.compile(rf"^(?=.{{1,253}}$){_LABEL}(\.{_LABEL})*$")
 _UAV_RANGE = re.compile(r"^uav/(\d+)-(\d+)$")
 
 
