@@ -50,7 +50,7 @@ class HostEntry:
     address: str
     """IP address or DNS name of the host: its router listens there and the other routers dial it."""
     runs: tuple[str, ...] = ()
-    """Components started on this host: world, recorder, supervisor, view, replay, uav/<i> or uav/<i>-<j>."""
+    """Components started on this host: world, recorder, supervisor, view, replay, controller, uav/<i> or uav/<i>-<j>."""
 
 
 @dataclass(frozen=True)
@@ -94,9 +94,9 @@ def _expand(where: str, entry: str, agents: int) -> list[str]:
         if uav is not None and uav >= agents:
             raise DeploymentError(f"{where}: {identity} is outside uav/0..uav/{agents - 1} (agents = {agents})")
         if uav is None and identity not in (security.WORLD, security.RECORDER, security.SUPERVISOR, security.VIEW,
-                                            security.REPLAY):
+                                            security.REPLAY, security.CONTROLLER):
             raise DeploymentError(f"{where}: unknown component {identity!r} (world, recorder, supervisor, view, "
-                                  f"replay, uav/<i> or uav/<i>-<j>)")
+                                  f"replay, controller, uav/<i> or uav/<i>-<j>)")
     return ids
 
 
