@@ -245,7 +245,7 @@ class CentralController:
         _, overlap = neighbour_features(obs.pos, *all_peers(obs.pos), self.cfg.scenario.comm_range_m)
         r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap)
         if self.train:
-            self.sac.store(self.state, self.action, r, nxt)
+            self.sac.store(self.state, self.action, r * self.cfg.central.reward_scale, nxt)
             self.env_steps += 1
             c = self.cfg.central
             if self.env_steps >= c.learning_starts and self.env_steps % c.update_every == 0:

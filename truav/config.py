@@ -311,6 +311,11 @@ class CentralConfig:
     target_entropy_scale: float = param(0.89, 0.0, 1.0)
     """Target entropy per UAV = this x log(16), the temperature being tuned to
     it (discrete SAC, Christodoulou 2019; 0.89 is CleanRL's default)."""
+    reward_scale: float = param(1.0, 1e-6, 1e6)
+    """Factor on the reward the SAC learns from (stored in its replay); the
+    reported reward is unscaled. SAC is sensitive to reward scale against its
+    temperature (Haarnoja et al. 2018, Sec. 5.2); a tuning knob
+    (docs/reproduction.md, "A fair centralized baseline")."""
 
 
 @dataclass(frozen=True)
