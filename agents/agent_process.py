@@ -183,7 +183,9 @@ class AgentNode:
         """Load the compiled kernels before joining, so the first tick is not missed."""
         pos = np.zeros((1, 1, 2))
         nearest, overlap = neighbour_features(pos, np.zeros((1, 1, 0, 2)), np.ones((1, 1, 0), np.bool_), 1.0)
-        state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest)
+        state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest,
+                                    self.encoder.neighbour_sectors(pos, np.zeros((1, 1, 1, 2)), np.ones((1, 1, 1), np.bool_)),
+                                    np.zeros((1, 1), np.int64))
         r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap)
         probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)),
                           fence=geofence(self.cfg))
@@ -265,7 +267,8 @@ class AgentNode:
         pos = np.array([[obs.pos]], dtype=np.float64)
         nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
         state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
-                                    nearest)
+                                    nearest, self.encoder.neighbour_sectors(pos, peers, heard),
+                                    np.array([[obs.densest_sector]]))
         if obs.episode != self._episode:
             self._episode, self._t = obs.episode, 0
             self.learners.begin_episode(obs.episode, T, greedy=not o.train)

@@ -36,8 +36,10 @@ class TruavController:
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
 
     def _features(self, obs: LocalObs):
-        nearest, overlap = neighbour_features(obs.pos, *all_peers(obs.pos), self.cfg.scenario.comm_range_m)
-        return self.encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest), overlap
+        peers, heard = all_peers(obs.pos)
+        nearest, overlap = neighbour_features(obs.pos, peers, heard, self.cfg.scenario.comm_range_m)
+        return self.encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest,
+                                   self.encoder.neighbour_sectors(obs.pos, peers, heard), obs.densest_sector), overlap
 
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
         self.learners.begin_episode(episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)

@@ -7,7 +7,7 @@ Per env and step it does what the step-by-step driver does through
 `World.step` and `TruavController.act/observe`, by calling the same compiled
 functions: each agent's epsilon-greedy action (`qlearning.act_one`), the
 world's `step.env_step`, each agent's neighbour features, state and reward
-(`state.neighbour_one`, `state.encode_one`, `reward.reward_one`) and its Q
+(`state.neighbour_one`, `state.nearest_sector_one`, `state.encode_one`, `reward.reward_one`) and its Q
 update (`qlearning.q_update_one`). Environments share nothing, so running
 them on threads changes no number; tests/test_fused.py checks the two paths
 agree entry by entry. Randomness is drawn per episode in Python from the
@@ -24,8 +24,8 @@ from numba import njit, prange
 
 from agents.qlearning import act_one, q_update_one
 from agents.reward import reward_one
-from agents.state import encode_one, neighbour_one
-from world.network import COVERED, IN_RANGE, QUEUED, RELAYED
+from agents.state import encode_one, nearest_sector_one, neighbour_one
+from world.network import COVERED, DENSEST, IN_RANGE, QUEUED, RELAYED
 from world.step import env_step, pairwise_sum
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
@@ -67,7 +67,9 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
             for u in range(n_uav):
                 x, y = pos[b, u, 0], pos[b, u, 1]
                 nearest, overlap = neighbour_one(x, y, pos[b], others[u], comm_range)
-                s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, sp)
+                nb_sector = nearest_sector_one(x, y, pos[b], others[u], sp.neighbour_sectors) \
+                    if sp.neighbour_sectors > 0 else 0
+                s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, nb_sector, int(o[u, DENSEST]), sp)
                 rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy[b, u], overlap, rp_reward)
                 if train:
                     q_update_one(q[b, u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)

@@ -116,6 +116,21 @@ class QLearners:
                 self.lc.learning_rate, self.lc.discount)
 
 
+def states_visited(q: np.ndarray, lc: LearnerConfig, rngs: list[np.random.Generator]) -> np.ndarray:
+    """States (B, U) whose row of q (B, U, S, 16) differs from its initial
+    values, i.e. states the agent updated in at least once; rngs are fresh
+    copies of the agents' generators (row-major), redrawing the initial tables
+    one at a time as QLearners does."""
+    batch, n_agents, n_states, n_actions = q.shape
+    out = np.zeros(batch * n_agents, np.int64)
+    init = np.empty((n_states, n_actions))
+    for k, (table, rng) in enumerate(zip(q.reshape(batch * n_agents, n_states, n_actions), rngs)):
+        rng.random(out=init)
+        init *= lc.q_init_scale
+        out[k] = int(np.count_nonzero((table != init).any(axis=1)))
+    return out.reshape(batch, n_agents)
+
+
 @njit(cache=True)
 def allowed_one(a, x, y, fence):
     """Whether action a's full move from (x, y) stays inside the fenced area."""

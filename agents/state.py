@@ -8,6 +8,13 @@ The paper's four locally observable categories plus a fine spatial grid:
 - distance to the nearest neighbour UAV, from beacons (`neighbour_edges_m`),
 - distance to the nearest RSU, RSU sites being known a priori (`rsu_edges_m`).
 
+Selectable refinements (issue 16; all off by default, the index then being
+exactly the five factors above):
+
+- direction of the nearest neighbour in `neighbour_sectors` sectors,
+- the densest direction beyond comm range, sensed by the world
+  (`sense_range_m`, `sense_sectors`; world.network.DENSEST).
+
 A level is the number of edges <= the value, so k edges give k+1 levels.
 Everything here uses only what one UAV senses itself or hears in beacons.
 Kernels are numba-compiled loops over (B, U) agents.
@@ -22,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from truav.config import Config
-from world.network import rsu_positions
+from world.network import rsu_positions, sector
 
 
 @njit(cache=True)
@@ -59,6 +66,32 @@ def neighbour_features(own, peers, heard, comm_range_m):
     return nearest, overlap
 
 
+@njit(cache=True)
+def nearest_sector_one(x, y, peers, heard, sectors):
+    """Direction sector (world.network.sector) of the nearest heard neighbour
+    of the UAV at (x, y), the first of equally near ones; 0 if none is heard."""
+    best, best_m = np.inf, -1
+    for m in range(heard.size):
+        if heard[m]:
+            d = np.sqrt((peers[m, 0] - x) ** 2 + (peers[m, 1] - y) ** 2)
+            if d < best:
+                best, best_m = d, m
+    if best_m < 0:
+        return 0
+    return sector(peers[best_m, 0] - x, peers[best_m, 1] - y, sectors)
+
+
+@njit(cache=True)
+def nearest_sectors(own, peers, heard, sectors):
+    """nearest_sector_one for (B, U) agents (arrays as in neighbour_features)."""
+    n_env, n_uav, _ = heard.shape
+    out = np.zeros((n_env, n_uav), np.int64)
+    for b in range(n_env):
+        for u in range(n_uav):
+            out[b, u] = nearest_sector_one(own[b, u, 0], own[b, u, 1], peers[b, u], heard[b, u], sectors)
+    return out
+
+
 def all_peers(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every UAV of an env hears every other: peers (B, U, U, 2), heard (B, U, U)."""
     b, u, _ = pos.shape
@@ -80,6 +113,8 @@ class StateParams(NamedTuple):
     neighbour_edges: np.ndarray
     rsu_edges: np.ndarray
     rsu: np.ndarray  # (K, 2)
+    neighbour_sectors: int  # 0: no direction factor
+    sense_levels: int  # 1: no sensing factor, else sense_sectors + 1
 
 
 @njit(cache=True)
@@ -92,8 +127,9 @@ def _level(edges, value):
 
 
 @njit(cache=True)
-def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, p):
-    """One agent's state index from its position and features."""
+def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector, p):
+    """One agent's state index from its position and features; the sector
+    arguments are ignored (may be 0) when their factor is off."""
     cx = min(max(int(x // p.cell_m), 0), p.cells - 1)
     cy = min(max(int(y // p.cell_m), 0), p.cells - 1)
     rsu_d = np.inf
@@ -103,18 +139,23 @@ def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, p):
     index = index * (p.density_edges.size + 1) + _level(p.density_edges, vehicles_in_range)
     index = index * (p.queue_edges.size + 1) + _level(p.queue_edges, queued)
     index = index * (p.neighbour_edges.size + 1) + _level(p.neighbour_edges, nearest_neighbour_m)
-    return index * (p.rsu_edges.size + 1) + _level(p.rsu_edges, rsu_d)
+    index = index * (p.rsu_edges.size + 1) + _level(p.rsu_edges, rsu_d)
+    if p.neighbour_sectors > 0:
+        index = index * p.neighbour_sectors + min(max(neighbour_sector, 0), p.neighbour_sectors - 1)
+    if p.sense_levels > 1:
+        index = index * p.sense_levels + min(max(densest_sector, 0), p.sense_levels - 1)
+    return index
 
 
 @njit(cache=True)
-def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, p):
+def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector, p):
     """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
     n_env, n_uav = vehicles_in_range.shape
     out = np.empty((n_env, n_uav), np.int64)
     for b in range(n_env):
         for u in range(n_uav):
             out[b, u] = encode_one(pos[b, u, 0], pos[b, u, 1], vehicles_in_range[b, u], queued[b, u],
-                                   nearest_neighbour_m[b, u], p)
+                                   nearest_neighbour_m[b, u], neighbour_sector[b, u], densest_sector[b, u], p)
     return out
 
 
@@ -123,17 +164,33 @@ class StateEncoder:
 
     def __init__(self, cfg: Config):
         lc, sc = cfg.learner, cfg.scenario
+        sense_levels = lc.sense_sectors + 1 if lc.sense_range_m > 0.0 else 1
         self.params = StateParams(lc.grid_cells, sc.area_m / lc.grid_cells, np.array(lc.density_edges),
                                   np.array(lc.queue_edges), np.array(lc.neighbour_edges_m),
-                                  np.array(lc.rsu_edges_m), rsu_positions(cfg))
+                                  np.array(lc.rsu_edges_m), rsu_positions(cfg), int(lc.neighbour_sectors),
+                                  int(sense_levels))
         p = self.params
         self.levels = (p.cells * p.cells, p.density_edges.size + 1, p.queue_edges.size + 1,
-                       p.neighbour_edges.size + 1, p.rsu_edges.size + 1)
+                       p.neighbour_edges.size + 1, p.rsu_edges.size + 1, max(p.neighbour_sectors, 1),
+                       p.sense_levels)
         self.n_states = int(np.prod(self.levels))
 
+    def neighbour_sectors(self, own: np.ndarray, peers: np.ndarray, heard: np.ndarray) -> np.ndarray:
+        """The nearest heard neighbour's direction sector (B, U) if the state uses it, else zeros."""
+        if self.params.neighbour_sectors == 0:
+            return np.zeros(heard.shape[:2], np.int64)
+        return nearest_sectors(np.ascontiguousarray(own, dtype=np.float64), np.ascontiguousarray(peers, np.float64),
+                               np.ascontiguousarray(heard, np.bool_), self.params.neighbour_sectors)
+
     def encode(self, pos: np.ndarray, vehicles_in_range: np.ndarray, queued: np.ndarray,
-               nearest_neighbour_m: np.ndarray) -> np.ndarray:
-        """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
+               nearest_neighbour_m: np.ndarray, neighbour_sector: np.ndarray | None = None,
+               densest_sector: np.ndarray | None = None) -> np.ndarray:
+        """State indices (B, U) from own position (B, U, 2) and (B, U) features
+        (the sectors may be omitted when their factors are off)."""
+        shape = np.shape(vehicles_in_range)
+        zeros = np.zeros(shape, np.int64)
         return encode_states(np.ascontiguousarray(pos, dtype=np.float64),
                              np.asarray(vehicles_in_range, np.float64), np.asarray(queued, np.float64),
-                             np.asarray(nearest_neighbour_m, np.float64), self.params)
+                             np.asarray(nearest_neighbour_m, np.float64),
+                             zeros if neighbour_sector is None else np.asarray(neighbour_sector, np.int64),
+                             zeros if densest_sector is None else np.asarray(densest_sector, np.int64), self.params)

@@ -15,13 +15,15 @@ def _run(cfg, seeds, fused, train=True, q=None, episodes=3):
     return run_episodes(cfg, seeds, ctrl, episodes), ctrl.learners.q
 
 
-@pytest.mark.parametrize("scenario", [
-    {},
-    {"n_uavs": 10, "uav_start": "persist"},  # > 8 UAVs: the pairwise (not sequential) sums
-    {"n_uavs": 1, "uav_speed_mps": 25.0},
+@pytest.mark.parametrize("scenario, learner", [
+    ({}, {}),
+    ({"n_uavs": 10, "uav_start": "persist"}, {}),  # > 8 UAVs: the pairwise (not sequential) sums
+    ({"n_uavs": 1, "uav_speed_mps": 25.0}, {}),
+    # the selectable state refinements: neighbour direction and sensed densest direction
+    ({"n_uavs": 4}, {"neighbour_sectors": 4, "sense_range_m": 900.0, "sense_sectors": 8, "grid_cells": 4}),
 ])
-def test_fused_episode_equals_the_step_path(small_cfg, scenario):
-    cfg = small_cfg.replace(scenario=scenario)
+def test_fused_episode_equals_the_step_path(small_cfg, scenario, learner):
+    cfg = small_cfg.replace(scenario=scenario, learner=learner)
     seeds = [0, 5, 11]
     ref, q_ref = _run(cfg, seeds, fused=False)
     got, q_got = _run(cfg, seeds, fused=True)

@@ -236,6 +236,22 @@ class LearnerConfig:
     """Nearest neighbour UAV distance (m): < 2R overlaps, < 4R near, else far."""
     rsu_edges_m: tuple[float, ...] = param((1000.0, 2500.0))
     """Nearest RSU distance (m): level edges."""
+    neighbour_sectors: int = param(0, 0, 16)
+    """Direction of the nearest heard neighbour UAV in this many equal sectors
+    (counter-clockwise from east) as a further state factor, beside its
+    distance level; 0 (the default) keeps distance only. The paper's state
+    has "relative positions of neighbouring UAVs"; a direction tells an agent
+    which way to move away from an overlap."""
+    sense_range_m: float = param(0.0, 0.0, 1e5)
+    """What a UAV senses of denser areas nearby: the vehicles it hears (their
+    CAM position beacons) beyond its comm range and within this radius (m)
+    are counted per direction sector, and the state gets the sector holding
+    the most of them (or "none sensed") as a further factor. 0 (the default)
+    turns sensing off; must exceed scenario.comm_range_m when on. The world
+    computes it (world/network.py, DENSEST), as it does vehicles in range."""
+    sense_sectors: int = param(4, 1, 16)
+    """Direction sectors of the sensing above (counter-clockwise from east;
+    4: E, N, W, S quadrants); the factor has sense_sectors + 1 levels."""
 
 
 PATROL_ASSIGNMENTS = ("nearest", "fixed")
@@ -421,6 +437,9 @@ def _check_consistency(cfg: Config) -> None:
     r, s = cfg.roads, cfg.scenario
     if abs(r.p_straight + r.p_left + r.p_right - 1.0) > 1e-9:
         raise ConfigError("roads.p_straight + p_left + p_right must sum to 1")
+    if 0.0 < cfg.learner.sense_range_m <= s.comm_range_m:
+        raise ConfigError(f"learner.sense_range_m: {cfg.learner.sense_range_m:g} must be 0 (off) or exceed "
+                          f"scenario.comm_range_m ({s.comm_range_m:g})")
     if s.uav_start not in UAV_STARTS:
         raise ConfigError(f"scenario.uav_start: {s.uav_start!r} is not one of {', '.join(UAV_STARTS)}")
     n_roads = n_grid_roads(cfg)

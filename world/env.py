@@ -24,7 +24,7 @@ import numpy as np
 from truav.config import Config
 from world import network, uavs
 from world.draws import poisson_into, uniform_into
-from world.network import (COVERED, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
+from world.network import (COVERED, DENSEST, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
                            E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
 from world.packets import Queues
@@ -48,6 +48,10 @@ class LocalObs:
     """Vehicles associated with (served by) this UAV in the last step (int)."""
     energy_j: np.ndarray
     """Energy this UAV spent in the last step (J)."""
+    densest_sector: np.ndarray
+    """Sensing of denser areas nearby (int): 1 + the direction sector with the
+    most vehicles beyond comm range within learner.sense_range_m, 0 if none
+    or sensing is off (world.network.DENSEST)."""
 
 
 @dataclass
@@ -255,7 +259,8 @@ class World:
     def _observe(self, energy: np.ndarray) -> LocalObs:
         o = self._out_uav
         return LocalObs(self.uav_pos.copy(), o[:, :, IN_RANGE].astype(np.int64), o[:, :, QUEUED].astype(np.int64),
-                        o[:, :, RELAYED].astype(np.int64), o[:, :, COVERED].astype(np.int64), energy)
+                        o[:, :, RELAYED].astype(np.int64), o[:, :, COVERED].astype(np.int64), energy,
+                        o[:, :, DENSEST].astype(np.int64))
 
     # -- episode summary -------------------------------------------------------
     def episode_summary(self) -> dict[str, np.ndarray]:

@@ -31,8 +31,12 @@ from world import packets
 from world.channel import SPEED_OF_LIGHT, ChannelParams, a2a_rate, a2g_rate
 
 # Columns of the per-UAV output (B, U, UAV_COLUMNS).
-IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME = range(5)
-UAV_COLUMNS = 5
+IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST = range(6)
+UAV_COLUMNS = 6
+"""DENSEST: with sensing on (learner.sense_range_m > 0), 1 + the direction
+sector (counter-clockwise from east, learner.sense_sectors of them) holding
+the most vehicles beyond comm range and within the sensing radius, the first
+such sector on ties; 0 if none is sensed. Always 0 with sensing off."""
 # Columns of the per-env output (B, ENV_COLUMNS).
 E_COVERED, E_GENERATED, E_OVERFLOW, E_DELIVERED, E_EXPIRED, E_DELAY_S, E_WAIT_STEPS = range(7)
 ENV_COLUMNS = 7
@@ -52,6 +56,8 @@ class RelayParams(NamedTuple):
     rsu: np.ndarray  # (K, 2)
     uplink_rate: np.ndarray  # vehicle->UAV rate sampled every TABLE_RESOLUTION_M
     nearest_rsu_only: bool  # the UAV-RSU hop time grows with distance: see `routes`
+    sense_range: float  # learner.sense_range_m: 0 = no sensing beyond comm range (DENSEST stays 0)
+    sense_sectors: int
 
 
 def rsu_positions(cfg: Config) -> np.ndarray:
@@ -72,7 +78,18 @@ def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
     # a longer hop, always (los_a, los_b >= 0 by the config's bounds).
     nearest_only = height >= 0.0 and ch.eta_nlos_db >= ch.eta_los_db
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
-                       cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only)
+                       cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only,
+                       float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors))
+
+
+@njit(cache=True)
+def sector(dx, dy, sectors):
+    """Which of `sectors` equal direction sectors (counter-clockwise from east,
+    the first starting at angle 0) the vector (dx, dy) points into."""
+    angle = np.arctan2(dy, dx)
+    if angle < 0.0:
+        angle += 2.0 * np.pi
+    return min(int(angle * sectors / (2.0 * np.pi)), sectors - 1)
 
 
 @njit(cache=True)
@@ -140,6 +157,9 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
         out_env[E_OVERFLOW] += arrivals[i] - accepted
 
     r2 = p.comm_range * p.comm_range
+    sense2 = p.sense_range * p.sense_range
+    sensing = p.sense_range > 0.0
+    sensed = np.zeros((n_uav, p.sense_sectors if sensing else 1))
     nearest = np.full(n, -1)
     dist = np.empty(n)
     for i in range(n):
@@ -152,6 +172,8 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                 out_uav[u, IN_RANGE] += 1.0
                 if d2 < best:
                     best, nearest[i] = d2, u
+            elif sensing and d2 <= sense2:
+                sensed[u, sector(x - uav_pos[u, 0], y - uav_pos[u, 1], p.sense_sectors)] += 1.0
         if nearest[i] >= 0:
             dist[i] = np.sqrt(best)
             out_uav[nearest[i], COVERED] += 1.0
@@ -214,6 +236,13 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     for i in range(n):
         if nearest[i] >= 0:
             out_uav[nearest[i], QUEUED] += total[i]
+    if sensing:
+        for u in range(n_uav):
+            top = 0.0
+            for k in range(p.sense_sectors):
+                if sensed[u, k] > top:
+                    top = sensed[u, k]
+                    out_uav[u, DENSEST] = k + 1.0
 
 
 @njit(cache=True)

@@ -309,7 +309,8 @@ class WorldNode:
                 tick=tick, episode=episode, uav=i, pos=tuple(obs.pos[0, i]),
                 vehicles_in_range=int(obs.vehicles_in_range[0, i]), queued_packets=int(obs.queued[0, i]),
                 relayed=int(obs.relayed[0, i]), covered=int(obs.covered[0, i]),
-                energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done))
+                energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done,
+                densest_sector=int(obs.densest_sector[0, i])))
         if tick % POSITIONS_EVERY_TICKS == 0:
             vehicles = np.round(self.world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
             self.bus.publish(keys.world_positions(run), schema.Positions(

@@ -220,6 +220,7 @@ _uav_id = _int(0, MAX_UAVS - 1)
 _n_uavs = _int(0, MAX_UAVS)
 _action = _int(0, N_ACTIONS - 1)
 _action_or_hover = _int(HOVER, N_ACTIONS - 1)
+_sector = _int(0, 16)  # learner.sense_sectors is at most 16; 0 = none sensed
 _name = _text(MAX_NAME_LEN, _NAME_RE)
 _src = _text(MAX_SRC_LEN, _SRC_RE, allow_empty=True)
 
@@ -386,6 +387,7 @@ class Obs(Envelope):
             "energy_j": _nonneg,
             "speed_max": _nonneg,
             "done": _bool,
+            "densest_sector": _sector,
         }
     )
     tick: int
@@ -399,6 +401,8 @@ class Obs(Envelope):
     energy_j: float
     speed_max: float
     done: bool
+    densest_sector: int = 0
+    """Sensing of denser areas (learner.sense_range_m): 1 + the densest direction sector, 0 none / off."""
 
 
 @dataclass(frozen=True)

@@ -122,7 +122,15 @@ def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None 
     ev = _evaluate(cell.scheme, cfg, seeds, controller, cell.eval_episodes, cb, go_on) if cell.eval_episodes else {}
     wall = time.perf_counter() - t0
     steps = len(seeds) * cell.episodes * cfg.scenario.steps_per_episode
-    return CellResult(cell, train, ev, wall, {"train_s": t_train, "train_env_steps_per_s": steps / max(t_train, 1e-9)})
+    meta = {"train_s": t_train, "train_env_steps_per_s": steps / max(t_train, 1e-9)}
+    if cell.scheme == "truav":  # how much of its state space each agent has seen (docs/reproduction.md ablation)
+        from agents.qlearning import states_visited
+        from truav import seeding
+        rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(cfg.scenario.n_uavs)]
+        visited = states_visited(controller.learners.q, cfg.learner, rngs)
+        meta.update(states_visited_mean=float(visited.mean()), states_visited_min=float(visited.min()),
+                    states_visited_max=float(visited.max()), n_states=float(controller.encoder.n_states))
+    return CellResult(cell, train, ev, wall, meta)
 
 
 def save_cell(path: Path, result: CellResult) -> None:
