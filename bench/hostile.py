@@ -62,7 +62,7 @@ def large_obs_payload(run: str, uav: int, size: int = 1 << 20) -> bytes:
     """~``size`` bytes that start like a valid observation and carry many extra keys."""
     body = {"v": 1, "kind": "obs", "src": "world", "seq": 0, "t": time.time_ns(), "tick": 0, "episode": 0,
             "uav": uav, "pos": [0.0, 0.0], "vehicles_in_range": 0, "queued_packets": 0, "relayed": 0,
-            "covered": 0, "energy_j": 0.0, "speed_max": 1.0, "done": False}
+            "covered": 0, "energy_j": 0.0, "speed_max": 1.0, "done": False, "densest_sector": 0}
     n = 0
     while True:
         chunk = {f"x{n + k}": k for k in range(10_000)}

@@ -35,14 +35,14 @@ SWARM_TIMEOUT_S = 180.0
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
 
 
-def run_swarm(tmp: Path, name: str, delay: str = "") -> Path:
+def run_swarm(tmp: Path, name: str, delay: str = "", cfg: Config = CFG) -> Path:
     """One lock-step `truav-swarm up` run; its output directory."""
     scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(CFG))
+    scenario.write_text(to_toml(cfg))
     out = tmp / name
     env = {**os.environ, DELAY_ENV: delay}
     cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
-           "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot"]
+           "--episodes", str(cfg.learner.episodes), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot"]
     with open(tmp / f"{name}.log", "wb") as log:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
     try:
@@ -59,10 +59,10 @@ def run_swarm(tmp: Path, name: str, delay: str = "") -> Path:
     return out
 
 
-def agent_tables(out: Path) -> tuple[np.ndarray, list[int]]:
+def agent_tables(out: Path, cfg: Config = CFG) -> tuple[np.ndarray, list[int]]:
     """(q (U, S, 16), steps learned per agent) from the agents' final checkpoints."""
     qs, steps = [], []
-    for i in range(CFG.scenario.n_uavs):
+    for i in range(cfg.scenario.n_uavs):
         with np.load(out / f"agent{i}.npz") as ck:
             qs.append(ck["q"])
             steps.append(int(ck["steps"]))
@@ -89,3 +89,17 @@ def test_lockstep_runs_and_trainer_learn_identical_q_tables(tmp_path):
             for k in METRICS:
                 assert np.array_equal(got[k], expected.metrics[k][e, 0], equal_nan=True), (out.name, e, k)
     assert np.array_equal(agent_tables(slowed)[0], agent_tables(plain)[0])
+
+
+def test_lockstep_swarm_learns_the_trainers_tables_with_the_state_refinements(tmp_path):
+    """The selectable state factors (nearest neighbour's direction, the densest
+    direction the world senses and sends in Obs) reach the swarm agents: the
+    same tables as the fused trainer, entry for entry."""
+    cfg = CFG.replace(scenario={"n_uavs": 3}, learner={"episodes": 10, "grid_cells": 4, "neighbour_sectors": 4,
+                                                        "sense_range_m": 1500.0, "sense_sectors": 4})
+    expected = run_chunk("truav", cfg, [SEED], cfg.learner.episodes)
+    out = run_swarm(tmp_path, "refined", cfg=cfg)
+    q, steps = agent_tables(out, cfg)
+    assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * cfg.scenario.n_uavs
+    assert q.shape[1] == 16 * 4 * 4 * 3 * 3 * 4 * 5  # the refined state space
+    assert np.array_equal(q, expected.q[0])
