@@ -170,6 +170,23 @@ def q_update_one(q, s, a, r, s_next, terminal, lr, discount):
     q[s, a] += lr * (target - q[s, a])
 
 
+@njit(cache=True)
+def fenced_actions(actions, pos, fence):
+    """actions (B, U) with each one whose full move from pos (B, U, 2) would
+    leave the area replaced by the next allowed action (cyclically): a fence
+    outside the learner (an autopilot's), for the centralized baseline."""
+    n = fence.unit.shape[0] - 1
+    out = actions.copy()
+    for b in range(actions.shape[0]):
+        for u in range(actions.shape[1]):
+            for k in range(n):
+                a = (actions[b, u] + k) % n
+                if allowed_one(a, pos[b, u, 0], pos[b, u, 1], fence):
+                    out[b, u] = a
+                    break
+    return out
+
+
 # The batch kernels below and the fused trainer (agents/fused.py) run the
 # per-agent functions above, so a swarm agent (B = U = 1) learns by the same code.
 @njit(cache=True)

@@ -250,3 +250,39 @@ def test_sac_learns_a_contextual_bandit():
         s, good = contexts()
         hits.append((sac.act(s, greedy=True) == good[:, None]).mean())
     assert np.mean(hits) > 0.95  # a uniform policy scores 0.25
+
+
+def test_fenced_actions_keep_every_move_inside_the_area():
+    from agents.qlearning import Fence, allowed_one, fenced_actions
+    from world.uavs import ACTION_UNIT_VELOCITY
+    fence = Fence(1000.0, 15.0, ACTION_UNIT_VELOCITY)
+    rng = np.random.default_rng(0)
+    pos = rng.choice([0.0, 5.0, 500.0, 995.0, 1000.0], size=(3, 40, 2))
+    actions = rng.integers(0, 16, size=(3, 40))
+    got = fenced_actions(actions, pos, fence)
+    for b, u in np.ndindex(actions.shape):
+        assert allowed_one(got[b, u], pos[b, u, 0], pos[b, u, 1], fence)
+        if allowed_one(actions[b, u], pos[b, u, 0], pos[b, u, 1], fence):
+            assert got[b, u] == actions[b, u]  # an allowed command is flown as commanded
+
+
+def test_central_geofence_keeps_a_persistent_swarm_off_the_borders(small_cfg):
+    pytest.importorskip("torch")
+    from agents.central_fence import FencedCentralController
+    from truav.trainer import make_controller
+    cfg = small_cfg.replace(scenario={"uav_start": "persist"},
+                            central={"hidden": 8, "batch_size": 8, "learning_starts": 10, "buffer_size": 200,
+                                     "geofence": True})
+    ctrl = make_controller("central", cfg, [1, 2], True, None)
+    assert isinstance(ctrl, FencedCentralController)
+    run_episodes(cfg, [1, 2], ctrl, 3)
+    assert ctrl.sac.updates > 0
+    # Every UAV in the corner (0, 0): only moves north-east-ward may be flown.
+    from agents.qlearning import allowed_one
+    ctrl.pos = np.zeros_like(ctrl.pos)
+    flown = ctrl.act(0)
+    commanded = ctrl.action
+    assert all(allowed_one(a, 0.0, 0.0, ctrl.fence) for a in flown.ravel())
+    assert (flown != commanded).any()  # some commands were refused, and the replay keeps what was commanded
+    allowed = [allowed_one(a, 0.0, 0.0, ctrl.fence) for a in commanded.ravel()]
+    assert np.array_equal(flown.ravel()[allowed], commanded.ravel()[allowed])

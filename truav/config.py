@@ -327,6 +327,14 @@ class CentralConfig:
     target_entropy_scale: float = param(0.89, 0.0, 1.0)
     """Target entropy per UAV = this x log(16), the temperature being tuned to
     it (discrete SAC, Christodoulou 2019; 0.89 is CleanRL's default)."""
+    geofence: bool = param(False)
+    """The UAVs' autopilot refuses a commanded move that would leave the area
+    and flies the next allowed action instead (cyclically, as TRUAV's
+    learner.geofence does with its exploratory draws); the SAC learns from the
+    action it commanded, the fence being part of its environment. Off keeps
+    the literal preset's numbers; the `paper` preset turns it on (without it a
+    persistent swarm under the SAC ends pinned to the borders: 2.8% coverage,
+    docs/reproduction.md)."""
     reward_scale: float = param(1.0, 1e-6, 1e6)
     """Factor on the reward the SAC learns from (stored in its replay); the
     reported reward is unscaled. SAC is sensitive to reward scale against its

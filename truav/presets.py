@@ -39,6 +39,10 @@ PRESETS: dict[str, tuple[Choice, ...]] = {
         Choice("learner.geofence", True,
                "Not in the paper (silent on boundaries): a greedy UAV that pushes into a wall keeps its state "
                "and stays there; the fence removes that corner trap (docs/reproduction.md, greedy collapse)"),
+        Choice("central.geofence", True,
+               "Not in the paper: the same boundary rule for the centralized baseline (its UAVs' autopilot "
+               "refuses moves out of the area); without it a persistent swarm under the SAC ends pinned to "
+               "the borders (measured: 2.8% training coverage after 1000 episodes at 15 m/s)"),
         Choice("roads.hotspot_step_blocks", 4,
                "System model: clusters gather at intersections; a move of 4 blocks (1 km, two comm ranges) takes a "
                "cluster out of the coverage of a UAV parked on its old site"),

@@ -54,6 +54,9 @@ def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np
         return PatrolController(cfg, seeds)
     if kind == "central":
         from agents.central import CentralController  # needs the optional `central` extra (torch)
+        if cfg.central.geofence:
+            from agents.central_fence import FencedCentralController
+            return FencedCentralController(cfg, seeds, train=train, params=q)
         return CentralController(cfg, seeds, train=train, params=q)
     if kind == "patrol_ctrl":  # the patrol flying under the centralized control plane
         from agents.central import WithControlPlane
