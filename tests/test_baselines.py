@@ -266,7 +266,7 @@ def test_fenced_actions_keep_every_move_inside_the_area():
             assert got[b, u] == actions[b, u]  # an allowed command is flown as commanded
 
 
-def test_central_geofence_keeps_a_persistent_swarm_off_the_borders(small_cfg):
+def test_central_geofence_flies_only_allowed_moves_and_stores_the_command(small_cfg):
     pytest.importorskip("torch")
     from agents.central_fence import FencedCentralController
     from truav.trainer import make_controller
