@@ -17,7 +17,8 @@ import numpy as np
 
 from truav.stats import mean_ci
 
-WINDOW = 500
+WINDOW = int(__import__("os").environ.get("WINDOW", 200))
+"""Episodes of the last training window (env WINDOW)."""
 
 
 def load(run: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, list[float]]]:
@@ -48,6 +49,8 @@ def main(runs: list[str]) -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for r in runs:
         train, ev, meta = load(Path(r))
+        if not ev:
+            continue  # not finished
         n_seeds = ev["coverage_pct"].shape[1]
         last = np.mean(train["coverage_pct"][-min(WINDOW, len(train["coverage_pct"])):])
         if "states_visited_mean" in meta:
