@@ -69,12 +69,12 @@ class ControllerOptions:
 
 class ControllerNode:
     def __init__(self, cfg: Config, opts: ControllerOptions, bus: Bus):
-        from agents.central import CentralController
         from truav import runio
+        from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.n_uavs = cfg.scenario.n_uavs
         params = runio.read_policy(opts.policy, opts.policy_index, cfg) if opts.policy else None
-        self.central = CentralController(cfg, [opts.seed], train=params is None, params=params)
+        self.central = make_controller("central", cfg, [opts.seed], params is None, params)
         # torch's first forward pass (cold: most of a second) before joining, not in tick 0; greedy draws nothing.
         self.central.sac.act(np.zeros((1, self.central.critic_input_dim)), greedy=True)
         self._cond = threading.Condition()

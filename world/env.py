@@ -48,10 +48,12 @@ class LocalObs:
     """Vehicles associated with (served by) this UAV in the last step (int)."""
     energy_j: np.ndarray
     """Energy this UAV spent in the last step (J)."""
-    densest_sector: np.ndarray
+    densest_sector: np.ndarray | None = None
     """Sensing of denser areas nearby (int): 1 + the direction sector with the
     most vehicles beyond comm range within learner.sense_range_m, 0 if none
-    or sensing is off (world.network.DENSEST)."""
+    or sensing is off (world.network.DENSEST). The world always fills it; None
+    where an observation is rebuilt from messages without it (the central
+    controller process, whose state does not use it)."""
 
 
 @dataclass
