@@ -36,6 +36,15 @@ PANELS = (
     ("energy_above_hover_j", "energy above hover (kJ per UAV per episode)", 1e-3),
     ("pdr", "packet delivery ratio (%)", 100.0),
 )
+# What a metric can be: a t-interval of few seeds is wide, and a band is never drawn past these.
+BAND_LIMITS = {"coverage_pct": (0.0, 100.0), "delay_ms": (0.0, np.inf), "pdr": (0.0, 100.0)}
+
+
+def _band(name: str, m: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = BAND_LIMITS.get(name, (-np.inf, np.inf))
+    return np.clip(m - h, lo, hi), np.clip(m + h, lo, hi)
+
+
 SCHEME_STYLE = {"truav": ("TRUAV (distributed Q-learning)", "C0", "o"),
                 "central": ("Centralized MA-SAC", "C3", "s"),
                 "patrol": ("Trajectory-knowledge patrol", "C2", "^"),
@@ -200,7 +209,7 @@ def versus_figure(rows: list[dict[str, object]], x: str, xlabel: str, path: Path
                 text = lab if group is None else f"{lab}, {group.replace('n_', '')}={gv:g}"
                 ax.plot(xs, m, marker=marker, color=color, ls="-" if gi == 0 else "--", lw=1.6, label=text)
                 if np.isfinite(h).any():
-                    ax.fill_between(xs, m - h, m + h, color=color, alpha=0.18, lw=0)
+                    ax.fill_between(xs, *_band(name, m, h), color=color, alpha=0.18, lw=0)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
@@ -241,7 +250,7 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
                 xs = np.arange(1, len(m) + 1)
                 ax.plot(xs, m, color=color, lw=1.3, label=lab)
                 if np.isfinite(h).any():
-                    ax.fill_between(xs, m - h, m + h, color=color, alpha=0.2, lw=0)
+                    ax.fill_between(xs, *_band(name, m, h), color=color, alpha=0.2, lw=0)
             if i == 0:
                 ax.set_title(f"{v:g} m/s")
             if j == 0:
