@@ -39,7 +39,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 @njit(parallel=True, nogil=True, cache=True)
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
-                  pos, velocity, heading, road, s, v, home, next_turn, turn_u, slots, total, arrivals,
+                  pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, slots, total, arrivals,
                   up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
     """Run steps 0..T-1 of the current episode for every env b, in place.
 
@@ -61,8 +61,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                 actions[u] = act_one(q[b, u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon,
                                      pos[b, u, 0], pos[b, u, 1], fence)
             env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                     home[b], next_turn[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t, up, mp, rp, ch,
-                     out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+                     home[b], next_turn[b], lane_order[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t,
+                     up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
             o = out_uav[b]
             for u in range(n_uav):
                 x, y = pos[b, u, 0], pos[b, u, 1]
@@ -78,8 +78,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, home, next_turn, turn_u, slots,
-                   total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, err_sum):
+def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
+                   slots, total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, err_sum):
     """The patrol baseline's episode, as PatrolController.act/observe step it:
     each UAV takes the candidate action (cand (17, 2) velocities) landing
     closest to its planned position plan (T + 1, B, U, 2) of the next step;
@@ -107,8 +107,8 @@ def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, 
                         best, best_c = miss, c
                 actions[u] = cand_action[best_c]
             env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                     home[b], next_turn[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t, up, mp, rp, ch,
-                     out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+                     home[b], next_turn[b], lane_order[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t,
+                     up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
             for u in range(n_uav):
                 ex, ey = pos[b, u, 0] - plan[t + 1, b, u, 0], pos[b, u, 1] - plan[t + 1, b, u, 1]
                 err[u] = np.sqrt(ex * ex + ey * ey)
@@ -118,8 +118,8 @@ def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, 
 def _world_args(world):
     veh, queues, draws = world.vehicles, world.queues, world._draws
     return (world.uav_pos, world._velocity, veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
-            draws.turn_u, queues.slots, queues.total, draws.arrivals, world.uav, world.grid.params, world.relay,
-            world.channel, world._out_uav, world._out_env, world._energy, world._above_hover, world._totals)
+            veh.lane_order, draws.turn_u, queues.slots, queues.total, draws.arrivals, world.uav, world.grid.params,
+            world.relay, world.channel, world._out_uav, world._out_env, world._energy, world._above_hover, world._totals)
 
 
 def run_patrol_episode(world, controller) -> None:

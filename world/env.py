@@ -231,7 +231,7 @@ class World:
         v, q, draws = self.vehicles, self.queues, self._draws
         world_step(np.ascontiguousarray(actions, np.int64), blend, np.ascontiguousarray(delay),
                    np.ascontiguousarray(control), self.uav_pos, self._velocity, v.heading, v.road, v.s, v.v,
-                   v.home, v.next_turn, draws.turn_u[t], q.slots, q.total, draws.arrivals[t], t, self.uav,
+                   v.home, v.next_turn, v.lane_order, draws.turn_u[t], q.slots, q.total, draws.arrivals[t], t, self.uav,
                    self.grid.params, self.relay, self.channel, self._out_uav, self._out_env, self._energy,
                    self._above_hover, self._totals)
         out_env = self._out_env

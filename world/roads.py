@@ -52,8 +52,16 @@ class Vehicles:
     home: np.ndarray  # int64, intersection i * n_roads + j its cluster gathers at
     next_turn: np.ndarray  # int64, STRAIGHT/LEFT/RIGHT at the next intersection
     cluster: np.ndarray  # int64, index of its traffic cluster (a major intersection at the start)
+    lane_order: np.ndarray | None = None
+    """int64, the lane sort's order of the last step: a hint that makes the next sort
+    nearly free (vehicles keep their order within a lane); any permutation gives the
+    same step. None: vehicle index order."""
 
-    FIELDS = ("heading", "road", "s", "v", "home", "next_turn", "cluster")
+    FIELDS = ("heading", "road", "s", "v", "home", "next_turn", "cluster", "lane_order")
+
+    def __post_init__(self):
+        if self.lane_order is None:
+            self.lane_order = np.broadcast_to(np.arange(self.s.shape[-1]), self.s.shape).copy()
 
     def xy(self, block_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Planar positions (x, y), each (B, N)."""
@@ -130,13 +138,17 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
 
 
 @njit(cache=True)
-def _lane_sort(h, road, s, p):
+def _lane_sort(h, road, s, p, hint):
     """Vehicles ordered by lane, then along the lane in driving direction:
     (order, key, lane_start) with lane_start (4 n_roads + 1,) the first
     position in `order` of each lane (lane = heading * n_roads + road).
     A counting sort by lane then an insertion sort within each (a lane
     holds a few vehicles): the order of np.argsort(key), keys being distinct
-    (vehicles on a lane never overlap), at a fraction of its cost."""
+    (vehicles on a lane never overlap), at a fraction of its cost. The
+    counting sort visits the vehicles in the order of `hint` (a permutation,
+    e.g. the last step's order, in which vehicles that stayed on their lane
+    are already sorted), so the insertion sort has little to move; the
+    result does not depend on it, keys being distinct."""
     span = 4.0 * (p.extent + 1.0)
     n, n_lanes = s.size, 4 * p.n_roads
     key = np.empty(n)
@@ -148,7 +160,8 @@ def _lane_sort(h, road, s, p):
         lane_start[lane + 1] += lane_start[lane]
     fill = lane_start[:-1].copy()
     order = np.empty(n, np.int64)
-    for i in range(n):
+    for m in range(n):
+        i = hint[m]
         lane = h[i] * p.n_roads + road[i]
         order[fill[lane]] = i
         fill[lane] += 1
@@ -179,11 +192,14 @@ def _overlaps(x, h, road, s, length, order, lane_start, lane_n_roads, is_turner,
     return False
 
 
-@njit(cache=True)
-def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
+# error_model="numpy": a division by zero would give inf instead of raising (none
+# happens: v0 >= turn speed > 0, dt > 0), which lets the car-following loop compile to SIMD.
+@njit(cache=True, error_model="numpy")
+def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
     n = s.size
     same_lane = 2.0 * p.extent + 1.0
-    order, key, lane_start = _lane_sort(h, road, s, p)
+    order, key, lane_start = _lane_sort(h, road, s, p, lane_order)
+    lane_order[:] = order
     gap = np.full(n, np.inf)
     v_lead = np.zeros(n)
     for k in range(n - 1):
@@ -192,47 +208,66 @@ def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
             gap[a] = key[c] - key[a] - p.length
             v_lead[a] = v[c]
 
-    old_h, old_road = h.copy(), road.copy()
+    # First the car-following step of every vehicle as if it stayed on its
+    # lane, branch-free so that it compiles to SIMD; then the turns.
+    k_int = np.empty(n, np.int64)
     s_int = np.empty(n)
     s_lane = np.empty(n)
     v_new = np.empty(n)
-    crossing = np.zeros(n, np.bool_)
-    active = np.zeros(n, np.bool_)
-    straight_ok = np.zeros(n, np.bool_)
     brake_term = 1.0 / (2.0 * np.sqrt(p.accel * p.decel))
+    quartic = p.exponent == 4.0
+    turn_speed2 = p.turn_speed ** 2
+    slow = np.empty(n, np.bool_)
     for x in range(n):
-        direction = HEADING_DIR[h[x]]
-        k, i, j = next_intersection(h[x], road[x], s[x], p.block)
+        hx = h[x]
+        # next_intersection, inlined
+        along = s[x] / p.block
+        k = int(np.ceil(along - 1e-9)) if hx < 2 else int(np.floor(along + 1e-9))
+        i, j = (k, road[x]) if (hx & 1) == 0 else (road[x], k)
+        k_int[x] = k
         s_int[x] = k * p.block
-        v0 = p.v0
-        if next_turn[x] != STRAIGHT or p.is_major[i, j]:
-            d_int = direction * (s_int[x] - s[x])
-            v0 = min(v0, np.sqrt(p.turn_speed ** 2 + 2.0 * p.decel * d_int))
+        # Slow to the turning speed before a turn or a major intersection.
+        slow[x] = (next_turn[x] != STRAIGHT) | p.is_major[i, j]
+    for x in range(n):
+        direction = 1.0 if h[x] < 2 else -1.0  # HEADING_DIR[h[x]]
+        d_int = direction * (s_int[x] - s[x])
+        v0_turn = np.sqrt(turn_speed2 + 2.0 * p.decel * d_int)
+        v0 = min(p.v0, v0_turn) if slow[x] else p.v0
         vx = v[x]
+        g = gap[x]
         s_star = p.jam_gap + max(0.0, vx * p.headway + vx * (vx - v_lead[x]) * brake_term)
-        interaction = (s_star / max(gap[x], 0.1)) ** 2 if gap[x] < np.inf else 0.0
+        interaction = (s_star / max(g, 0.1)) ** 2 if g < np.inf else 0.0
         ratio = vx / v0
-        free = ratio * ratio * ratio * ratio if p.exponent == 4.0 else ratio ** p.exponent
+        free = ratio * ratio * ratio * ratio if quartic else ratio ** p.exponent
         acc = max(p.accel * (1.0 - free - interaction), -MAX_BRAKE)
         vn = max(vx + acc * dt, 0.0)
-        ds = min(0.5 * (vx + vn) * dt, max(gap[x], 0.0))  # never into the leader's old rear
+        ds = min(0.5 * (vx + vn) * dt, max(g, 0.0))  # never into the leader's old rear
         vn = min(vn, 2.0 * ds / dt)
         s_lane[x] = s[x] + direction * ds
         v_new[x] = vn
-        overshoot = direction * (s_lane[x] - s_int[x])
+
+    crossing = np.zeros(n, np.bool_)
+    active = np.zeros(n, np.bool_)
+    straight_ok = np.zeros(n, np.bool_)
+    old_h, old_road = np.empty(n, np.int64), np.empty(n, np.int64)
+    for x in range(n):
+        overshoot = HEADING_DIR[h[x]] * (s_lane[x] - s_int[x])
         crossing[x] = overshoot > 0.0
-        ni, nj = i + HEADING_DI[h[x]], j + HEADING_DJ[h[x]]
-        straight_ok[x] = 0 <= ni < p.n_roads and 0 <= nj < p.n_roads
         if crossing[x] and next_turn[x] != STRAIGHT:
+            k = k_int[x]
+            i, j = (k, road[x]) if (h[x] & 1) == 0 else (road[x], k)
+            ni, nj = i + HEADING_DI[h[x]], j + HEADING_DJ[h[x]]
+            straight_ok[x] = 0 <= ni < p.n_roads and 0 <= nj < p.n_roads
+            old_h[x], old_road[x] = h[x], road[x]
             ht = (h[x] + TURN_OFFSET[next_turn[x]]) & 3
             s[x] = road[x] * p.block + HEADING_DIR[ht] * overshoot
             road[x] = k
             h[x] = ht
-            v[x] = min(vn, p.turn_speed)
+            v[x] = min(v_new[x], p.turn_speed)
             active[x] = True
         else:
             s[x] = s_lane[x]
-            v[x] = vn
+            v[x] = v_new[x]
 
     # A turner may land on a taken spot; put it back (straight, or waiting at
     # a road end) until no lane holds overlapping vehicles. Only turners can
@@ -259,10 +294,10 @@ def _mobility_env(h, road, s, v, home, next_turn, u, dt, p):
 
 
 @njit(cache=True)
-def mobility_step(heading, road, s, v, home, next_turn, u_turn, dt, p):
+def mobility_step(heading, road, s, v, home, next_turn, lane_order, u_turn, dt, p):
     """Advance all vehicles (B, N) by dt in place; u_turn (B, N, 2) uniforms."""
     for b in range(s.shape[0]):
-        _mobility_env(heading[b], road[b], s[b], v[b], home[b], next_turn[b], u_turn[b], dt, p)
+        _mobility_env(heading[b], road[b], s[b], v[b], home[b], next_turn[b], lane_order[b], u_turn[b], dt, p)
 
 
 @njit(cache=True)
@@ -337,7 +372,7 @@ class RoadGrid:
 
     def step(self, veh: Vehicles, dt: float, u_turn: np.ndarray) -> None:
         """Advance all vehicles by dt in place; u_turn (B, N, 2) uniforms."""
-        mobility_step(veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
+        mobility_step(veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn, veh.lane_order,
                       np.ascontiguousarray(u_turn), float(dt), self.params)
 
     def lane_gaps(self, veh: Vehicles) -> np.ndarray:
@@ -345,7 +380,7 @@ class RoadGrid:
         none; (B, N). Negative would mean a collision."""
         out = np.full(veh.s.shape, np.inf)
         for b in range(veh.s.shape[0]):
-            order, key, _ = _lane_sort(veh.heading[b], veh.road[b], veh.s[b], self.params)
+            order, key, _ = _lane_sort(veh.heading[b], veh.road[b], veh.s[b], self.params, veh.lane_order[b])
             ks = key[order]
             d = ks[1:] - ks[:-1]
             out[b, order[:-1]] = np.where(d < 2 * self.extent + 1, d - self.cfg.idm.vehicle_length_m, np.inf)

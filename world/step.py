@@ -106,7 +106,7 @@ def pairwise_sum(a, lo, n):
 
 
 @njit(cache=True)
-def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, turn_u,
+def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
              slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals):
     """Advance one environment by one step, in place.
 
@@ -137,7 +137,7 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
         sx, sy = nx - pos[u, 0], ny - pos[u, 1]
         pos[u, 0], pos[u, 1] = nx, ny
         speed[u] = np.sqrt(sx * sx + sy * sy) / dt
-    _mobility_env(heading, road, s, v, home, next_turn, turn_u, dt, mp)
+    _mobility_env(heading, road, s, v, home, next_turn, lane_order, turn_u, dt, mp)
     _relay_env(heading, road, s, pos, slots, total, arrivals, t, True, rp, ch, control, out_uav, out_env)
     for u in range(n_uav):
         energy[u] = (up.hover_w + (up.move_w - up.hover_w) * speed[u] / up.ref_speed) * dt \
@@ -154,10 +154,10 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
 
 
 @njit(cache=True)
-def world_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, turn_u,
+def world_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
                slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals):
     """env_step for every env of the batch (leading axis B on every array)."""
     for b in range(pos.shape[0]):
         env_step(actions[b], blend, delay[b], control[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                 home[b], next_turn[b], turn_u[b], slots[b], total[b], arrivals[b], t, up, mp, rp, ch,
+                 home[b], next_turn[b], lane_order[b], turn_u[b], slots[b], total[b], arrivals[b], t, up, mp, rp, ch,
                  out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
