@@ -8,6 +8,7 @@ no files, no progress bars (callbacks report episodes).
 
 from __future__ import annotations
 
+import gc
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Protocol
@@ -98,6 +99,11 @@ def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos
             history.setdefault(key, []).append(value)
         if on_episode is not None:
             on_episode(episode, summary)
+        if episode == 0:
+            # Everything alive now (numba's compiled kernels and their type objects:
+            # a large graph) lives to the end; frozen, the cyclic collector no longer
+            # walks it on every full collection between episodes.
+            gc.freeze()
     if end_pos is not None:
         end_pos[...] = world.uav_pos
     return {k: np.stack(v) for k, v in history.items()}

@@ -106,7 +106,9 @@ def routes(uav_pos, p, ch):
     per-packet route time (U,), next hop (U,) as a UAV index or -1 for an RSU,
     and the per-packet time of the first hop (U,)."""
     n_uav, n_rsu = uav_pos.shape[0], p.rsu.shape[0]
-    best = np.full(n_uav, np.inf)
+    times = np.empty((2 + n_uav, n_uav))  # one allocation: best, hop, t_uu
+    best, hop, t_uu = times[0], times[1], times[2:]
+    best[:] = np.inf
     next_hop = np.full(n_uav, -1)
     for u in range(n_uav):
         # Under p.nearest_rsu_only the min over RSUs is that of the nearest:
@@ -126,8 +128,8 @@ def routes(uav_pos, p, ch):
             t = p.bits / a2g_rate(h, p.uav_rsu_height, p.uav_tx_w, ch) \
                 + np.sqrt(h * h + p.uav_rsu_height ** 2) / SPEED_OF_LIGHT
             best[u] = min(best[u], t)
-    hop = best.copy()
-    t_uu = np.full((n_uav, n_uav), np.inf)
+    hop[:] = best
+    t_uu[:] = np.inf
     for u in range(n_uav):
         for j in range(u + 1, n_uav):  # symmetric: (a - b)^2 == (b - a)^2 exactly
             d = np.sqrt((uav_pos[u, 0] - uav_pos[j, 0]) ** 2 + (uav_pos[u, 1] - uav_pos[j, 1]) ** 2)
@@ -160,8 +162,11 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     sense2 = p.sense_range * p.sense_range
     sensing = p.sense_range > 0.0
     sensed = np.zeros((n_uav, p.sense_sectors if sensing else 1))
-    nearest = np.full(n, -1)
-    dist = np.empty(n)
+    ints = np.empty(2 * n, np.int64)  # one allocation per type: nearest, senders / dist, cost
+    nearest, senders = ints[:n], ints[n:]
+    nearest[:] = -1
+    floats = np.zeros(2 * n)
+    dist, cost = floats[:n], floats[n:]
     for i in range(n):
         fixed = road[i] * p.block
         x, y = (s[i], fixed) if (heading[i] & 1) == 0 else (fixed, s[i])
@@ -181,7 +186,6 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
 
     if serve_packets:
         route_time, next_hop, hop_time = routes(uav_pos, p, ch)
-        cost = np.zeros(n)
         for i in range(n):
             if nearest[i] >= 0:
                 cost[i] = p.bits / uplink_rate(p, dist[i]) + route_time[nearest[i]]
@@ -194,7 +198,6 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
         # shrinks, its UAV's clock only grows), so it leaves the list: the same
         # sends in the same order as visiting all n every round, at the cost
         # of the senders only.
-        senders = np.empty(n, np.int64)
         n_senders = 0
         for k in range(n):
             i = start + k if start + k < n else start + k - n
@@ -217,17 +220,18 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                 senders[kept] = i
                 kept += 1
             n_senders = kept
-        flow = np.zeros(n_uav)
+        flows = np.zeros((2, n_uav))
+        flow, forwarded = flows[0], flows[1]
         for u in range(n_uav):
             out_env[E_DELIVERED] += out_uav[u, RELAYED]
             flow[u] = out_uav[u, RELAYED]
         for _ in range(n_uav):  # each hop's sender pays its transmit airtime
-            forwarded = np.zeros(n_uav)
+            forwarded[:] = 0.0
             for u in range(n_uav):
                 out_uav[u, TX_TIME] += flow[u] * hop_time[u]
                 if next_hop[u] >= 0:
                     forwarded[next_hop[u]] += flow[u]
-            flow = forwarded
+            flow, forwarded = forwarded, flow
         for i in range(n):
             dropped = packets.expire(slots[i], t)
             total[i] -= dropped

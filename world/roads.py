@@ -152,14 +152,16 @@ def _lane_sort(h, road, s, p, hint):
     span = 4.0 * (p.extent + 1.0)
     n, n_lanes = s.size, 4 * p.n_roads
     key = np.empty(n)
-    lane_start = np.zeros(n_lanes + 1, np.int64)
+    ints = np.zeros(2 * n_lanes + 1 + n, np.int64)  # one allocation: lane_start, fill, order
+    lane_start = ints[:n_lanes + 1]
     for i in range(n):
         key[i] = (h[i] * p.n_roads + road[i]) * span + HEADING_DIR[h[i]] * s[i]
         lane_start[h[i] * p.n_roads + road[i] + 1] += 1
     for lane in range(n_lanes):
         lane_start[lane + 1] += lane_start[lane]
-    fill = lane_start[:-1].copy()
-    order = np.empty(n, np.int64)
+    fill = ints[n_lanes + 1:2 * n_lanes + 1]
+    fill[:] = lane_start[:-1]
+    order = ints[2 * n_lanes + 1:]
     for m in range(n):
         i = hint[m]
         lane = h[i] * p.n_roads + road[i]
@@ -200,8 +202,15 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
     same_lane = 2.0 * p.extent + 1.0
     order, key, lane_start = _lane_sort(h, road, s, p, lane_order)
     lane_order[:] = order
-    gap = np.full(n, np.inf)
-    v_lead = np.zeros(n)
+    # Scratch rows, one allocation per type (a step allocates per env).
+    floats = np.empty((5, n))
+    gap, v_lead, s_int, s_lane, v_new = floats[0], floats[1], floats[2], floats[3], floats[4]
+    ints = np.empty((3, n), np.int64)
+    k_int, old_h, old_road = ints[0], ints[1], ints[2]
+    flags = np.zeros((6, n), np.bool_)
+    slow, crossing, active, straight_ok, waiting, is_turner = flags[0], flags[1], flags[2], flags[3], flags[4], flags[5]
+    gap[:] = np.inf
+    v_lead[:] = 0.0
     for k in range(n - 1):
         a, c = order[k], order[k + 1]
         if key[c] - key[a] < same_lane:
@@ -210,14 +219,9 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
 
     # First the car-following step of every vehicle as if it stayed on its
     # lane, branch-free so that it compiles to SIMD; then the turns.
-    k_int = np.empty(n, np.int64)
-    s_int = np.empty(n)
-    s_lane = np.empty(n)
-    v_new = np.empty(n)
     brake_term = 1.0 / (2.0 * np.sqrt(p.accel * p.decel))
     quartic = p.exponent == 4.0
     turn_speed2 = p.turn_speed ** 2
-    slow = np.empty(n, np.bool_)
     for x in range(n):
         hx = h[x]
         # next_intersection, inlined
@@ -246,10 +250,6 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
         s_lane[x] = s[x] + direction * ds
         v_new[x] = vn
 
-    crossing = np.zeros(n, np.bool_)
-    active = np.zeros(n, np.bool_)
-    straight_ok = np.zeros(n, np.bool_)
-    old_h, old_road = np.empty(n, np.int64), np.empty(n, np.int64)
     for x in range(n):
         overshoot = HEADING_DIR[h[x]] * (s_lane[x] - s_int[x])
         crossing[x] = overshoot > 0.0
@@ -272,9 +272,8 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
     # A turner may land on a taken spot; put it back (straight, or waiting at
     # a road end) until no lane holds overlapping vehicles. Only turners can
     # overlap anyone: within a lane, the IDM step above keeps every gap >= 0.
-    waiting = np.zeros(n, np.bool_)
     turners = np.flatnonzero(active)
-    is_turner = active.copy()
+    is_turner[:] = active
     changed = turners.size > 0
     while changed:
         changed = False
