@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.beacon_schedule import BeaconSchedule
+from agents.beacon_cells import BeaconCells, subscription_radius_m
+from agents.beacon_schedule import BeaconSchedule, sends_beacon
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
@@ -125,6 +126,22 @@ class AgentOptions:
     command_wait_frac: float = 0.5
     """Scheme central, real time: wait for the tick's command until this fraction of the tick period
     after the world stamped the observation (the world takes actions until deadline_frac, 0.8: the rest is for the action to get there on a busy host)."""
+    beacon_every: int = 1
+    """Real time: send a beacon every this many ticks, offset by id (10 at 10 Hz: the Remote ID rate, 1 Hz)."""
+    beacon_cell_m: float | None = None
+    """Real time: range-limited beacons, under map cells of this side (agents.beacon_cells); None: all-to-all."""
+
+    def __post_init__(self) -> None:
+        if self.beacon_every < 1:
+            raise ValueError(f"beacon_every must be >= 1, got {self.beacon_every}")
+        if self.lockstep and (self.beacon_every != 1 or self.beacon_cell_m is not None):
+            raise ValueError("lock-step waits for every live peer's beacon of each tick: "
+                             "beacon_every and beacon_cell_m are for real time only")
+
+    @property
+    def beacon_max_age_ticks(self) -> int:
+        """Real time: a neighbour's freshest beacon older than this is ignored (two intervals at a low rate)."""
+        return max(REALTIME_BEACON_MAX_AGE_TICKS, 2 * self.beacon_every)
 
 
 class AgentNode:
@@ -153,6 +170,11 @@ class AgentNode:
         self._pending_beacon = None
         self._schedule = BeaconSchedule(opts.tick_period_s, opts.beacon_phase, opts.beacon_spread, opts.uav,
                                         self.n_uavs)
+        self._cells = None if opts.beacon_cell_m is None else BeaconCells(
+            opts.beacon_cell_m, cfg.scenario.area_m, subscription_radius_m(cfg, opts.beacon_every,
+                                                                           opts.beacon_max_age_ticks))
+        self._cell_subs: dict = {}  # range-limited beacons: map cell -> its subscription handle
+        self._own_pos = (0.0, 0.0)
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
@@ -160,12 +182,14 @@ class AgentNode:
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
+        # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
+        # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run))
         # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
         self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run))
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
-        bus.prepare(keys.uav_beacon(run, me), keys.uav_action(run, me))
+        bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me))
         self._setup_scheme(bus)
         # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
         # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
@@ -291,17 +315,30 @@ class AgentNode:
         self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
         self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
 
+    def _follow_cells(self, pos: tuple[float, float]) -> None:
+        """Range-limited beacons: subscribe to the cells now within range of ``pos``, drop the others."""
+        self._own_pos = pos
+        want = self._cells.within(*pos)
+        for cell in [c for c in self._cell_subs if c not in want]:
+            self._cell_subs.pop(cell).close()
+        for cell in want:
+            if cell not in self._cell_subs:
+                self._cell_subs[cell] = self.bus.feed(self._beacon_inbox, keys.beacons_in_cell(self.opts.run, cell))
+
     def _send_beacon(self, obs: schema.Obs) -> None:
         o = self.opts
         beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
         key = keys.uav_beacon(o.run, o.uav)
+        if self._cells is not None:
+            self._follow_cells(obs.pos)
+            key = keys.uav_beacon_in_cell(o.run, o.uav, self._cells.cell_of(*obs.pos))
         if o.lockstep:  # every agent waits for it, the last observation's included
             self.bus.publish(key, beacon)
             return
         for r in self._tick_inbox.drain():
             self._schedule.observe(r.msg.tick, r.msg.t / 1e9)
         self._schedule.observe(obs.tick, obs.t / 1e9)  # later than its tick's start: never lowers the estimate wrongly
-        if obs.done:  # no one acts on this tick (and the swarm may be shutting down): its beacon would go unused
+        if obs.done or not sends_beacon(obs.tick, o.uav, o.beacon_every):  # done: no one acts on this tick
             return
         due = time.monotonic() + self._schedule.due(obs.tick) - time.time()  # world clock -> this host's monotonic
         with self._beacon_due:
@@ -350,8 +387,11 @@ class AgentNode:
         if self.opts.lockstep:
             fresh = self._lockstep_beacons(tick)
         else:
+            oldest = tick - self.opts.beacon_max_age_ticks
             with self._lock:
-                fresh = {j: b for j, b in self._beacons.items() if b.tick >= tick - REALTIME_BEACON_MAX_AGE_TICKS}
+                fresh = {j: b for j, b in self._beacons.items() if b.tick >= oldest}
+            if self._cells is not None:  # beyond the radius a beacon cannot change the state (agents.beacon_cells)
+                fresh = {j: b for j, b in fresh.items() if self._cells.in_range(self._own_pos, b.pos)}
         ids = sorted(fresh)
         peers = np.array([[[fresh[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
         return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)

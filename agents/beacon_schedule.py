@@ -77,3 +77,11 @@ class BeaconSchedule:
     def due(self, tick: int) -> float:
         """When this UAV's beacon for ``tick`` should go out (world clock, seconds)."""
         return self.tick_start(tick) + self.offset_s
+
+
+def sends_beacon(tick: int, uav: int, every: int) -> bool:
+    """Whether UAV ``uav`` sends a beacon in ``tick`` when it beacons every ``every`` ticks (1: every tick).
+
+    Offset by id, so at 1 Hz (every 10 ticks at 10 Hz, the Remote ID rate) a tenth of the
+    swarm sends in each tick instead of all of it in one."""
+    return (tick + uav) % every == 0

@@ -100,6 +100,11 @@ class WorldStats:
     """Actions that were an agent's explicit hover (the central scheme's autopilot without commands)."""
     controller_losses: list[float] = field(default_factory=list)
     """Scheme central: seconds since the first tick at which the controller's liveliness token vanished."""
+    first_tick_wall_s: float | None = None
+    """Wall clock (time.time) when tick 0 was published: with last_tick_wall_s, the ticking window
+    (bench/bench_swarm.py's ticks/s and CPU rates exclude start-up and shutdown)."""
+    last_tick_wall_s: float | None = None
+    """Wall clock when the last tick's round ended."""
 
 
 def action_digest():
@@ -224,6 +229,7 @@ class WorldNode:
         obs = self.world.reset([seeding.world_rng(opts.seed)])
         tick, next_due = 0, self.clock()
         self._t0 = self.clock()
+        self.stats.first_tick_wall_s = time.time()
         for episode in range(opts.episodes):
             if episode:
                 obs = self.world.start_episode()
@@ -262,6 +268,7 @@ class WorldNode:
             log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
                      summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
         self.stats.ticks = tick
+        self.stats.last_tick_wall_s = time.time()
         if not opts.lockstep:  # let the last tick run its period: agents are still learning from it
             self._sleep_until(next_due)
         with self._cond:

@@ -9,6 +9,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``world/positions``             world -> recorder   ``positions``
 ``uav/<i>/obs``                 world -> agent i    ``obs``
 ``uav/<i>/beacon``              agent i -> all      ``beacon``
+``uav/<i>/beacon/<cx>_<cy>``    agent i -> near     ``beacon`` (range-limited: map cell of its position)
 ``uav/<i>/action``              agent i -> world    ``action``
 ``uav/<i>/state``               agent i -> ctrl     ``state`` (scheme central: the state upload)
 ``controller/cmd/<i>``          ctrl -> agent i     ``command`` (scheme central)
@@ -37,6 +38,7 @@ import re
 ROOT = "truav"
 MAX_UAVS = 1024  # UAV ids are in [0, MAX_UAVS)
 MAX_CHUNK_LEN = 64
+MAX_CELLS = 1024  # range-limited beacon cells per axis are in [0, MAX_CELLS)
 
 _CHUNK_RE = re.compile(r"[A-Za-z0-9_-]+")
 _UAV_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/(?:alive/)?uav/(0|[1-9][0-9]*)(?:/.*)?")
@@ -147,6 +149,30 @@ def all_obs(run: str) -> str:
 def all_beacons(run: str) -> str:
     """``truav/<run>/uav/*/beacon``."""
     return f"{prefix(run)}/uav/*/{BEACON}"
+
+
+def uav_beacon_in_cell(run: str, i: int, cell: tuple[int, int]) -> str:
+    """``truav/<run>/uav/<i>/beacon/<cx>_<cy>``: a range-limited beacon, under the map cell it was sent from
+    (agents.beacon_cells); receivers subscribe only to the cells within range."""
+    return f"{uav_beacon(run, i)}/{cell_chunk(cell)}"
+
+
+def beacons_in_cell(run: str, cell: tuple[int, int]) -> str:
+    """``truav/<run>/uav/*/beacon/<cx>_<cy>``: every range-limited beacon sent from one map cell."""
+    return f"{all_beacons(run)}/{cell_chunk(cell)}"
+
+
+def all_beacons_in_cells(run: str) -> str:
+    """``truav/<run>/uav/*/beacon/*``: every range-limited beacon (the supervisor's monitor)."""
+    return f"{all_beacons(run)}/*"
+
+
+def cell_chunk(cell: tuple[int, int]) -> str:
+    cx, cy = cell
+    if isinstance(cx, bool) or isinstance(cy, bool) or not (isinstance(cx, int) and isinstance(cy, int)) \
+            or not (0 <= cx < MAX_CELLS and 0 <= cy < MAX_CELLS):
+        raise ValueError(f"map cell must be two ints in [0, {MAX_CELLS}), got {cell!r}")
+    return f"{cx}_{cy}"
 
 
 def all_actions(run: str) -> str:

@@ -604,9 +604,14 @@ class Bus:
         The link filter applies at arrival, as for :meth:`subscribe`.
         """
         box = Inbox(self, capacity)
-        sub = self._session.declare_subscriber(key_expr, box.on_sample)
-        self._register(Handle(f"inbox {key_expr}", sub.undeclare))
+        self.feed(box, key_expr)
         return box
+
+    def feed(self, box: Inbox, key_expr: str) -> Handle:
+        """Also put what arrives on ``key_expr`` into ``box`` (an agent's range-limited beacon cells
+        come and go as it moves); ``close()`` the returned handle to stop."""
+        sub = self._session.declare_subscriber(key_expr, box.on_sample)
+        return self._register(Handle(f"inbox {key_expr}", sub.undeclare))
 
     def _count_received(self, n: int, delivered: int | None = None) -> None:
         with self._lock:
@@ -836,6 +841,8 @@ def expected_kind(key: str) -> str | None:
         return None
     rest = parts[2:]
     if rest[0] == "uav":
+        if len(rest) == 4 and rest[2] == keys.BEACON:  # a range-limited beacon under its map cell
+            return schema.KIND_BEACON
         return _KIND_BY_KEY.get(("uav", rest[2])) if len(rest) == 3 else None
     if rest[0] == "world":
         return _KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None

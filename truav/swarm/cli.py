@@ -269,16 +269,33 @@ def cmd_world(args) -> int:
     return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
+ID_PLACEHOLDER = "{id}"
+"""In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
+
+
 def cmd_agent(args) -> int:
+    """One agent, or several (``--id`` repeated) hosted in this process: each with its own Zenoh session,
+    identity, credentials, checkpoint and statistics, on its own thread (fewer processes for a large swarm)."""
     from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
     from agents.scheme_agents import make_agent_node
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     _check_creds_fit(args, cfg)
-    if not 0 <= args.id < cfg.scenario.n_uavs:
-        raise UsageError(f"--id {args.id} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
+    ids = args.id
+    if len(set(ids)) != len(ids):
+        raise UsageError(f"--id: UAV id(s) {sorted({i for i in ids if ids.count(i) > 1})} given twice")
+    for uav in ids:
+        if not 0 <= uav < cfg.scenario.n_uavs:
+            raise UsageError(f"--id {uav} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
+    if len(ids) > 1:
+        for flag, value in (("--checkpoint", args.checkpoint), ("--stats-out", args.stats_out)):
+            if value and ID_PLACEHOLDER not in value:
+                raise UsageError(f"{flag} {value}: with several --id, put {ID_PLACEHOLDER} in it (one file per UAV)")
+    if args.lockstep and (args.beacon_every != 1 or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-every' if args.beacon_every != 1 else '--beacon-cell'}: lock-step waits for "
+                         f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
     try:
-        delay_s = debug_delay_s(os.environ.get(DELAY_ENV, ""), args.id)
+        delays = {uav: debug_delay_s(os.environ.get(DELAY_ENV, ""), uav) for uav in ids}
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.fault_plan:
@@ -286,30 +303,98 @@ def cmd_agent(args) -> int:
     check_scheme_flags(args)
     if args.qtable:
         check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
-    if args.checkpoint:
-        check_checkpoint(args.checkpoint, cfg)
-    if args.stats_out:
-        check_out_file("--stats-out", args.stats_out)
-    opts = AgentOptions(run=args.run, uav=args.id, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
-                        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-                        qtable=args.qtable, qtable_index=args.qtable_index, stats_out=args.stats_out,
-                        tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delay_s,
-                        accept_replay=args.accept_replay, scheme=args.scheme, command_hold_s=args.command_hold)
-    _creds(args, keys.uav_identity(args.id))
-    with Bus(keys.uav_identity(args.id), args.run, config_from_args(args)) as bus:
-        node = make_agent_node(cfg, opts, bus)
-        reasons = _stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
-        log.info("uav %d joined run %s (%s)", args.id, args.run, args.scheme if args.scheme != "truav"
-                 else "greedy" if args.greedy else "learning")
+
+    def path_of(template: str | None, uav: int) -> str | None:
+        return template.replace(ID_PLACEHOLDER, str(uav)) if template else None
+
+    for uav in ids:
+        if args.checkpoint:
+            check_checkpoint(path_of(args.checkpoint, uav), cfg)
+        if args.stats_out:
+            check_out_file("--stats-out", path_of(args.stats_out, uav))
+    configs = {}
+    for uav in ids:  # each agent its own identity and, with --creds, its own certificate
+        _creds(args, keys.uav_identity(uav))
+        configs[uav] = config_from_args(args)
+        if args.creds:
+            args.config = None
+    results: dict[int, tuple[object, StopReasons]] = {}
+    stops: list = []
+    failed: list[BaseException] = []
+    started = threading.Barrier(len(ids) + 1) if len(ids) > 1 else None
+
+    def host(uav: int) -> None:
+        opts = AgentOptions(run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
+                            checkpoint=path_of(args.checkpoint, uav), checkpoint_every=args.checkpoint_every,
+                            qtable=args.qtable, qtable_index=args.qtable_index, stats_out=path_of(args.stats_out, uav),
+                            tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delays[uav],
+                            accept_replay=args.accept_replay, scheme=args.scheme, command_hold_s=args.command_hold,
+                            beacon_every=args.beacon_every, beacon_cell_m=args.beacon_cell)
+        with Bus(keys.uav_identity(uav), args.run, configs[uav]) as bus:
+            node = make_agent_node(cfg, opts, bus)
+            reasons = StopReasons(node.stop)
+            if args.router_timeout is not None:
+                def router_lost(seconds: float, reasons=reasons) -> None:
+                    reasons.router_lost = True
+                    log.error("uav %d: no router for %.1f s (it stopped, or the network to it is down)", uav, seconds)
+                    reasons.because(f"router lost for {seconds:.1f} s")
+                watch_router(bus.session, args.router_timeout, router_lost)
+            results[uav] = (node, reasons)
+            stops.append(reasons.because)
+            if stopping:  # SIGTERM (or a lost supervisor) while this agent was starting
+                reasons.because(stopping[0])
+            if started is not None:
+                started.wait()
+            log.info("uav %d joined run %s (%s)", uav, args.run, args.scheme if args.scheme != "truav"
+                     else "greedy" if args.greedy else "learning")
+            try:
+                node.run()
+            except KeyboardInterrupt:
+                reasons.because("interrupted")
+                node.checkpoint()
+            node.write_stats()
+        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", uav, node.steps,
+                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)")
+
+    stopping: list[str] = []
+
+    def stop_all(reason: str) -> None:
+        stopping.append(reason)
+        for because in list(stops):
+            because(reason)
+
+    signal.signal(signal.SIGTERM, lambda *_: stop_all("SIGTERM"))
+    watch_supervisor(lambda: stop_all("the truav-swarm up that started this process is gone"))
+    if started is None:  # one agent: on the main thread, as always
+        host(ids[0])
+    else:
+        def hosted(uav: int) -> None:
+            try:
+                host(uav)
+            except BaseException as exc:  # noqa: BLE001 - reported below, the others stop
+                failed.append(exc)
+                log.exception("uav %d failed", uav)
+                if started.n_waiting:
+                    started.abort()
+                stop_all(f"uav {uav} failed")
+        threads = [threading.Thread(target=hosted, args=(uav,), name=f"uav{uav}") for uav in ids]
+        for t in threads:
+            t.start()
         try:
-            node.run()
+            started.wait()
+        except threading.BrokenBarrierError:
+            pass
+        try:
+            while any(t.is_alive() for t in threads):
+                for t in threads:
+                    t.join(0.2)
         except KeyboardInterrupt:
-            reasons.because("interrupted")
-            node.checkpoint()
-        node.write_stats()
-    log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", args.id, node.steps,
-             reasons.first or "shutdown", args.checkpoint or "(none: no --checkpoint)", args.stats_out or "(none)")
-    return EXIT_ROUTER_LOST if reasons.router_lost else 0
+            stop_all("interrupted")
+            for t in threads:
+                t.join()
+        if failed:
+            raise failed[0]
+    return EXIT_ROUTER_LOST if any(r.router_lost for _, r in results.values()) else 0
 
 
 def cmd_controller(args) -> int:
@@ -454,6 +539,24 @@ def _swarm_options(args):
         check_central_sizes(cfg)
     if args.fault_plan is not None:
         check_plan("--fault-plan", args.fault_plan, n, args.scheme)
+    beacon_every = 1
+    if args.beacon_hz is not None:
+        ticks = args.rate / args.beacon_hz
+        if abs(ticks - round(ticks)) > 1e-6 or round(ticks) < 1:
+            raise UsageError(f"--beacon-hz {args.beacon_hz:g}: must divide --rate {args.rate:g} into a whole number "
+                             f"of ticks (e.g. 1 at 10 Hz: every 10th tick)")
+        beacon_every = int(round(ticks))
+    if args.scheme != "truav" and (args.beacon_hz is not None or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: only --scheme truav "
+                         f"sends a beacon every tick (this is --scheme {args.scheme})")
+    if args.lockstep and (args.beacon_hz is not None or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: lock-step waits for "
+                         f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
+    if args.agents_per_process > 1 and args.fault_plan is not None:
+        kinds = {f.kind for f in load_plan_for(args.fault_plan).faults} & {"crash", "freeze"}
+        if kinds:
+            raise UsageError(f"--agents-per-process {args.agents_per_process}: the fault plan {args.fault_plan} "
+                             f"{' and '.join(sorted(kinds))}es single agent processes; use 1 agent per process")
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
@@ -462,8 +565,14 @@ def _swarm_options(args):
                         geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
-                        command_hold_s=args.command_hold)
+                        command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
+                        agents_per_process=args.agents_per_process)
     return cfg, opts
+
+
+def load_plan_for(path: str):
+    from truav.faults import load_plan
+    return load_plan(path)
 
 
 def cmd_chaos(args) -> int:
@@ -590,6 +699,14 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--secure", action="store_true",
                     help="lock the bus: a fresh CA and one certificate per component in <out>/creds, mutual TLS, "
                          "and the router's access control (see `truav-swarm acl explain`)")
+    up.add_argument("--beacon-hz", type=positive_float, metavar="HZ",
+                    help="real time: beacons at this rate instead of every tick (1: the Remote ID rate; must divide "
+                         "--rate), offset by id")
+    up.add_argument("--beacon-cell", type=positive_float, metavar="M",
+                    help="real time: range-limited beacons under map cells of M metres; each agent hears only the "
+                         "cells within range of it, and decides as with all beacons (agents/beacon_cells.py)")
+    up.add_argument("--agents-per-process", type=positive_int, default=1, metavar="K",
+                    help="host K agents per OS process, each with its own session, identity and files (default 1)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
@@ -669,7 +786,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     ag = sub.add_parser("agent", help="run one UAV agent process")
     add_scenario_args(ag)
-    ag.add_argument("--id", type=non_negative_int, required=True, help="UAV id in [0, n_uavs)")
+    ag.add_argument("--id", type=non_negative_int, required=True, action="append",
+                    help="UAV id in [0, n_uavs); repeat it to host several agents in this process, each with its "
+                         "own session and identity ({id} in --checkpoint and --stats-out then names each file)")
+    ag.add_argument("--beacon-every", type=positive_int, default=1, metavar="TICKS",
+                    help="real time: send a beacon every TICKS ticks, offset by id (10 at 10 Hz: 1 Hz, the Remote ID "
+                         "rate; default 1)")
+    ag.add_argument("--beacon-cell", type=positive_float, metavar="M",
+                    help="real time: range-limited beacons under map cells of M metres; hear only cells within range "
+                         "(agents/beacon_cells.py; default: all-to-all)")
     ag.add_argument("--lockstep", action="store_true")
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")

@@ -55,6 +55,7 @@ class Monitor:
         # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
         # process from being a 21st subscriber callback in every beacon's fan-out.
         self.beacon_inbox = bus.inbox(keys.all_beacons(run))
+        bus.feed(self.beacon_inbox, keys.all_beacons_in_cells(run))  # range-limited beacons (--beacon-cell)
         if central:  # the control plane's real messages, measured as they cross the bus
             self.control_inboxes = [bus.inbox(keys.all_states(run)), bus.inbox(keys.all_commands(run))]
         bus.subscribe(keys.world_positions(run), self._on_positions)

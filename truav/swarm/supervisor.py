@@ -119,6 +119,23 @@ class SwarmOptions:
     policy_index: int = 0
     command_hold_s: float = 1.0
     """Scheme central: how long a UAV keeps its last command once commands stop, then hovers."""
+    beacon_every: int = 1
+    """Real time: agents beacon every this many ticks (10 at 10 Hz: 1 Hz, the Remote ID rate)."""
+    beacon_cell_m: float | None = None
+    """Real time: range-limited beacons under map cells of this side (agents/beacon_cells.py); None: all-to-all."""
+    agents_per_process: int = 1
+    """Agents hosted by one OS process, each with its own session, identity and files (fewer processes:
+    less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
+
+
+def agent_groups(n: int, per_process: int) -> list[list[int]]:
+    """UAV ids 0..n-1 in consecutive groups of ``per_process``, one process each."""
+    return [list(range(a, min(a + per_process, n))) for a in range(0, n, per_process)]
+
+
+def group_name(ids: list[int]) -> str:
+    """The process name (log file, pids.json) of a group: ``agent3`` alone, ``agents0-9`` for several."""
+    return f"agent{ids[0]}" if len(ids) == 1 else f"agents{ids[0]}-{ids[-1]}"
 
 
 @dataclass
@@ -194,7 +211,8 @@ class _Swarm:
     def __init__(self, cfg: Config, opts: SwarmOptions, out: Path, plan, interrupts: _Interrupts):
         self.cfg, self.opts, self.out, self.plan, self.interrupts = cfg, opts, out, plan, interrupts
         self.n = cfg.scenario.n_uavs
-        self.agents = [f"agent{i}" for i in range(self.n)]
+        self.groups = agent_groups(self.n, opts.agents_per_process)
+        self.agents = [group_name(g) for g in self.groups]  # the agent processes' names
         self.central = opts.scheme == "central"
         self.fleet = self.agents + (["controller"] if self.central else [])
         """The processes a fault plan may kill or freeze; a frozen one is thawed before it is stopped."""
@@ -295,15 +313,18 @@ class _Swarm:
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme, "--episodes", str(opts.episodes),
                 "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
                 "--wait-agents", str(opts.wait_agents_s)))
-            for i in range(self.n):
-                extra = ["--checkpoint", str(out / f"agent{i}.npz"), "--stats-out", str(out / f"agent{i}.json"),
+            for ids in self.groups:
+                name = "{id}" if len(ids) > 1 else str(ids[0])  # the agent process fills in each UAV's id
+                extra = ["--checkpoint", str(out / f"agent{name}.npz"), "--stats-out", str(out / f"agent{name}.json"),
                          "--checkpoint-every", str(opts.checkpoint_every), *scheme]
                 extra += ["--qtable", opts.qtable] if opts.qtable else []
                 extra += ["--greedy"] if opts.greedy else []
                 extra += ["--command-hold", str(opts.command_hold_s)] if self.central else []
-                self.children.start(f"agent{i}", _python_module(
-                    "truav.swarm.cli", "agent", "--id", str(i), *common, *timing, *faults_args,
-                    "--rate", str(opts.rate_hz), *extra))
+                extra += ["--beacon-every", str(opts.beacon_every)] if opts.beacon_every != 1 else []
+                extra += ["--beacon-cell", repr(opts.beacon_cell_m)] if opts.beacon_cell_m is not None else []
+                self.children.start(group_name(ids), _python_module(
+                    "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
+                    *faults_args, "--rate", str(opts.rate_hz), *extra))
             self._announce()
             ok = self._watch()
             self.monitor.poll()
@@ -466,9 +487,10 @@ class _Swarm:
         killed_for_good = {_process(f.params.get("target", f.params.get("uav")))
                            for f in (self.plan.faults if self.plan else ())
                            if f.kind == "crash" and "restart_after" not in f.params}
-        for name in self.fleet:
+        logs = {f"agent{i}": name for ids, name in zip(self.groups, self.agents) for i in ids}  # uav -> its process
+        for name in [*logs, *(["controller"] if self.central else [])]:
             if o.ticked and not (self.out / f"{name}.json").is_file() and name not in killed_for_good:
-                o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{name}.log)")
+                o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{logs.get(name, name)}.log)")
         lost = ((world or {}).get("controller_losses") or []) if self.central else []
         if lost:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
