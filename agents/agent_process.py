@@ -145,7 +145,9 @@ class AgentOptions:
 
 
 class AgentNode:
-    def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus):
+    def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None):
+        """``beacon_inbox(bus)``, if given, returns this agent's beacon inbox (fed by a subscription its
+        process shares among the agents it hosts); by default the agent subscribes on its own bus."""
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         self.n_uavs = cfg.scenario.n_uavs
@@ -184,7 +186,7 @@ class AgentNode:
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
         # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
         # follows this UAV's cells from its first observation on.
-        self._beacon_inbox = bus.inbox(keys.all_beacons(run))
+        self._beacon_inbox = bus.inbox(keys.all_beacons(run)) if beacon_inbox is None else beacon_inbox(bus)
         # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
         self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run))
         bus.subscribe(keys.all_control(run), self._on_control)

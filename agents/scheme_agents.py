@@ -238,10 +238,10 @@ class CentralAgentNode(_NoLearner):
                              "hovered": self.commands_hovered}}
 
 
-def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus) -> AgentNode:
-    """The agent process's node for ``opts.scheme``."""
+def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None) -> AgentNode:
+    """The agent process's node for ``opts.scheme`` (``beacon_inbox``: see AgentNode)."""
     cls = {"truav": AgentNode, "patrol": PatrolAgentNode, "central": CentralAgentNode}[opts.scheme]
-    return cls(cfg, opts, bus)
+    return cls(cfg, opts, bus, beacon_inbox=beacon_inbox)
 
 
 __all__ = ["SCHEMES", "PatrolAgentNode", "CentralAgentNode", "make_agent_node", "LOCKSTEP_BEACON_WAIT_S"]

@@ -607,7 +607,7 @@ class Bus:
         self.feed(box, key_expr)
         return box
 
-    def feed(self, box: Inbox, key_expr: str) -> Handle:
+    def feed(self, box: Inbox, key_expr: str) -> Handle:  # box: anything with Inbox.on_sample
         """Also put what arrives on ``key_expr`` into ``box`` (an agent's range-limited beacon cells
         come and go as it moves); ``close()`` the returned handle to stop."""
         sub = self._session.declare_subscriber(key_expr, box.on_sample)

@@ -269,6 +269,34 @@ def cmd_world(args) -> int:
     return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
+class SharedBeacons:
+    """One beacon subscription for every agent a process hosts (``--share-beacons``).
+
+    Each beacon then crosses Zenoh once per process instead of once per agent; every agent still
+    gets it in its own inbox, through its own bus's link filter, schema and guard checks, and
+    counted on its own bus.  The subscription lives on the first agent's session (its grants
+    allow every beacon, as every agent's do); the hosted agents stop together."""
+
+    def __init__(self, run: str) -> None:
+        self.key = keys.all_beacons(run)
+        self.boxes: list = []
+        self._lock = threading.Lock()
+
+    def __call__(self, bus: Bus):
+        from truav.bus.inbox import Inbox
+        box = Inbox(bus)
+        with self._lock:
+            first = not self.boxes
+            self.boxes = [*self.boxes, box]  # copied: arrivals iterate without the lock
+        if first:
+            bus.feed(self, self.key)
+        return box
+
+    def on_sample(self, sample) -> None:  # zenoh's callback thread: an append per hosted agent
+        for box in self.boxes:
+            box.on_sample(sample)
+
+
 ID_PLACEHOLDER = "{id}"
 """In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
 
@@ -322,6 +350,7 @@ def cmd_agent(args) -> int:
     stops: list = []
     failed: list[BaseException] = []
     started = threading.Barrier(len(ids) + 1) if len(ids) > 1 else None
+    shared = SharedBeacons(args.run) if args.share_beacons and len(ids) > 1 else None
 
     def host(uav: int) -> None:
         opts = AgentOptions(run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
@@ -331,7 +360,7 @@ def cmd_agent(args) -> int:
                             accept_replay=args.accept_replay, scheme=args.scheme, command_hold_s=args.command_hold,
                             beacon_every=args.beacon_every, beacon_cell_m=args.beacon_cell)
         with Bus(keys.uav_identity(uav), args.run, configs[uav]) as bus:
-            node = make_agent_node(cfg, opts, bus)
+            node = make_agent_node(cfg, opts, bus, beacon_inbox=shared)
             reasons = StopReasons(node.stop)
             if args.router_timeout is not None:
                 def router_lost(seconds: float, reasons=reasons) -> None:
@@ -566,7 +595,7 @@ def _swarm_options(args):
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
-                        agents_per_process=args.agents_per_process)
+                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons)
     return cfg, opts
 
 
@@ -707,6 +736,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                          "cells within range of it, and decides as with all beacons (agents/beacon_cells.py)")
     up.add_argument("--agents-per-process", type=positive_int, default=1, metavar="K",
                     help="host K agents per OS process, each with its own session, identity and files (default 1)")
+    up.add_argument("--share-beacons", action="store_true",
+                    help="with --agents-per-process K > 1: each agent process subscribes to beacons once for its K "
+                         "agents (each still checks, filters and counts its own)")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
@@ -795,6 +827,9 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--beacon-cell", type=positive_float, metavar="M",
                     help="real time: range-limited beacons under map cells of M metres; hear only cells within range "
                          "(agents/beacon_cells.py; default: all-to-all)")
+    ag.add_argument("--share-beacons", action="store_true",
+                    help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
+                         "once per process, not once per agent); each agent still checks and counts its own")
     ag.add_argument("--lockstep", action="store_true")
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")

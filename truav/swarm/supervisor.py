@@ -126,6 +126,8 @@ class SwarmOptions:
     agents_per_process: int = 1
     """Agents hosted by one OS process, each with its own session, identity and files (fewer processes:
     less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
+    share_beacons: bool = False
+    """With agents_per_process > 1: one beacon subscription per process, fanned out to its agents' inboxes."""
 
 
 def agent_groups(n: int, per_process: int) -> list[list[int]]:
@@ -322,6 +324,7 @@ class _Swarm:
                 extra += ["--command-hold", str(opts.command_hold_s)] if self.central else []
                 extra += ["--beacon-every", str(opts.beacon_every)] if opts.beacon_every != 1 else []
                 extra += ["--beacon-cell", repr(opts.beacon_cell_m)] if opts.beacon_cell_m is not None else []
+                extra += ["--share-beacons"] if opts.share_beacons and len(ids) > 1 else []
                 self.children.start(group_name(ids), _python_module(
                     "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
                     *faults_args, "--rate", str(opts.rate_hz), *extra))
