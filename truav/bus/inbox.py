@@ -61,6 +61,7 @@ class Inbox:
         self._seq = itertools.count()
         self._cond = threading.Condition(threading.Lock())
         self._waiting = False
+        self._want = 1  # a waiter is woken once this many messages are ready (Inbox.wait's min_ready)
 
     # -- arrival: zenoh-python's callback thread, kept to a clock read and an append --
     def on_sample(self, sample: zenoh.Sample) -> None:
@@ -69,7 +70,8 @@ class Inbox:
             self._push((recv_ns, sample))
         else:
             self._filtered_arrival(sample, recv_ns)
-        if self._waiting:  # read after the append: a waiter that set it already sees the entry or gets woken
+        # Read after the append: a waiter that set them already sees the entry or gets woken.
+        if self._waiting and len(self._ready) >= self._want:
             with self._cond:
                 self._cond.notify_all()
 
@@ -188,12 +190,17 @@ class Inbox:
             out.sort(key=lambda r: r.recv_ns)
         return out
 
-    def wait(self, timeout: float) -> bool:
-        """Block until a message may be ready to drain, at most ``timeout`` seconds; True if one may be."""
+    def wait(self, timeout: float, min_ready: int = 1) -> bool:
+        """Block until a message may be ready to drain, at most ``timeout`` seconds; True if one may be.
+
+        ``min_ready``: sleep through arrivals until this many messages are ready (a lock-step agent
+        missing k beacons needs at least k more; waking for each of a 100-agent swarm's beacons
+        cost more than the beacons themselves)."""
         with self._cond:
+            self._want = max(1, min_ready)
             self._waiting = True  # set before looking, so an arrival after the look notifies
             try:
-                if self._ready:
+                if len(self._ready) >= self._want:
                     return True
                 if self._delayed:
                     timeout = min(timeout, max(0.0, (self._delayed[0][0] - time.monotonic_ns()) / 1e9))
@@ -202,6 +209,7 @@ class Inbox:
                 return bool(self._ready) or bool(self._delayed and self._delayed[0][0] <= time.monotonic_ns())
             finally:
                 self._waiting = False
+                self._want = 1
 
     def __len__(self) -> int:
         """Messages waiting (delayed ones included), before validation."""
