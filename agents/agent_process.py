@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.beacon_cells import BeaconCells, subscription_radius_m
+from agents.beacon_cells import BeaconCells, CellFollower, subscription_radius_m
 from agents.beacon_schedule import BeaconSchedule, sends_beacon
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
@@ -175,6 +175,7 @@ class AgentNode:
         self._cells = None if opts.beacon_cell_m is None else BeaconCells(
             opts.beacon_cell_m, cfg.scenario.area_m, subscription_radius_m(cfg, opts.beacon_every,
                                                                            opts.beacon_max_age_ticks))
+        self._follower = None if self._cells is None else CellFollower(self._cells)
         self._cell_subs: dict = {}  # range-limited beacons: map cell -> its subscription handle
         self._own_pos = (0.0, 0.0)
         self._warm_up()
@@ -320,12 +321,11 @@ class AgentNode:
     def _follow_cells(self, pos: tuple[float, float]) -> None:
         """Range-limited beacons: subscribe to the cells now within range of ``pos``, drop the others."""
         self._own_pos = pos
-        want = self._cells.within(*pos)
-        for cell in [c for c in self._cell_subs if c not in want]:
+        add, drop = self._follower.move(*pos)
+        for cell in drop:
             self._cell_subs.pop(cell).close()
-        for cell in want:
-            if cell not in self._cell_subs:
-                self._cell_subs[cell] = self.bus.feed(self._beacon_inbox, keys.beacons_in_cell(self.opts.run, cell))
+        for cell in add:
+            self._cell_subs[cell] = self.bus.feed(self._beacon_inbox, keys.beacons_in_cell(self.opts.run, cell))
 
     def _send_beacon(self, obs: schema.Obs) -> None:
         o = self.opts

@@ -73,9 +73,9 @@ class BeaconCells:
         top = self.per_axis - 1
         return (min(max(int(x // self.cell_m), 0), top), min(max(int(y // self.cell_m), 0), top))
 
-    def within(self, x: float, y: float) -> frozenset[tuple[int, int]]:
-        """Every cell with a point within ``radius_m`` of (x, y) (closest-point test per cell)."""
-        r, c, n = self.radius_m, self.cell_m, self.per_axis
+    def within(self, x: float, y: float, extra_m: float = 0.0) -> frozenset[tuple[int, int]]:
+        """Every cell with a point within ``radius_m + extra_m`` of (x, y) (closest-point test per cell)."""
+        r, c, n = self.radius_m + extra_m, self.cell_m, self.per_axis
         lo_x, hi_x = self.cell_of(x - r, y)[0], self.cell_of(x + r, y)[0]
         lo_y, hi_y = self.cell_of(x, y - r)[1], self.cell_of(x, y + r)[1]
         out = set()
@@ -93,3 +93,29 @@ class BeaconCells:
     def in_range(self, own: tuple[float, float], other: tuple[float, float]) -> bool:
         """Whether a beacon from ``other`` is within the subscription radius of ``own`` (else dropped)."""
         return (own[0] - other[0]) ** 2 + (own[1] - other[1]) ** 2 <= self.radius_m ** 2
+
+
+class CellFollower:
+    """Which cells a moving receiver subscribes to: always every cell within the radius, changed rarely.
+
+    On a change it takes every cell within the radius plus one cell's width around its position
+    (the anchor), so it needs nothing new until it is a cell's width from the anchor, and drops
+    only cells beyond the radius plus two.  A 2.4 km disc moving 15 m per tick would otherwise
+    change a subscription every fourth tick, and each change is announced to the sessions
+    publishing there; this way it changes about every 33 ticks (500 m cells)."""
+
+    def __init__(self, cells: BeaconCells) -> None:
+        self.cells = cells
+        self.held: frozenset = frozenset()
+        self._anchor: tuple[float, float] | None = None
+
+    def move(self, x: float, y: float) -> tuple[frozenset, frozenset]:
+        """(cells to subscribe to, cells to drop) now that the receiver is at (x, y)."""
+        c = self.cells.cell_m
+        if self._anchor is not None and (x - self._anchor[0]) ** 2 + (y - self._anchor[1]) ** 2 <= c * c:
+            return frozenset(), frozenset()  # within(x, y) lies inside within(anchor, + one cell): held
+        self._anchor = (x, y)
+        add = self.cells.within(x, y, c) - self.held
+        drop = self.held - self.cells.within(x, y, 2 * c)
+        self.held = (self.held | add) - drop
+        return add, drop

@@ -28,6 +28,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import threading
@@ -142,7 +143,7 @@ def realtime_only(variant: str) -> bool:
     return any(p == "hz1" or p.startswith("cells") for p in variant.split("+"))
 
 
-def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, wall: float) -> dict:
+def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, started_wall_s: float) -> dict:
     """Rates over the ticking window (tick 0 to the last tick): ticks/s, messages/s, CPU and memory."""
     t0, t1 = world.get("first_tick_wall_s"), world.get("last_tick_wall_s")
     ticking = (t1 - t0) if t0 and t1 else float("nan")
@@ -159,7 +160,7 @@ def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, wa
     total = sum(rates.values())
     msgs = received / ticking if ticking > 0 else float("nan")
     ticks_per_s = world["ticks"] / ticking if ticking > 0 else float("nan")
-    return {"ticking_s": ticking, "startup_s": (t0 - (time.time() - wall)) if t0 else float("nan"),
+    return {"ticking_s": ticking, "startup_s": (t0 - started_wall_s) if t0 else float("nan"),
             "ticks_per_s": ticks_per_s, "msgs_per_s": msgs, "msgs_received": received,
             "agent_processes": len(agent_names),
             "cpu_pct_per_agent": 100 * agent_cpu / agents if rates else float("nan"),
@@ -171,14 +172,14 @@ def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, wa
 
 
 def run_once(agents: int, rate: float, ticks: int, secure: bool = False, lockstep: bool = False,
-             variant: str = "base") -> dict:
+             variant: str = "base", keep: bool = True) -> dict:
     """One swarm run; prints its figures and returns the headline ones."""
     cfg = Config().replace(scenario={"n_uavs": agents, "steps_per_episode": ticks})
     out = Path(tempfile.mkdtemp(prefix="truav-bench-swarm-"))
     load0 = os.getloadavg()
     sampler = ProcSampler(out / "pids.json")
     sampler.start()
-    t0, cpu0 = time.perf_counter(), _cpu_s()
+    t0, cpu0, started = time.perf_counter(), _cpu_s(), time.time()
     try:
         code = run_swarm(cfg, SwarmOptions(run="bench", episodes=1, rate_hz=rate, out=str(out), plot=False,
                                            quiet=True, wait_agents_s=300.0, secure=secure, lockstep=lockstep,
@@ -225,7 +226,7 @@ def run_once(agents: int, rate: float, ticks: int, secure: bool = False, lockste
                       last_receiver_p50=float(np.percentile(last, 50)), last_receiver_p99=float(np.percentile(last, 99)))
     n_act = agents * ticks
     print(f"missed actions: {world['deadline_misses']} of {n_act} ({100 * world['deadline_misses'] / n_act:.2f}%)")
-    result.update(window_figures(out, world, agents, sampler, wall))
+    result.update(window_figures(out, world, agents, sampler, started))
     result["realtime_factor"] = result["ticks_per_s"] / rate
     result.update(agents=agents, mode="lockstep" if lockstep else "realtime", variant=variant, rate_hz=rate,
                   ticks=world["ticks"], exit_code=code, wall_s=wall, load_before=load0[0], load_after=load1[0],
@@ -237,7 +238,10 @@ def run_once(agents: int, rate: float, ticks: int, secure: bool = False, lockste
           f"{result['cpu_cores_total']:.2f} cores, {result['cpu_us_per_msg']:.0f} us CPU per delivered message")
     print(f"control plane: {cp['bytes_per_beacon']:.0f} B/beacon, {cp['beacons_per_s_per_uav']:.1f} beacons/s/UAV, "
           f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s total")
-    print(f"(details in {out})")
+    if keep:
+        print(f"(details in {out})")
+    else:  # a sweep's runs hold ~2 MB of checkpoints per agent: the figures are in its JSON
+        shutil.rmtree(out, ignore_errors=True)
     return result
 
 
@@ -274,7 +278,8 @@ def sweep(args) -> None:
                         print(f"skip {n} agents {mode} {variant}: ~{need:.0f} MB needed, {avail:.0f} MB available")
                         continue
                     ticks = args.lockstep_ticks if mode == "lockstep" and args.lockstep_ticks else args.ticks
-                    r = run_once(n, args.rate, ticks, lockstep=mode == "lockstep", variant=variant)
+                    r = run_once(n, args.rate, ticks, lockstep=mode == "lockstep", variant=variant,
+                                 keep=args.keep_runs)
                     rows.append(r)
                     rows_path.write_text(json.dumps(rows, indent=1))
                     write_csv(out / "sweep.csv", rows)
@@ -387,6 +392,7 @@ def main() -> None:
                                                        "(base, hz1, cells[M], k<K>, shared)")
     ap.add_argument("--sweep-out", default="runs/bench-swarm", help="with --sweep: where sweep.csv/json/png go")
     ap.add_argument("--lockstep-ticks", type=int, help="with --sweep: ticks of the lock-step runs (default --ticks)")
+    ap.add_argument("--keep-runs", action="store_true", help="with --sweep: keep each run's directory (logs, checkpoints)")
     ap.add_argument("--append", action="store_true", help="with --sweep: add to the runs already in sweep.json")
     args = ap.parse_args()
     if args.sweep:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.beacon_cells import BeaconCells, feature_range_m, subscription_radius_m
+from agents.beacon_cells import BeaconCells, CellFollower, feature_range_m, subscription_radius_m
 from agents.beacon_schedule import sends_beacon
 from agents.state import StateEncoder, neighbour_features
 from truav.bus import keys, schema, transport
@@ -46,6 +46,23 @@ def test_cells_cover_every_point_within_the_radius_and_nothing_far():
     assert len(cells.within(2500.0, 2500.0)) < cells.per_axis ** 2  # it does leave cells out
 
 
+def test_a_moving_receiver_always_holds_the_cells_within_range_and_seldom_changes_them():
+    cells = BeaconCells(cell_m=500.0, area_m=5000.0, radius_m=2360.0)
+    follower, rng = CellFollower(cells), np.random.default_rng(3)
+    pos, vel, changes = np.array([900.0, 4100.0]), np.array([15.0, -9.0]), 0
+    for tick in range(3000):
+        if tick % 500 == 0:  # an episode's random redeployment
+            pos = rng.uniform(0, 5000, 2)
+        pos = np.clip(pos + vel, 0, 5000)
+        vel[(pos <= 0) | (pos >= 5000)] *= -1
+        held = follower.held
+        add, drop = follower.move(*pos)
+        assert follower.held == (held | add) - drop and not add & drop
+        assert cells.within(*pos) <= follower.held
+        changes += bool(add or drop)
+    assert changes < 3000 / 20  # about once per cell's width of flight, not every few ticks
+
+
 def test_range_limited_beacons_give_every_agent_the_state_and_overlap_of_all_beacons():
     """Beacons within the subscription radius give bit-identical state indices and overlap terms."""
     cfg = Config()
@@ -55,12 +72,13 @@ def test_range_limited_beacons_give_every_agent_the_state_and_overlap_of_all_bea
     cells = BeaconCells(500.0, cfg.scenario.area_m, radius)
     rng = np.random.default_rng(11)
     differ = 0
-    for n in (2, 5, 20, 100):
-        for _ in range(20):
+    for n, swarms in ((2, 20), (5, 20), (20, 20), (100, 5)):
+        for _ in range(swarms):
             pos = rng.uniform(0, cfg.scenario.area_m, size=(n, 2))
             for i in range(n):
                 others = [j for j in range(n) if j != i]
-                heard = [j for j in others if cells.cell_of(*pos[j]) in cells.within(*pos[i])
+                near = cells.within(*pos[i])
+                heard = [j for j in others if cells.cell_of(*pos[j]) in near
                          and cells.in_range(tuple(pos[i]), tuple(pos[j]))]
                 differ += len(heard) != len(others)
                 states, overlaps = [], []
