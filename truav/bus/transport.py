@@ -912,6 +912,8 @@ def router_size_filters() -> list[dict]:
     for parts, kind in _KIND_BY_KEY.items():
         if parts[0] == "uav":
             expr = f"{keys.ROOT}/*/uav/*/{parts[1]}"
+            if parts[1] == keys.BEACON:  # range-limited beacons, under their map cell
+                by_limit.setdefault(schema.size_limit(kind), []).append(f"{expr}/*")
         elif len(parts) == 2:
             expr = f"{keys.ROOT}/*/{parts[0]}/{parts[1]}"
         else:
