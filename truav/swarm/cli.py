@@ -581,6 +581,9 @@ def _swarm_options(args):
     if args.lockstep and (args.beacon_hz is not None or args.beacon_cell is not None):
         raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: lock-step waits for "
                          f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
+    if args.share_beacons and args.agents_per_process == 1:
+        raise UsageError("--share-beacons: shares one beacon subscription among the agents of a process; "
+                         "give --agents-per-process K > 1 too")
     if args.agents_per_process > 1 and args.fault_plan is not None:
         kinds = {f.kind for f in load_plan_for(args.fault_plan).faults} & {"crash", "freeze"}
         if kinds:
