@@ -175,6 +175,9 @@ class AgentNode:
         self._cells = None if opts.beacon_cell_m is None else BeaconCells(
             opts.beacon_cell_m, cfg.scenario.area_m, subscription_radius_m(cfg, opts.beacon_every,
                                                                            opts.beacon_max_age_ticks))
+        if self._cells is not None and self._cells.radius_m == float("inf"):
+            raise ValueError("beacon_cell_m: the state holds the nearest neighbour's direction at any distance "
+                             "(learner.neighbour_sectors); range-limited beacons would change it")
         self._follower = None if self._cells is None else CellFollower(self._cells)
         self._cell_subs: dict = {}  # range-limited beacons: map cell -> its subscription handle
         self._own_pos = (0.0, 0.0)

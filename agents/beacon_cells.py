@@ -40,7 +40,11 @@ from truav.config import Config
 
 
 def feature_range_m(cfg: Config) -> float:
-    """The distance at and beyond which a neighbour's beacon cannot change a TRUAV state or reward."""
+    """The distance at and beyond which a neighbour's beacon cannot change a TRUAV state or reward;
+    infinite when the state holds the nearest neighbour's direction (learner.neighbour_sectors),
+    which a neighbour at any distance sets."""
+    if cfg.learner.neighbour_sectors > 0:
+        return math.inf
     return max(max(cfg.learner.neighbour_edges_m, default=0.0), 2.0 * cfg.scenario.comm_range_m)
 
 

@@ -139,6 +139,7 @@ def test_a_cell_beacon_reaches_only_subscribers_of_its_cell(bus_factory):
     (["agent", "--id", "0", "--id", "1", "--checkpoint", "x.npz"], "--checkpoint x.npz: with several --id, put {id}"),
     (["agent", "--id", "1", "--id", "1"], "--id: UAV id(s) [1] given twice"),
     (["up", "--share-beacons"], "--share-beacons: shares one beacon subscription"),
+    (["up", "--beacon-cell", "500", "--set", "learner.neighbour_sectors=8"], "--beacon-cell 500: learner.neighbour_sectors"),
     (["agent", "--id", "0", "--lockstep", "--beacon-every", "10"], "--beacon-every: lock-step waits"),
 ])
 def test_scale_option_mistakes_are_one_line_usage_errors(argv, fragment, tmp_path):

@@ -100,6 +100,14 @@ def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, ful
         raise UsageError(f"--qtable-index {index}: {run} holds {n_seeds} table(s) (indices 0-{n_seeds - 1})")
 
 
+def check_beacon_cell(cell_m: float | None, cfg: Config) -> None:
+    """--beacon-cell only where a far neighbour cannot change the state (agents/beacon_cells.py)."""
+    if cell_m is not None and cfg.learner.neighbour_sectors > 0:
+        raise UsageError(f"--beacon-cell {cell_m:g}: learner.neighbour_sectors = {cfg.learner.neighbour_sectors} puts "
+                         f"the nearest neighbour's direction in the state, at any distance; range-limited beacons "
+                         f"would change it")
+
+
 def check_scheme_flags(args) -> None:
     """Flags that belong to one scheme only, given with another (one line, before anything starts)."""
     scheme = args.scheme
@@ -319,6 +327,7 @@ def cmd_agent(args) -> int:
         for flag, value in (("--checkpoint", args.checkpoint), ("--stats-out", args.stats_out)):
             if value and ID_PLACEHOLDER not in value:
                 raise UsageError(f"{flag} {value}: with several --id, put {ID_PLACEHOLDER} in it (one file per UAV)")
+    check_beacon_cell(args.beacon_cell, cfg)
     if args.lockstep and (args.beacon_every != 1 or args.beacon_cell is not None):
         raise UsageError(f"{'--beacon-every' if args.beacon_every != 1 else '--beacon-cell'}: lock-step waits for "
                          f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
@@ -575,6 +584,7 @@ def _swarm_options(args):
             raise UsageError(f"--beacon-hz {args.beacon_hz:g}: must divide --rate {args.rate:g} into a whole number "
                              f"of ticks (e.g. 1 at 10 Hz: every 10th tick)")
         beacon_every = int(round(ticks))
+    check_beacon_cell(args.beacon_cell, cfg)
     if args.scheme != "truav" and (args.beacon_hz is not None or args.beacon_cell is not None):
         raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: only --scheme truav "
                          f"sends a beacon every tick (this is --scheme {args.scheme})")
