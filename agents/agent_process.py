@@ -152,6 +152,8 @@ class AgentNode:
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         self.n_uavs = cfg.scenario.n_uavs
         self.steps = 0
+        self.stale_obs_skipped = 0
+        """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
         self.learners = self._make_learners()
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
@@ -282,10 +284,29 @@ class AgentNode:
             threading.Thread(target=self._beacon_loop, name="beacons", daemon=True).start()
         while not self._stop.is_set():
             msg = self._obs.get()
+            if msg is not None and not self.opts.lockstep:
+                msg = self._newest_obs(msg)
             if msg is None:
                 break
             self.handle(msg)
         self.checkpoint()
+
+    def _newest_obs(self, msg: schema.Obs) -> schema.Obs | None:
+        """Real time: the world applies only the current tick's action, so an agent that fell behind
+        (a slow spell, a flood) answers the newest observation and skips the older ones, counted,
+        instead of answering each after its deadline and staying behind. None: stop."""
+        while True:
+            try:
+                nxt = self._obs.get_nowait()
+            except queue.Empty:
+                return msg
+            if nxt is None:
+                return None
+            if self.stale_obs_skipped == 0:
+                log.info("uav %d: behind the world, answering tick %d and skipping tick %d (stale observations "
+                         "are skipped from now on, counted in the stats)", self.opts.uav, nxt.tick, msg.tick)
+            self.stale_obs_skipped += 1
+            msg = nxt
 
     def handle(self, obs: schema.Obs) -> None:
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
@@ -453,7 +474,8 @@ class AgentNode:
                 samples = [round(x, 3) for x in self._latency_ms]
                 senders = list(self._latency_from)
             st = self.bus.stats()
-            data = {"uav": self.opts.uav, "steps": self.steps, "beacon_latency_ms": self.latency_stats(),
+            data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
+                    "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
