@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import signal
 import socket
+import subprocess
+from pathlib import Path
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -17,6 +20,25 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def run_to_end(cmd: list[str], log_path: Path, timeout_s: float, *, env: dict | None = None,
+               term_wait_s: float = 30.0) -> int:
+    """Run a `truav-swarm` command to its end, output in ``log_path``; its exit code. If it outlives
+    ``timeout_s`` (the wait raises) it gets SIGTERM (the supervisor stops every process it started),
+    then SIGKILL after ``term_wait_s``."""
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+    try:
+        return proc.wait(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=term_wait_s)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=10)
 
 
 @pytest.fixture(scope="module")

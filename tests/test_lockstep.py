@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from conftest import run_to_end
 from agents.agent_process import DELAY_ENV
 from truav.config import Config, to_toml
 from truav.trainer import run_chunk
@@ -43,18 +42,7 @@ def run_swarm(tmp: Path, name: str, delay: str = "", cfg: Config = CFG) -> Path:
     env = {**os.environ, DELAY_ENV: delay}
     cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(cfg.learner.episodes), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot"]
-    with open(tmp / f"{name}.log", "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
-    try:
-        rc = proc.wait(timeout=SWARM_TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)  # the supervisor stops every process it started
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=env, term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
     return out
 

@@ -9,7 +9,6 @@ process that starts and reaps its own children, stopped by the test only if it o
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import run_to_end
 from agents.beacon_cells import BeaconCells, CellFollower, feature_range_m, subscription_radius_m
 from agents.beacon_schedule import sends_beacon
 from agents.state import StateEncoder, neighbour_features
@@ -159,18 +159,7 @@ def _up(tmp: Path, name: str, cfg: Config, *args: str) -> Path:
     out = tmp / name
     cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
            "--out", str(out), "--quiet", "--no-plot", *args]
-    with open(tmp / f"{name}.log", "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
-    try:
-        rc = proc.wait(timeout=SWARM_TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)  # the supervisor stops every process it started
-            try:
-                proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, term_wait_s=60)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
     return out
 

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import run_to_end
 from truav.config import Config, to_toml
 from truav.driver import run_episodes
 from world.world_process import action_digest
@@ -65,18 +64,7 @@ def up(tmp: Path, name: str, *extra: str) -> Path:
     out = tmp / name
     cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
-    with open(tmp / f"{name}.log", "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ))
-    try:
-        rc = proc.wait(timeout=SWARM_TIMEOUT_S)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)  # the supervisor stops every process it started
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=dict(os.environ), term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
     return out
 
