@@ -345,7 +345,9 @@ def plot(rows: list[dict], path: Path) -> Path:
               ("realtime_factor", "ticks/s over 10 Hz (x real time)", False), ("cpu_cores_total", "CPU, all processes (cores)", False)]
     fig, axes = plt.subplots(2, 4, figsize=(18, 8))
     series = sorted({(r["mode"], r["variant"]) for r in rows})
-    colors = {v: f"C{i}" for i, v in enumerate(sorted({r["variant"] for r in rows}))}
+    variants = sorted({r["variant"] for r in rows})
+    palette = plt.get_cmap("tab10" if len(variants) <= 10 else "tab20").colors  # one colour per variant
+    colors = {v: palette[i % len(palette)] for i, v in enumerate(variants)}
     for ax, (key, title, rt_only) in zip(axes.flat, panels):
         for mode, variant in series:
             if rt_only and mode != "realtime":
@@ -369,11 +371,12 @@ def plot(rows: list[dict], path: Path) -> Path:
             ax.set_yscale("log")
         if key == "realtime_factor":
             ax.axhline(1.0, color="k", lw=0.8)
-    axes.flat[3].legend(fontsize=7)
+    handles, labels = axes.flat[3].get_legend_handles_labels()  # every series shows in that panel
+    fig.legend(handles, labels, loc="lower center", ncol=min(5, len(labels)), fontsize=8, frameon=False)
     loads = [r["load_before"] for r in rows]
     fig.suptitle(f"bench_swarm sweep: {len(rows)} runs on {os.cpu_count()} cores (load average {min(loads):.1f}-"
                  f"{max(loads):.1f}; lines: median, dots: each run)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.04 * ((len(labels) + 4) // 5), 1, 1))
     fig.savefig(path, dpi=90)
     return path
 
