@@ -1,19 +1,13 @@
 """Greedy collapse under persist: train (keeping the world), then compare
 evaluation variants on held-out traffic. Usage: diag2.py SEEDS EPISODES TAG [overrides]"""
-import json, os, sys, time, numpy as np
-from truav.config import load_config
+import sys, time, numpy as np
+from collapse_args import diag_setup
 from truav import seeding
 from agents.controller import TruavController
 from world.env import World
 from world.uavs import ACTION_UNIT_VELOCITY, N_ACTIONS
 
-os.makedirs("runs/diag", exist_ok=True)
-seeds = list(range(int(sys.argv[1]))); episodes = int(sys.argv[2]); tag = sys.argv[3]
-extra = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
-ov = {"scenario": {"uav_start": "persist", "uav_speed_mps": 15.0}, "learner": {"episodes": episodes}}
-for k, v in extra.items():
-    ov.setdefault(k, {}).update(v)
-cfg = load_config(None, ov)
+cfg, seeds, episodes, tag = diag_setup(sys.argv)
 A, vdt = cfg.scenario.area_m, cfg.scenario.uav_speed_mps * cfg.scenario.step_s
 
 def feasible(pos):  # (B,U,2) -> (B,U,16): the full move stays inside the area

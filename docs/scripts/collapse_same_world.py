@@ -1,17 +1,11 @@
 """Train under persist, then continue the very same world (deep copies) under
 several policies: separates the policy's greedy collapse from traffic/start effects."""
-import copy, json, os, sys, time, numpy as np
-from truav.config import load_config
+import copy, sys, time, numpy as np
+from collapse_args import diag_setup
 from truav import seeding
 from agents.controller import TruavController
 from world.env import World
-os.makedirs("runs/diag", exist_ok=True)
-seeds = list(range(int(sys.argv[1]))); episodes = int(sys.argv[2]); tag = sys.argv[3]
-extra = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
-ov = {"scenario": {"uav_start": "persist", "uav_speed_mps": 15.0}, "learner": {"episodes": episodes}}
-for k, v in extra.items():
-    ov.setdefault(k, {}).update(v)
-cfg = load_config(None, ov)
+cfg, seeds, episodes, tag = diag_setup(sys.argv)
 def run(c, w, n, start_ep, eps=None, o=None):
     cov = []
     for ep in range(n):
