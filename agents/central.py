@@ -231,7 +231,7 @@ class CentralController:
             if self.train and self.env_steps < self.cfg.central.learning_starts:
                 self.action = self.sac.random_actions()
             else:
-                self.action = self.sac.act(self.state, greedy=not self.train)
+                self.action = self.sac.act(self.state, greedy=not (self.train or self.cfg.central.evaluate_sampled))
         return self.action
 
     def control(self, t: int) -> tuple[np.ndarray | None, np.ndarray | float]:

@@ -286,3 +286,24 @@ def test_central_geofence_flies_only_allowed_moves_and_stores_the_command(small_
     assert (flown != commanded).any()  # some commands were refused, and the replay keeps what was commanded
     allowed = [allowed_one(a, 0.0, 0.0, ctrl.fence) for a in commanded.ravel()]
     assert np.array_equal(flown.ravel()[allowed], commanded.ravel()[allowed])
+
+
+def test_central_evaluation_takes_the_mode_unless_asked_to_sample(small_cfg):
+    """A trained SAC evaluates on its actor's mode by default; central.evaluate_sampled
+    draws from pi instead, reproducibly (each seed's generator)."""
+    pytest.importorskip("torch")
+    from agents.central import CentralController
+    cfg = small_cfg.replace(central={"hidden": 8, "batch_size": 4, "learning_starts": 5, "buffer_size": 100})
+    params = CentralController(cfg, [0]).sac.state_dict()
+
+    def actions(c):
+        ctrl = CentralController(c, [0, 1], train=False, params=params)
+        world = World(c, 2)
+        ctrl.begin_episode(0, world.reset([seeding.world_rng(s) for s in (0, 1)]))
+        return np.stack([ctrl.act(t) for t in range(20)])  # the same state 20 times: no observe()
+
+    mode = actions(cfg)
+    assert (mode == mode[0]).all()  # the mode of one state is one action
+    sampled = actions(cfg.replace(central={"evaluate_sampled": True}))
+    assert not (sampled == sampled[0]).all()  # an untrained actor's pi is near uniform
+    np.testing.assert_array_equal(sampled, actions(cfg.replace(central={"evaluate_sampled": True})))

@@ -335,6 +335,13 @@ class CentralConfig:
     the literal preset's numbers; the `paper` preset turns it on (without it a
     persistent swarm under the SAC ends pinned to the borders: 2.8% coverage,
     docs/reproduction.md)."""
+    evaluate_sampled: bool = param(False)
+    """Evaluation (and a swarm run from a trained policy) samples each action
+    from the actor's distribution pi instead of taking its mode. False (the
+    default, as for TRUAV's greedy evaluation) keeps every number; True is the
+    protocol of a maximum-entropy learner's stochastic policy, whose training
+    coverage can exceed its mode's (docs/reproduction.md, "A fair centralized
+    baseline"). Draws come from each seed's SAC generator."""
     reward_scale: float = param(1.0, 1e-6, 1e6)
     """Factor on the reward the SAC learns from (stored in its replay); the
     reported reward is unscaled. SAC is sensitive to reward scale against its
