@@ -1,7 +1,7 @@
 """Training speed of the centralized SAC baseline (`truav train --scheme central`).
 
     python bench/bench_sac.py                        # this checkout: ~1 minute
-    python bench/bench_sac.py --compare /work/main   # and another checkout, in the same machine state
+    python bench/bench_sac.py --compare DIR          # and the checkout at DIR (e.g. main), in the same machine state
 
 Each run is a fresh process training 10 seeds of the paper preset on one
 thread for 80 episodes (the first 50 are the random-action warm-up of
