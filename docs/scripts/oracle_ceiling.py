@@ -1,6 +1,6 @@
 """Coverage ceilings of a scenario: what no trajectory planner can beat.
 
-    python docs/scripts/oracle_ceiling.py --preset paper [--seeds 5] [--episodes 20] [--speed 15]
+    python docs/scripts/oracle_ceiling.py --preset paper [--seeds 5] [--episodes 20] [--skip 0] [--speed 15]
 
 Runs the world's own vehicles (UAVs hovering: traffic does not depend on
 them) and, at every step, places the U discs of radius comm_range by a
@@ -17,6 +17,9 @@ greedy max-coverage over candidate centres (every vehicle and a 100 m grid):
   optimum: it shows how much of the teleport ceiling motion costs.
 
 Coverage is the world's: a vehicle within comm_range (horizontal) of any UAV.
+Traffic gathers at its clusters over the first episodes (and, under the
+paper preset, at each moved cluster's new site): --skip leaves out the first
+episodes, so the figure is the ceiling a trained swarm meets.
 """
 from __future__ import annotations
 
@@ -72,6 +75,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--speed", type=float, default=15.0)
+    ap.add_argument("--skip", type=int, default=0, help="episodes left out of the means (warm-up)")
     ap.add_argument("--json", help="write the per-seed figures here")
     a = ap.parse_args()
     over = preset_overrides(a.preset)
@@ -115,11 +119,12 @@ def main() -> None:
             out["teleport"][b, ep] = 100.0 * tele / (T * N)
             out["reachable"][b, ep] = 100.0 * reach / (T * N)
             out["fixed"][b, ep] = 100.0 * fixed / (T * N)
-    print(f"preset {a.preset}, {a.speed:g} m/s, {a.seeds} seeds x {a.episodes} episodes, "
+    print(f"preset {a.preset}, {a.speed:g} m/s, {a.seeds} seeds x {a.episodes} episodes "
+          f"(means over episodes {a.skip}-{a.episodes - 1}), "
           f"{U} discs of {r:g} m, {N} vehicles:")
     summary = {}
     for k, v in out.items():
-        per_seed = v.mean(axis=1)
+        per_seed = v[:, a.skip:].mean(axis=1)
         summary[k] = {"mean": float(per_seed.mean()), "sd": float(per_seed.std(ddof=1)) if a.seeds > 1 else 0.0,
                       "per_seed": per_seed.round(2).tolist()}
         print(f"  {k:9s} coverage {per_seed.mean():5.1f} % (sd over seeds {summary[k]['sd']:.1f}; "
@@ -127,6 +132,8 @@ def main() -> None:
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"preset": a.preset, "speed_mps": a.speed, "seeds": a.seeds, "episodes": a.episodes,
+                       "skip": a.skip,
+                       "per_episode_mean": {k: v.mean(axis=0).round(2).tolist() for k, v in out.items()},
                        **summary}, f, indent=1)
 
 
