@@ -34,6 +34,8 @@ class TruavController:
         self._steps = 0
         self.fused = True
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
+        self.draws_in_kernel = True
+        """run_episode's kernel makes the world's per-episode draws (in parallel over envs)."""
 
     def _features(self, obs: LocalObs):
         peers, heard = all_peers(obs.pos)

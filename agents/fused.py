@@ -10,8 +10,11 @@ world's `step.env_step`, each agent's neighbour features, state and reward
 (`state.neighbour_one`, `state.nearest_sector_one`, `state.encode_one`, `reward.reward_one`) and its Q
 update (`qlearning.q_update_one`). Environments share nothing, so running
 them on threads changes no number; tests/test_fused.py checks the two paths
-agree entry by entry. Randomness is drawn per episode in Python from the
-same generators, before the kernel runs.
+agree entry by entry. The world's per-episode draws after the UAV start
+(arrivals, turns, hotspot moves) are made inside the kernel, each env from
+its own generator's PCG64 state (World.start_episode(defer_draws=True)), so
+they run in parallel with the episodes; the agents' exploration draws are
+made in Python from the same generators, before the kernel runs.
 """
 
 from __future__ import annotations
@@ -25,7 +28,9 @@ from numba import njit, prange
 from agents.qlearning import act_one, q_update_one
 from agents.reward import reward_one
 from agents.state import encode_one, nearest_sector_one, neighbour_one
+from world.draws import pcg64_episode_draws
 from world.network import COVERED, DENSEST, IN_RANGE, QUEUED, RELAYED
+from world.roads import move_hotspots_env
 from world.step import env_step, pairwise_sum
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
@@ -39,9 +44,15 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 @njit(parallel=True, nogil=True, cache=True)
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
+                  draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, slots, total, arrivals,
                   up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
     """Run steps 0..T-1 of the current episode for every env b, in place.
+
+    draw: first make env b's deferred draws of the episode (World.deferred_draws:
+    rng_state .. hp) into turn_u and arrivals, and move its hotspots
+    (B, K, 2) and re-home its vehicles (cluster (B, N)), as
+    World.start_episode would have before step 0.
 
     q (B, U, S, 16); state (B, U) the agents' states at the episode start,
     left at the last step's; explore_u, random_a (T, B, U) exploration draws;
@@ -53,6 +64,10 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
     n_env, n_uav = state.shape
     n_steps = turn_u.shape[0]
     for b in prange(n_env):
+        if draw:
+            pcg64_episode_draws(rng_state[b], exp_neg_lam, arrivals[:, b], turn_u[:, b], moves[b])
+            if apply_moves and moves.shape[1] > 0:
+                move_hotspots_env(hotspots[b], moves[b], hp, home[b], cluster[b])
         actions = np.empty(n_uav, np.int64)
         rewards = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
@@ -122,6 +137,14 @@ def _world_args(world):
             world.relay, world.channel, world._out_uav, world._out_env, world._energy, world._above_hover, world._totals)
 
 
+def _draw_args(world, deferred):
+    """draw .. cluster of the kernels: the world's deferred draws, or none if start_episode made them."""
+    if deferred is None:
+        return (False, np.zeros((world.batch, 4), np.uint64), 1.0, np.zeros((world.batch, 0, 2)), False,
+                world.grid.hotspot_params(), world.hotspots, world.vehicles.cluster)
+    return (True, *deferred, world.hotspots, world.vehicles.cluster)
+
+
 def run_patrol_episode(world, controller) -> None:
     """The current episode (from step 0) under the PatrolController `controller`."""
     if world.t != 0:
@@ -146,10 +169,14 @@ def run_episode(world, controller) -> None:
         raise RuntimeError("the fused episode starts at step 0")
     cfg, lc, ln = world.cfg, controller.cfg.learner, controller.learners
     others = ~np.eye(world.n_uavs, dtype=np.bool_)
+    deferred = world.deferred_draws()
     truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), ln.fence,
                   bool(controller.train),
                   float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
-                  controller.encoder.params, controller.reward.params, *_world_args(world), controller._reward_sum)
+                  controller.encoder.params, controller.reward.params,
+                  *_draw_args(world, deferred), *_world_args(world), controller._reward_sum)
+    if deferred is not None:
+        world.end_deferred_draws()
     steps = world._draws.turn_u.shape[0]
     world.t = steps
     controller._steps = steps

@@ -52,6 +52,8 @@ class FusedEpisode(Protocol):
     (after begin_episode) instead of stepping act/observe."""
 
     fused: bool
+    draws_in_kernel: bool
+    """Optional: run_episode makes the world's deferred draws (World.start_episode(defer_draws=True))."""
 
     def run_episode(self, world: World) -> None:
         """Run steps 0..T-1 of the world's current episode."""
@@ -83,12 +85,13 @@ def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos
     control = getattr(controller, "control", None)  # see ControlPlane
     fused = getattr(controller, "run_episode", None) if control is None and getattr(controller, "fused", False) \
         else None  # see FusedEpisode
+    defer = fused is not None and getattr(controller, "draws_in_kernel", False)
     history: dict[str, list[np.ndarray]] = {}
     if fresh:
-        obs = world.reset([seeding.world_rng(s) for s in seeds], start_pos)
+        obs = world.reset([seeding.world_rng(s) for s in seeds], start_pos, defer_draws=defer)
     for episode in range(episodes):
         if episode or not fresh:
-            obs = world.start_episode()
+            obs = world.start_episode(defer_draws=defer)
         controller.begin_episode(episode, obs)
         if fused is not None:
             fused(world)

@@ -17,13 +17,14 @@ generated = delivered + dropped + queued at the end.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from truav.config import Config
 from world import network, uavs
-from world.draws import poisson_into, uniform_into
+from world.draws import POISSON_MULT_MAX_LAM, pcg64_state, poisson_into, set_pcg64_state, uniform_into
 from world.network import (COVERED, DENSEST, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
                            E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
@@ -137,14 +138,18 @@ class World:
         """How start_episode maps its per-env draws: a thread pool's map draws
         envs in parallel (each env has its own generator, so nothing changes)."""
         self._deployed: np.ndarray | None = None
+        self._rng_state: np.ndarray | None = None
+        """(B, 4) uint64 PCG64 states while an episode's draws are deferred (start_episode)."""
 
     # -- episode control ------------------------------------------------------
-    def reset(self, rngs: list[np.random.Generator], uav_pos: np.ndarray | None = None) -> LocalObs:
+    def reset(self, rngs: list[np.random.Generator], uav_pos: np.ndarray | None = None,
+              defer_draws: bool = False) -> LocalObs:
         """Spawn traffic from each env's generator, warm it up, start episode 0.
 
         uav_pos (B, U, 2): with scenario.uav_start = "persist", a swarm already
         deployed there (e.g. where training left it) instead of a random first
-        deployment; the random draw is made anyway, so the streams do not change."""
+        deployment; the random draw is made anyway, so the streams do not change.
+        defer_draws: see start_episode."""
         if len(rngs) != self.batch:
             raise ValueError(f"need {self.batch} generators, got {len(rngs)}")
         if uav_pos is not None and np.shape(uav_pos) != (self.batch, self.n_uavs, 2):
@@ -160,13 +165,23 @@ class World:
         self.episode = -1
         self.hotspots = np.repeat(self.grid.majors[None], self.batch, axis=0)
         """(B, K, 2) grid indices of each env's traffic-cluster sites."""
-        return self.start_episode()
+        return self.start_episode(defer_draws)
 
-    def start_episode(self) -> LocalObs:
-        """Re-place the UAVs, empty the queues and draw this episode's randomness."""
+    def start_episode(self, defer_draws: bool = False) -> LocalObs:
+        """Re-place the UAVs, empty the queues and draw this episode's randomness.
+
+        defer_draws: leave the draws after the UAV start (arrivals, turns,
+        hotspot moves) to a kernel that makes them itself from each env's
+        PCG64 state (`deferred_draws`, then `end_deferred_draws`), so they
+        run in parallel with the episode; done here anyway where that kernel
+        could not draw the same numbers (see `deferred_draws`)."""
         sc, T, N, U = self.cfg.scenario, self.cfg.scenario.steps_per_episode, self.n_vehicles, self.n_uavs
         lam = self.cfg.traffic.packet_rate_hz * sc.step_s
         first = self.episode < 0
+        if self._rng_state is not None:
+            raise RuntimeError("the last episode's deferred draws were never made (end_deferred_draws)")
+        defer = defer_draws and lam < POISSON_MULT_MAX_LAM and all(
+            rng.bit_generator.state.get("bit_generator") == "PCG64" for rng in self.rngs)
 
         def draw(b: int):
             rng = self.rngs[b]
@@ -180,6 +195,8 @@ class World:
                 start = self.uav_pos[b].copy()
             else:
                 start = np.full((U, 2), sc.area_m / 2.0)
+            if defer:
+                return start
             poisson_into(rng, lam, arrivals[:, b])  # = rng.poisson(lam, (T, N)), in place
             uniform_into(rng, turns[:, b])  # = rng.random((T, N, 2))
             if self.cfg.roads.hotspot_move_prob > 0.0:  # drawn only then: fixed-hotspot streams unchanged
@@ -194,7 +211,12 @@ class World:
             self._draws = _EpisodeDraws(np.empty((T, self.batch, N), np.int64), np.empty((T, self.batch, N, 2)),
                                         np.empty((self.batch, U, 2)))
         arrivals, turns = self._draws.arrivals, self._draws.turn_u
-        starts = list(self.draw_map(draw, range(self.batch)))
+        starts = list((map if defer else self.draw_map)(draw, range(self.batch)))
+        if defer:  # each env's stream after its UAV start, for the kernel
+            self._rng_state = np.stack([pcg64_state(rng) for rng in self.rngs])
+            self._moves = np.empty((self.batch, len(self.grid.majors) if self.cfg.roads.hotspot_move_prob > 0.0
+                                    else 0, 2))
+            self._exp_neg_lam = math.exp(-lam)  # numpy's C exp(), i.e. the C library's
         self._draws.uav_start = np.stack(starts)
         self.uav_pos = self._draws.uav_start.copy()
         self._velocity = np.zeros((self.batch, U, 2))
@@ -204,6 +226,27 @@ class World:
         self.episode += 1
         self._run_relay(self._no_arrivals, serve_packets=False)
         return self._observe(np.zeros((self.batch, U)))
+
+    def deferred_draws(self):
+        """What a kernel needs to make the draws start_episode(defer_draws=True)
+        deferred, or None if it made them itself: (rng_state (B, 4) uint64, the
+        envs' PCG64 states; exp(-lam) of the Poisson arrivals; moves (B, K, 2)
+        scratch for the hotspot moves' uniforms, K = 0 when hotspots are fixed;
+        whether to apply the moves (not in the first episode); the
+        roads.HotspotParams). A kernel draws env b as draws.pcg64_episode_draws
+        on rng_state[b], then applies roads.move_hotspots_env with
+        self.hotspots[b]. Deferral needs the multiplication method of numpy's
+        Poisson (lam < 10) and PCG64 generators."""
+        if self._rng_state is None:
+            return None
+        return (self._rng_state, self._exp_neg_lam, self._moves, self.episode > 0, self.grid.hotspot_params())
+
+    def end_deferred_draws(self) -> None:
+        """The kernel made the deferred draws: its advanced states go back
+        into the envs' generators."""
+        for rng, words in zip(self.rngs, self._rng_state):
+            set_pcg64_state(rng, words)
+        self._rng_state = None
 
     # -- one step -----------------------------------------------------------
     def step(self, actions: np.ndarray, control_airtime_s: np.ndarray | None = None,
@@ -219,6 +262,8 @@ class World:
         cfg, sc, t = self.cfg, self.cfg.scenario, self.t
         if self._draws is None or t >= sc.steps_per_episode:
             raise RuntimeError("call reset() or start_episode() first")
+        if self._rng_state is not None:
+            raise RuntimeError("this episode's draws were deferred to a kernel (start_episode(defer_draws=True))")
         actions = np.asarray(actions)
         if actions.shape != (self.batch, self.n_uavs):
             raise ValueError(f"actions must be shaped {(self.batch, self.n_uavs)}, got {actions.shape}")

@@ -308,6 +308,42 @@ def choose_turns(heading, road, s, home, u, p):
     return out
 
 
+class HotspotParams(NamedTuple):
+    move_prob: float  # roads.hotspot_move_prob
+    steps: np.ndarray  # (4, 2) int64: the four moves of roads.hotspot_step_blocks
+    lo: np.ndarray  # (2,) int64: the box spanned by the major intersections
+    hi: np.ndarray
+    n_roads: int
+
+
+@njit(cache=True)
+def move_hotspots_env(site, u, p, home, cluster):
+    """Move one env's traffic hotspots in place and re-home its vehicles.
+
+    site (K, 2) grid indices of the K cluster sites (updated); u (K, 2)
+    uniforms: with probability roads.hotspot_move_prob (u[:, 0]) a site
+    steps roads.hotspot_step_blocks along one of the four directions
+    (u[:, 1]) that keep it inside the box spanned by the major
+    intersections, so clusters shift between intersections of the city
+    map while its RSUs and signals stay put. home, cluster (N,)."""
+    choices = np.empty((4, 2), np.int64)
+    for k in range(site.shape[0]):
+        if u[k, 0] >= p.move_prob:
+            continue
+        n_ok = 0
+        for d in range(4):
+            ti, tj = site[k, 0] + p.steps[d, 0], site[k, 1] + p.steps[d, 1]
+            if p.lo[0] <= ti <= p.hi[0] and p.lo[1] <= tj <= p.hi[1]:
+                choices[n_ok, 0], choices[n_ok, 1] = ti, tj
+                n_ok += 1
+        if n_ok > 0:
+            pick = min(int(u[k, 1] * n_ok), n_ok - 1)
+            site[k, 0], site[k, 1] = choices[pick, 0], choices[pick, 1]
+    for x in range(home.size):
+        c = cluster[x]
+        home[x] = site[c, 0] * p.n_roads + site[c, 1]
+
+
 class RoadGrid:
     """Static geometry of the grid; spawns vehicles and steps them."""
 
@@ -347,27 +383,18 @@ class RoadGrid:
         turn = choose_turns(heading, road, s, home, rng.random((n, 2)), self.params)
         return Vehicles(heading[None], road[None], s[None], np.zeros((1, n)), home[None], turn[None], cluster[None])
 
-    def move_hotspots(self, veh: Vehicles, b: int, site: np.ndarray, u: np.ndarray) -> None:
-        """Move env b's traffic hotspots in place and re-home their vehicles.
-
-        site (K, 2) grid indices of the K cluster sites (updated); u (K, 2)
-        uniforms: with probability roads.hotspot_move_prob (u[:, 0]) a site
-        steps roads.hotspot_step_blocks along one of the four directions
-        (u[:, 1]) that keep it inside the box spanned by the major
-        intersections, so clusters shift between intersections of the city
-        map while its RSUs and signals stay put."""
+    def hotspot_params(self) -> "HotspotParams":
+        """roads.hotspot_* and the box of the major intersections, for `move_hotspots_env`."""
         r = self.cfg.roads
-        lo, hi = self.majors.min(axis=0), self.majors.max(axis=0)
-        steps = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]) * r.hotspot_step_blocks
-        for k in range(site.shape[0]):
-            if u[k, 0] >= r.hotspot_move_prob:
-                continue
-            targets = site[k] + steps
-            ok = np.all((targets >= lo) & (targets <= hi), axis=1)
-            if ok.any():
-                choices = targets[ok]
-                site[k] = choices[min(int(u[k, 1] * len(choices)), len(choices) - 1)]
-        veh.home[b] = (site[:, 0] * self.n_roads + site[:, 1])[veh.cluster[b]]
+        steps = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], np.int64) * r.hotspot_step_blocks
+        return HotspotParams(float(r.hotspot_move_prob), steps, self.majors.min(axis=0), self.majors.max(axis=0),
+                             int(self.n_roads))
+
+    def move_hotspots(self, veh: Vehicles, b: int, site: np.ndarray, u: np.ndarray) -> None:
+        """Move env b's traffic hotspots in place and re-home their vehicles
+        (`move_hotspots_env`); site (K, 2) grid indices of the K cluster sites
+        (updated), u (K, 2) uniforms."""
+        move_hotspots_env(site, u, self.hotspot_params(), veh.home[b], veh.cluster[b])
 
     def step(self, veh: Vehicles, dt: float, u_turn: np.ndarray) -> None:
         """Advance all vehicles by dt in place; u_turn (B, N, 2) uniforms."""
