@@ -15,7 +15,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 POISSON_MULT_MAX_LAM = 10.0
 """numpy draws Poisson by multiplying uniforms below this mean (and by PTRS
@@ -71,8 +73,6 @@ def uniform_into(rng: np.random.Generator, out: np.ndarray) -> None:
 # tests/test_world.py checks the stream against numpy's.
 _MULT_HI = np.uint64(0x2360ED051FC65DA4)
 _MULT_LO = np.uint64(0x4385DF649FCCF645)
-_M32 = np.uint64(0xFFFFFFFF)
-_S32 = np.uint64(32)
 
 
 def pcg64_state(rng: np.random.Generator) -> np.ndarray | None:
@@ -94,28 +94,36 @@ def set_pcg64_state(rng: np.random.Generator, words: np.ndarray) -> None:
     rng.bit_generator.state = st
 
 
-@njit(inline="always")
-def _mul_64x64(a, b):
-    """The full 128-bit product of two uint64: (hi, lo)."""
-    a_lo, a_hi = a & _M32, a >> _S32
-    b_lo, b_hi = b & _M32, b >> _S32
-    p0, p1, p2, p3 = a_lo * b_lo, a_lo * b_hi, a_hi * b_lo, a_hi * b_hi
-    mid = (p0 >> _S32) + (p1 & _M32) + (p2 & _M32)
-    return p3 + (p1 >> _S32) + (p2 >> _S32) + (mid >> _S32), (p0 & _M32) | (mid << _S32)
+@intrinsic
+def _mul_64x64(typingctx, a, b):
+    """The full 128-bit product of two uint64, (hi, lo): one native multiply
+    (LLVM i128), where four 32-bit ones would lengthen the generator's
+    step-to-step dependency chain."""
+    if a != types.uint64 or b != types.uint64:
+        return None
+    sig = types.UniTuple(types.uint64, 2)(a, b)
+
+    def codegen(context, builder, signature, args):
+        i128, i64 = ir.IntType(128), ir.IntType(64)
+        prod = builder.mul(builder.zext(args[0], i128), builder.zext(args[1], i128))
+        hi = builder.trunc(builder.lshr(prod, ir.Constant(i128, 64)), i64)
+        lo = builder.trunc(prod, i64)
+        return context.make_tuple(builder, signature.return_type, (hi, lo))
+
+    return sig, codegen
 
 
 @njit(inline="always")
-def pcg64_double(st):
-    """numpy's PCG64 next_double on the state words st (4,) uint64, in place."""
-    hi, lo = _mul_64x64(st[1], _MULT_LO)
-    hi += st[0] * _MULT_LO + st[1] * _MULT_HI
-    new_lo = lo + st[3]
-    hi += st[2] + (np.uint64(1) if new_lo < lo else np.uint64(0))
-    st[0], st[1] = hi, new_lo
+def pcg64_next(s_hi, s_lo, inc_hi, inc_lo):
+    """numpy's PCG64 step and next_double: (new state hi, lo, the double)."""
+    hi, lo = _mul_64x64(s_lo, _MULT_LO)
+    hi += s_hi * _MULT_LO + s_lo * _MULT_HI
+    new_lo = lo + inc_lo
+    hi += inc_hi + (np.uint64(1) if new_lo < lo else np.uint64(0))
     x = hi ^ new_lo
     rot = hi >> np.uint64(58)
     out = (x >> rot) | (x << ((np.uint64(64) - rot) & np.uint64(63)))
-    return (out >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return hi, new_lo, (out >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @njit(nogil=True)
@@ -123,14 +131,17 @@ def pcg64_episode_draws(st, exp_neg_lam, arrivals, turns, moves):
     """One env's episode draws after its UAV start, in start_episode's order:
     arrivals (T, N) = poisson(lam) by numpy's multiplication method (all 0,
     drawing nothing, if exp_neg_lam is 1, i.e. lam = 0), turns (T, N, 2) and
-    moves (K, 2) uniforms (K = 0: none drawn)."""
+    moves (K, 2) uniforms (K = 0: none drawn); st (4,) the PCG64 state words,
+    advanced in place. The state lives in locals (registers) meanwhile."""
+    hi, lo, inc_hi, inc_lo = st[0], st[1], st[2], st[3]
     for t in range(arrivals.shape[0]):
         for i in range(arrivals.shape[1]):
             x = 0
             if exp_neg_lam < 1.0:
                 prod = 1.0
                 while True:
-                    prod *= pcg64_double(st)
+                    hi, lo, u = pcg64_next(hi, lo, inc_hi, inc_lo)
+                    prod *= u
                     if prod > exp_neg_lam:
                         x += 1
                     else:
@@ -139,7 +150,10 @@ def pcg64_episode_draws(st, exp_neg_lam, arrivals, turns, moves):
     for t in range(turns.shape[0]):
         for i in range(turns.shape[1]):
             for k in range(turns.shape[2]):
-                turns[t, i, k] = pcg64_double(st)
+                hi, lo, u = pcg64_next(hi, lo, inc_hi, inc_lo)
+                turns[t, i, k] = u
     for k in range(moves.shape[0]):
         for c in range(moves.shape[1]):
-            moves[k, c] = pcg64_double(st)
+            hi, lo, u = pcg64_next(hi, lo, inc_hi, inc_lo)
+            moves[k, c] = u
+    st[0], st[1] = hi, lo
