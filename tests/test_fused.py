@@ -38,6 +38,21 @@ def test_fused_episode_equals_the_step_path(small_cfg, scenario, learner):
         np.testing.assert_array_equal(ev_got[k], ev_ref[k], err_msg=k)
 
 
+@pytest.mark.parametrize("roads, traffic", [
+    ({"hotspot_move_prob": 0.5, "hotspot_step_blocks": 1}, {}),  # hotspot moves drawn and applied in the kernel
+    ({}, {"packet_rate_hz": 0.0}),  # numpy's Poisson draws nothing at lam = 0
+    ({}, {"packet_rate_hz": 12.0}),  # lam >= 10: PTRS, drawn by numpy in start_episode instead
+])
+def test_fused_episode_draws_equal_the_step_paths(small_cfg, roads, traffic):
+    cfg = small_cfg.replace(roads=roads, traffic=traffic, scenario={"uav_start": "persist"})
+    seeds = [1, 6]
+    ref, q_ref = _run(cfg, seeds, fused=False)
+    got, q_got = _run(cfg, seeds, fused=True)
+    for k in ref:
+        np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
+    np.testing.assert_array_equal(q_got, q_ref)
+
+
 @pytest.mark.parametrize("n", [0, 1, 5, 8, 9, 17, 128, 129, 300, 1024])
 def test_pairwise_sum_is_numpys(n):
     rng = np.random.default_rng(n)

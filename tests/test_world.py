@@ -155,6 +155,27 @@ def test_compiled_draws_consume_the_generator_as_numpy_does(lam):
     assert ours.random() == theirs.random()  # the streams end in the same place
 
 
+@pytest.mark.parametrize("lam", [0.0, 0.2, 3.0, 9.99])
+def test_kernel_pcg64_draws_are_numpys_stream(lam):
+    import math
+
+    from world.draws import pcg64_episode_draws, pcg64_state, set_pcg64_state
+    for seed in range(4):
+        ours, theirs = np.random.default_rng(seed), np.random.default_rng(seed)
+        for rng in (ours, theirs):
+            rng.integers(0, 16, 3)  # a buffered 32-bit half, which doubles leave alone
+        words = pcg64_state(ours)
+        arrivals, turns, moves = np.empty((30, 3, 40), np.int64), np.empty((30, 3, 40, 2)), np.empty((4, 2))
+        pcg64_episode_draws(words, math.exp(-lam), arrivals[:, 1], turns[:, 1], moves)  # strided, as the kernel
+        set_pcg64_state(ours, words)
+        assert np.array_equal(arrivals[:, 1], theirs.poisson(lam, (30, 40)))
+        assert np.array_equal(turns[:, 1], theirs.random((30, 40, 2)))
+        assert np.array_equal(moves, theirs.random((4, 2)))
+        assert ours.bit_generator.state == theirs.bit_generator.state
+        assert np.array_equal(ours.integers(0, 16, 9), theirs.integers(0, 16, 9))
+    assert pcg64_state(np.random.Generator(np.random.MT19937(0))) is None
+
+
 def test_routes_evaluating_the_nearest_rsu_only_change_no_number():
     cfg = Config()
     ch, p = relay_params(cfg)
