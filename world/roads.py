@@ -232,23 +232,44 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
         s_int[x] = k * p.block
         # Slow to the turning speed before a turn or a major intersection.
         slow[x] = (next_turn[x] != STRAIGHT) | p.is_major[i, j]
-    for x in range(n):
-        direction = 1.0 if h[x] < 2 else -1.0  # HEADING_DIR[h[x]]
-        d_int = direction * (s_int[x] - s[x])
-        v0_turn = np.sqrt(turn_speed2 + 2.0 * p.decel * d_int)
-        v0 = min(p.v0, v0_turn) if slow[x] else p.v0
-        vx = v[x]
-        g = gap[x]
-        s_star = p.jam_gap + max(0.0, vx * p.headway + vx * (vx - v_lead[x]) * brake_term)
-        interaction = (s_star / max(g, 0.1)) ** 2 if g < np.inf else 0.0
-        ratio = vx / v0
-        free = ratio * ratio * ratio * ratio if quartic else ratio ** p.exponent
-        acc = max(p.accel * (1.0 - free - interaction), -MAX_BRAKE)
-        vn = max(vx + acc * dt, 0.0)
-        ds = min(0.5 * (vx + vn) * dt, max(g, 0.0))  # never into the leader's old rear
-        vn = min(vn, 2.0 * ds / dt)
-        s_lane[x] = s[x] + direction * ds
-        v_new[x] = vn
+    # The same loop twice, so that the quartic one (the default exponent)
+    # never evaluates pow: branch-free, a select would compute both sides.
+    if quartic:
+        for x in range(n):
+            direction = 1.0 if h[x] < 2 else -1.0  # HEADING_DIR[h[x]]
+            d_int = direction * (s_int[x] - s[x])
+            v0_turn = np.sqrt(turn_speed2 + 2.0 * p.decel * d_int)
+            v0 = min(p.v0, v0_turn) if slow[x] else p.v0
+            vx = v[x]
+            g = gap[x]
+            s_star = p.jam_gap + max(0.0, vx * p.headway + vx * (vx - v_lead[x]) * brake_term)
+            interaction = (s_star / max(g, 0.1)) ** 2 if g < np.inf else 0.0
+            ratio = vx / v0
+            free = ratio * ratio * ratio * ratio
+            acc = max(p.accel * (1.0 - free - interaction), -MAX_BRAKE)
+            vn = max(vx + acc * dt, 0.0)
+            ds = min(0.5 * (vx + vn) * dt, max(g, 0.0))  # never into the leader's old rear
+            vn = min(vn, 2.0 * ds / dt)
+            s_lane[x] = s[x] + direction * ds
+            v_new[x] = vn
+    else:
+        for x in range(n):
+            direction = 1.0 if h[x] < 2 else -1.0
+            d_int = direction * (s_int[x] - s[x])
+            v0_turn = np.sqrt(turn_speed2 + 2.0 * p.decel * d_int)
+            v0 = min(p.v0, v0_turn) if slow[x] else p.v0
+            vx = v[x]
+            g = gap[x]
+            s_star = p.jam_gap + max(0.0, vx * p.headway + vx * (vx - v_lead[x]) * brake_term)
+            interaction = (s_star / max(g, 0.1)) ** 2 if g < np.inf else 0.0
+            ratio = vx / v0
+            free = ratio ** p.exponent
+            acc = max(p.accel * (1.0 - free - interaction), -MAX_BRAKE)
+            vn = max(vx + acc * dt, 0.0)
+            ds = min(0.5 * (vx + vn) * dt, max(g, 0.0))
+            vn = min(vn, 2.0 * ds / dt)
+            s_lane[x] = s[x] + direction * ds
+            v_new[x] = vn
 
     for x in range(n):
         overshoot = HEADING_DIR[h[x]] * (s_lane[x] - s_int[x])
