@@ -71,23 +71,27 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
         actions = np.empty(n_uav, np.int64)
         rewards = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
+        # Env b's views, once per episode rather than per step: each view of a
+        # batch array counts a reference on that array, shared by all threads.
+        q_b, pos_b, vel_b, heading_b, road_b, s_b, v_b = q[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b]
+        home_b, next_turn_b, lane_order_b, slots_b, total_b = home[b], next_turn[b], lane_order[b], slots[b], total[b]
+        o, out_env_b, energy_b, above_hover_b, totals_b = out_uav[b], out_env[b], energy[b], above_hover[b], totals[b]
         for t in range(n_steps):
             for u in range(n_uav):
-                actions[u] = act_one(q[b, u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon,
-                                     pos[b, u, 0], pos[b, u, 1], fence)
-            env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                     home[b], next_turn[b], lane_order[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t,
-                     up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
-            o = out_uav[b]
+                actions[u] = act_one(q_b[u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon,
+                                     pos_b[u, 0], pos_b[u, 1], fence)
+            env_step(actions, False, no_delay, no_delay, pos_b, vel_b, heading_b, road_b, s_b, v_b,
+                     home_b, next_turn_b, lane_order_b, turn_u[t, b], slots_b, total_b, arrivals[t, b], t,
+                     up, mp, rp, ch, o, out_env_b, energy_b, above_hover_b, totals_b)
             for u in range(n_uav):
-                x, y = pos[b, u, 0], pos[b, u, 1]
-                nearest, overlap = neighbour_one(x, y, pos[b], others[u], comm_range)
-                nb_sector = nearest_sector_one(x, y, pos[b], others[u], sp.neighbour_sectors) \
+                x, y = pos_b[u, 0], pos_b[u, 1]
+                nearest, overlap = neighbour_one(x, y, pos_b, others[u], comm_range)
+                nb_sector = nearest_sector_one(x, y, pos_b, others[u], sp.neighbour_sectors) \
                     if sp.neighbour_sectors > 0 else 0
                 s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, nb_sector, int(o[u, DENSEST]), sp)
-                rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy[b, u], overlap, rp_reward)
+                rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy_b[u], overlap, rp_reward)
                 if train:
-                    q_update_one(q[b, u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)
+                    q_update_one(q_b[u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)
                 state[b, u] = s_next
             reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
 

@@ -153,7 +153,7 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     out_uav[:] = 0.0
     out_env[:] = 0.0
     for i in range(n):
-        accepted = packets.arrive(slots[i], total[i], t, arrivals[i], p.queue_limit)
+        accepted = packets.arrive_row(slots, i, total[i], t, arrivals[i], p.queue_limit)
         total[i] += accepted
         out_env[E_GENERATED] += arrivals[i]
         out_env[E_OVERFLOW] += arrivals[i] - accepted
@@ -211,7 +211,7 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                 u = nearest[i]
                 if total[i] == 0 or clock[u] + cost[i] > p.dt:
                     continue
-                served, age = packets.serve(slots[i], t, 1)
+                served, age = packets.serve_row(slots, i, t, 1)
                 total[i] -= served
                 clock[u] += cost[i]
                 out_uav[u, RELAYED] += 1.0
@@ -233,7 +233,7 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
                     forwarded[next_hop[u]] += flow[u]
             flow, forwarded = forwarded, flow
         for i in range(n):
-            dropped = packets.expire(slots[i], t)
+            dropped = packets.expire_row(slots, i, t)
             total[i] -= dropped
             out_env[E_EXPIRED] += dropped
 

@@ -36,36 +36,57 @@ class Queues:
         return left
 
 
+# Each operation works on row i of an env's (N, D) slots, indexed in place: a
+# view slots[i] per vehicle and step would increment and decrement the whole
+# batch array's shared reference count, a cache line every thread writes.
 @njit(cache=True)
-def arrive(slots, queued, t, count, limit):
-    """Enqueue `count` packets born at step t into a queue holding `queued`,
+def arrive_row(slots, i, queued, t, count, limit):
+    """Enqueue `count` packets born at step t into queue i, holding `queued`,
     up to the bound; returns how many were accepted."""
     accepted = min(count, limit - queued)
-    slots[t % slots.size] += accepted
+    slots[i, t % slots.shape[1]] += accepted
     return accepted
 
 
 @njit(cache=True)
-def serve(slots, t, want):
-    """Remove up to `want` packets, oldest first. Returns (served, sum of their
-    ages in steps)."""
-    depth = slots.size
+def serve_row(slots, i, t, want):
+    """Remove up to `want` packets from queue i, oldest first. Returns
+    (served, sum of their ages in steps)."""
+    depth = slots.shape[1]
     served, age_sum = 0, 0
     for age in range(depth - 1, -1, -1):  # age a lives in slot (t - a) % depth
         if served >= want:
             break
         slot = (t - age) % depth
-        take = min(slots[slot], want - served)
-        slots[slot] -= take
+        take = min(slots[i, slot], want - served)
+        slots[i, slot] -= take
         served += take
         age_sum += take * age
     return served, age_sum
 
 
 @njit(cache=True)
-def expire(slots, t):
-    """End of step t: drop the packets reaching the deadline; returns how many."""
-    slot = (t + 1) % slots.size
-    dropped = slots[slot]
-    slots[slot] = 0
+def expire_row(slots, i, t):
+    """End of step t: drop queue i's packets reaching the deadline; returns how many."""
+    slot = (t + 1) % slots.shape[1]
+    dropped = slots[i, slot]
+    slots[i, slot] = 0
     return dropped
+
+
+@njit(cache=True)
+def arrive(slots, queued, t, count, limit):
+    """arrive_row of one queue (D,)."""
+    return arrive_row(slots.reshape((1, slots.size)), 0, queued, t, count, limit)
+
+
+@njit(cache=True)
+def serve(slots, t, want):
+    """serve_row of one queue (D,)."""
+    return serve_row(slots.reshape((1, slots.size)), 0, t, want)
+
+
+@njit(cache=True)
+def expire(slots, t):
+    """expire_row of one queue (D,)."""
+    return expire_row(slots.reshape((1, slots.size)), 0, t)
