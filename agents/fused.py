@@ -30,7 +30,7 @@ from agents.reward import reward_one
 from agents.state import encode_one, nearest_sector_one, neighbour_one
 from world.draws import pcg64_episode_draws
 from world.network import COVERED, DENSEST, IN_RANGE, QUEUED, RELAYED
-from world.roads import move_hotspots_env
+from world.roads import mobility_scratch, move_hotspots_env
 from world.step import env_step, pairwise_sum
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
@@ -71,6 +71,7 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
         actions = np.empty(n_uav, np.int64)
         rewards = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
+        work_f, work_i, work_b = mobility_scratch(s.shape[1], mp.n_roads)  # the steps' scratch, per env
         # Env b's views, once per episode rather than per step: each view of a
         # batch array counts a reference on that array, shared by all threads.
         q_b, pos_b, vel_b, heading_b, road_b, s_b, v_b = q[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b]
@@ -82,7 +83,7 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                                      pos_b[u, 0], pos_b[u, 1], fence)
             env_step(actions, False, no_delay, no_delay, pos_b, vel_b, heading_b, road_b, s_b, v_b,
                      home_b, next_turn_b, lane_order_b, turn_u[t, b], slots_b, total_b, arrivals[t, b], t,
-                     up, mp, rp, ch, o, out_env_b, energy_b, above_hover_b, totals_b)
+                     up, mp, rp, ch, o, out_env_b, energy_b, above_hover_b, totals_b, work_f, work_i, work_b)
             for u in range(n_uav):
                 x, y = pos_b[u, 0], pos_b[u, 1]
                 nearest, overlap = neighbour_one(x, y, pos_b, others[u], comm_range)
@@ -110,6 +111,7 @@ def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, 
         actions = np.empty(n_uav, np.int64)
         err = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
+        work_f, work_i, work_b = mobility_scratch(s.shape[1], mp.n_roads)
         for t in range(n_steps):
             for u in range(n_uav):
                 best, best_c = np.inf, 0
@@ -127,7 +129,8 @@ def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, 
                 actions[u] = cand_action[best_c]
             env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
                      home[b], next_turn[b], lane_order[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t,
-                     up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+                     up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b],
+                     work_f, work_i, work_b)
             for u in range(n_uav):
                 ex, ey = pos[b, u, 0] - plan[t + 1, b, u, 0], pos[b, u, 1] - plan[t + 1, b, u, 1]
                 err[u] = np.sqrt(ex * ex + ey * ey)

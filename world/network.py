@@ -148,7 +148,9 @@ def routes(uav_pos, p, ch):
 
 
 @njit(cache=True)
-def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env):
+def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env,
+               work_f, work_i):
+    """One env's step; scratch work_f (>= 2N floats), work_i (>= 2N int64)."""
     n, n_uav = s.size, uav_pos.shape[0]
     out_uav[:] = 0.0
     out_env[:] = 0.0
@@ -162,10 +164,10 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     sense2 = p.sense_range * p.sense_range
     sensing = p.sense_range > 0.0
     sensed = np.zeros((n_uav, p.sense_sectors if sensing else 1))
-    ints = np.empty(2 * n, np.int64)  # one allocation per type: nearest, senders / dist, cost
-    nearest, senders = ints[:n], ints[n:]
+    nearest, senders = work_i[:n], work_i[n:2 * n]
     nearest[:] = -1
-    floats = np.zeros(2 * n)
+    floats = work_f[:2 * n]
+    floats[:] = 0.0
     dist, cost = floats[:n], floats[n:]
     for i in range(n):
         fixed = road[i] * p.block
@@ -256,6 +258,7 @@ def relay_step(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     queues) - used at the start of an episode. busy0 (B, U): seconds of each
     UAV's radio time already used this step (e.g. by control-plane traffic).
     Fills out_uav (B, U, 5) and out_env (B, 7), see the column constants."""
+    work_f, work_i = np.empty(2 * s.shape[1]), np.empty(2 * s.shape[1], np.int64)
     for b in range(s.shape[0]):
         _relay_env(heading[b], road[b], s[b], uav_pos[b], slots[b], total[b], arrivals[b], t,
-                   serve_packets, p, ch, busy0[b], out_uav[b], out_env[b])
+                   serve_packets, p, ch, busy0[b], out_uav[b], out_env[b], work_f, work_i)

@@ -137,8 +137,26 @@ def choose_turn(h, road, s, home, u_attract, u_pick, p):
     return best
 
 
+def lane_sort_sizes(n: int, n_roads: int) -> tuple[int, int]:
+    """(floats, ints) of scratch `_lane_sort_into` takes for n vehicles."""
+    return n, 2 * 4 * n_roads + 1 + n
+
+
+@njit(cache=True)
+def mobility_scratch(n, n_roads):
+    """Scratch (floats, int64, bools) `_mobility_env` takes for n vehicles."""
+    return np.empty(6 * n), np.empty(2 * 4 * n_roads + 1 + 5 * n, np.int64), np.empty(6 * n, np.bool_)
+
+
 @njit(cache=True)
 def _lane_sort(h, road, s, p, hint):
+    """_lane_sort_into with scratch of its own."""
+    n_floats, n_ints = s.size, 2 * 4 * p.n_roads + 1 + s.size
+    return _lane_sort_into(h, road, s, p, hint, np.empty(n_floats), np.empty(n_ints, np.int64))
+
+
+@njit(cache=True)
+def _lane_sort_into(h, road, s, p, hint, floats, ints):
     """Vehicles ordered by lane, then along the lane in driving direction:
     (order, key, lane_start) with lane_start (4 n_roads + 1,) the first
     position in `order` of each lane (lane = heading * n_roads + road).
@@ -148,12 +166,14 @@ def _lane_sort(h, road, s, p, hint):
     counting sort visits the vehicles in the order of `hint` (a permutation,
     e.g. the last step's order, in which vehicles that stayed on their lane
     are already sorted), so the insertion sort has little to move; the
-    result does not depend on it, keys being distinct."""
+    result does not depend on it, keys being distinct. Scratch (views into
+    it are returned): floats (>= n,), ints (>= 2 * lanes + 1 + n,) int64
+    (`lane_sort_sizes`), so that a step allocates nothing."""
     span = 4.0 * (p.extent + 1.0)
     n, n_lanes = s.size, 4 * p.n_roads
-    key = np.empty(n)
-    ints = np.zeros(2 * n_lanes + 1 + n, np.int64)  # one allocation: lane_start, fill, order
+    key = floats[:n]
     lane_start = ints[:n_lanes + 1]
+    lane_start[:] = 0
     for i in range(n):
         key[i] = (h[i] * p.n_roads + road[i]) * span + HEADING_DIR[h[i]] * s[i]
         lane_start[h[i] * p.n_roads + road[i] + 1] += 1
@@ -161,7 +181,7 @@ def _lane_sort(h, road, s, p, hint):
         lane_start[lane + 1] += lane_start[lane]
     fill = ints[n_lanes + 1:2 * n_lanes + 1]
     fill[:] = lane_start[:-1]
-    order = ints[2 * n_lanes + 1:]
+    order = ints[2 * n_lanes + 1:2 * n_lanes + 1 + n]
     for m in range(n):
         i = hint[m]
         lane = h[i] * p.n_roads + road[i]
@@ -197,18 +217,23 @@ def _overlaps(x, h, road, s, length, order, lane_start, lane_n_roads, is_turner,
 # error_model="numpy": a division by zero would give inf instead of raising (none
 # happens: v0 >= turn speed > 0, dt > 0), which lets the car-following loop compile to SIMD.
 @njit(cache=True, error_model="numpy")
-def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
+def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p, work_f, work_i, work_b):
+    """One env's step. Scratch: work_f, work_i (int64), work_b (bool), at
+    least `mobility_scratch`'s sizes: a step allocates nothing."""
     n = s.size
     same_lane = 2.0 * p.extent + 1.0
-    order, key, lane_start = _lane_sort(h, road, s, p, lane_order)
+    sort_f, sort_i = n, 2 * 4 * p.n_roads + 1 + n  # lane_sort_sizes
+    order, key, lane_start = _lane_sort_into(h, road, s, p, lane_order, work_f[:sort_f], work_i[:sort_i])
     lane_order[:] = order
-    # Scratch rows, one allocation per type (a step allocates per env).
-    floats = np.empty((5, n))
-    gap, v_lead, s_int, s_lane, v_new = floats[0], floats[1], floats[2], floats[3], floats[4]
-    ints = np.empty((3, n), np.int64)
-    k_int, old_h, old_road = ints[0], ints[1], ints[2]
-    flags = np.zeros((6, n), np.bool_)
-    slow, crossing, active, straight_ok, waiting, is_turner = flags[0], flags[1], flags[2], flags[3], flags[4], flags[5]
+    floats = work_f[sort_f:sort_f + 5 * n]
+    gap, v_lead, s_int, s_lane, v_new = floats[:n], floats[n:2 * n], floats[2 * n:3 * n], floats[3 * n:4 * n], \
+        floats[4 * n:]
+    ints = work_i[sort_i:sort_i + 4 * n]
+    k_int, old_h, old_road, turner_list = ints[:n], ints[n:2 * n], ints[2 * n:3 * n], ints[3 * n:]
+    flags = work_b[:6 * n]
+    flags[:] = False
+    slow, crossing, active = flags[:n], flags[n:2 * n], flags[2 * n:3 * n]
+    straight_ok, waiting, is_turner = flags[3 * n:4 * n], flags[4 * n:5 * n], flags[5 * n:]
     gap[:] = np.inf
     v_lead[:] = 0.0
     for k in range(n - 1):
@@ -293,7 +318,12 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
     # A turner may land on a taken spot; put it back (straight, or waiting at
     # a road end) until no lane holds overlapping vehicles. Only turners can
     # overlap anyone: within a lane, the IDM step above keeps every gap >= 0.
-    turners = np.flatnonzero(active)
+    n_turners = 0  # np.flatnonzero(active), into scratch
+    for x in range(n):
+        if active[x]:
+            turner_list[n_turners] = x
+            n_turners += 1
+    turners = turner_list[:n_turners]
     is_turner[:] = active
     changed = turners.size > 0
     while changed:
@@ -316,8 +346,10 @@ def _mobility_env(h, road, s, v, home, next_turn, lane_order, u, dt, p):
 @njit(cache=True)
 def mobility_step(heading, road, s, v, home, next_turn, lane_order, u_turn, dt, p):
     """Advance all vehicles (B, N) by dt in place; u_turn (B, N, 2) uniforms."""
+    work_f, work_i, work_b = mobility_scratch(s.shape[1], p.n_roads)
     for b in range(s.shape[0]):
-        _mobility_env(heading[b], road[b], s[b], v[b], home[b], next_turn[b], lane_order[b], u_turn[b], dt, p)
+        _mobility_env(heading[b], road[b], s[b], v[b], home[b], next_turn[b], lane_order[b], u_turn[b], dt, p,
+                      work_f, work_i, work_b)
 
 
 @njit(cache=True)

@@ -19,7 +19,7 @@ from truav.config import Config
 from world import uavs
 from world.network import (E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED, E_OVERFLOW,
                            E_WAIT_STEPS, TX_TIME, _relay_env)
-from world.roads import _mobility_env
+from world.roads import _mobility_env, mobility_scratch
 
 # Columns of the running episode totals (B, TOTAL_COLUMNS).
 (T_COVERED, T_GENERATED, T_DELIVERED, T_DROPPED, T_DELAY_S, T_WAIT_S, T_ENERGY,
@@ -107,7 +107,8 @@ def pairwise_sum(a, lo, n):
 
 @njit(cache=True)
 def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
-             slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals):
+             slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals,
+             work_f, work_i, work_b):
     """Advance one environment by one step, in place.
 
     actions (U,) in [-1, 16); blend: whether any UAV of the batch keeps flying
@@ -115,7 +116,8 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
     airtime (s, already clipped to [0, dt]); pos, velocity (U, 2); vehicles
     and queues of this env; turn_u (N, 2) and arrivals (N,) of step t.
     Fills out_uav (U, 5), out_env (7,), energy and above_hover (U,) and adds
-    the step to totals (TOTAL_COLUMNS,)."""
+    the step to totals (TOTAL_COLUMNS,). work_f, work_i, work_b: scratch
+    of `roads.mobility_scratch`, reused by mobility and relay."""
     n_uav = pos.shape[0]
     dt = up.dt
     hover_row = up.unit_velocity.shape[0] - 1
@@ -137,8 +139,9 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
         sx, sy = nx - pos[u, 0], ny - pos[u, 1]
         pos[u, 0], pos[u, 1] = nx, ny
         speed[u] = np.sqrt(sx * sx + sy * sy) / dt
-    _mobility_env(heading, road, s, v, home, next_turn, lane_order, turn_u, dt, mp)
-    _relay_env(heading, road, s, pos, slots, total, arrivals, t, True, rp, ch, control, out_uav, out_env)
+    _mobility_env(heading, road, s, v, home, next_turn, lane_order, turn_u, dt, mp, work_f, work_i, work_b)
+    _relay_env(heading, road, s, pos, slots, total, arrivals, t, True, rp, ch, control, out_uav, out_env,
+               work_f, work_i)
     for u in range(n_uav):
         energy[u] = (up.hover_w + (up.move_w - up.hover_w) * speed[u] / up.ref_speed) * dt \
             + up.tx_w * (out_uav[u, TX_TIME] + control[u])
@@ -157,7 +160,8 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
 def world_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
                slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals):
     """env_step for every env of the batch (leading axis B on every array)."""
+    work_f, work_i, work_b = mobility_scratch(s.shape[1], mp.n_roads)
     for b in range(pos.shape[0]):
         env_step(actions[b], blend, delay[b], control[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b],
                  home[b], next_turn[b], lane_order[b], turn_u[b], slots[b], total[b], arrivals[b], t, up, mp, rp, ch,
-                 out_uav[b], out_env[b], energy[b], above_hover[b], totals[b])
+                 out_uav[b], out_env[b], energy[b], above_hover[b], totals[b], work_f, work_i, work_b)
