@@ -98,16 +98,22 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def patrol_episode(plan, cand, cand_action, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
+def patrol_episode(plan, cand, cand_action, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
+                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
                    slots, total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, err_sum):
     """The patrol baseline's episode, as PatrolController.act/observe step it:
     each UAV takes the candidate action (cand (17, 2) velocities) landing
     closest to its planned position plan (T + 1, B, U, 2) of the next step;
-    err_sum (B,) adds each step's mean distance to the plan."""
+    err_sum (B,) adds each step's mean distance to the plan; draw .. cluster
+    as in truav_episode."""
     n_env, n_uav = pos.shape[0], pos.shape[1]
     n_steps = turn_u.shape[0]
     dt, area = up.dt, up.area
     for b in prange(n_env):
+        if draw:
+            pcg64_episode_draws(rng_state[b], exp_neg_lam, arrivals[:, b], turn_u[:, b], moves[b])
+            if apply_moves and moves.shape[1] > 0:
+                move_hotspots_env(hotspots[b], moves[b], hp, home[b], cluster[b])
         actions = np.empty(n_uav, np.int64)
         err = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
@@ -156,8 +162,11 @@ def run_patrol_episode(world, controller) -> None:
     """The current episode (from step 0) under the PatrolController `controller`."""
     if world.t != 0:
         raise RuntimeError("the fused episode starts at step 0")
+    deferred = world.deferred_draws()
     patrol_episode(controller.plan, controller._cand, controller._cand_action.astype(np.int64),
-                   *_world_args(world), controller._err_sum)
+                   *_draw_args(world, deferred), *_world_args(world), controller._err_sum)
+    if deferred is not None:
+        world.end_deferred_draws()
     steps = world._draws.turn_u.shape[0]
     world.t = steps
     controller._err_n = steps

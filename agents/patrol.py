@@ -123,6 +123,8 @@ class PatrolController:
         self._channel, self._relay = network.relay_params(cfg)
         self.fused = True
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
+        self.draws_in_kernel = True
+        """run_episode's kernel makes the world's per-episode draws (in parallel over envs)."""
 
     def run_episode(self, world) -> None:
         """Steps 0..T-1 of the world's current episode in one compiled kernel

@@ -181,7 +181,7 @@ class World:
         if self._rng_state is not None:
             raise RuntimeError("the last episode's deferred draws were never made (end_deferred_draws)")
         defer = defer_draws and lam < POISSON_MULT_MAX_LAM and all(
-            rng.bit_generator.state.get("bit_generator") == "PCG64" for rng in self.rngs)
+            type(rng.bit_generator) is np.random.PCG64 for rng in self.rngs)
 
         def draw(b: int):
             rng = self.rngs[b]
