@@ -65,7 +65,7 @@ def ratio(now: float, before: float | None) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="also time the paper's full 10-seed run")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="threads (default: all cores)")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes, one kernel thread each (default: all cores)")
     ap.add_argument("--repeats", type=int, default=3, help="best of this many runs per figure (default 3)")
     args = ap.parse_args()
     print(f"load: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} "
@@ -79,7 +79,7 @@ def main() -> None:
     t_long = min(timed_run(long_, args.workers) for _ in range(args.repeats))
     steady = 10 * (long_ - short) * 100 / (t_long - t_short)
     startup = t_short - 10 * short * 100 / steady
-    print(f"steady state, 10 seeds on {args.workers} threads: {steady:9,.0f} env-steps/s  "
+    print(f"steady state, 10 seeds in {args.workers} processes: {steady:9,.0f} env-steps/s  "
           f"{ratio(steady, BEFORE['steady'])}")
     print(f"start-up (fresh process, cached kernels): {startup:.1f} s")
     print(f"projected paper-scale run (10 x 5000 x 100): {startup + 5_000_000 / steady:.0f} s "
@@ -91,7 +91,7 @@ def main() -> None:
         elapsed = time.perf_counter() - t0
         n = 10 * cfg.learner.episodes * cfg.scenario.steps_per_episode
         print(f"full run: 10 seeds x {cfg.learner.episodes} episodes x {cfg.scenario.steps_per_episode} steps "
-              f"on {args.workers} threads: {elapsed:.1f} s in this process ({n / elapsed:,.0f} env-steps/s; "
+              f"in {args.workers} processes: {elapsed:.1f} s ({n / elapsed:,.0f} env-steps/s; "
               f"target < 60 s; before {BEFORE_FULL_RUN_S:.0f} s)")
 
 
