@@ -44,7 +44,7 @@ from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
-from truav.bus import guard, keys, schema
+from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
@@ -76,6 +76,12 @@ def debug_delay_s(spec: str, uav: int) -> float:
         if who_id == uav:
             return delay_ms / 1e3
     return 0.0
+
+
+def realtime_inbox_capacity(n_uavs: int) -> int:
+    """Messages a real-time agent's inbox holds before evicting the oldest: a few ticks of every peer's
+    beacons (it drains once a tick), so a flood costs at most this many decodes per tick."""
+    return max(transport.REALTIME_RECEIVE_RING, 4 * n_uavs)
 
 
 def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
@@ -187,15 +193,23 @@ class AgentNode:
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
         bus.accept_replay = opts.accept_replay
+        # Real time: a full receive channel drops its oldest samples inside Zenoh and a full inbox its
+        # oldest messages, so a flood costs this agent a bounded amount of work per tick (only the newest
+        # observation and beacons matter); lock-step loses nothing and waits.
+        bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
+        inbox_opts = {} if opts.lockstep else {"capacity": realtime_inbox_capacity(self.n_uavs), "compact": False}
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
         # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
         # follows this UAV's cells from its first observation on.
-        self._beacon_inbox = bus.inbox(keys.all_beacons(run)) if beacon_inbox is None else beacon_inbox(bus)
+        self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \
+            else beacon_inbox(bus, **inbox_opts)
         # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
-        self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run))
-        bus.subscribe(keys.all_control(run), self._on_control)
+        self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run), **inbox_opts)
+        # Only the shutdown concerns an agent (its fault plan, if any, listens on its own key): junk on the
+        # other control keys then never costs it anything.
+        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me))
         self._setup_scheme(bus)

@@ -446,9 +446,13 @@ def attach_plan(bus, run: str, plan: FaultPlan | None, tick_period_s: float) -> 
     flt = PlanFilter(plan or FaultPlan(), run)
     bus.link_filter = flt
 
+    ticks = []  # the tick subscription, closed once the origin is known (junk on that key then costs nothing)
+
     def on_tick(key, msg, raw, recv_ns) -> None:
         if flt.t0_ns is None:
             flt.start(msg.t - int(msg.tick * tick_period_s * 1e9))
+        if ticks:
+            ticks.pop().close()
 
     def on_control(key, msg, raw, recv_ns) -> None:
         if msg.command == CONTROL_FAULTS:
@@ -458,6 +462,6 @@ def attach_plan(bus, run: str, plan: FaultPlan | None, tick_period_s: float) -> 
                 import logging
                 logging.getLogger("truav.faults").warning("ignoring bad fault plan from %s: %s", msg.src, exc)
 
-    bus.subscribe(keys.world_tick(run), on_tick)
+    ticks.append(bus.subscribe(keys.world_tick(run), on_tick))
     bus.subscribe(keys.control(run, CONTROL_FAULTS), on_control)
     return flt

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from truav import seeding
-from truav.bus import guard, keys, schema
+from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
@@ -151,10 +151,13 @@ class WorldNode:
             self._plane = ControlCounters(cfg, 1)
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
         bus.accept_replay = opts.accept_replay
+        # Real time: a flood on the action keys costs a bounded amount of work (the oldest samples are
+        # dropped inside Zenoh when the world falls behind) instead of a backlog that delays every action.
+        bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
         plan = load_plan(opts.fault_plan) if opts.fault_plan else None
         self.faults = attach_plan(bus, run, plan, 1.0 / opts.rate_hz)
         bus.subscribe(keys.all_actions(run), self._on_action)
-        bus.subscribe(keys.all_control(run), self._on_control)
+        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)  # the only control it obeys
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         if self.central:
             bus.watch_liveliness(keys.alive_controller(run), lambda k: self._on_controller(True),

@@ -51,10 +51,14 @@ class Received(NamedTuple):
 class Inbox:
     """Valid messages on one key expression, decoded by :meth:`drain` on the reader's thread."""
 
-    def __init__(self, bus: Bus, capacity: int = DEFAULT_INBOX_CAPACITY) -> None:
+    def __init__(self, bus: Bus, capacity: int = DEFAULT_INBOX_CAPACITY, compact: bool = True) -> None:
+        """``compact``: a full inbox first validates what it holds and keeps the valid messages
+        (nothing valid is lost to junk: lock-step); False: it just evicts the oldest (real time: only
+        the freshest beacons matter, and a flood then costs no decoding until the reader drains)."""
         if capacity < 1:
             raise ValueError(f"capacity must be >= 1, got {capacity}")
         self._bus = bus
+        self._compacts = compact
         # Entries: (recv_ns, zenoh.Sample) unfiltered, or (recv_ns, key, raw) after the link filter.
         self._ready: deque[tuple] = deque(maxlen=capacity)
         self._delayed: list[tuple[int, int, int, str, bytes]] = []  # (due mono ns, seq, recv_ns, key, raw)
@@ -63,7 +67,7 @@ class Inbox:
         self._waiting = False
         self._want = 1  # a waiter is woken once this many messages are ready (Inbox.wait's min_ready)
 
-    # -- arrival: zenoh-python's callback thread, kept to a clock read and an append --
+    # -- arrival: the Bus's pump thread for the subscription, kept to a clock read and an append --
     def on_sample(self, sample: zenoh.Sample) -> None:
         recv_ns = self._bus._clock()
         if self._bus._filters_nothing():
@@ -76,7 +80,7 @@ class Inbox:
                 self._cond.notify_all()
 
     def _push(self, entry: tuple) -> None:
-        if len(self._ready) == self._ready.maxlen:
+        if self._compacts and len(self._ready) == self._ready.maxlen:
             self._compact()
         if len(self._ready) == self._ready.maxlen:  # deque evicts the oldest
             try:

@@ -13,10 +13,19 @@
 * :func:`run_router` runs an in-process Zenoh router (zenoh-python 1.x can
   open a session in ``router`` mode) for ``truav-swarm router``.
 
-Thread model.  zenoh-python runs each Python callback on its own Python
-thread per subscriber (``zenoh.handlers.Callback(indirect=True)``, the
-default), fed by a bounded channel from Zenoh's network threads.  The Bus
-decodes, filters and delivers a message on that thread, under one delivery
+Thread model.  Every data subscription queues its samples in a bounded
+channel inside Zenoh (Rust) and has one Python thread of the Bus, its pump,
+that takes them out in batches: it blocks in ``recv`` (GIL released) only
+while the channel is empty and otherwise pulls with ``try_recv`` without
+giving up the GIL per sample.  (zenoh-python's own callback thread releases
+and re-takes the GIL for every sample, and its full FIFO blocks the whole
+session's receive thread, so a flood on one key can hold up every other.)  The
+channel is a FIFO by default (nothing lost; a reader that falls behind pushes
+back on Zenoh) or, with :attr:`Bus.receive_ring` (real-time processes), a ring
+that drops the oldest samples in Zenoh without touching Python when the
+reader falls behind: a flood then costs a process at most what its pump can
+take, and a message waits behind at most that many others.  The Bus
+decodes, filters and delivers a message on the pump thread, under one delivery
 lock per Bus, so one Bus never runs two user callbacks at once and user
 callbacks may call ``Bus.publish`` (they are not on a Zenoh network thread).
 Only messages the link filter delays, and liveliness changes, go through
@@ -64,6 +73,18 @@ MODE_ROUTER = "router"
 MODES = (MODE_CLIENT, MODE_PEER, MODE_ROUTER)
 
 DEFAULT_MAX_PENDING = 100_000
+DEFAULT_RECEIVE_FIFO = 256
+"""Samples a FIFO subscription holds in Zenoh before it pushes back (zenoh-python's own default)."""
+REALTIME_RECEIVE_RING = 256
+"""Samples a real-time process's subscription holds in Zenoh before the oldest are dropped (Bus.receive_ring):
+far more than a tick brings (an observation, a tick, one action or beacon per UAV), few enough that a flood
+cannot make a message wait behind more than this many others."""
+PUMP_BATCH = 64
+PUMP_BACKOFF_S = 0.005
+"""A ring subscription's pump that refused (or, into a full inbox, evicted for) more than half of its last
+PUMP_BATCH samples (a flood) pauses
+this long: the ring then drops the flood inside Zenoh, so junk costs a process a bounded share of a core
+whatever its rate, and a valid message behind it waits at most this much longer."""
 MAX_LOG_ONCE_TAGS = 1024  # distinct "log once" tags remembered; tags can hold sender-chosen keys
 REPLAY_TAG = b"truav-replay"
 """Zenoh attachment on every put of a ``replay`` Bus: receivers drop it unless they accept replays."""
@@ -227,6 +248,7 @@ class BusStats:
     callback_errors: int = 0
     filter_errors: int = 0
     overflow: int = 0  # dropped because max_pending deliveries were queued, or evicted from a full inbox
+    backoffs: int = 0  # pauses of a ring subscription's pump under a flood of refused messages (Bus.receive_ring)
     rejected: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {sender: n}}, bounded senders
 
     @property
@@ -386,8 +408,9 @@ class Bus:
         self._handles: list[Handle] = []
         self._logged: set[str] = set()
         self._received = self._delivered = self._filtered = self._delayed = 0
-        self._callback_errors = self._filter_errors = self._overflow = 0
+        self._callback_errors = self._filter_errors = self._overflow = self._backoffs = 0
         self._malformed: dict[str, int] = {}
+        self._shed = 0  # messages refused or evicted so far (read without the lock by the pumps)
         self.rejections = Rejections(f"bus {self._identity}", logger=log)
         """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
         self.guard: Guard | None = None
@@ -395,6 +418,11 @@ class Bus:
         self.accept_replay = True
         """Deliver puts tagged by a ``replay`` Bus; the live run's world and agents set it False
         (such puts are then dropped and counted)."""
+        self.receive_ring: int | None = None
+        """None: subscriptions declared from now on queue in a FIFO in Zenoh (nothing is lost; a reader
+        that falls behind pushes back on Zenoh's queues). N: a ring of N samples each, the oldest dropped
+        inside Zenoh, without Python, when the reader falls behind (real time: the newest value matters,
+        and a flood costs at most what the reader takes; :data:`REALTIME_RECEIVE_RING`)."""
         self._tag = REPLAY_TAG if self._identity == keys.SRC_REPLAY else None
         self._closed = False
         self._session = _open_session(config if config is not None else make_config())
@@ -461,6 +489,7 @@ class Bus:
                 callback_errors=self._callback_errors,
                 filter_errors=self._filter_errors,
                 overflow=self._overflow,
+                backoffs=self._backoffs,
                 rejected=self.rejections.as_dict(),
             )
 
@@ -596,22 +625,22 @@ class Bus:
         self._register(Handle(f"pull subscriber {key_expr}", sub.undeclare))
         return receiver
 
-    def inbox(self, key_expr: str, capacity: int = DEFAULT_INBOX_CAPACITY) -> Inbox:
+    def inbox(self, key_expr: str, capacity: int = DEFAULT_INBOX_CAPACITY, compact: bool = True) -> Inbox:
         """An :class:`~truav.bus.inbox.Inbox` of valid messages on ``key_expr``, decoded when drained.
 
         For traffic a process reads once per cycle (an agent's neighbour
         beacons): arrival costs a timestamp and an append, not a callback.
-        The link filter applies at arrival, as for :meth:`subscribe`.
+        The link filter applies at arrival, as for :meth:`subscribe`. ``compact``: see
+        :class:`~truav.bus.inbox.Inbox`.
         """
-        box = Inbox(self, capacity)
+        box = Inbox(self, capacity, compact=compact)
         self.feed(box, key_expr)
         return box
 
     def feed(self, box: Inbox, key_expr: str) -> Handle:  # box: anything with Inbox.on_sample
         """Also put what arrives on ``key_expr`` into ``box`` (an agent's range-limited beacon cells
         come and go as it moves); ``close()`` the returned handle to stop."""
-        sub = self._session.declare_subscriber(key_expr, box.on_sample)
-        return self._register(Handle(f"inbox {key_expr}", sub.undeclare))
+        return self._pump(key_expr, box.on_sample, f"inbox {key_expr}")
 
     def _count_received(self, n: int, delivered: int | None = None) -> None:
         with self._lock:
@@ -636,8 +665,42 @@ class Bus:
             with self._deliver_lock:  # one message at a time through filter and callback
                 handle(key, raw, arrival_ns, arrival_mono)
 
-        sub = self._session.declare_subscriber(key_expr, on_sample)
-        return self._register(Handle(f"subscriber {key_expr}", sub.undeclare))
+        return self._pump(key_expr, on_sample, f"subscriber {key_expr}")
+
+    def _pump(self, key_expr: str, on_sample: Callable[[zenoh.Sample], None], what: str) -> Handle:
+        """Subscribe ``key_expr`` into a bounded Zenoh channel (FIFO, or a ring with :attr:`receive_ring`)
+        and start its pump thread, which hands each sample to ``on_sample`` (see the module docstring)."""
+        ring = self.receive_ring
+        handler = zenoh.handlers.RingChannel(ring) if ring else zenoh.handlers.FifoChannel(DEFAULT_RECEIVE_FIFO)
+        sub = self._session.declare_subscriber(key_expr, handler)
+        handle = self._register(Handle(what, sub.undeclare))
+        # The pump reads the handler, not the subscriber: a thread blocked in Subscriber.recv holds a borrow
+        # of it that makes undeclare fail ("Already borrowed"); undeclaring ends the handler's recv instead.
+        threading.Thread(target=self._run_pump, args=(sub.handler, on_sample, what, bool(ring)), daemon=True,
+                         name=f"truav-rx[{self._identity}] {key_expr}").start()
+        return handle
+
+    def _run_pump(self, sub: zenoh.handlers.Handler, on_sample: Callable[[zenoh.Sample], None], what: str,
+                  backs_off: bool) -> None:
+        while True:
+            try:
+                sample = sub.recv()  # waits with the GIL released
+                taken, shed = 0, self._shed
+                while sample is not None:
+                    try:
+                        on_sample(sample)
+                    except Exception as exc:  # the handlers guard user code; this is a last resort
+                        if self._first(f"pump:{what}:{type(exc).__name__}"):
+                            log.exception("bus %s: %s failed on a sample (%r); continuing", self._identity, what, exc)
+                    taken += 1
+                    if taken == PUMP_BATCH:
+                        if backs_off and 2 * (self._shed - shed) > PUMP_BATCH:  # a flood: let the ring drop it
+                            self._count_backoff()
+                            time.sleep(PUMP_BACKOFF_S)
+                        taken, shed = 0, self._shed
+                    sample = sub.try_recv()  # the rest of a batch without giving up the GIL per sample
+            except zenoh.ZError:  # undeclared, or the session closed
+                return
 
     def _payload(self, key: str, sample: zenoh.Sample, max_bytes: int | None) -> bytes | None:
         """The sample's bytes; None (counted as too large) above ``max_bytes``, checked before copying."""
@@ -739,11 +802,20 @@ class Bus:
         which logs once per sender and reason)."""
         with self._lock:
             self._malformed[exc.reason] = self._malformed.get(exc.reason, 0) + 1
+            self._shed += 1
         self.rejections.add(exc.reason, exc.src, key, str(exc))
+
+    def _count_backoff(self) -> None:
+        with self._lock:
+            self._backoffs += 1
+        if self._first("backoff"):
+            log.warning("bus %s: flooded with messages it refuses; its receive rings drop the excess inside Zenoh "
+                        "(pauses only counted from now on)", self._identity)
 
     def _count_overflow(self) -> None:
         with self._lock:
             self._overflow += 1
+            self._shed += 1
         if self._first("overflow"):
             log.warning("bus %s: delivery queue full, dropping messages (only counted from now on)", self._identity)
 
@@ -824,6 +896,7 @@ _KIND_BY_KEY = {
     ("uav", keys.BEACON): schema.KIND_BEACON,
     ("uav", keys.ACTION): schema.KIND_ACTION,
     ("uav", keys.STATE): schema.KIND_STATE,
+    ("uav", keys.HEALTH): schema.KIND_HEALTH,
     (keys.CONTROLLER,): schema.KIND_COMMAND,
 }
 

@@ -290,9 +290,9 @@ class SharedBeacons:
         self.boxes: list = []
         self._lock = threading.Lock()
 
-    def __call__(self, bus: Bus):
+    def __call__(self, bus: Bus, **inbox_opts):
         from truav.bus.inbox import Inbox
-        box = Inbox(bus)
+        box = Inbox(bus, **inbox_opts)
         with self._lock:
             first = not self.boxes
             self.boxes = [*self.boxes, box]  # copied: arrivals iterate without the lock

@@ -54,10 +54,12 @@ class Monitor:
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
         # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
         # process from being a 21st subscriber callback in every beacon's fan-out.
-        self.beacon_inbox = bus.inbox(keys.all_beacons(run))
+        # On a bus with receive rings (real time) a full inbox evicts instead of decoding a flood to compact.
+        self.beacon_inbox = bus.inbox(keys.all_beacons(run), compact=bus.receive_ring is None)
         bus.feed(self.beacon_inbox, keys.all_beacons_in_cells(run))  # range-limited beacons (--beacon-cell)
         if central:  # the control plane's real messages, measured as they cross the bus
-            self.control_inboxes = [bus.inbox(keys.all_states(run)), bus.inbox(keys.all_commands(run))]
+            self.control_inboxes = [bus.inbox(key, compact=bus.receive_ring is None)
+                                    for key in (keys.all_states(run), keys.all_commands(run))]
         bus.subscribe(keys.world_positions(run), self._on_positions)
         bus.subscribe(keys.world_tick(run), self._on_tick)
         bus.watch_liveliness(keys.all_alive(run), lambda k: self._live(k, True), lambda k: self._live(k, False))

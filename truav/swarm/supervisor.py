@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from truav.bus import guard, keys
+from truav.bus import guard, keys, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
@@ -296,6 +296,8 @@ class _Swarm:
                                                         "--port", str(opts.foxglove_port)))
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
             bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
+            # Real time: a flood costs the monitor a bounded amount of work, as it does the world and agents.
+            bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
             self.monitor.attach(bus, opts.run, central=self.central, tracks_from_world=opts.scheme != "truav")
             if opts.record and not self._recorder_ready(bus):
                 return False
