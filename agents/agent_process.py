@@ -57,6 +57,8 @@ LOCKSTEP_BEACON_WAIT_S = 2.0
 """Lock-step: how long to wait for the beacons of live peers before acting without them."""
 REALTIME_BEACON_MAX_AGE_TICKS = 10
 """Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
+HEALTH_PERIOD_S = 1.0
+"""How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
 DONE_ACK_ACTION = 0
 """The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
 DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
@@ -158,6 +160,7 @@ class AgentNode:
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         self.n_uavs = cfg.scenario.n_uavs
         self.steps = 0
+        self._last_tick = -1  # the tick of the last observation handled (health reports)
         self.stale_obs_skipped = 0
         """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
         self.learners = self._make_learners()
@@ -211,7 +214,8 @@ class AgentNode:
         # other control keys then never costs it anything.
         bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
-        bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me))
+        bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me),
+                    keys.uav_health(run, me))
         self._setup_scheme(bus)
         # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
         # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
@@ -296,14 +300,39 @@ class AgentNode:
     def run(self) -> None:
         if not self.opts.lockstep:
             threading.Thread(target=self._beacon_loop, name="beacons", daemon=True).start()
+        threading.Thread(target=self._health_loop, name="health", daemon=True).start()
         while not self._stop.is_set():
             msg = self._obs.get()
             if msg is not None and not self.opts.lockstep:
                 msg = self._newest_obs(msg)
             if msg is None:
                 break
+            self._last_tick = msg.tick
             self.handle(msg)
         self.checkpoint()
+
+    def health(self) -> schema.Health:
+        """This agent's health report: what its bus refused, by reason and (the most refused) sender."""
+        by_reason = sorted(self.bus.rejections.by_reason().items(), key=lambda kv: (-kv[1], kv[0]))
+        by_sender: dict[str, int] = {}
+        for per_sender in self.bus.rejections.as_dict().values():
+            for sender, n in per_sender.items():  # a name a flood chose: shown in printable ASCII only
+                shown = "".join(c if " " <= c <= "~" else "?" for c in sender)[:schema.MAX_SRC_LEN] or "?"
+                by_sender[shown] = by_sender.get(shown, 0) + n
+        top = sorted(by_sender.items(), key=lambda kv: (-kv[1], kv[0]))[:schema.MAX_HEALTH_SENDERS]
+        return schema.Health(uav=self.opts.uav, last_tick=self._last_tick, steps=self.steps,
+                             stale_obs_skipped=self.stale_obs_skipped,
+                             rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top))
+
+    def _health_loop(self) -> None:
+        """About once a second (and at once, so `truav-swarm status` sees a fresh agent): the health report."""
+        while True:
+            try:
+                self.bus.publish(keys.uav_health(self.opts.run, self.opts.uav), self.health())
+            except RuntimeError:  # bus closed at shutdown
+                return
+            if self._stop.wait(HEALTH_PERIOD_S):
+                return
 
     def _newest_obs(self, msg: schema.Obs) -> schema.Obs | None:
         """Real time: the world applies only the current tick's action, so an agent that fell behind

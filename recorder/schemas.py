@@ -19,7 +19,7 @@ import msgpack
 
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
-KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command")
+KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -115,6 +115,10 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
     },
     "command": {"uav": _INT, "tick": _INT, "action": _INT,
                 "pad": {"description": "padding bytes to central.download_bytes"}},
+    "health": {"uav": _INT, "last_tick": {**_INT, "description": "last tick answered, -1 none yet"}, "steps": _INT,
+               "stale_obs_skipped": _INT,
+               "rejected": {"type": "object", "additionalProperties": _INT, "description": "refused messages by reason"},
+               "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"}},
 }
 
 

@@ -57,6 +57,8 @@ def samples() -> list[schema.Message]:
         schema.State(uav=3, tick=7, episode=2, step=4, pos=(10.5, 2.25), vehicles_in_range=4, queued_packets=12,
                      relayed=3, covered=2, energy_j=0.75, done=False, pad=bytes(20)),
         schema.Command(uav=3, tick=7, action=5, pad=bytes(8)),
+        schema.Health(uav=3, last_tick=7, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
+                      senders={"?": 1, "(other senders)": 1}),
     ]
 
 

@@ -5,7 +5,7 @@ and msgpack lengths before parsing) is further checked by the :class:`Guard`
 a process installs on its Bus:
 
 * **who may send it**: ticks, observations, positions and metrics only from
-  ``world``; beacons, actions and state uploads only from ``uav/<i>`` about UAV ``i``;
+  ``world``; beacons, actions, state uploads and health reports only from ``uav/<i>`` about UAV ``i``;
   commands only from ``controller``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
   fault announcements only from the supervisor.  Without ``--secure`` the
@@ -165,7 +165,7 @@ class Guard:
         if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
             if src != keys.SRC_WORLD:
                 return R_SENDER, f"{msg.KIND} from {src}"
-        elif isinstance(msg, (schema.Beacon, schema.Action, schema.State)):
+        elif isinstance(msg, (schema.Beacon, schema.Action, schema.State, schema.Health)):
             if src != f"uav/{msg.uav}":
                 return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
         elif isinstance(msg, schema.Control):

@@ -57,6 +57,7 @@ OBS = "obs"
 BEACON = "beacon"
 ACTION = "action"
 STATE = "state"
+HEALTH = "health"
 CONTROLLER = "controller"
 COMMAND = "cmd"
 
@@ -131,6 +132,15 @@ def uav_state(run: str, i: int) -> str:
 
 def all_states(run: str) -> str:
     return f"{prefix(run)}/uav/*/{STATE}"
+
+
+def uav_health(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>/health``: agent i's own statistics (what it refused), about once a second."""
+    return f"{uav_prefix(run, i)}/{HEALTH}"
+
+
+def all_health(run: str) -> str:
+    return f"{prefix(run)}/uav/*/{HEALTH}"
 
 
 def controller_cmd(run: str, i: int) -> str:

@@ -11,7 +11,8 @@ Every message on the bus is a msgpack map.  Five envelope entries come first:
 followed by the fields of that kind; one frozen dataclass per kind below
 (:class:`Tick`, :class:`Obs`, :class:`Beacon`, :class:`Action`,
 :class:`Metrics`, :class:`Fault`, :class:`Control`, :class:`Positions`, and
-the centralized scheme's :class:`State` upload and :class:`Command`).  The
+the centralized scheme's :class:`State` upload and :class:`Command`, and an
+agent's :class:`Health` report).  The
 envelope fields ``src``/``seq``/``t`` are keyword-only with "unstamped"
 defaults; a :class:`Sequencer` (or :class:`truav.bus.transport.Bus`, which owns
 one) stamps them just before sending.
@@ -69,6 +70,7 @@ KIND_CONTROL = "control"
 KIND_POSITIONS = "positions"
 KIND_STATE = "state"
 KIND_COMMAND = "command"
+KIND_HEALTH = "health"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -103,6 +105,8 @@ MAX_FAULT_PARAMS = 32
 MAX_ARGS_DEPTH = 16
 MAX_ARGS_NODES = 65_536
 MAX_ARGS_STR_LEN = 64 << 10
+MAX_HEALTH_REASONS = 32  # rejection reasons in a health message (there are about 20)
+MAX_HEALTH_SENDERS = 8  # the senders most refused, in a health message
 INT64_MAX = (1 << 63) - 1
 UINT64_MAX = (1 << 64) - 1
 
@@ -284,6 +288,22 @@ def _str_map(max_entries: int, value_check: Check) -> Check:
 
 
 _param_text = _text(MAX_PARAM_STR_LEN, allow_empty=True)
+
+
+_printable_src = _text(MAX_SRC_LEN, re.compile(r"[ -~]+"))  # a sender as a receiver names it: "?", "(other senders)"
+
+
+def _count_map(max_entries: int, key_check: Check) -> Check:
+    """A map of checked keys to counts (ints >= 0), at most ``max_entries``."""
+
+    def check(name: str, v: Any) -> dict[str, int]:
+        if not isinstance(v, Mapping):
+            raise SchemaError(R_BAD_TYPE, f"{name} must be a map")
+        if len(v) > max_entries:
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(v)} entries, cap is {max_entries}")
+        return {key_check(f"{name} key", k): _uint63(f"{name}[{k!r}]", x) for k, x in v.items()}
+
+    return check
 
 
 def _param_value(name: str, v: Any) -> float | int | str:
@@ -546,7 +566,35 @@ class Positions(Envelope):
     vehicles: tuple[tuple[float, float], ...]
 
 
-Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command]
+@dataclass(frozen=True)
+class Health(Envelope):
+    """Agent ``uav`` -> supervisor, status, recorder: what it refused so far, about once a second.
+
+    Bounded whatever a flood sends it: ``rejected`` by reason (the fixed ``R_*`` codes), ``senders``
+    only the :data:`MAX_HEALTH_SENDERS` most refused senders."""
+
+    KIND: ClassVar[str] = KIND_HEALTH
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "last_tick": _int(-1, (1 << 63) - 1),
+            "steps": _uint63,
+            "stale_obs_skipped": _uint63,
+            "rejected": _count_map(MAX_HEALTH_REASONS, _name),
+            "senders": _count_map(MAX_HEALTH_SENDERS, _printable_src),
+        }
+    )
+    uav: int
+    last_tick: int
+    """The last observation's tick it answered (-1: none yet); not ``tick``, so an agent far behind
+    the world still gets its report through the receivers' tick window."""
+    steps: int
+    stale_obs_skipped: int
+    rejected: dict[str, int]
+    senders: dict[str, int]
+
+
+Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -554,7 +602,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
-    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command):
+    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, **cls.CHECKS}
@@ -596,6 +644,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
     KIND_STATE: {**_SMALL_LIMITS, "max_map_len": 20, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
     KIND_COMMAND: {**_SMALL_LIMITS, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
+    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 17), "max_array_len": 0},
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
 })

@@ -134,7 +134,8 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
         Grant(SUPERVISOR,
               put=(keys.all_control(run), keys.all_faults(run)),
               subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_beacons_in_cells(run),
-                         keys.all_control(run), keys.all_states(run), keys.all_commands(run)),  # traffic measured for the summary
+                         keys.all_control(run), keys.all_states(run), keys.all_commands(run),  # traffic measured for the summary
+                         keys.all_health(run)),  # the agents' health reports, for `status`
               watch=(keys.all_alive(run),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),
         Grant(REPLAY, put=(f"{r}/**",), subscribe=(keys.control(replay_run(run), "replay"),),
@@ -143,7 +144,8 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
     for i in range(n_uavs):
         table.append(Grant(
             keys.uav_identity(i),
-            put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i)),
+            put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
+                 keys.uav_health(run, i)),
             subscribe=(keys.uav_obs(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
                        keys.all_control(run), keys.controller_cmd(run, i)),
             tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))

@@ -485,7 +485,8 @@ def cmd_status(args) -> int:
     with Bus("status", args.run or "status", conf) as bus:
         heard = rejections_heard(bus, args.run)
         tokens = sorted(bus.alive(pattern, timeout=args.timeout))
-        rejected = heard(min(args.timeout, 0.5) if tokens else 0.0)
+        # Agents report once a second (agents.agent_process.HEALTH_PERIOD_S): wait a little longer for theirs.
+        rejected = heard(min(args.timeout, 0.5) + 1.2 if tokens else 0.0, tokens)
     if not tokens:
         print("no TRUAV process alive" + (f" in run {args.run}" if args.run else ""))
         return 1

@@ -164,31 +164,65 @@ def rejection_metrics(rejections) -> dict[str, float]:
             **{f"{REJECTED_METRIC}.{reason}": float(n) for reason, n in by_reason.items()}}
 
 
+MAX_HEALTH_SHOWN = 1024
+"""Agents' health reports `status` keeps (one per run and UAV id, the newest): bounded whatever is sent."""
+
+
 def rejections_heard(bus, run: str | None):
-    """Listen to step metrics; the returned function gives one line per run whose world refused messages."""
+    """Listen to the world's step metrics and the agents' health reports; the returned function
+    ``lines(wait_s, agents)`` gives one line per run whose world refused messages and one per agent
+    heard. It waits up to ``wait_s`` for the world's metrics and for a report of every agent in
+    ``agents`` (liveliness token keys; agents report about once a second)."""
     import threading
-    latest: dict[str, dict[str, float]] = {}
+    worlds: dict[str, dict[str, float]] = {}
+    agents: dict[tuple[str, int], object] = {}
     lock = threading.Lock()
 
     def on_step(key, msg, raw, recv_ns) -> None:
         with lock:
-            latest[keys.parse_run(key) or "?"] = dict(msg.values)
+            worlds[keys.parse_run(key) or "?"] = dict(msg.values)
 
-    bus.subscribe(keys.metrics_step(run) if run else f"{keys.ROOT}/*/metrics/step", on_step)
+    def on_health(key, msg, raw, recv_ns) -> None:
+        if msg.src != keys.uav_identity(msg.uav):  # status has no scenario guard: this check is the guard's
+            return
+        where = (keys.parse_run(key) or "?", msg.uav)
+        with lock:
+            if where in agents or len(agents) < MAX_HEALTH_SHOWN:
+                agents[where] = msg
 
-    def lines(wait_s: float = 0.0) -> list[str]:
+    pattern = keys.prefix(run) if run else f"{keys.ROOT}/*"
+    bus.subscribe(f"{pattern}/metrics/step", on_step)
+    bus.subscribe(f"{pattern}/uav/*/{keys.HEALTH}", on_health)
+
+    def lines(wait_s: float = 0.0, alive: list[str] = ()) -> list[str]:
         import time
+        want = {(keys.parse_run(k) or "?", keys.parse_uav_id(k)) for k in alive if keys.parse_uav_id(k) is not None}
         deadline = time.monotonic() + wait_s
-        while not latest and time.monotonic() < deadline:  # the world publishes step metrics every tick
+        while time.monotonic() < deadline:  # step metrics come every tick, health reports every second
+            with lock:
+                if worlds and want <= agents.keys():
+                    break
             time.sleep(0.02)
         with lock:
-            seen = dict(latest)
+            seen, reports = dict(worlds), dict(agents)
         out = []
         for r, values in sorted(seen.items()):
             total = int(values.get(REJECTED_METRIC, 0))
             reasons = ", ".join(f"{k.split('.', 1)[1]} {int(v)}" for k, v in sorted(values.items())
                                 if k.startswith(REJECTED_METRIC + "."))
             out.append(f"run {r}: the world rejected {total} message(s)" + (f" ({reasons})" if reasons else ""))
+        for (r, uav), h in sorted(reports.items()):
+            out.append(health_line(r, h))
         return out
 
     return lines
+
+
+def health_line(run: str, h) -> str:
+    """One agent's health report as `status` shows it."""
+    total = sum(h.rejected.values())
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(h.rejected.items()))
+    senders = ", ".join(f"{k} {v}" for k, v in sorted(h.senders.items(), key=lambda kv: (-kv[1], kv[0])))
+    line = f"run {run}: uav {h.uav} rejected {total} message(s)" + (f" ({reasons}; from {senders})" if total else "")
+    line += f", last tick {h.last_tick}, {h.steps} steps"
+    return line + (f", {h.stale_obs_skipped} stale observation(s) skipped" if h.stale_obs_skipped else "")
