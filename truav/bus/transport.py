@@ -80,7 +80,7 @@ REALTIME_RECEIVE_RING = 256
 far more than a tick brings (an observation, a tick, one action or beacon per UAV), few enough that a flood
 cannot make a message wait behind more than this many others."""
 PUMP_BATCH = 64
-PUMP_BACKOFF_S = 0.005
+PUMP_BACKOFF_S = 0.02
 """A ring subscription's pump that refused (or, into a full inbox, evicted for) more than half of its last
 PUMP_BATCH samples (a flood) pauses
 this long: the ring then drops the flood inside Zenoh, so junk costs a process a bounded share of a core
