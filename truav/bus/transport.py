@@ -82,9 +82,9 @@ cannot make a message wait behind more than this many others."""
 PUMP_BATCH = 64
 PUMP_BACKOFF_S = 0.02
 """A ring subscription's pump that refused (or, into a full inbox, evicted for) more than half of its last
-PUMP_BATCH samples (a flood) pauses
-this long: the ring then drops the flood inside Zenoh, so junk costs a process a bounded share of a core
-whatever its rate, and a valid message behind it waits at most this much longer."""
+PUMP_BATCH samples (a flood) pauses this long: the ring then drops the flood inside Zenoh, so junk costs a
+process a bounded share of a core (64 samples per pause, some 5%) whatever its rate, and a valid message
+behind it waits at most this much longer. (The count is per Bus: a flood on one key can pause another.)"""
 MAX_LOG_ONCE_TAGS = 1024  # distinct "log once" tags remembered; tags can hold sender-chosen keys
 REPLAY_TAG = b"truav-replay"
 """Zenoh attachment on every put of a ``replay`` Bus: receivers drop it unless they accept replays."""
@@ -406,6 +406,7 @@ class Bus:
         self._filter_lock = threading.Lock()  # the link filter sees one message at a time (inboxes decide off that lock)
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._handles: list[Handle] = []
+        self._pumps: list[threading.Thread] = []
         self._logged: set[str] = set()
         self._received = self._delivered = self._filtered = self._delayed = 0
         self._callback_errors = self._filter_errors = self._overflow = self._backoffs = 0
@@ -477,6 +478,13 @@ class Bus:
                 pass
         self._session.close()
         self._sched.stop()
+        # A pump still waiting inside Zenoh when the interpreter exits would be torn down mid-Rust-call
+        # (a daemon thread re-taking the GIL during finalization): the process aborts ("FATAL: exception
+        # not rethrown"). Closing the session ends their waits; wait for them to return.
+        deadline = time.monotonic() + CLOSE_JOIN_TIMEOUT_S
+        for pump in self._pumps:
+            if pump is not threading.current_thread():
+                pump.join(max(deadline - time.monotonic(), 0.0))
 
     def stats(self) -> BusStats:
         with self._lock:
@@ -676,8 +684,11 @@ class Bus:
         handle = self._register(Handle(what, sub.undeclare))
         # The pump reads the handler, not the subscriber: a thread blocked in Subscriber.recv holds a borrow
         # of it that makes undeclare fail ("Already borrowed"); undeclaring ends the handler's recv instead.
-        threading.Thread(target=self._run_pump, args=(sub.handler, on_sample, what, bool(ring)), daemon=True,
-                         name=f"truav-rx[{self._identity}] {key_expr}").start()
+        pump = threading.Thread(target=self._run_pump, args=(sub.handler, on_sample, what, bool(ring)), daemon=True,
+                                name=f"truav-rx[{self._identity}] {key_expr}")
+        with self._lock:
+            self._pumps.append(pump)
+        pump.start()
         return handle
 
     def _run_pump(self, sub: zenoh.handlers.Handler, on_sample: Callable[[zenoh.Sample], None], what: str,
