@@ -24,7 +24,9 @@ channel is a FIFO by default (nothing lost; a reader that falls behind pushes
 back on Zenoh) or, with :attr:`Bus.receive_ring` (real-time processes), a ring
 that drops the oldest samples in Zenoh without touching Python when the
 reader falls behind: a flood then costs a process at most what its pump can
-take, and a message waits behind at most that many others.  The Bus
+take, and a message waits behind at most that many others.  An idle pump
+wakes every 100 ms (zenoh-python's ``Handler.recv`` checks for signals):
+measured ~19 us of CPU each, ~0.2 ms a second per subscription.  The Bus
 decodes, filters and delivers a message on the pump thread, under one delivery
 lock per Bus, so one Bus never runs two user callbacks at once and user
 callbacks may call ``Bus.publish`` (they are not on a Zenoh network thread).
