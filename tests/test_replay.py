@@ -54,7 +54,9 @@ GAPS_MS = [0, 3, 7, 0, 0, 25, 1, 12, 40, 2, 0, 9, 18, 5, 60, 1, 1, 30, 4, 15] * 
 GAP_P50_MS = 1.0
 GAP_P90_MS = 5.0
 GAP_MAX_MS = 25.0
-TIMING_ATTEMPTS = 3
+TIMING_ATTEMPTS = 6
+"""Tries per timing test, stopping at the first within the bounds: in a full suite beside other jobs on
+2 cores, three loaded tries in a row came out at p50 1.1-1.9 ms (alone the same code gives 0.1-0.2 ms)."""
 
 
 def payload(kind: str, src: str, seq: int, **body: object) -> bytes:
