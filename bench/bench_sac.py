@@ -22,6 +22,9 @@ import subprocess
 import sys
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, ROOT)
+
+from truav.cli_args import int_in  # noqa: E402
 
 BEFORE_S_PER_EPISODE = 0.32
 """Wall seconds per 10-seed episode of learning at commit d2daf94 (2026-12-01, load 0.7, before the
@@ -76,9 +79,11 @@ def line(name: str, r: dict, seeds: int) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--compare", metavar="DIR", help="also time the checkout at DIR (e.g. main's), alternating runs")
-    ap.add_argument("--repeats", type=int, default=2, help="best of this many runs per figure (default 2)")
-    ap.add_argument("--episodes", type=int, default=30, help="learning episodes per run (default 30)")
+    ap.add_argument("--repeats", type=int_in(1), default=2, help="best of this many runs per figure (default 2)")
+    ap.add_argument("--episodes", type=int_in(1), default=30, help="learning episodes per run (default 30)")
     args = ap.parse_args()
+    if args.compare and not os.path.isfile(os.path.join(args.compare, "truav", "trainer.py")):
+        ap.error(f"--compare {args.compare}: not a checkout of this project (no truav/trainer.py there)")
     seeds = 10
     load = os.getloadavg()
     print(f"load: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")

@@ -25,6 +25,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from truav.cli_args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.trainer import run_chunk, run_parallel  # noqa: E402
 
@@ -65,8 +66,9 @@ def ratio(now: float, before: float | None) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="also time the paper's full 10-seed run")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes, one kernel thread each (default: all cores)")
-    ap.add_argument("--repeats", type=int, default=3, help="best of this many runs per figure (default 3)")
+    ap.add_argument("--workers", type=int_in(1), default=os.cpu_count() or 1,
+                    help="worker processes, one kernel thread each (default: all cores)")
+    ap.add_argument("--repeats", type=int_in(1), default=3, help="best of this many runs per figure (default 3)")
     args = ap.parse_args()
     print(f"load: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} "
           f"on {os.cpu_count()} cores")
