@@ -385,3 +385,32 @@ def test_await_subscribers_says_whether_someone_listens_before_a_one_shot_put(bu
     while not got and time.monotonic() < deadline:
         time.sleep(0.01)
     assert got == ["shutdown"]
+
+
+def test_close_while_another_thread_publishes_does_not_raise(bus_factory) -> None:
+    """An agent's shutdown closes its Bus while a callback may still be inside a put: close()
+    must finish (it raised "Already borrowed" from the busy publisher, failing the shutdown)."""
+    for _ in range(20):
+        world = bus_factory("world")
+        stop = threading.Event()
+        errors: list[BaseException] = []
+
+        def hammer() -> None:
+            while not stop.is_set():
+                try:
+                    world.publish(keys.uav_obs(RUN, 0), obs(tick=1))
+                except (RuntimeError, zenoh.ZError):  # "bus world is closed", "session closed": the end
+                    return
+                except BaseException as exc:  # anything else is a bug
+                    errors.append(exc)
+                    return
+
+        t = threading.Thread(target=hammer, daemon=True)
+        t.start()
+        time.sleep(0.005)
+        try:
+            world.close()  # must not raise
+        finally:
+            stop.set()
+            t.join(5)
+        assert not errors, errors

@@ -478,6 +478,9 @@ class Bus:
                 p.undeclare()
             except zenoh.ZError:
                 pass
+            except RuntimeError as exc:  # "Already borrowed": another thread is inside this publisher's put
+                log.debug("bus %s: publisher busy at close (%s); the session's close undeclares it",
+                          self._identity, exc)
         self._session.close()
         self._sched.stop()
         # A pump still waiting inside Zenoh when the interpreter exits would be torn down mid-Rust-call
