@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import socket
 import subprocess
+import time
 from pathlib import Path
 from collections.abc import Callable, Iterator
 
@@ -13,6 +14,14 @@ import pytest
 from truav.bus import transport
 from truav.bus.transport import Bus
 from truav.config import Config
+
+
+def wait_until(pred: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
+    """Poll ``pred`` until it holds or ``timeout_s`` passes; its last value."""
+    deadline = time.monotonic() + timeout_s
+    while not pred() and time.monotonic() < deadline:
+        time.sleep(poll_s)
+    return pred()
 
 
 def free_port() -> int:

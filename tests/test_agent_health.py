@@ -13,18 +13,12 @@ from agents.agent_process import AgentNode, AgentOptions
 from recorder.check import check
 from recorder.mcap_log import McapLog
 from recorder.reader import iter_messages, read_schemas
+from conftest import wait_until
 from truav.bus import guard, keys, schema, security
 from truav.config import Config
 from truav.swarm import cli as swarm_cli
 
 RUN = "health"
-
-
-def _until(pred, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return pred()
 
 
 def _health(**kw) -> schema.Health:
@@ -42,7 +36,7 @@ def test_agent_rejections_show_in_status(bus_factory, endpoint, capsys) -> None:
             attacker.publish_raw(keys.uav_obs(RUN, 0), junk)
         forged = schema.Sequencer("mallory").stamp(schema.Control(command="shutdown", args={}))
         attacker.publish_raw(keys.control(RUN, "shutdown"), schema.encode(forged))
-        assert _until(lambda: node.bus.rejections.total() == 4, 10)
+        assert wait_until(lambda: node.bus.rejections.total() == 4, 10)
         time.sleep(1.3)  # the next health report (once a second) carries them
         assert swarm_cli.main(["status", "--run", RUN, "-e", endpoint]) == 0
         out = capsys.readouterr().out

@@ -7,16 +7,10 @@ import time
 
 import zenoh
 
+from conftest import wait_until
 from truav.bus import keys, schema, transport
 
 RUN = "ring"
-
-
-def _until(pred, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return pred()
 
 
 def _action(tick: int) -> schema.Action:
@@ -40,7 +34,7 @@ def _flood_while_stalled(bus_factory, endpoint: str, ring: int | None, junk: int
     agent.prepare(keys.uav_action(RUN, 0))
     time.sleep(0.3)  # the subscription reached the router
     agent.publish(keys.uav_action(RUN, 0), _action(1))
-    assert _until(lambda: delivered == [1], 10)
+    assert wait_until(lambda: delivered == [1], 10)
     attacker = zenoh.open(transport.make_config("client", connect=[endpoint]))
     try:
         for n in range(junk):  # DROP: the attacker must not stall on a reader that pushes back
@@ -48,7 +42,7 @@ def _flood_while_stalled(bus_factory, endpoint: str, ring: int | None, junk: int
         agent.publish(keys.uav_action(RUN, 0), _action(2))  # the valid one comes last: the newest
         time.sleep(0.5)
         stalled.set()
-        assert _until(lambda: 2 in delivered, 10), delivered
+        assert wait_until(lambda: 2 in delivered, 10), delivered
     finally:
         attacker.close()
     return reader, delivered
@@ -78,7 +72,7 @@ def test_a_full_realtime_inbox_evicts_without_decoding(bus_factory, endpoint) ->
     try:
         for _ in range(200):
             attacker.put(keys.uav_beacon(RUN, 0), b"\xc1")
-        assert _until(lambda: reader.stats().overflow >= 150, 10), reader.stats()
+        assert wait_until(lambda: reader.stats().overflow >= 150, 10), reader.stats()
         assert reader.stats().malformed == {}  # evicting decoded none of them
         assert len(box.drain()) == 0 and sum(reader.stats().malformed.values()) <= 8  # the drain decodes <= capacity
     finally:
