@@ -17,13 +17,13 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgpack
 import pytest
 
-from conftest import free_port
+from conftest import free_port, wait_until
 from mcap.reader import make_reader
 
 from recorder.check import check
@@ -56,15 +56,6 @@ TICK_S = 0.1
 KILL_RATE_HZ = 1000.0
 KILL_AFTER_S = 1.2
 LOSS_WINDOW_NS = 100 * MS
-
-
-def wait_until(pred: Callable[[], bool], timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return pred()
 
 
 @pytest.fixture

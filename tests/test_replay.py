@@ -24,7 +24,7 @@ import msgpack
 import numpy as np
 import pytest
 
-
+import conftest
 from recorder.cli import add_swarm_commands
 from recorder.mcap_log import McapLog
 from recorder.process import Recorder, RecorderOptions
@@ -102,12 +102,7 @@ class Collector:
 
 
 def wait_until(pred: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
+    return conftest.wait_until(pred, timeout, 0.005)
 
 
 def timing_ok(err: np.ndarray) -> bool:

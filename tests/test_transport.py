@@ -16,6 +16,7 @@ from collections.abc import Callable
 import msgpack
 import pytest
 
+import conftest
 from conftest import free_port
 import zenoh
 
@@ -31,12 +32,7 @@ LEAVE_BUDGET_S = 1.0
 
 
 def wait_until(pred: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(POLL_S)
-    return pred()
+    return conftest.wait_until(pred, timeout, POLL_S)
 
 
 def obs(uav: int = 0, tick: int = 0) -> Obs:
