@@ -49,6 +49,7 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "plan.toml").write_text(GOOD_PLAN)
     (d / "ctrl.toml").write_text('[[fault]]\nkind = "crash"\nstart = 1.0\ntarget = "controller"\n')
     (d / "empty.npz").write_bytes(b"")
+    (d / "unclosed.json5").write_text('{"mode": "client"')
     cfg = to_toml(Config())
     for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):
         (d / name).mkdir()
@@ -173,6 +174,9 @@ ROWS = [
     ("faults-plan-random-bytes", "swarm", "faults --plan {random_toml}", 2, "random.toml"),
     ("status-connect-garbage", "swarm", "status -e garbage", 2, "-e/--connect"),
     ("status-config-missing", "swarm", "status -c {dir}/nope.json5", 2, "-c/--config"),
+    ("world-config-json5-syntax", "swarm", "world -c {unclosed_json5}", 2, "-c/--config"),  # json5's caret diagram
+    ("up-record-in-proc", "swarm", "up --record /proc/truav-test.mcap", 2, "--record"),  # root may "access" it
+    ("train-out-in-proc", "truav", "train --out /proc/truav-test", 2, "--out"),
     ("router-listen-garbage", "swarm", "router -l garbage", 2, "-l/--listen"),
     ("world-plan-uav-99", "swarm", "world --fault-plan {uav99_toml}", 2, "UAV 99"),
     ("world-seed-negative", "swarm", "world --seed -1", 2, "--seed"),

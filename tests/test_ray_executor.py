@@ -39,3 +39,18 @@ def test_ray_sweep_gives_the_local_csv_and_resumes(tmp_path, capsys, local_ray):
 def test_address_without_ray_executor_is_a_usage_error(tmp_path, capsys):
     assert main(_args(tmp_path / "x", "--address", "127.0.0.1:6379")) == 2
     assert "--address needs --executor ray" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("address, says", [
+    ("notanaddress:x", "expected HOST:PORT"),
+    ("head:99999", "expected HOST:PORT"),
+    ("127.0.0.1:{closed}", "no Ray head answers there"),
+    ("ray://127.0.0.1:{closed}", "no Ray head answers there"),
+])
+def test_a_bad_or_dead_ray_address_is_refused_before_anything_runs(tmp_path, capsys, address, says):
+    from conftest import free_port
+    address = address.format(closed=free_port())  # nothing listens on a port just released
+    assert main(_args(tmp_path / "x", "--executor", "ray", "--address", address)) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and f"--address {address}" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x").exists()

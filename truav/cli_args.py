@@ -17,6 +17,7 @@ import os
 import re
 import signal
 import sys
+import tempfile
 from pathlib import Path
 from typing import Callable, NoReturn
 
@@ -169,7 +170,19 @@ def _writable_parent(flag: str, path: str, p: Path) -> None:
                 raise UserError(f"{flag} {path}: {parent} is not a directory")
             if not os.access(parent, os.W_OK | os.X_OK):
                 raise UserError(f"{flag} {path}: {parent} is not writable")
+            _probe_write(flag, path, parent)
             return
+
+
+def _probe_write(flag: str, path: str, directory: Path) -> None:
+    """Create and remove a file in ``directory``: os.access says yes to root everywhere, but /proc, a
+    read-only mount or a full disk still refuse, and that should be found before anything starts."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".truav-probe-", dir=directory)
+    except OSError as exc:
+        raise UserError(f"{flag} {path}: cannot write in {directory} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def check_out_dir(flag: str, path: str) -> Path:

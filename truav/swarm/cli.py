@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import signal
 import sys
 import threading
@@ -72,8 +73,17 @@ def check_transport(args, listen_flag: str = "-l/--listen") -> None:
         try:
             zenoh.Config.from_file(args.config)
         except zenoh.ZError as exc:
-            reason = str(exc).split(" at ")[0].strip()
-            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({reason})") from None
+            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({_one_line(exc)})") from None
+
+
+def _one_line(exc: Exception) -> str:
+    """A Zenoh config error on one line: json5's multi-line caret diagram becomes "line L:C: what"."""
+    text = str(exc).split(" at /")[0].strip()
+    where = re.search(r"-->\s*(\d+:\d+)", text)
+    what = re.findall(r"^\s*=\s*(.+?)\)?\s*$", text, flags=re.M)
+    if where and what:
+        return f"line {where.group(1)}: {what[-1]}"
+    return " ".join(text.split())
 
 
 def check_plan(flag: str, path: str, n_uavs: int, scheme: str | None = None):
