@@ -50,6 +50,8 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "ctrl.toml").write_text('[[fault]]\nkind = "crash"\nstart = 1.0\ntarget = "controller"\n')
     (d / "empty.npz").write_bytes(b"")
     (d / "unclosed.json5").write_text('{"mode": "client"')
+    (d / "bad_run_dir").mkdir()
+    (d / "bad_run_dir" / "swarm.json").write_text('{"endpoint": "garbage"}')
     cfg = to_toml(Config())
     for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):
         (d / name).mkdir()
@@ -174,6 +176,9 @@ ROWS = [
     ("faults-plan-random-bytes", "swarm", "faults --plan {random_toml}", 2, "random.toml"),
     ("status-connect-garbage", "swarm", "status -e garbage", 2, "-e/--connect"),
     ("status-config-missing", "swarm", "status -c {dir}/nope.json5", 2, "-c/--config"),
+    ("status-out-without-run", "swarm", "status --out {dir}/no_run_here", 2, "--out"),  # not the default endpoint
+    ("down-out-without-run", "swarm", "down --out {dir}", 2, "--out"),
+    ("down-out-garbage-endpoint", "swarm", "down --out {bad_run_dir}", 2, "endpoint"),
     ("world-config-json5-syntax", "swarm", "world -c {unclosed_json5}", 2, "-c/--config"),  # json5's caret diagram
     ("up-record-in-proc", "swarm", "up --record /proc/truav-test.mcap", 2, "--record"),  # root may "access" it
     ("train-out-in-proc", "truav", "train --out /proc/truav-test", 2, "--out"),

@@ -474,20 +474,25 @@ def cmd_controller(args) -> int:
     return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
-def _endpoint_from_out(args, out: Path | None) -> None:
-    """Without -e, connect where the run writing ``out`` has its router (from its swarm.json)."""
-    from truav.swarm.outdir import read_run_file
+def _endpoint_from_out(args, out: Path | None, explicit: bool) -> None:
+    """Without -e, connect where the run writing ``out`` has its router (from its swarm.json). An --out
+    the user named must hold one: connecting to the default endpoint instead would be a silent guess."""
+    from truav.swarm.outdir import RUN_FILE, read_run_file
     if args.connect or args.config or getattr(args, "creds", None) or out is None:  # --creds has its router
         return
     info = read_run_file(out)
-    if info and info.get("endpoint"):
+    if info and isinstance(info, dict) and isinstance(info.get("endpoint"), str) and info["endpoint"]:
+        check_endpoint(f"{out / RUN_FILE}: endpoint", info["endpoint"])
         args.connect = [info["endpoint"]]
+    elif explicit:
+        raise UserError(f"--out {out}: no swarm run's {RUN_FILE} with its router endpoint there "
+                        f"(a directory `truav-swarm up --out` wrote); or give -e/--connect ENDPOINT")
 
 
 def cmd_status(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
-    _endpoint_from_out(args, Path(args.out) if args.out else None)
+    _endpoint_from_out(args, Path(args.out) if args.out else None, explicit=args.out is not None)
     from truav.swarm.secure_cli import rejections_heard
     _creds(args, "supervisor")
     conf = config_from_args(args)
@@ -517,7 +522,7 @@ def cmd_down(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
     out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
-    _endpoint_from_out(args, out)
+    _endpoint_from_out(args, out, explicit=args.out is not None)
     _creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
         key = keys.control(args.run, "shutdown")
