@@ -23,12 +23,14 @@ class BatchedMlp:
     per MLP. forward keeps what backward needs, so a backward belongs to the
     last forward with the same parameters."""
 
-    def __init__(self, torch, params, rows: int):
+    def __init__(self, torch, params, rows: int, backward: bool = True):
         self.torch = torch
         n, hidden, out = params[0].shape[0], params[0].shape[2], params[4].shape[2]
         self.h1 = torch.empty((n, rows, hidden))
         self.h2 = torch.empty((n, rows, hidden))
         self.out = torch.empty((n, rows, out))
+        if not backward:  # forward only (acting)
+            return
         self.grad_h1 = torch.empty((n, rows, hidden))
         self.grad_h2 = torch.empty((n, rows, hidden))
         self.grads = [torch.empty_like(p) for p in params]

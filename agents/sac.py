@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 
+from agents import sac_kernels
 from truav.config import CentralConfig
 
 _TORCH = None
@@ -73,12 +74,13 @@ class _FusedAdam:
         self.params, self.lr, self.betas, self.eps = list(params), float(lr), betas, eps
         self.exp_avg = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
         self.exp_avg_sq = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
-        self.steps = [torch.zeros((), dtype=torch.float32) for _ in self.params]
+        self._steps = torch.zeros(len(self.params), dtype=torch.float32)
+        self.steps = list(self._steps.unbind())  # one float32 step counter per parameter, views of _steps
 
     def step(self, grads) -> None:
         """One Adam step of the parameters along grads (tensors in the parameters' order)."""
         torch = _TORCH
-        torch._foreach_add_(self.steps, 1)
+        self._steps.add_(1)  # every counter at once (torch.optim.Adam: _foreach_add_(steps, 1))
         torch._fused_adam_(self.params, grads, self.exp_avg, self.exp_avg_sq, [],
                            self.steps, amsgrad=False, lr=self.lr, beta1=self.betas[0], beta2=self.betas[1],
                            weight_decay=0.0, eps=self.eps, maximize=False, grad_scale=None, found_inf=None)
@@ -111,15 +113,30 @@ class BatchedSAC:
         self._replay = torch.from_numpy(np.zeros((self.B * cap, 2 * D + 2 * U), np.float32))
         self._first_row = np.arange(self.B) * cap
         self.size, self.ptr, self.updates = 0, 0, 0
-        # A sampled batch, and each network's activations and gradients, in buffers reused by every update.
-        self._batch = torch.empty((self.B, M, 2 * D + 2 * U))
+        # A sampled batch, and each network's activations and gradients, in buffers reused by every update;
+        # numpy views of them for the kernels of agents.sac_kernels.
+        A = n_actions
         self._s, self._s2 = torch.empty((self.B, M, D)), torch.empty((self.B, M, D))
         self._x, self._x2 = torch.empty((2 * self.B, M, D)), torch.empty((2 * self.B, M, D))  # one copy per critic
-        self._grad_q = torch.zeros((self.B, 2, M, U, n_actions))  # zero but where an update scatters (and resets)
+        self._r, self._a = torch.empty((self.B, M, U)), torch.empty((self.B, M, U), dtype=torch.int64)
+        self._grad_q = torch.zeros((self.B, 2, M, U, A))  # zero but where an update writes (and resets)
+        self._logp, self._p = torch.empty((self.B, M, U, A)), torch.empty((self.B, M, U, A))
+        self._terms, self._terms2 = torch.empty((self.B, M, U, A)), torch.empty((self.B, M, U, A))
+        self._v2, self._y = torch.empty((self.B, M, U)), torch.empty((self.B, M, U))
+        self._ent = torch.empty((self.B, M, U))
+        self._np = {k: getattr(self, "_" + k).numpy() for k in
+                    ("replay", "s", "s2", "x", "x2", "r", "a", "grad_q", "logp", "p", "terms", "terms2", "v2", "y")}
         self._actor_net = BatchedMlp(torch, self.actor, M)
         self._critic_net = BatchedMlp(torch, self.critic, M)
+        # Acting: one row per seed.
+        self._act_net = BatchedMlp(torch, self.actor, 1, backward=False)
+        self._act_state = torch.empty((self.B, 1, D))
+        self._act_logp, self._act_p = torch.empty((self.B, 1, U, A)), torch.empty((self.B, 1, U, A))
+        self._act_u = np.empty((self.B, U))
         # d(mean over the batch's M x U terms)/d(term), as autograd computes it (1 / (M U) in float32).
         self._mean_grad = float(torch.ones(()).expand(self.B).div(M * U)[0])
+        self._mean_grad32 = np.float32(self._mean_grad)
+        self._discount32 = np.float32(self.discount)  # as torch rounds a Python scalar for a float32 tensor
 
     # -- networks ---------------------------------------------------------------
     @staticmethod
@@ -151,14 +168,17 @@ class BatchedSAC:
         """Joint actions (B, U) for joint states (B, D): sampled from pi (each
         seed's rng) or its mode."""
         torch = self.torch
-        with torch.inference_mode():
-            _, p = self._policy(torch.as_tensor(state, dtype=torch.float32)[:, None, :])
-        p = p[:, 0].numpy().astype(np.float64)  # (B, U, A)
+        self._act_state.numpy()[:, 0] = state  # float32, as torch.as_tensor(state, dtype=torch.float32)
+        logits = self._act_net.forward(self.actor, self._act_state).view(self.B, 1, self.U, self.A)
+        torch.exp(torch.log_softmax(logits, -1, out=self._act_logp), out=self._act_p)
+        p = self._act_p.numpy()[:, 0].astype(np.float64)  # (B, U, A)
         if greedy:
             return p.argmax(axis=-1)
-        u = np.stack([rng.random(self.U) for rng in self.rngs])[..., None]  # (B, U, 1)
-        cdf = np.cumsum(p, axis=-1)
-        return np.minimum((cdf < u * cdf[..., -1:]).sum(axis=-1), self.A - 1)
+        for rng, u in zip(self.rngs, self._act_u):
+            rng.random(out=u)
+        out = np.empty((self.B, self.U), np.int64)
+        sac_kernels.sample_actions(p, self._act_u, out)
+        return out
 
     def random_actions(self) -> np.ndarray:
         return np.stack([rng.integers(0, self.A, self.U) for rng in self.rngs])
@@ -166,27 +186,25 @@ class BatchedSAC:
     # -- learning ---------------------------------------------------------------
     def store(self, s, a, r, s_next) -> None:
         """One transition per seed: s, s_next (B, D); a (B, U) ints; r (B, U)."""
-        self._replay.numpy()[self._first_row + self.ptr] = np.concatenate([s, s_next, r, a], axis=1)
+        sac_kernels.store_rows(self._np["replay"], self._first_row + self.ptr, np.asarray(s, np.float64),
+                               np.asarray(s_next, np.float64), np.asarray(r, np.float64), np.asarray(a, np.int64))
         self.ptr = (self.ptr + 1) % self.cfg.buffer_size
         self.size = min(self.size + 1, self.cfg.buffer_size)
 
     def _sample(self):
-        """A batch per seed from its rng: s, s' (B, M, D), their copies for the
-        twin critics (2B, M, D), r (B, M, U) and a (B, M, U) int64."""
-        torch, B, M, D, U = self.torch, self.B, self.cfg.batch_size, self.obs_dim, self.U
-        idx = np.stack([rng.integers(0, self.size, M) for rng in self.rngs])
-        rows = torch.from_numpy((idx + self._first_row[:, None]).reshape(-1))
-        batch = torch.index_select(self._replay, 0, rows, out=self._batch.view(B * M, -1)).view(B, M, -1)
-        s, s2 = self._s.copy_(batch[..., :D]), self._s2.copy_(batch[..., D:2 * D])
-        self._x.view(B, 2, M, D).copy_(batch[:, None, :, :D])
-        self._x2.view(B, 2, M, D).copy_(batch[:, None, :, D:2 * D])
-        return s, s2, self._x, self._x2, batch[..., 2 * D:2 * D + U], batch[..., 2 * D + U:].long()
+        """A batch per seed from its rng into the buffers: s, s' (B, M, D), their
+        copies for the twin critics (2B, M, D), r (B, M, U) and a (B, M, U) int64."""
+        idx = np.stack([rng.integers(0, self.size, self.cfg.batch_size) for rng in self.rngs])
+        n = self._np
+        sac_kernels.gather_batch(n["replay"], self._first_row, idx, n["s"], n["s2"], n["x"], n["x2"], n["r"], n["a"])
+        return self._s, self._s2, self._x, self._x2, self._r, self._a
 
     def _net_policy(self, s):
-        """_policy on the actor's buffers (for a batch of cfg.batch_size states)."""
+        """Log-probabilities and probabilities (B, M, U, A), in their buffers, for
+        states (B, M, D) (cfg.batch_size of them) on the actor's buffers."""
         logits = self._actor_net.forward(self.actor, s).view(self.B, s.shape[1], self.U, self.A)
-        logp = self.torch.log_softmax(logits, dim=-1)
-        return logp, logp.exp()
+        logp = self.torch.log_softmax(logits, -1, out=self._logp)
+        return logp, self.torch.exp(logp, out=self._p)
 
     def update(self) -> None:
         """One gradient step of critics, actor and temperature for every seed.
@@ -197,38 +215,41 @@ class BatchedSAC:
                 y = r + discount * sum_a pi(a|s') (min_c Q'_c(s', a) - alpha log pi(a|s'));
         actor   sum_b mean_{m,u} sum_a pi(a|s) (alpha log pi(a|s) - min_c Q_c(s, a)),
                 with the critics just updated;
-        alpha   sum_b log_alpha_b (entropy_b - target entropy)."""
-        torch, cfg = self.torch, self.cfg
+        alpha   sum_b log_alpha_b (entropy_b - target entropy).
+        The element-wise steps are agents.sac_kernels' (the same float32
+        operations in the same order as the torch expressions they replace)."""
+        torch, cfg, n, k = self.torch, self.cfg, self._np, sac_kernels
         if self.size == 0:
             return
         B, M, U, A = self.B, cfg.batch_size, self.U, self.A
-        s, s2, x, x2, r, a = self._sample()
-        alpha = self.log_alpha.exp()[:, None, None, None]
-        logp2, p2 = self._net_policy(s2)
-        q2 = self._critic_net.forward(self.target, x2).view(B, 2, M, U, A)
-        v2 = (p2 * (torch.min(q2[:, 0], q2[:, 1]) - alpha * logp2)).sum(-1)
-        y = r + self.discount * v2  # episode ends are time limits: always bootstrap
+        self._sample()
+        alpha = self.log_alpha.exp()
+        alpha_np = alpha.numpy()
+        self._net_policy(self._s2)
+        q2 = self._critic_net.forward(self.target, self._x2).view(B, 2, M, U, A)
+        k.soft_value_terms(n["p"], n["logp"], q2.numpy(), alpha_np, n["terms"])
+        torch.sum(self._terms, -1, out=self._v2)
+        # y = r + discount * v2 (episode ends are time limits: always bootstrap); the critics' output gradient
+        q_all = self._critic_net.forward(self.critic, self._x).view(B, 2, M, U, A)
+        k.critic_output_grad(q_all.numpy(), n["a"], n["r"], n["v2"], self._discount32, self._mean_grad32,
+                             n["y"], n["grad_q"])
+        self.critic_opt.step(self._critic_net.backward(self.critic, self._x, self._grad_q.view(2 * B, M, U * A)))
+        k.clear_taken(n["grad_q"], n["a"])
+        # Polyak averaging toward the updated critics (which the rest of the update only reads), while they are in
+        # cache; one foreach call per operation
+        torch._foreach_mul_(self.target, 1.0 - cfg.tau)
+        torch._foreach_add_(self.target, self.critic, alpha=cfg.tau)
 
-        q_all = self._critic_net.forward(self.critic, x).view(B, 2, M, U, A)
-        taken = a[:, None, :, :, None].expand(-1, 2, -1, -1, 1)
-        q = q_all.gather(-1, taken)[..., 0]  # (B, 2, M, U)
-        grad_q = (2.0 * (q - y[:, None])).mul_(self._mean_grad)
-        grad_out = self._grad_q.scatter_add_(-1, taken, grad_q[..., None]).view(2 * B, M, U * A)
-        self.critic_opt.step(self._critic_net.backward(self.critic, x, grad_out))
-        self._grad_q.scatter_(-1, taken, 0.0)
+        logp, p = self._net_policy(self._s)
+        qn = self._critic_net.forward(self.critic, self._x).view(B, 2, M, U, A)  # the updated critics
+        # through pi = exp(log pi), and direct; and the entropy's terms p log p
+        k.actor_logp_grad(n["logp"], n["p"], qn.numpy(), alpha_np, self._mean_grad32, n["terms"], n["terms2"])
+        grad_logits = torch._log_softmax_backward_data(self._terms, logp, -1, torch.float32).view(B, M, U * A)
+        self.actor_opt.step(self._actor_net.backward(self.actor, self._s, grad_logits))
 
-        logp, p = self._net_policy(s)
-        qn = self._critic_net.forward(self.critic, x).view(B, 2, M, U, A)  # the updated critics
-        z = alpha * logp - torch.min(qn[:, 0], qn[:, 1])
-        grad_logp = (z * self._mean_grad) * p + (p * self._mean_grad) * alpha  # through pi = exp(log pi), and direct
-        grad_logits = torch._log_softmax_backward_data(grad_logp, logp, -1, torch.float32).view(B, M, U * A)
-        self.actor_opt.step(self._actor_net.backward(self.actor, s, grad_logits))
-
-        entropy = -(p * logp).sum(-1).mean(dim=(1, 2))  # (B,)
+        entropy = -torch.sum(self._terms2, -1, out=self._ent).mean(dim=(1, 2))  # (B,)
         self.alpha_opt.step([entropy - self.target_entropy])
 
-        torch._foreach_mul_(self.target, 1.0 - cfg.tau)  # Polyak averaging, one foreach call per operation
-        torch._foreach_add_(self.target, self.critic, alpha=cfg.tau)
         self.updates += 1
 
     # -- state ------------------------------------------------------------------
