@@ -129,8 +129,9 @@ class ControlCounters:
         c["ctrl_down_bytes"] += down_b
         dt = self.cfg.scenario.step_s
         used = np.minimum(airtime, dt)  # what the world charges (it clips at one step)
-        c["ctrl_airtime_s"] += used.mean(axis=1)
-        c["ctrl_energy_j"] += self.cfg.channel.uav_tx_w * used.mean(axis=1)
+        used_mean = used.mean(axis=1)
+        c["ctrl_airtime_s"] += used_mean
+        c["ctrl_energy_j"] += self.cfg.channel.uav_tx_w * used_mean
         c["ctrl_delay_ms"] += 1e3 * np.minimum(delay, dt).mean(axis=1)
         self.rounds += 1
         return airtime, delay
@@ -178,11 +179,31 @@ def uav_states(cfg: Config, obs: LocalObs, rsu: np.ndarray) -> np.ndarray:
     sc, e = cfg.scenario, cfg.energy
     share = sc.n_vehicles / sc.n_uavs
     relay_share = max(cfg.traffic.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
-    d = np.linalg.norm(obs.pos[:, :, None, :] - rsu[None, None], axis=-1).min(axis=-1)
-    feats = [obs.pos[..., 0] / sc.area_m, obs.pos[..., 1] / sc.area_m, obs.vehicles_in_range / share,
-             obs.queued / (share * cfg.traffic.queue_limit), obs.relayed / relay_share, obs.covered / share,
-             obs.energy_j / max(e.move_w * sc.step_s, 1e-9), d / sc.area_m]
-    return np.minimum(np.stack(feats, axis=-1), 10.0)
+    scale = np.array([sc.area_m, share, share * cfg.traffic.queue_limit, relay_share, share,
+                      max(e.move_w * sc.step_s, 1e-9)], np.float64)
+    out = np.empty(obs.pos.shape[:2] + (STATE_DIM,))
+    _uav_states(np.ascontiguousarray(obs.pos, np.float64), obs.vehicles_in_range, obs.queued, obs.relayed,
+                obs.covered, obs.energy_j, np.ascontiguousarray(rsu, np.float64), scale, out)
+    return out
+
+
+@njit(cache=True)
+def _uav_states(pos, in_range, queued, relayed, covered, energy, rsu, scale, out):
+    """uav_states' features, each as numpy computes them (x / scale, then capped at 10;
+    the RSU distance is sqrt(dx^2 + dy^2), the nearest RSU's)."""
+    area = scale[0]
+    for b in range(pos.shape[0]):
+        for u in range(pos.shape[1]):
+            x, y = pos[b, u, 0], pos[b, u, 1]
+            d = np.inf
+            for k in range(rsu.shape[0]):
+                dx, dy = x - rsu[k, 0], y - rsu[k, 1]
+                d = min(d, np.sqrt(dx * dx + dy * dy))
+            feats = (x / area, y / area, in_range[b, u] / scale[1], queued[b, u] / scale[2],
+                     relayed[b, u] / scale[3], covered[b, u] / scale[4], energy[b, u] / scale[5], d / area)
+            for i in range(len(feats)):
+                f = feats[i]
+                out[b, u, i] = f if f != f or f < 10.0 else 10.0
 
 
 class CentralController:
