@@ -121,25 +121,30 @@ class ControlCounters:
     def round(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One round with UAVs at pos (B, U, 2): (airtime (B, U), delay (B, U))."""
         airtime, delay = self.plane.round(pos)
-        up_m, up_b, down_m, down_b = self.plane.messages(pos.shape[1])
         c = self.counts
-        c["ctrl_up_msgs"] += up_m
-        c["ctrl_up_bytes"] += up_b
-        c["ctrl_down_msgs"] += down_m
-        c["ctrl_down_bytes"] += down_b
         dt = self.cfg.scenario.step_s
-        used = np.minimum(airtime, dt)  # what the world charges (it clips at one step)
-        used_mean = used.mean(axis=1)
+        used_mean = _row_mean(np.minimum(airtime, dt))  # what the world charges (it clips at one step)
         c["ctrl_airtime_s"] += used_mean
         c["ctrl_energy_j"] += self.cfg.channel.uav_tx_w * used_mean
-        c["ctrl_delay_ms"] += 1e3 * np.minimum(delay, dt).mean(axis=1)
+        c["ctrl_delay_ms"] += 1e3 * _row_mean(np.minimum(delay, dt))
         self.rounds += 1
         return airtime, delay
 
     def stats(self) -> dict[str, np.ndarray]:
         out = {k: v.copy() for k, v in self.counts.items()}
+        # The same messages every round: their totals are rounds x one round's (integers, so exactly the sums).
+        per_round = self.plane.messages(self.cfg.scenario.n_uavs)
+        for key, count in zip(("ctrl_up_msgs", "ctrl_up_bytes", "ctrl_down_msgs", "ctrl_down_bytes"), per_round):
+            out[key][:] = float(self.rounds * count)
         out["ctrl_delay_ms"] = out["ctrl_delay_ms"] / max(self.rounds, 1)
         return out
+
+
+def _row_mean(x: np.ndarray) -> np.ndarray:
+    """x.mean(axis=1) as numpy computes it (add.reduce, then true_divide by the count), without its Python wrapper."""
+    out = np.add.reduce(x, 1)
+    out /= x.shape[1]
+    return out
 
 
 class WithControlPlane:
@@ -271,7 +276,7 @@ class CentralController:
             c = self.cfg.central
             if self.env_steps >= c.learning_starts and self.env_steps % c.update_every == 0:
                 self.sac.update()
-        self._reward_sum += r.mean(axis=1)
+        self._reward_sum += _row_mean(r)
         self._steps += 1
         self.state = nxt
         self.pos = obs.pos.copy()
