@@ -142,6 +142,10 @@ class BatchedSAC:
         # d(mean over the batch's M x U terms)/d(term), as autograd computes it (1 / (M U) in float32).
         self._mean_grad = float(torch.ones(()).expand(self.B).div(M * U)[0])
         self._mean_grad32 = np.float32(self._mean_grad)
+        # Polyak averaging in one pass per tensor where that is torch's arithmetic (sac_kernels.polyak), else torch's
+        self._keep32, self._tau32 = np.float32(1.0 - cfg.tau), np.float32(cfg.tau)
+        self._polyak = [(t.numpy().reshape(-1), c.numpy().reshape(-1)) for t, c in zip(self.target, self.critic)] \
+            if sac_kernels.polyak_is_torchs(torch, 1.0 - cfg.tau, cfg.tau) else None
         self._discount32 = np.float32(self.discount)  # as torch rounds a Python scalar for a float32 tensor
 
     # -- networks ---------------------------------------------------------------
@@ -242,9 +246,13 @@ class BatchedSAC:
         self.critic_opt.step(self._critic_net.backward(self.critic, self._x, self._grad_q.view(2 * B, M, U * A)))
         k.clear_taken(n["grad_q"], n["a"])
         # Polyak averaging toward the updated critics (which the rest of the update only reads), while they are in
-        # cache; one foreach call per operation
-        torch._foreach_mul_(self.target, 1.0 - cfg.tau)
-        torch._foreach_add_(self.target, self.critic, alpha=cfg.tau)
+        # cache
+        if self._polyak is not None:
+            for target, online in self._polyak:
+                k.polyak(target, online, self._keep32, self._tau32)
+        else:
+            torch._foreach_mul_(self.target, 1.0 - cfg.tau)
+            torch._foreach_add_(self.target, self.critic, alpha=cfg.tau)
 
         logp, p = self._net_policy(self._s)
         qn = self._critic_net.forward(self.critic, self._x).view(B, 2, M, U, A)  # the updated critics

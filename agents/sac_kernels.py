@@ -10,6 +10,10 @@ torch: their order and their approximations are torch's own. What this saves
 is dispatch, temporaries and passes over memory: at these sizes (10 seeds x
 64 x 5 x 16) a torch operation costs more in overhead than in arithmetic.
 
+One kernel fuses: Polyak averaging, where torch's add with alpha is a fused
+multiply-add (its vectorized fmadd) on CPUs with FMA; `polyak_is_torchs`
+checks that on the running machine before BatchedSAC uses it.
+
 Scalars are passed as np.float32 and literals written as float32, so nothing
 is promoted to float64.
 """
@@ -17,7 +21,9 @@ is promoted to float64.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 
 @njit(cache=True)
@@ -153,3 +159,34 @@ def sample_actions(p, u, out):
                 if acc < cut:
                     n += 1
             out[b, i] = min(n, A - 1)
+
+
+@intrinsic
+def _fma32(typingctx, a, b, c):
+    """a * b + c rounded once (LLVM's fma, float32)."""
+    sig = types.float32(types.float32, types.float32, types.float32)
+
+    def codegen(context, builder, signature, args):
+        f = ir.FloatType()
+        return builder.call(builder.module.declare_intrinsic("llvm.fma", [f], ir.FunctionType(f, [f, f, f])), args)
+    return sig, codegen
+
+
+@njit(cache=True)
+def polyak(target, online, keep, tau):
+    """target = fma(online, tau, target * keep) over flat float32 arrays: torch's
+    target.mul_(keep) then target.add_(online, alpha=tau), in one pass."""
+    for i in range(target.size):
+        target[i] = _fma32(online[i], tau, target[i] * keep)
+
+
+def polyak_is_torchs(torch, keep: float, tau: float) -> bool:
+    """Whether `polyak` gives torch's foreach numbers on this machine (torch's add
+    is fused only where the CPU has FMA), on seeded samples with a ragged tail."""
+    rng = np.random.default_rng(0)
+    target, online = (torch.from_numpy(rng.normal(size=4133).astype(np.float32)) for _ in range(2))
+    mine = target.numpy().copy()
+    polyak(mine, online.numpy(), np.float32(keep), np.float32(tau))
+    torch._foreach_mul_([target], keep)
+    torch._foreach_add_([target], [online], alpha=tau)
+    return bool(np.array_equal(mine, target.numpy()))
