@@ -29,9 +29,11 @@ buffers allocated once; the replay is one preallocated row per transition;
 the element-wise steps between the matrix products, the batch gather, the
 replay store and the action sampling are numba kernels (agents.sac_kernels:
 torch's float32 operations in torch's order, so the same numbers); acting is
-a preallocated 1-row forward. bench/bench_sac.py times it: with the literal
-config, 10 seeds, 1.6-1.7x less time per learning episode than at 0cd7060
-(before the written-out gradients), 1.2x less than the previous round's.
+a preallocated 1-row forward; Polyak averaging is one pass (an exact fma,
+as torch's add with alpha). bench/bench_sac.py times it: with the literal
+config, 10 seeds, 1.7-1.95x less time per learning episode than at 0cd7060
+(before the written-out gradients) depending on the machine state, 1.26x
+less than the previous round (README.md has the figures).
 """
 
 from __future__ import annotations
