@@ -385,7 +385,9 @@ def test_await_subscribers_says_whether_someone_listens_before_a_one_shot_put(bu
 
 def test_close_while_another_thread_publishes_does_not_raise(bus_factory) -> None:
     """An agent's shutdown closes its Bus while a callback may still be inside a put: close()
-    must finish (it raised "Already borrowed" from the busy publisher, failing the shutdown)."""
+    must finish (it raised "Already borrowed" from the busy publisher, failing the shutdown), and
+    the put gets the Bus's "closed" RuntimeError that publishers handle, not Zenoh's "session closed"
+    (which escaped an agent's health thread)."""
     for _ in range(20):
         world = bus_factory("world")
         stop = threading.Event()
@@ -395,7 +397,7 @@ def test_close_while_another_thread_publishes_does_not_raise(bus_factory) -> Non
             while not stop.is_set():
                 try:
                     world.publish(keys.uav_obs(RUN, 0), obs(tick=1))
-                except (RuntimeError, zenoh.ZError):  # "bus world is closed", "session closed": the end
+                except RuntimeError:  # "bus world is closed" (also when close() ran during the put): the end
                     return
                 except BaseException as exc:  # anything else is a bug
                     errors.append(exc)

@@ -586,10 +586,15 @@ class Bus:
 
     def _put(self, key: str, data: bytes) -> None:
         pub = self._publisher(key)
-        if pub is not None:
-            pub.put(data, attachment=self._tag)
-        else:
-            self._session.put(key, data, congestion_control=congestion_control(key), attachment=self._tag)
+        try:
+            if pub is not None:
+                pub.put(data, attachment=self._tag)
+            else:
+                self._session.put(key, data, congestion_control=congestion_control(key), attachment=self._tag)
+        except zenoh.ZError:
+            if self._closed:  # close() ran between the check and the put: the same error as putting after it
+                raise RuntimeError(f"bus {self._identity} is closed") from None
+            raise
 
     def _refuse_replayed(self, key: str, sample: zenoh.Sample) -> bool:
         """True (counted) if ``sample`` was put by a replay and this Bus does not accept replays."""
