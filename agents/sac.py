@@ -151,6 +151,8 @@ class BatchedSAC:
         self._discount32 = np.float32(self.discount)  # as torch rounds a Python scalar for a float32 tensor
 
     # -- networks ---------------------------------------------------------------
+    # The plain torch forward, differentiable by autograd: the update runs on BatchedMlp's buffers instead,
+    # and tests/test_sac_grad.py checks it against autograd through these.
     @staticmethod
     def _mlp(params, x):
         torch = _TORCH

@@ -114,10 +114,10 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     one by one, so the split changes no number. A single chunk (one seed, or
     one worker) gives the kernel every thread instead."""
     chunks = split(list(seeds), workers)
-    if kind == "truav":
-        from agents.fused import set_threads
-        set_threads(workers if len(chunks) == 1 else 1)
     if len(chunks) == 1:
+        if kind == "truav":  # the workers set one thread each (_worker): this process keeps its own setting
+            from agents.fused import set_threads
+            set_threads(workers)
         return run_chunk(kind, cfg, list(seeds), episodes, train, q,
                          None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)), start_pos)
     ctx = mp.get_context("fork")
