@@ -36,14 +36,22 @@ def _flood_while_stalled(bus_factory, endpoint: str, ring: int | None, junk: int
     agent.publish(keys.uav_action(RUN, 0), _action(1))
     assert wait_until(lambda: delivered == [1], 10)
     attacker = zenoh.open(transport.make_config("client", connect=[endpoint]))
+    # The attacker's puts and the agent's come over different links: only once a marker put after the junk
+    # (same link and priority, so in order behind it) has reached the reader's session has all the junk too.
+    flushed = threading.Event()
+    marker = reader._session.declare_subscriber(f"{keys.prefix(RUN)}/test/marker", lambda _s: flushed.set())
     try:
+        time.sleep(0.3)  # the marker's subscription reached the router
         for n in range(junk):  # DROP: the attacker must not stall on a reader that pushes back
             attacker.put(keys.uav_action(RUN, 0), b"\xc1" * (1 + n % 7), congestion_control=zenoh.CongestionControl.DROP)
+        attacker.put(f"{keys.prefix(RUN)}/test/marker", b"", congestion_control=zenoh.CongestionControl.BLOCK)
+        assert flushed.wait(10), "the marker behind the junk never arrived"
         agent.publish(keys.uav_action(RUN, 0), _action(2))  # the valid one comes last: the newest
         time.sleep(0.5)
         stalled.set()
         assert wait_until(lambda: 2 in delivered, 10), delivered
     finally:
+        marker.undeclare()
         attacker.close()
     return reader, delivered
 
