@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.faults import load_plan  # noqa: E402
 from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
+from truav.swarm.plots import fault_lanes  # noqa: E402,F401  (chaos.fault_lanes: kept importable)
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
@@ -48,21 +49,6 @@ def degradation_table(base: dict, faulted: dict) -> str:
     lb = ((faulted.get("world") or {}).get("tick_lateness_ms") or {}).get("p99", math.nan)
     lines.append(f"{'tick lateness p99 ms':<24}{la:12.2f}{lb:12.2f}")
     return "\n".join(lines)
-
-
-def fault_lanes(plan, end_s: float) -> list[tuple[str, float, float | None, bool]]:
-    """(label, start, stop or None for an instant, lasts to the end of the run) per fault, for one lane each."""
-    lanes = []
-    for f in plan.faults:
-        target = f.params.get("uav", f.params.get("target", f.params.get("keys", "")))
-        label = f"{f.kind} {target}".strip()
-        if f.kind == "crash":
-            restart = f.params.get("restart_after")
-            lanes.append((label, f.start, None if restart is None else f.start + float(restart), False))
-        else:
-            forever = math.isinf(f.duration)
-            lanes.append((label, f.start, end_s if forever else min(f.end, end_s), forever))
-    return lanes
 
 
 def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path: Path) -> Path:
@@ -101,7 +87,9 @@ def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path
     hov_ax.set_ylabel("UAVs without\nan action")
     hov_ax.set_xlabel("time since tick 0 (s)")
     hov_ax.yaxis.get_major_locator().set_params(integer=True)
-    cov_ax.legend(loc="lower right")
+    # Above the plot, beside the lanes' title: inside the axes it covered the curves' ends.
+    cov_ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, fontsize=8, frameon=False,
+                  borderaxespad=0.2)
     for ax in (cov_ax, hov_ax):
         ax.grid(alpha=0.3)
     hov_ax.set_xlim(0, end)

@@ -524,7 +524,9 @@ class _Swarm:
                 _print_central(cfg, opts, world, agents, controller, cp)
             if opts.plot and monitor.tracks:
                 from truav.swarm.plots import swarm_figure
-                print(f"picture: {swarm_figure(cfg, monitor, out / 'summary.png', title=f'swarm {opts.run!r}')}")
+                picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
+                                       episodes_done=len((world or {}).get("episodes") or []) if world else None)
+                print(f"picture: {picture}")
             if opts.record:
                 print(f"recording: {opts.record}")
         for note in o.warnings:

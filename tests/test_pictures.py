@@ -1,0 +1,82 @@
+"""The pictures tell the truth at a glance (issue 25): checked on matplotlib's objects, not pixels."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from truav.config import Config  # noqa: E402
+from truav.faults import plan_from_dict  # noqa: E402
+from truav.swarm.monitor import Monitor  # noqa: E402
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures a plotting function closes, kept open for inspection."""
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    yield kept
+    monkeypatch.undo()
+    for fig in kept:
+        plt.close(fig)
+
+
+def _monitor(cfg: Config, n_uavs: int, ticks: int, episodes_heard: int) -> Monitor:
+    rng = np.random.default_rng(0)
+    m = Monitor(n_uavs, period_s=0.1)
+    for u in range(n_uavs):
+        start = rng.uniform(0, cfg.scenario.area_m, 2)
+        m.tracks[u] = [tuple(start + 10.0 * t * rng.uniform(-1, 1, 2)) for t in range(ticks)]
+    m.coverage = [(t, 10.0 + (t % 7)) for t in range(ticks)]
+    m.hovering = [(t, 0.0) for t in range(ticks)]
+    m.episodes = [{} for _ in range(episodes_heard)]
+    m.vehicles = [tuple(p) for p in rng.uniform(0, cfg.scenario.area_m, (50, 2))]
+    return m
+
+
+def _texts(ax) -> list[str]:
+    return [t.get_text() for t in ax.texts]
+
+
+def test_summary_shades_fault_windows_and_counts_finished_episodes(tmp_path, figures):
+    from truav.swarm.plots import swarm_figure
+    cfg = Config().replace(scenario={"steps_per_episode": 20})
+    plan = plan_from_dict({"fault": [{"kind": "loss", "start": 2.0, "duration": 3.0, "probability": 0.5},
+                                     {"kind": "crash", "start": 10.0, "uav": 1}]})
+    # 6 episodes of 20 ticks finished, the 7th cut short at tick 130
+    swarm_figure(cfg, _monitor(cfg, 5, 131, 6), tmp_path / "s.png", plan=plan, episodes_done=6)
+    fig = figures[-1]
+    tracks_ax, tl, miss_ax = fig.axes[:3]
+    assert tracks_ax.get_title() == "UAV tracks in episode 7 (cut short; 6 finished)"
+    for ax in (tl, miss_ax):  # a span per fault, in ticks (10 Hz): loss 20-50, the crash from 100 to the end
+        spans = sorted((p.get_x(), p.get_x() + p.get_width()) for p in ax.patches)
+        assert np.array(spans) == pytest.approx(np.array([[20.0, 50.0], [100.0, 130.0]]))
+    assert [t.get_text() for t in tl.get_legend().get_texts()] == ["loss, 2-5 s", "crash 1, 10-end s"]
+
+
+def test_summary_title_of_a_finished_run(tmp_path, figures):
+    from truav.swarm.plots import swarm_figure
+    cfg = Config().replace(scenario={"steps_per_episode": 20})
+    swarm_figure(cfg, _monitor(cfg, 5, 121, 6), tmp_path / "s.png")
+    assert figures[-1].axes[0].get_title() == "UAV tracks in the last episode (6 of 6)"
+    assert figures[-1].axes[1].get_legend() is None  # no plan: nothing shaded
+    assert not figures[-1].axes[1].patches
+
+
+@pytest.mark.parametrize("n", [20, 100])
+def test_summary_map_of_many_uavs_stays_readable(tmp_path, figures, n):
+    from truav.swarm.plots import MAX_LABELLED_UAVS, swarm_figure
+    cfg = Config().replace(scenario={"steps_per_episode": 20, "n_uavs": n})
+    swarm_figure(cfg, _monitor(cfg, n, 21, 1), tmp_path / "s.png")
+    ax = figures[-1].axes[0]
+    labels = [t for t in _texts(ax) if t.isdigit()]
+    discs = [p for p in ax.patches if isinstance(p, matplotlib.patches.Circle)]
+    if n <= MAX_LABELLED_UAVS:
+        assert len(labels) == n and len(discs) == n
+    else:  # ids and discs of a hundred UAVs are a blot: none, thin tracks
+        assert not labels and not discs
+        assert max(line.get_linewidth() for line in ax.lines) < 1.0
