@@ -80,3 +80,20 @@ def test_summary_map_of_many_uavs_stays_readable(tmp_path, figures, n):
     else:  # ids and discs of a hundred UAVs are a blot: none, thin tracks
         assert not labels and not discs
         assert max(line.get_linewidth() for line in ax.lines) < 1.0
+
+
+def test_chaos_legend_is_outside_the_data(tmp_path, figures):
+    from truav.swarm.chaos import chaos_figure
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[[fault]]\nkind = "crash"\nstart = 1.0\nuav = 1\n')
+
+    def summary(dip: float) -> dict:
+        return {"timeline": {"coverage": [[t, 20.0 - (dip if t > 10 else 0.0)] for t in range(50)],
+                             "hovering": [[t, 0] for t in range(50)]}}
+
+    chaos_figure(summary(0.0), summary(5.0), str(plan), 10.0, tmp_path / "chaos.png")
+    fig = figures[-1]
+    cov_ax = fig.axes[1]
+    fig.canvas.draw()
+    legend, plot_area = cov_ax.get_legend().get_window_extent(), cov_ax.get_window_extent()
+    assert legend.y0 >= plot_area.y1 - 1  # above the curves, not over them
