@@ -97,3 +97,37 @@ def test_chaos_legend_is_outside_the_data(tmp_path, figures):
     fig.canvas.draw()
     legend, plot_area = cov_ax.get_legend().get_window_extent(), cov_ax.get_window_extent()
     assert legend.y0 >= plot_area.y1 - 1  # above the curves, not over them
+
+
+@pytest.mark.parametrize("n_seeds", [2, 3])
+def test_few_seeds_draw_each_seed_not_a_band(tmp_path, figures, small_cfg, n_seeds):
+    from matplotlib.collections import PathCollection, PolyCollection
+    from truav.experiments import report, runner
+    cells = [runner.Cell("patrol", v, tuple(range(n_seeds)), 2, 1) for v in (5.0, 25.0)]
+    runner.run_cells(small_cfg, tmp_path, cells, workers=1)
+    results = [runner.load_cell(runner.cell_path(tmp_path, small_cfg, c), c) for c in cells]
+    rows = report.summary_rows(results, 1)
+    report.write_summary_csv(tmp_path / "summary.csv", rows)
+    assert "_eval_seed_values" not in (tmp_path / "summary.csv").read_text()
+    report.versus_figure(rows, "speed_mps", "v", tmp_path / "v.png", "t")
+    report.convergence_figure(results, tmp_path / "c.png", 1, "t")
+    for fig in figures[-2:]:
+        axes = [ax for ax in fig.axes if ax.has_data()]
+        bands = [c for ax in axes for c in ax.collections if isinstance(c, PolyCollection)]
+        assert bool(bands) == (n_seeds >= 3), fig
+    seeds_drawn = [c for ax in figures[-2].axes for c in ax.collections if isinstance(c, PathCollection)]
+    if n_seeds < 3:  # versus: each seed's value at each setting
+        assert sum(len(c.get_offsets()) for c in seeds_drawn) == 4 * 2 * n_seeds  # panels x speeds x seeds
+    else:
+        assert not seeds_drawn
+
+
+def test_training_energy_axis_shows_small_changes_small(tmp_path, figures):
+    from truav.plots import convergence_figure
+    rng = np.random.default_rng(0)
+    energy = 22_250.0 + rng.normal(0, 20, (200, 1))  # +-0.1%: noise, not a trend
+    convergence_figure({"energy_j": energy, "coverage_pct": rng.uniform(5, 30, (200, 1))}, tmp_path / "c.png",
+                       window=20)
+    ax = next(ax for ax in figures[-1].axes if "energy" in ax.get_ylabel())
+    lo, hi = ax.get_ylim()
+    assert hi - lo >= 0.05 * 22.25 - 1e-9 and lo <= 22.2 and hi >= 22.3

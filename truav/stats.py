@@ -13,6 +13,11 @@ _T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2
         2.045, 2.042)
 
 
+MIN_SEEDS_FOR_BAND = 3
+"""Fewer seeds than this get no confidence band in a figure (a t-interval of 2 seeds is 12.7 standard
+errors wide, clipped it reads 0-100%): the figure draws each seed instead."""
+
+
 def t95(dof: int) -> float:
     """Two-sided 95% t critical value (normal 1.96 beyond 30 dof)."""
     if dof < 1:

@@ -5,7 +5,8 @@
   its evaluation episodes;
 - summary: per (scheme, setting), mean and 95% Student-t interval over seeds
   of each seed's evaluation mean (and of its last training window);
-- figures: metric-versus-setting panels (one line per scheme, 95% bands) and
+- figures: metric-versus-setting panels (one line per scheme, 95% bands; with fewer than
+  MIN_SEEDS_FOR_BAND seeds each seed instead) and
   convergence curves (sliding-window training curves).
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np  # noqa: E402
 
 from truav.experiments.runner import CellResult  # noqa: E402
-from truav.stats import mean_ci, sliding_mean  # noqa: E402
+from truav.stats import MIN_SEEDS_FOR_BAND, mean_ci, sliding_mean  # noqa: E402
 
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "energy_above_hover_j", "throughput_kbps",
            "generated", "delivered", "dropped", "reward", "ctrl_up_msgs", "ctrl_up_bytes", "ctrl_down_msgs",
@@ -143,20 +144,26 @@ def summary_rows(results: list[CellResult], window: int) -> list[dict[str, objec
                     warnings.simplefilter("ignore", RuntimeWarning)
                     m, h = mean_ci(data[name])
                 row[f"{phase}_{name}_mean"], row[f"{phase}_{name}_ci95"] = float(m), float(h)
+            if phase == "eval":  # for figures (too few seeds for a band: each seed); not a CSV column
+                row[SEED_VALUES] = {name: np.asarray(data[name], float) for name, _, _ in PANELS}
         rows.append(row)
     return rows
+
+
+SEED_VALUES = "_eval_seed_values"
+"""Key of a summary row's per-seed evaluation means of the PANELS metrics (written to no CSV)."""
 
 
 def write_summary_csv(path: Path, rows: list[dict[str, object]]) -> None:
     keys: list[str] = []
     for row in rows:
-        keys += [k for k in row if k not in keys]
+        keys += [k for k in row if k not in keys and k != SEED_VALUES]
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
         w.writeheader()
         for row in rows:
-            w.writerow({k: (_fmt(v) if isinstance(v, float) else v) for k, v in row.items()})
+            w.writerow({k: (_fmt(v) if isinstance(v, float) else v) for k, v in row.items() if k != SEED_VALUES})
     os.replace(tmp, path)
 
 
@@ -208,7 +215,12 @@ def versus_figure(rows: list[dict[str, object]], x: str, xlabel: str, path: Path
                 h = np.array([r.get(f"eval_{name}_ci95", np.nan) for r in sel], float) * scale
                 text = lab if group is None else f"{lab}, {group.replace('n_', '')}={gv:g}"
                 ax.plot(xs, m, marker=marker, color=color, ls="-" if gi == 0 else "--", lw=1.6, label=text)
-                if np.isfinite(h).any():
+                few = [r for r in sel if r.get("eval_seeds", 0) < MIN_SEEDS_FOR_BAND]
+                for r in few:  # too few seeds for a band: each seed's value
+                    v = np.asarray((r.get(SEED_VALUES) or {}).get(name, []), float) * scale
+                    ax.scatter(np.full(v.size, r[x], float), v, s=14, marker=marker, facecolor="none",
+                               edgecolor=color, lw=0.8, alpha=0.8, zorder=3)
+                if not few and np.isfinite(h).any():
                     ax.fill_between(xs, *_band(name, m, h), color=color, alpha=0.18, lw=0)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(label)
@@ -249,7 +261,10 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
                 m, h = mean_ci(smooth, axis=1)
                 xs = np.arange(1, len(m) + 1)
                 ax.plot(xs, m, color=color, lw=1.3, label=lab)
-                if np.isfinite(h).any():
+                if smooth.shape[1] < MIN_SEEDS_FOR_BAND:
+                    if smooth.shape[1] > 1:  # too few seeds for a band: each seed, thin
+                        ax.plot(xs, smooth, color=color, lw=0.6, alpha=0.4)
+                elif np.isfinite(h).any():
                     ax.fill_between(xs, *_band(name, m, h), color=color, alpha=0.2, lw=0)
             if i == 0:
                 ax.set_title(f"{v:g} m/s")

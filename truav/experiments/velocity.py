@@ -20,6 +20,7 @@ from pathlib import Path
 
 from truav.config import Config
 from truav.experiments import report
+from truav.stats import MIN_SEEDS_FOR_BAND
 from truav.experiments.runner import Cell, CellResult, seed_chunks
 
 SCHEMES = ("truav", "central", "patrol")
@@ -51,7 +52,8 @@ def write_outputs(out: Path, base: Config, results: list[CellResult], window: in
         f"{n_seeds} seeds. Training episodes: {', '.join(f'{s} {e}' for s, e in ep)}.\n\n"
         + report.markdown_table(rows, setting) + "\n")
     report.versus_figure(rows, "speed_mps", "UAV velocity (m/s)", out / "velocity.png",
-                         f"Performance versus UAV velocity (mean of {n_seeds} seeds, 95% bands)")
+                         f"Performance versus UAV velocity (mean of {n_seeds} seeds, "
+                         + ("95% bands)" if n_seeds >= MIN_SEEDS_FOR_BAND else "circles: each seed)"))
     report.convergence_figure(results, out / "convergence.png", window,
                               f"Training convergence ({window}-episode sliding window)")
     return [out / f for f in FILES]
