@@ -131,3 +131,15 @@ def test_training_energy_axis_shows_small_changes_small(tmp_path, figures):
     ax = next(ax for ax in figures[-1].axes if "energy" in ax.get_ylabel())
     lo, hi = ax.get_ylim()
     assert hi - lo >= 0.05 * 22.25 - 1e-9 and lo <= 22.2 and hi >= 22.3
+
+
+def test_scheme_comparison_keeps_coinciding_series_visible(tmp_path, figures):
+    from truav.experiments.scheme_faults import metric_figure
+    rows = [{"scheme": s, "kind": k, "level": x, "missed_actions": 0.0}  # every scheme on the same points
+            for s in ("truav", "central", "patrol") for k in ("loss", "latency", "crash") for x in (0.0, 0.5)]
+    metric_figure(rows, ("truav", "central", "patrol"), "missed_actions", "missed", 100.0, tmp_path / "m.png", "t")
+    lines = figures[-1].axes[0].get_lines()
+    assert len({(line.get_linestyle(), line.get_marker()) for line in lines}) == 3
+    sizes = [line.get_markersize() for line in lines]  # the first drawn is the largest: it shows around the rest
+    widths = [line.get_linewidth() for line in lines]
+    assert sizes == sorted(sizes, reverse=True) and len(set(sizes)) == 3 and widths == sorted(widths, reverse=True)

@@ -187,17 +187,25 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
             for key, label, scale in METRICS]
 
 
+LINE_STYLES = ("-", "--", ":", "-.")
+
+
 def metric_figure(rows: list[dict], schemes, key: str, label: str, scale: float, path: Path, title: str) -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from truav.experiments.report import SCHEME_STYLE
     fig, axes = plt.subplots(1, len(KINDS), figsize=(13, 3.8), sharey=True)
     for ax, (kind, xlabel, xscale) in zip(axes, KINDS):
         for c, scheme in enumerate(schemes):
             pts = sorted((r for r in rows if r["scheme"] == scheme and r["kind"] == kind), key=lambda r: r["level"])
             x = np.array([p["level"] for p in pts]) * xscale
             y = np.array([p[key] for p in pts], dtype=float) * scale
-            ax.plot(x, y, marker="o", color=f"C{c}", label=scheme)
+            _, color, marker = SCHEME_STYLE.get(scheme, (scheme, f"C{c}", "o"))
+            # Schemes often coincide (0 missed actions): each drawn smaller, dashed differently and on
+            # top of the one before, so a series under another still shows around it.
+            ax.plot(x, y, marker=marker, ms=10 - 2.5 * c, mfc="none" if c == 0 else color, mew=1.4, color=color,
+                    ls=LINE_STYLES[c % len(LINE_STYLES)], lw=2.6 - 0.7 * c, label=scheme, zorder=2 + c)
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(label)
