@@ -212,8 +212,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     import signal
 
-    from recorder.replay import (KeyboardControl, Replayer, ReplayOptions, ReplayUsageError, recording_info,
-                                 replay_on_bus, split_patterns)
+    from recorder.replay import (CONTROL_PART, KeyboardControl, Replayer, ReplayOptions, ReplayUsageError,
+                                 recording_info, replay_on_bus, split_patterns)
     from truav.bus import keys
     from truav.bus.transport import apply_creds, config_from_args
 
@@ -235,7 +235,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _fail("truav-swarm", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
                                     f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
     try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
-        if Replayer(options, lambda _key, _payload: None, recording_info(options.path)).target_run is None:
+        info = recording_info(options.path)
+        target = Replayer(options, lambda _key, _payload: None, info).target_run
+        if target is None:
             return _fail("truav-swarm", f"{args.file}: no truav/<run>/ keys to replay")
     except ReplayUsageError as exc:
         return _fail("truav-swarm", str(exc))
@@ -256,8 +258,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     try:
         if not quiet:
             hint = "space pause/resume, s step, q quit; " if keyboard else ""
-            print(f"replay: {args.file}{' (paused)' if args.paused else ''}; {hint}bus commands on "
-                  f"truav/<run>/control/replay", file=sys.stderr, flush=True)
+            recorded = ", ".join(repr(r) for r in info.runs)
+            runs = f"run {recorded}" if list(info.runs) == [target] else f"recorded run(s) {recorded} as {target!r}"
+            print(f"replay: {args.file} ({runs}){' (paused)' if args.paused else ''}; {hint}bus commands on "
+                  f"{keys.control(target, CONTROL_PART)}", file=sys.stderr, flush=True)
         stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
     except ReplayUsageError as exc:
         return _fail("truav-swarm", str(exc))

@@ -458,3 +458,17 @@ def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str
         agent.wait(WAIT_S)
         assert agent.stderr is not None
         agent.stderr.close()
+
+
+def test_cli_replay_banner_names_the_run(tmp_path: Path, endpoint: str, capsys) -> None:
+    make_recording(tmp_path / "r.mcap")
+    parser = argparse.ArgumentParser(prog="truav-swarm")
+    add_swarm_commands(parser.add_subparsers(dest="command", required=True))
+    for extra, runs, target in (([], f"run {RUN!r}", RUN), (["--run", "other"], f"recorded run(s) {RUN!r} as 'other'",
+                                                             "other")):
+        args = parser.parse_args(["replay", str(tmp_path / "r.mcap"), "--rate", "20", "--no-keys",
+                                  "--topics", "truav/*/uav/1/*", "-e", endpoint, *extra])
+        assert args.func(args) == 0
+        banner = capsys.readouterr().err.splitlines()[0]
+        assert f"({runs})" in banner and banner.endswith(f"bus commands on truav/{target}/control/replay")
+        assert "<run>" not in banner
