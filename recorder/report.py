@@ -349,6 +349,8 @@ def map_figure(rec: Recording, path: Path) -> Optional[str]:
                                       label="RSU"))
     radius = cfg.comm_range_m if cfg is not None else DEFAULT_RANGE_M
     cmap = plt.get_cmap("tab10" if len(tracks) <= 10 else "tab20")
+    from truav.swarm.plots import MAX_LABELLED_UAVS
+    many = len(tracks) > MAX_LABELLED_UAVS  # thin tracks, no discs, no per-UAV legend: a hundred of them are clutter
     for n_uav, (uav, series) in enumerate(sorted(tracks.items())):
         color = cmap(n_uav % cmap.N)
         xy = np.asarray(series.xy, dtype=float).reshape(-1, 2)
@@ -361,16 +363,24 @@ def map_figure(rec: Recording, path: Path) -> Optional[str]:
                 alpha = 0.15 + 0.85 * (done + np.arange(len(pairs))) / max(total - 1, 1)
                 colors = np.tile(np.asarray(color), (len(pairs), 1))
                 colors[:, 3] = alpha
-                ax.add_collection(LineCollection(pairs, colors=colors, linewidths=1.6, zorder=4))
-            ax.scatter(*seg[0], s=30, facecolor="white", edgecolor=color, lw=1.5, zorder=5)
+                ax.add_collection(LineCollection(pairs, colors=colors, linewidths=0.6 if many else 1.6, zorder=4))
+            if not many:
+                ax.scatter(*seg[0], s=30, facecolor="white", edgecolor=color, lw=1.5, zorder=5)
             done += len(seg)
         finite = xy[np.isfinite(xy).all(axis=1)]
         if len(finite):
-            ax.scatter(*finite[-1], s=45, color=color, edgecolor="black", lw=0.6, zorder=5)
-            ax.add_patch(Circle(tuple(finite[-1]), radius, facecolor=color, alpha=0.08, edgecolor=color,
-                                lw=1.0, ls="--", zorder=2))
-        handles.append(Line2D([], [], color=color, lw=2, label=f"UAV {uav}"))
-    if tracks:
+            ax.scatter(*finite[-1], s=10 if many else 45, color=color, edgecolor="black", lw=0.3 if many else 0.6,
+                       zorder=5)
+            if not many:
+                ax.add_patch(Circle(tuple(finite[-1]), radius, facecolor=color, alpha=0.08, edgecolor=color,
+                                    lw=1.0, ls="--", zorder=2))
+        if not many:
+            handles.append(Line2D([], [], color=color, lw=2, label=f"UAV {uav}"))
+    if many:
+        handles += [Line2D([], [], color="0.3", lw=0.8, label=f"{len(tracks)} UAV tracks (colours repeat; no ids, "
+                                                              f"starts or coverage discs above {MAX_LABELLED_UAVS})"),
+                    Line2D([], [], marker="o", ls="", ms=3, color="0.4", mec="black", label="last position")]
+    elif tracks:
         handles += [Line2D([], [], marker="o", ls="", mfc="white", mec="0.2", label="track start (each episode)"),
                     Line2D([], [], marker="o", ls="", color="0.4", mec="black", label="last position"),
                     Circle((0, 0), 1, facecolor="0.5", alpha=0.2, edgecolor="0.3", ls="--",

@@ -143,3 +143,30 @@ def test_scheme_comparison_keeps_coinciding_series_visible(tmp_path, figures):
     sizes = [line.get_markersize() for line in lines]  # the first drawn is the largest: it shows around the rest
     widths = [line.get_linewidth() for line in lines]
     assert sizes == sorted(sizes, reverse=True) and len(set(sizes)) == 3 and widths == sorted(widths, reverse=True)
+
+
+def _recording(n_uavs: int):
+    from recorder.report import MapConfig, Recording, Series
+    rng = np.random.default_rng(1)
+    rec = Recording(first_ns=0, last_ns=60 * 10**9, config=MapConfig(5000.0, 500.0, [(1000.0, 1000.0)], [], 500.0))
+    for u in range(n_uavs):
+        start = rng.uniform(500, 4500, 2)
+        steps = np.cumsum(rng.normal(0, 15, (60, 2)), axis=0)
+        rec.beacons[u] = Series(log_ns=list(range(60)), pub_ns=list(range(60)), xy=[tuple(p) for p in start + steps])
+    return rec
+
+
+@pytest.mark.parametrize("n", [20, 100])
+def test_recording_map_of_many_uavs_stays_readable(tmp_path, figures, n):
+    from matplotlib.patches import Circle
+    from recorder.report import map_figure
+    from truav.swarm.plots import MAX_LABELLED_UAVS
+    map_figure(_recording(n), tmp_path / "map.png")
+    ax = figures[-1].axes[0]
+    entries = [t.get_text() for t in ax.get_legend().get_texts()]
+    per_uav = [e for e in entries if e.startswith("UAV ")]
+    discs = [p for p in ax.patches if isinstance(p, Circle)]
+    if n <= MAX_LABELLED_UAVS:
+        assert len(per_uav) == n and len(discs) == n
+    else:  # one legend line for all the tracks, not a hundred; no discs
+        assert not per_uav and not discs and len(entries) <= 6
