@@ -26,13 +26,17 @@ def figures(monkeypatch):
 
 
 def _monitor(cfg: Config, n_uavs: int, ticks: int, episodes_heard: int) -> Monitor:
+    """The first ``ticks`` world ticks of a run; as the world sends them, an episode's done tick
+    (every steps + 1-th) has no step metrics."""
     rng = np.random.default_rng(0)
     m = Monitor(n_uavs, period_s=0.1)
     for u in range(n_uavs):
         start = rng.uniform(0, cfg.scenario.area_m, 2)
         m.tracks[u] = [tuple(start + 10.0 * t * rng.uniform(-1, 1, 2)) for t in range(ticks)]
-    m.coverage = [(t, 10.0 + (t % 7)) for t in range(ticks)]
-    m.hovering = [(t, 0.0) for t in range(ticks)]
+    per = cfg.scenario.steps_per_episode + 1
+    acting = [t for t in range(ticks) if t % per != per - 1]
+    m.coverage = [(t, 10.0 + (t % 7)) for t in acting]
+    m.hovering = [(t, 0.0) for t in acting]
     m.episodes = [{} for _ in range(episodes_heard)]
     m.vehicles = [tuple(p) for p in rng.uniform(0, cfg.scenario.area_m, (50, 2))]
     return m
@@ -47,7 +51,7 @@ def test_summary_shades_fault_windows_and_counts_finished_episodes(tmp_path, fig
     cfg = Config().replace(scenario={"steps_per_episode": 20})
     plan = plan_from_dict({"fault": [{"kind": "loss", "start": 2.0, "duration": 3.0, "probability": 0.5},
                                      {"kind": "crash", "start": 10.0, "uav": 1}]})
-    # 6 episodes of 20 ticks finished, the 7th cut short at tick 130
+    # 6 episodes of 20 steps (21 ticks) finished, the 7th cut short at tick 130
     swarm_figure(cfg, _monitor(cfg, 5, 131, 6), tmp_path / "s.png", plan=plan, episodes_done=6)
     fig = figures[-1]
     tracks_ax, tl, miss_ax = fig.axes[:3]
@@ -61,8 +65,10 @@ def test_summary_shades_fault_windows_and_counts_finished_episodes(tmp_path, fig
 def test_summary_title_of_a_finished_run(tmp_path, figures):
     from truav.swarm.plots import swarm_figure
     cfg = Config().replace(scenario={"steps_per_episode": 20})
-    swarm_figure(cfg, _monitor(cfg, 5, 121, 6), tmp_path / "s.png")
-    assert figures[-1].axes[0].get_title() == "UAV tracks in the last episode (6 of 6)"
+    swarm_figure(cfg, _monitor(cfg, 5, 6 * 21, 6), tmp_path / "s.png")  # 6 episodes, each 20 steps and done
+    assert figures[-1].axes[0].get_title() == "UAV tracks in the last episode (6 of 6)"  # was "7 of 7"
+    separators = sorted(line.get_xdata()[0] for line in figures[-1].axes[1].lines[1:])
+    assert separators == [k * 21 - 0.5 for k in range(1, 6)]  # between a done tick and the next episode
     assert figures[-1].axes[1].get_legend() is None  # no plan: nothing shaded
     assert not figures[-1].axes[1].patches
 

@@ -84,10 +84,15 @@ def last_segment(pts: np.ndarray, max_hop: float) -> tuple[np.ndarray, int]:
     return pts[jumps[-1]:] if jumps.size else pts, jumps.size + 1
 
 
+def episode_of(tick: int, steps: int) -> int:
+    """The 0-based episode of a world tick: each episode is ``steps`` acting ticks and its done tick."""
+    return tick // (steps + 1)
+
+
 def tracks_title(last_tick: int, steps: int, finished: int) -> str:
     """What the map shows, counting only finished episodes as finished (an interrupted run's
     last episode is cut short)."""
-    current = max(1, math.ceil(last_tick / steps))  # ticks 0..steps are episode 1, and so on
+    current = episode_of(last_tick, steps) + 1
     if current > finished:
         done = f"; {finished} finished" if finished else ""
         return f"UAV tracks in episode {current} (cut short{done})"
@@ -139,7 +144,6 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm", plan=No
         ax.scatter([], [], color="k", s=30, label="UAV at the end (id), coverage disc")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=3, fontsize=7, framealpha=0.85)
     steps = cfg.scenario.steps_per_episode
-    # ticks 0..steps are episode 1 (its last tick is the done observation), and so on
     finished = heard_done if episodes_done is None else episodes_done
     ax.set_title(tracks_title(int(coverage[-1, 0]), steps, finished) if coverage.size else "UAV tracks (from beacons)")
     if coverage.size:
@@ -148,14 +152,13 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm", plan=No
         tl.set_ylim(0, max(5.0, float(np.nanmax(coverage[:, 1])) * 1.15))
         tl.grid(alpha=0.3)
         last_tick = int(coverage[-1, 0])
-        for k in range(1, last_tick // steps + 1):
-            if k * steps < last_tick:
-                for a in (tl, miss_ax):
-                    a.axvline(k * steps, color="0.5", lw=0.8, ls=":", zorder=1)
-        for k in range(0, last_tick // steps + 1):
-            if k * steps < last_tick:
-                tl.text(k * steps + steps / 2, 1.0, f"ep {k + 1}", transform=tl.get_xaxis_transform(),
-                        ha="center", va="bottom", fontsize=8, color="0.35")
+        per = steps + 1  # an episode's acting ticks and its done tick
+        for k in range(1, episode_of(last_tick, steps) + 1):
+            for a in (tl, miss_ax):
+                a.axvline(k * per - 0.5, color="0.5", lw=0.8, ls=":", zorder=1)
+        for k in range(0, episode_of(last_tick, steps) + 1):
+            tl.text(k * per + steps / 2, 1.0, f"ep {k + 1}", transform=tl.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=8, color="0.35")
     shaded = plan is not None and bool(plan.faults) and coverage.size > 0
     if shaded:
         rate = 1.0 / monitor.period_s
