@@ -157,7 +157,8 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm", plan=No
             for a in (tl, miss_ax):
                 a.axvline(k * per - 0.5, color="0.5", lw=0.8, ls=":", zorder=1)
         for k in range(0, episode_of(last_tick, steps) + 1):
-            tl.text(k * per + steps / 2, 1.0, f"ep {k + 1}", transform=tl.get_xaxis_transform(),
+            middle = (k * per + min(k * per + steps, last_tick)) / 2  # of what was flown (a cut episode: less)
+            tl.text(middle, 1.0, f"ep {k + 1}", transform=tl.get_xaxis_transform(),
                     ha="center", va="bottom", fontsize=8, color="0.35")
     shaded = plan is not None and bool(plan.faults) and coverage.size > 0
     if shaded:
