@@ -59,11 +59,12 @@ def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path
     fig, axes = plt.subplots(3, 1, figsize=(11, 6.5 + 0.22 * n), sharex=True,
                              gridspec_kw={"height_ratios": [0.5 + 0.28 * max(n, 1), 3, 1.6]})
     lanes_ax, cov_ax, hov_ax = axes
-    for summary, label, color in ((base, "no faults", "C0"), (faulted, "with plan", "C3")):
+    # The baseline wide and pale under the faulted run: where the two coincide both still show.
+    for summary, label, color, lw, alpha in ((base, "no faults", "C0", 3.0, 0.5), (faulted, "with plan", "C3", 1.0, 1.0)):
         cov = np.array(summary["timeline"]["coverage"] or [[0, np.nan]])
         hov = np.array(summary["timeline"]["hovering"] or [[0, np.nan]])
-        cov_ax.plot(cov[:, 0] / rate_hz, cov[:, 1], color=color, lw=1, label=label)
-        hov_ax.step(hov[:, 0] / rate_hz, hov[:, 1], where="mid", color=color, lw=1, label=label)
+        cov_ax.plot(cov[:, 0] / rate_hz, cov[:, 1], color=color, lw=lw, alpha=alpha, label=label)
+        hov_ax.step(hov[:, 0] / rate_hz, hov[:, 1], where="mid", color=color, lw=lw, alpha=alpha, label=label)
     end = max(len(faulted["timeline"]["coverage"]), 1) / rate_hz
     for row, (label, start, stop, forever) in enumerate(fault_lanes(plan, end)):
         color = f"C{(2 + row) % 10}" if (2 + row) % 10 != 3 else "C9"
