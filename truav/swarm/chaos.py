@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.faults import load_plan  # noqa: E402
 from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
-from truav.swarm.plots import fault_lanes  # noqa: E402,F401  (chaos.fault_lanes: kept importable)
+from truav.swarm.plots import fault_lanes  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
@@ -60,7 +60,8 @@ def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path
                              gridspec_kw={"height_ratios": [0.5 + 0.28 * max(n, 1), 3, 1.6]})
     lanes_ax, cov_ax, hov_ax = axes
     # The baseline wide and pale under the faulted run: where the two coincide both still show.
-    for summary, label, color, lw, alpha in ((base, "no faults", "C0", 3.0, 0.5), (faulted, "with plan", "C3", 1.0, 1.0)):
+    for summary, label, color, lw, alpha in ((base, "no faults", "C0", 3.0, 0.5),
+                                             (faulted, "with plan", "C3", 1.0, 1.0)):
         cov = np.array(summary["timeline"]["coverage"] or [[0, np.nan]])
         hov = np.array(summary["timeline"]["hovering"] or [[0, np.nan]])
         cov_ax.plot(cov[:, 0] / rate_hz, cov[:, 1], color=color, lw=lw, alpha=alpha, label=label)
