@@ -180,6 +180,9 @@ class AgentNode:
         self._last_tick = -1  # the tick of the last observation handled (health reports)
         self.stale_obs_skipped = 0
         """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
+        self.out_of_order_obs = 0
+        """Observations dropped because their tick was not newer than one already answered (a delayed
+        observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
@@ -328,6 +331,11 @@ class AgentNode:
                 msg = self._newest_obs(msg)
             if msg is None:
                 break
+            if msg.tick <= self._last_tick:  # overtaken: its transition is already past (and learned)
+                self.out_of_order_obs += 1
+                log.debug("uav %d: dropping observation of tick %d, not newer than tick %d already answered",
+                          self.opts.uav, msg.tick, self._last_tick)
+                continue
             self._last_tick = msg.tick
             self.handle(msg)
         self.checkpoint()
@@ -366,11 +374,12 @@ class AgentNode:
                 return msg
             if nxt is None:
                 return None
+            # The newest tick is answered, whatever the arrival order (a delayed one can come after it).
+            older, msg = (nxt, msg) if nxt.tick < msg.tick else (msg, nxt)
             if self.stale_obs_skipped == 0:
                 log.info("uav %d: behind the world, answering tick %d and skipping tick %d (stale observations "
-                         "are skipped from now on, counted in the stats)", self.opts.uav, nxt.tick, msg.tick)
+                         "are skipped from now on, counted in the stats)", self.opts.uav, msg.tick, older.tick)
             self.stale_obs_skipped += 1
-            msg = nxt
 
     def handle(self, obs: schema.Obs) -> None:
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
@@ -547,6 +556,7 @@ class AgentNode:
                 senders = list(self._latency_from)
             st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
+                    "out_of_order_obs": self.out_of_order_obs,
                     **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
                     "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,

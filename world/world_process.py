@@ -93,6 +93,10 @@ class WorldStats:
     lockstep_missed_from_tick: int | None = None
     """Lock-step: the first tick it went on without a live agent's answer."""
     actions_received: int = 0
+    late_actions: int = 0
+    """Actions that came after their tick's round had closed (real time: past the deadline); not applied."""
+    stale_actions: int = 0
+    """Actions for a tick older than one the same agent had already answered (delayed, overtaken); not applied."""
     ticks: int = 0
     joins: list[str] = field(default_factory=list)
     losses: list[str] = field(default_factory=list)
@@ -145,6 +149,8 @@ class WorldNode:
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
+        self._round = -1  # the latest tick published (its round may have closed: self._tick is then -1)
+        self._answered = [-1] * self.n_uavs  # per UAV: the newest tick it answered
         self._alive: set[int] = set()
         self._controller_alive = False
         self._t0 = None
@@ -176,10 +182,28 @@ class WorldNode:
 
     # -- bus callbacks (delivery thread: keep short) --
     def _on_action(self, key, msg: schema.Action, raw, recv_ns) -> None:
+        if msg.uav >= self.n_uavs:
+            return
         with self._cond:
-            if msg.tick == self._tick and msg.uav < self.n_uavs and msg.uav not in self._actions:
-                self._actions[msg.uav] = msg.action
-                self._cond.notify_all()
+            if msg.tick > self._round:
+                return  # a tick not published yet (forged): ignored
+            newest = self._answered[msg.uav]
+            self._answered[msg.uav] = max(newest, msg.tick)
+            if msg.tick == self._tick:
+                if msg.uav not in self._actions:
+                    self._actions[msg.uav] = msg.action
+                    self._cond.notify_all()
+                return
+            stale = msg.tick < newest  # an older answer overtaken by a newer one of the same agent
+            if stale:
+                self.stats.stale_actions += 1
+            else:
+                self.stats.late_actions += 1
+            first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+        (log.info if first else log.debug)(
+            "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
+            "after a newer one of it (out of order)" if stale else "after its round closed",
+            "stale_actions" if stale else "late_actions")
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
@@ -314,6 +338,7 @@ class WorldNode:
         run, sc, lockstep = self.opts.run, self.cfg.scenario, self.opts.lockstep
         with self._cond:
             self._tick = tick if lockstep or not done else -1
+            self._round = tick
             self._actions = {}
             expected = set(self._alive)  # one who joins later never saw this tick's observation
         period_ms = 1e3 / self.opts.rate_hz

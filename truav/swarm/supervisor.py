@@ -560,7 +560,10 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
         if lat:
             print(f"tick lateness p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms over {lat['n']} ticks")
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
-              f"missed (hovered) {world['deadline_misses']}, agent losses seen {len(world['losses'])}")
+              f"missed (hovered) {world['deadline_misses']}"
+              + (f" (answers that came late {world.get('late_actions', 0)}, out of order {world.get('stale_actions', 0)})"
+                 if world.get("late_actions") or world.get("stale_actions") else "")
+              + f", agent losses seen {len(world['losses'])}")
     ex = o.exactness
     if ex is not None:
         print("lock-step: exact (every live process was waited for)" if ex["exact"] else
