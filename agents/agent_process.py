@@ -56,7 +56,7 @@ log = logging.getLogger("truav.agent")
 CONTROL_SHUTDOWN = "shutdown"
 REALTIME_BEACON_MAX_AGE_TICKS = 10
 """Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
-HEALTH_PERIOD_S = 1.0
+HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
 DONE_ACK_ACTION = 0
 """The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
