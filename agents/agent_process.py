@@ -92,7 +92,7 @@ def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
 
 
 class Inexact:
-    """Lock-step decisions taken without a live process's message (the wait bound ran out): how many, from which tick."""
+    """Lock-step decisions taken without a live process's message (the wait ran out): how many, from which tick."""
 
     def __init__(self) -> None:
         self.decisions = 0

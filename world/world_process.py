@@ -375,7 +375,8 @@ class WorldNode:
         if lockstep and waiting and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
             st = self.stats
             st.lockstep_missed += len(waiting)
-            st.lockstep_missed_from_tick = tick if st.lockstep_missed_from_tick is None else st.lockstep_missed_from_tick
+            if st.lockstep_missed_from_tick is None:
+                st.lockstep_missed_from_tick = tick
             log.warning("tick %d: no %s from live agent(s) %s within %.1f s; going on without them (the run is no "
                         "longer exact)", tick, "acknowledgement" if done else "action", sorted(waiting),
                         self.opts.lockstep_wait_s)

@@ -559,10 +559,10 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
         lat = world.get("tick_lateness_ms")
         if lat:
             print(f"tick lateness p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms over {lat['n']} ticks")
+        late, stale = world.get("late_actions", 0), world.get("stale_actions", 0)
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
               f"missed (hovered) {world['deadline_misses']}"
-              + (f" (answers that came late {world.get('late_actions', 0)}, out of order {world.get('stale_actions', 0)})"
-                 if world.get("late_actions") or world.get("stale_actions") else "")
+              + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
               + f", agent losses seen {len(world['losses'])}")
     ex = o.exactness
     if ex is not None:
