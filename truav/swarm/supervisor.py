@@ -611,14 +611,13 @@ def lockstep_exactness(world, agents, controller) -> dict:
 def inexact_text(ex: dict, wait_s: float) -> str:
     parts = []
     if ex["decisions_without_peer"]:
-        parts.append(f"{ex['decisions_without_peer']} decision(s) taken without a live peer's message"
-                     + (f" ({', '.join(f'{a} {n}' for a, n in ex['by_agent'].items())}"
-                        + (f", controller {ex['controller_decisions_without_peer']}"
-                           if ex['controller_decisions_without_peer'] else "") + ")"))
+        who = [f"{a} {n}" for a, n in ex["by_agent"].items()]
+        who += [f"controller {ex['controller_decisions_without_peer']}"] if ex["controller_decisions_without_peer"] else []
+        parts.append(f"{ex['decisions_without_peer']} decision(s) taken without a live peer's message ({', '.join(who)})")
     if ex["world_went_on_without"]:
         parts.append(f"the world went on without {ex['world_went_on_without']} live agent answer(s)")
-    return (f"lock-step is no longer exact from tick {ex['inexact_from_tick']}: {'; '.join(parts)} within "
-            f"--lockstep-wait {wait_s:g} s (see the logs; a longer --lockstep-wait waits out longer pauses)")
+    return (f"lock-step is no longer exact from tick {ex['inexact_from_tick']} (a live process did not answer within "
+            f"--lockstep-wait {wait_s:g} s; a longer one waits out longer pauses): {'; '.join(parts)}")
 
 
 def _process(who) -> str:
