@@ -13,13 +13,16 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from conftest import run_to_end
-from agents.agent_process import DELAY_ENV
+from agents.agent_process import DELAY_ENV, AgentNode, AgentOptions
+from truav.bus import keys
 from truav.config import Config, to_toml
+from truav.swarm.lifeline import LOCKSTEP_JOIN_GRACE_S
 from truav.trainer import run_chunk
 
 SEED = 5
@@ -82,3 +85,28 @@ def test_pause_beyond_the_bound_says_not_exact_and_fails(tmp_path):
     assert ex["world_went_on_without"] >= 1 and ex["inexact_from_tick"] > 0, ex
     assert f"lock-step is no longer exact from tick {ex['inexact_from_tick']}" in text
     assert "NOT exact" in text
+
+
+def test_agent_waits_the_bound_for_a_heard_peer_and_a_grace_for_one_not_heard_since_it_joined(bus_factory):
+    """A paused peer (heard before) is waited for up to --lockstep-wait; a peer that (re)joined but was
+    never heard (a restarted agent the world did not send this tick to) only LOCKSTEP_JOIN_GRACE_S.
+    Each decision taken without it is counted. Only lower bounds on time are asserted."""
+    cfg = Config().replace(scenario={"n_uavs": 2})
+    node = AgentNode(cfg, AgentOptions(run="waits", uav=0, lockstep=True, lockstep_wait_s=30.0),
+                     bus_factory("uav/0", run="waits"))
+    node._on_join(keys.alive_uav("waits", 1))
+    t0 = time.monotonic()
+    assert node._lockstep_beacons(5) == {}
+    grace = time.monotonic() - t0
+    assert LOCKSTEP_JOIN_GRACE_S <= grace < 30.0, grace  # not the bound
+    assert node.inexact.as_dict() == {"decisions_without_peer": 1, "inexact_from_tick": 5}
+    node._heard.add(1)  # as once its first beacon came
+    node.opts.lockstep_wait_s = 4.0
+    t0 = time.monotonic()
+    assert node._lockstep_beacons(6) == {}
+    assert time.monotonic() - t0 >= 4.0
+    assert node.inexact.as_dict() == {"decisions_without_peer": 2, "inexact_from_tick": 5}
+    node._on_leave(keys.alive_uav("waits", 1))  # gone: not waited for at all
+    t0 = time.monotonic()
+    node._lockstep_beacons(7)
+    assert node.inexact.decisions == 2 and time.monotonic() - t0 < 4.0
