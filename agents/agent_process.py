@@ -48,16 +48,15 @@ from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
+from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, LOCKSTEP_JOIN_GRACE_S
 from world.uavs import action_velocity
 
 log = logging.getLogger("truav.agent")
 
 CONTROL_SHUTDOWN = "shutdown"
-LOCKSTEP_BEACON_WAIT_S = 2.0
-"""Lock-step: how long to wait for the beacons of live peers before acting without them."""
 REALTIME_BEACON_MAX_AGE_TICKS = 10
 """Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
-HEALTH_PERIOD_S = 1.0
+HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
 DONE_ACK_ACTION = 0
 """The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
@@ -92,6 +91,21 @@ def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
     return (steps + uav * every // max(n_uavs, 1)) % every == 0
 
 
+class Inexact:
+    """Lock-step decisions taken without a live process's message (the wait ran out): how many, from which tick."""
+
+    def __init__(self) -> None:
+        self.decisions = 0
+        self.from_tick: int | None = None
+
+    def add(self, tick: int) -> None:
+        self.decisions += 1
+        self.from_tick = tick if self.from_tick is None else min(self.from_tick, tick)
+
+    def as_dict(self) -> dict:
+        return {"decisions_without_peer": self.decisions, "inexact_from_tick": self.from_tick}
+
+
 @dataclass
 class AgentOptions:
     """How one agent process runs."""
@@ -101,6 +115,9 @@ class AgentOptions:
     seed: int = 0
     """Seed of the run: the agent draws from seeding.agent_rng(seed, uav)."""
     lockstep: bool = False
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    """Lock-step: wait this long for a live peer's beacon (one heard since it joined; a peer not heard yet:
+    LOCKSTEP_JOIN_GRACE_S) before deciding without it, which the stats count: the run is then not exact."""
     train: bool = True
     """Learn online (epsilon-greedy + updates); False acts greedily and never updates."""
     checkpoint: str | None = None
@@ -163,6 +180,9 @@ class AgentNode:
         self._last_tick = -1  # the tick of the last observation handled (health reports)
         self.stale_obs_skipped = 0
         """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
+        self.out_of_order_obs = 0
+        """Observations dropped because their tick was not newer than one already answered (a delayed
+        observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
@@ -171,6 +191,9 @@ class AgentNode:
         self._beacons_at: dict[int, dict[int, schema.Beacon]] = {}  # lock-step: tick -> {peer: its beacon}
         self._used_tick = -1  # lock-step: beacons of this tick or earlier come too late to be used
         self._gone: set[int] = set()  # peers whose liveliness token vanished
+        self._heard: set[int] = set()  # lock-step: peers whose beacon came since they (last) joined
+        self.inexact = Inexact()
+        """Lock-step: the decisions taken without a live peer's (or, central, the controller's) message."""
         self._latency_ms: list[float] = []
         self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
@@ -277,6 +300,7 @@ class AgentNode:
         if uav is not None and uav != self.opts.uav:
             with self._lock:
                 self._gone.discard(uav)
+                self._heard.discard(uav)  # a restarted peer: not waited for long before its first beacon
             log.info("uav %d: peer uav %d joined", self.opts.uav, uav)
 
     def _on_leave(self, key: str) -> None:
@@ -307,6 +331,11 @@ class AgentNode:
                 msg = self._newest_obs(msg)
             if msg is None:
                 break
+            if msg.tick <= self._last_tick:  # overtaken: its transition is already past (and learned)
+                self.out_of_order_obs += 1
+                log.debug("uav %d: dropping observation of tick %d, not newer than tick %d already answered",
+                          self.opts.uav, msg.tick, self._last_tick)
+                continue
             self._last_tick = msg.tick
             self.handle(msg)
         self.checkpoint()
@@ -345,11 +374,12 @@ class AgentNode:
                 return msg
             if nxt is None:
                 return None
+            # The newest tick is answered, whatever the arrival order (a delayed one can come after it).
+            older, msg = (nxt, msg) if nxt.tick < msg.tick else (msg, nxt)
             if self.stale_obs_skipped == 0:
                 log.info("uav %d: behind the world, answering tick %d and skipping tick %d (stale observations "
-                         "are skipped from now on, counted in the stats)", self.opts.uav, nxt.tick, msg.tick)
+                         "are skipped from now on, counted in the stats)", self.opts.uav, msg.tick, older.tick)
             self.stale_obs_skipped += 1
-            msg = nxt
 
     def handle(self, obs: schema.Obs) -> None:
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
@@ -443,6 +473,7 @@ class AgentNode:
                 if b.uav in self._gone:
                     continue
                 if self.opts.lockstep:
+                    self._heard.add(b.uav)
                     if b.tick > self._used_tick:
                         self._beacons_at.setdefault(b.tick, {})[b.uav] = b
                     continue
@@ -466,22 +497,29 @@ class AgentNode:
         return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
 
     def _lockstep_beacons(self, tick: int) -> dict[int, schema.Beacon]:
-        """The beacons of exactly ``tick`` of every peer not known gone (waited for); older ones are dropped."""
-        deadline = time.monotonic() + LOCKSTEP_BEACON_WAIT_S
+        """The beacons of exactly ``tick`` of every peer not known gone (waited for); older ones are dropped.
+
+        A live peer heard since it joined is waited for up to ``lockstep_wait_s`` (a paused process); one
+        not heard yet (a slow starter, a restarted agent the world did not send this tick to) for
+        LOCKSTEP_JOIN_GRACE_S. Deciding without a live peer's beacon is counted (:class:`Inexact`)."""
+        start = time.monotonic()
+        wait_s = self.opts.lockstep_wait_s
         while True:
             with self._lock:
                 got = self._beacons_at.get(tick, {})
                 # Every peer not known gone, so a slow starter is not skipped.
                 missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone and j not in got]
-            left = deadline - time.monotonic()
-            if not missing or left <= 0 or self._stop.is_set():
+                waited = time.monotonic() - start
+                waiting = [j for j in missing if waited < (wait_s if j in self._heard else LOCKSTEP_JOIN_GRACE_S)]
+            if not waiting or self._stop.is_set():
                 break
             # Woken once enough beacons came for all the missing ones, not for each; a peer's loss shows within 50 ms.
-            self._beacon_inbox.wait(min(left, 0.05), min_ready=len(missing))
+            self._beacon_inbox.wait(0.05, min_ready=len(missing))
             self._take_beacons()
         if missing and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
-            log.warning("uav %d, tick %d: no beacon from peer(s) %s within %.0f s; deciding without them",
-                        self.opts.uav, tick, missing, LOCKSTEP_BEACON_WAIT_S)
+            self.inexact.add(tick)
+            log.warning("uav %d, tick %d: no beacon from live peer(s) %s within %.1f s; deciding without them "
+                        "(the run is no longer exact)", self.opts.uav, tick, missing, time.monotonic() - start)
         with self._lock:
             fresh = self._beacons_at.pop(tick, {})
             self._used_tick = max(self._used_tick, tick)
@@ -518,6 +556,8 @@ class AgentNode:
                 senders = list(self._latency_from)
             st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
+                    "out_of_order_obs": self.out_of_order_obs,
+                    **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
                     "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,

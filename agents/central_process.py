@@ -38,13 +38,13 @@ from truav.bus import guard, keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
+from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S
 from world.env import LocalObs
+from agents.agent_process import Inexact
 
 log = logging.getLogger("truav.controller")
 
 CONTROL_SHUTDOWN = "shutdown"
-LOCKSTEP_STATE_TIMEOUT_S = 10.0
-"""Lock-step still never stalls forever: a live UAV silent this long is decided without."""
 
 
 @dataclass
@@ -55,6 +55,8 @@ class ControllerOptions:
     seed: int = 0
     """Seed of the run: the SAC draws from seeding.baseline_rng(seed, 1), as the in-process driver's."""
     lockstep: bool = False
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    """Lock-step: a live UAV silent this long is decided without (counted: the run is then not exact)."""
     policy: str | None = None
     """A `truav train --scheme central` run (or its policy.npz) whose actor is flown greedily; None: learn online."""
     policy_index: int = 0
@@ -152,16 +154,18 @@ class ControllerNode:
                     waited = time.monotonic() - self._first_at[tick]
                     if self.opts.lockstep:
                         missing = set(range(self.n_uavs)) - self._gone - set(got) \
-                            if waited < LOCKSTEP_STATE_TIMEOUT_S else set()
-                        limit = LOCKSTEP_STATE_TIMEOUT_S
+                            if waited < self.opts.lockstep_wait_s else set()
+                        limit = self.opts.lockstep_wait_s
                     else:
                         missing = set(range(self.n_uavs)) - set(got)
                         limit = self.opts.collect_frac * self.opts.tick_period_s
                     # A later tick already arriving means this one's stragglers are not coming.
                     if not missing or waited >= limit or len(self._by_tick) > 1:
-                        if missing and self.opts.lockstep and len(self._by_tick) == 1:
-                            log.warning("tick %d: no upload from live uav(s) %s within %.0f s; deciding without",
-                                        tick, sorted(missing), limit)
+                        late = set(range(self.n_uavs)) - self._gone - set(got)
+                        if late and self.opts.lockstep and waited >= limit:
+                            self.inexact.add(tick)
+                            log.warning("tick %d: no upload from live uav(s) %s within %.1f s; deciding without "
+                                        "(the run is no longer exact)", tick, sorted(late), limit)
                         del self._by_tick[tick], self._first_at[tick]
                         self._done_tick = tick
                         return tick, got
@@ -210,6 +214,8 @@ class ControllerNode:
         if not self.opts.stats_out:
             return
         data = dict(self.stats)
+        if self.opts.lockstep:
+            data["lockstep"] = self.inexact.as_dict()
         ms = np.array(data.pop("decide_ms"))
         if ms.size:
             data["decide_ms"] = {"p50": float(np.percentile(ms, 50)), "p99": float(np.percentile(ms, 99)),

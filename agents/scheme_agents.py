@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from agents.agent_process import DONE_ACK_ACTION, LOCKSTEP_BEACON_WAIT_S, AgentNode, AgentOptions
+from agents.agent_process import DONE_ACK_ACTION, AgentNode, AgentOptions
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
@@ -42,8 +42,6 @@ DEPLOY_WAIT_FRAC = 0.3
 """Patrol, real time: wait up to this fraction of the tick period for the peers' deployment beacons."""
 DEPLOY_REPEATS = 5
 """Patrol, real time: the deployment beacon goes out again on this many ticks after the first."""
-LOCKSTEP_COMMAND_WAIT_S = 2.0
-"""Central, lock-step: how long to wait for the tick's command while the controller is alive."""
 
 
 class _NoLearner(AgentNode):
@@ -205,7 +203,7 @@ class CentralAgentNode(_NoLearner):
 
     def _await_command(self, obs: schema.Obs) -> None:
         if self.opts.lockstep:
-            deadline = time.monotonic() + LOCKSTEP_COMMAND_WAIT_S
+            deadline = time.monotonic() + self.opts.lockstep_wait_s  # while the controller is alive
         else:  # the world's stamp of the observation is the tick's start, in its wall clock
             deadline = time.monotonic() + obs.t / 1e9 + self.opts.command_wait_frac * self.opts.tick_period_s \
                 - time.time()
@@ -217,6 +215,11 @@ class CentralAgentNode(_NoLearner):
                     return  # no one will answer: fly on without waiting
                 left = deadline - time.monotonic()
                 if left <= 0:
+                    if self.opts.lockstep:  # a live controller's command did not come: no longer exact
+                        self.inexact.add(obs.tick)
+                        log.warning("uav %d, tick %d: no command from the live controller within %.1f s; flying "
+                                    "on without (the run is no longer exact)", self.opts.uav, obs.tick,
+                                    self.opts.lockstep_wait_s)
                     return
                 self._cmd.wait(min(left, 0.05))
 
@@ -244,4 +247,4 @@ def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None
     return cls(cfg, opts, bus, beacon_inbox=beacon_inbox)
 
 
-__all__ = ["SCHEMES", "PatrolAgentNode", "CentralAgentNode", "make_agent_node", "LOCKSTEP_BEACON_WAIT_S"]
+__all__ = ["SCHEMES", "PatrolAgentNode", "CentralAgentNode", "make_agent_node"]

@@ -55,7 +55,7 @@ CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_u
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
 CUT_AFTER_EPISODES = 4
 CUT_HOST = "b"
-CUT_S = 1.0  # under agents.agent_process.LOCKSTEP_BEACON_WAIT_S (2 s) with TCP's retransmission back-off
+CUT_S = 1.0  # with TCP's retransmission back-off, far under --lockstep-wait and Zenoh's 10 s lease
 START_TIMEOUT_S = 30.0
 RUN_TIMEOUT_S = 90.0
 EPISODE_LINE = re.compile(r"^(\S+ \S+) truav\.world\S* INFO episode (\d+):", re.M)

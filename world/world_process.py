@@ -30,14 +30,13 @@ from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
+from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S
 from truav.swarm.secure_cli import rejection_metrics
 from world.env import World
 from world.uavs import HOVER
 
 log = logging.getLogger("truav.world")
 
-LOCKSTEP_ACTION_TIMEOUT_S = 10.0
-"""Lock-step still never stalls forever: a live agent silent this long is skipped (hovers)."""
 CONTROL_SHUTDOWN = "shutdown"
 POSITIONS_EVERY_TICKS = 1
 """Publish all positions (maps, replay, the Foxglove scene) every this many ticks: every tick,
@@ -60,6 +59,9 @@ class WorldOptions:
     """Episodes to run before publishing shutdown and exiting."""
     lockstep: bool = False
     """Wait for every live agent's action each tick (deterministic) instead of real time."""
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    """Lock-step still never stalls forever: a live agent silent this long is skipped (it hovers, and the
+    run is no longer exact: counted in WorldStats.lockstep_missed)."""
     rate_hz: float = 10.0
     """Real-time tick rate."""
     deadline_frac: float = 0.8
@@ -85,7 +87,16 @@ class WorldStats:
     tick_lateness_ms: list[float] = field(default_factory=list)
     deadline_misses: int = 0
     """Actions that did not come (in time): those UAVs hovered."""
+    lockstep_missed: int = 0
+    """Lock-step: answers (actions or `done` acknowledgements) of live agents the world went on without
+    after lockstep_wait_s: the run is no longer exact."""
+    lockstep_missed_from_tick: int | None = None
+    """Lock-step: the first tick it went on without a live agent's answer."""
     actions_received: int = 0
+    late_actions: int = 0
+    """Actions that came after their tick's round had closed (real time: past the deadline); not applied."""
+    stale_actions: int = 0
+    """Actions for a tick older than one the same agent had already answered (delayed, overtaken); not applied."""
     ticks: int = 0
     joins: list[str] = field(default_factory=list)
     losses: list[str] = field(default_factory=list)
@@ -138,6 +149,8 @@ class WorldNode:
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
+        self._round = -1  # the latest tick published (its round may have closed: self._tick is then -1)
+        self._answered = [-1] * self.n_uavs  # per UAV: the newest tick it answered
         self._alive: set[int] = set()
         self._controller_alive = False
         self._t0 = None
@@ -169,10 +182,28 @@ class WorldNode:
 
     # -- bus callbacks (delivery thread: keep short) --
     def _on_action(self, key, msg: schema.Action, raw, recv_ns) -> None:
+        if msg.uav >= self.n_uavs:
+            return
         with self._cond:
-            if msg.tick == self._tick and msg.uav < self.n_uavs and msg.uav not in self._actions:
-                self._actions[msg.uav] = msg.action
-                self._cond.notify_all()
+            if msg.tick > self._round:
+                return  # a tick not published yet (forged): ignored
+            newest = self._answered[msg.uav]
+            self._answered[msg.uav] = max(newest, msg.tick)
+            if msg.tick == self._tick:
+                if msg.uav not in self._actions:
+                    self._actions[msg.uav] = msg.action
+                    self._cond.notify_all()
+                return
+            stale = msg.tick < newest  # an older answer overtaken by a newer one of the same agent
+            if stale:
+                self.stats.stale_actions += 1
+            else:
+                self.stats.late_actions += 1
+            first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+        (log.info if first else log.debug)(
+            "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
+            "after a newer one of it (out of order)" if stale else "after its round closed",
+            "stale_actions" if stale else "late_actions")
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
@@ -307,12 +338,13 @@ class WorldNode:
         run, sc, lockstep = self.opts.run, self.cfg.scenario, self.opts.lockstep
         with self._cond:
             self._tick = tick if lockstep or not done else -1
+            self._round = tick
             self._actions = {}
             expected = set(self._alive)  # one who joins later never saw this tick's observation
         period_ms = 1e3 / self.opts.rate_hz
         self.bus.publish(keys.world_tick(run), schema.Tick(
             tick=tick, episode=episode, sim_time=tick * sc.step_s,
-            deadline_ms=LOCKSTEP_ACTION_TIMEOUT_S * 1e3 if lockstep else self.opts.deadline_frac * period_ms,
+            deadline_ms=self.opts.lockstep_wait_s * 1e3 if lockstep else self.opts.deadline_frac * period_ms,
             n_uavs=self.n_uavs))
         for i in range(self.n_uavs):
             self.bus.publish(keys.uav_obs(run, i), schema.Obs(
@@ -328,7 +360,7 @@ class WorldNode:
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
         if done and not lockstep:
             return actions
-        limit = self.clock() + LOCKSTEP_ACTION_TIMEOUT_S if deadline is None else deadline
+        limit = self.clock() + self.opts.lockstep_wait_s if deadline is None else deadline
         waiting: set[int] = set()
         with self._cond:
             while not self._stop.is_set():
@@ -341,8 +373,13 @@ class WorldNode:
             answered = dict(self._actions)
             self._tick = -1
         if lockstep and waiting and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
-            log.warning("tick %d: no %s from live agent(s) %s within %.0f s; going on without them", tick,
-                        "acknowledgement" if done else "action", sorted(waiting), LOCKSTEP_ACTION_TIMEOUT_S)
+            st = self.stats
+            st.lockstep_missed += len(waiting)
+            if st.lockstep_missed_from_tick is None:
+                st.lockstep_missed_from_tick = tick
+            log.warning("tick %d: no %s from live agent(s) %s within %.1f s; going on without them (the run is no "
+                        "longer exact)", tick, "acknowledgement" if done else "action", sorted(waiting),
+                        self.opts.lockstep_wait_s)
         if done:
             return actions
         for uav, a in answered.items():

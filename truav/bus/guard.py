@@ -16,7 +16,8 @@ a process installs on its Bus:
   number of vehicles and their queues, speeds below the UAV's, ticks near the
   current one, so a forged or buggy message cannot poison a Q-table or pin a
   neighbour with a tick of 2^62;
-* **one action per UAV per tick**.
+* **one action per UAV per tick** (an older tick's action passes: a late
+  answer, which the world counts as such).
 
 :class:`Rejections` counts every rejected message by reason and sender, with
 a bounded number of distinct senders (a flood of unique names adds nothing
@@ -206,9 +207,11 @@ class Guard:
                 return R_IMPLAUSIBLE, f"beacon pos {msg.pos} vel {msg.vel}"
         elif isinstance(msg, schema.Action):
             with self._lock:
-                if msg.tick <= self._last_action[msg.uav]:
+                if msg.tick == self._last_action[msg.uav]:
                     return R_DUPLICATE, f"second action of uav {msg.uav} for tick {msg.tick}"
-                self._last_action[msg.uav] = msg.tick
+                # An older tick's action is an answer delayed behind a newer one, not malformed: passed on,
+                # the world counts it as stale (world.world_process).
+                self._last_action[msg.uav] = max(self._last_action[msg.uav], msg.tick)
         elif isinstance(msg, schema.Positions):
             if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
                 return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"

@@ -566,9 +566,13 @@ class Positions(Envelope):
     vehicles: tuple[tuple[float, float], ...]
 
 
+HEALTH_PERIOD_S = 1.0
+"""How often an agent publishes its Health report (and once at its start)."""
+
+
 @dataclass(frozen=True)
 class Health(Envelope):
-    """Agent ``uav`` -> supervisor, status, recorder: what it refused so far, about once a second.
+    """Agent ``uav`` -> supervisor, status, recorder: what it refused so far, every HEALTH_PERIOD_S.
 
     Bounded whatever a flood sends it: ``rejected`` by reason (the fixed ``R_*`` codes), ``senders``
     only the :data:`MAX_HEALTH_SENDERS` most refused senders."""

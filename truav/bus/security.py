@@ -337,10 +337,44 @@ def _file_namer(directory: Path | None):
     return lambda name: str(d / name)
 
 
+# --- Zenoh's downsampling section: a rate cap per key ---------------------------------------------
+RATE_CAP_MARGIN = 20.0
+"""Each key's cap is this many times the rate the run needs on it. Zenoh's downsampler is a minimum
+interval per key and session (a put less than 1/cap after the last one passed is dropped), not a
+bucket, so the margin covers bursts: a late world or agent catching up sends two ticks' messages a
+few ms apart (5 ms at 10 Hz stays allowed); a flood is cut to 200 puts/s per key from thousands."""
+DOWNSAMPLING_ID = "truav-rate-caps"
+
+
+def rate_caps(run: str, n_uavs: int, rate_hz: float, beacon_every: int = 1) -> tuple[tuple[str, float], ...]:
+    """(key expression, puts/s) the router lets each session send on each key of a real-time run at
+    ``rate_hz``: the rate the schema needs there (one per tick; beacons every ``beacon_every`` ticks;
+    health every schema.HEALTH_PERIOD_S) times RATE_CAP_MARGIN. Control and fault keys (the
+    supervisor's, rare and bursty: several faults at one instant) are not capped."""
+    from truav.bus.schema import HEALTH_PERIOD_S
+    per_tick = (keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run), keys.metrics_episode(run))
+    needed: list[tuple[str, float]] = [(k, rate_hz) for k in per_tick]
+    for i in range(n_uavs):
+        needed += [(keys.uav_obs(run, i), rate_hz),
+                   (f"{keys.uav_beacon(run, i)}/**", rate_hz / beacon_every),  # range-limited ones too
+                   (keys.uav_action(run, i), rate_hz), (keys.uav_state(run, i), rate_hz),
+                   (keys.uav_health(run, i), 1.0 / HEALTH_PERIOD_S), (keys.controller_cmd(run, i), rate_hz)]
+    return tuple((k, hz * RATE_CAP_MARGIN) for k, hz in needed)
+
+
+def downsampling_config(caps: Sequence[tuple[str, float]]) -> list[dict]:
+    """Zenoh's ``downsampling`` section: ``caps`` applied to what each session puts (ingress), so an
+    identity flooding its own keys gets its cap, per key, and no more through the router."""
+    return [{"id": DOWNSAMPLING_ID, "flows": ["ingress"], "messages": ["put"],
+             "rules": [{"key_expr": k, "freq": float(hz)} for k, hz in caps]}]
+
+
 def router_config(directory: Path | None, listen: Sequence[str], table: Sequence[Grant], *,
-                  connect: Sequence[str] = (), peer_routers: Sequence[str] = ()) -> dict:
-    """The router's zenoh config: mutual TLS on ``listen``, the ACL of ``table``; with ``connect``,
-    it also dials those routers (mutual TLS, their names verified), and ``peer_routers`` relay."""
+                  connect: Sequence[str] = (), peer_routers: Sequence[str] = (),
+                  caps: Sequence[tuple[str, float]] = ()) -> dict:
+    """The router's zenoh config: mutual TLS on ``listen``, the ACL of ``table``, the rate ``caps``
+    (:func:`rate_caps`) if any; with ``connect``, it also dials those routers (mutual TLS, their names
+    verified), and ``peer_routers`` relay."""
     f = _file_namer(directory)
     tls = {
         "root_ca_certificate": f(CA_CERT),
@@ -356,6 +390,8 @@ def router_config(directory: Path | None, listen: Sequence[str], table: Sequence
                     "verify_name_on_connect": True})
     conf.update({"scouting": {"multicast": {"enabled": False}}, "transport": {"link": {"tls": tls}},
                  "access_control": acl_config(table, peer_routers)})
+    if caps:
+        conf["downsampling"] = downsampling_config(caps)
     return conf
 
 
@@ -423,8 +459,11 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: str | None = None, *,
-          hosts: Sequence[str] = DEFAULT_HOSTS, days: int = DEFAULT_VALID_DAYS, sites: Sequence[Site] = ()) -> Path:
+          hosts: Sequence[str] = DEFAULT_HOSTS, days: int = DEFAULT_VALID_DAYS, sites: Sequence[Site] = (),
+          caps: Sequence[tuple[str, float]] = ()) -> Path:
     """Create the CA, one key + certificate per component and every zenoh config, in ``directory``.
+
+    ``caps`` (:func:`rate_caps`, for one router's ``endpoint``) go into its config's ``downsampling``.
 
     ``endpoint`` is where the router listens and clients connect (made ``tls/``);
     ``hosts`` (names or IPs) go into the router certificate's SANs, so clients
@@ -457,7 +496,7 @@ def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: st
     for g in table:
         write_pair(d, file_stem(g.identity), *make_leaf(ca_key, ca_cert, g.identity, ()))
         _write_json(d / f"{file_stem(g.identity)}.json5", client_config(d, g.identity, [ep]))
-    _write_json(d / ROUTER_CONFIG, router_config(d, [ep], table))
+    _write_json(d / ROUTER_CONFIG, router_config(d, [ep], table, caps=caps))
     _write_json(d / MANIFEST, {"run": run, "n_uavs": n_uavs, "endpoint": ep, "hosts": list(all_hosts),
                                "identities": [g.identity for g in table]})
     return d
@@ -526,6 +565,9 @@ def secure_setup(out: Path, opts, n_uavs: int, endpoint: str):
     from truav.bus.transport import make_config
     d = Path(out) / "creds"
     shutil.rmtree(d, ignore_errors=True)  # a new CA per run: an old run's certificates open nothing
-    creds = load(issue(d, opts.run, n_uavs, endpoint), opts.run)
+    # Real time: each key capped at the rate it needs (with a margin); lock-step ticks as fast as the
+    # processes answer, so no rate is known and nothing is capped.
+    caps = () if opts.lockstep else rate_caps(opts.run, n_uavs, opts.rate_hz, opts.beacon_every)
+    creds = load(issue(d, opts.run, n_uavs, endpoint, caps=caps), opts.run)
     sup = make_config(None, [creds.endpoint], config_file=creds.config_file(SUPERVISOR), connect_timeout_ms=5000)
     return ["--creds", str(d)], ["--creds", str(d)], sup

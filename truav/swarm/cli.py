@@ -33,7 +33,7 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
 from truav.config import Config, load_config
-from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
+from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -266,7 +266,8 @@ def cmd_world(args) -> int:
     if args.stats_out:
         check_out_file("--stats-out", args.stats_out)
     opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
-                        rate_hz=args.rate, wait_agents_s=args.wait_agents, stats_out=args.stats_out,
+                        lockstep_wait_s=lockstep_wait(args), rate_hz=args.rate, wait_agents_s=args.wait_agents,
+                        stats_out=args.stats_out,
                         fault_plan=args.fault_plan, accept_replay=args.accept_replay, scheme=args.scheme)
     _creds(args, keys.SRC_WORLD)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
@@ -341,6 +342,7 @@ def cmd_agent(args) -> int:
     if args.lockstep and (args.beacon_every != 1 or args.beacon_cell is not None):
         raise UsageError(f"{'--beacon-every' if args.beacon_every != 1 else '--beacon-cell'}: lock-step waits for "
                          f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
+    wait_s = lockstep_wait(args)
     try:
         delays = {uav: debug_delay_s(os.environ.get(DELAY_ENV, ""), uav) for uav in ids}
     except ValueError as exc:
@@ -372,7 +374,8 @@ def cmd_agent(args) -> int:
     shared = SharedBeacons(args.run) if args.share_beacons and len(ids) > 1 else None
 
     def host(uav: int) -> None:
-        opts = AgentOptions(run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep, train=not args.greedy,
+        opts = AgentOptions(run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep, lockstep_wait_s=wait_s,
+                            train=not args.greedy,
                             checkpoint=path_of(args.checkpoint, uav), checkpoint_every=args.checkpoint_every,
                             qtable=args.qtable, qtable_index=args.qtable_index, stats_out=path_of(args.stats_out, uav),
                             tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delays[uav],
@@ -456,7 +459,8 @@ def cmd_controller(args) -> int:
     check_central_sizes(cfg)
     if args.stats_out:
         check_out_file("--stats-out", args.stats_out)
-    opts = ControllerOptions(run=args.run, seed=args.seed, lockstep=args.lockstep, policy=args.policy,
+    opts = ControllerOptions(run=args.run, seed=args.seed, lockstep=args.lockstep, lockstep_wait_s=lockstep_wait(args),
+                             policy=args.policy,
                              policy_index=args.policy_index, tick_period_s=1.0 / args.rate,
                              stats_out=args.stats_out, fault_plan=args.fault_plan, accept_replay=args.accept_replay)
     _creds(args, keys.SRC_CONTROLLER)
@@ -616,7 +620,8 @@ def _swarm_options(args):
             raise UsageError(f"--agents-per-process {args.agents_per_process}: the fault plan {args.fault_plan} "
                              f"{' and '.join(sorted(kinds))}es single agent processes; use 1 agent per process")
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
-                        rate_hz=args.rate, record=args.record, qtable=args.qtable, greedy=args.greedy,
+                        lockstep_wait_s=lockstep_wait(args), rate_hz=args.rate, record=args.record, qtable=args.qtable,
+                        greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
                         fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
@@ -722,6 +727,21 @@ def add_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-index", type=non_negative_int, default=0, help="which seed's policy of that run (default 0)")
 
 
+def add_lockstep_args(p: argparse.ArgumentParser, help_lockstep: str | None = None) -> None:
+    p.add_argument("--lockstep", action="store_true", help=help_lockstep)
+    p.add_argument("--lockstep-wait", type=positive_float, metavar="S",
+                   help="lock-step: wait this long for a live agent's action or beacon (a paused process) before "
+                        "going on without it; the run is then not exact and fails (default "
+                        f"{DEFAULT_LOCKSTEP_WAIT_S:g})")
+
+
+def lockstep_wait(args) -> float:
+    """--lockstep-wait, or its default; given without --lockstep it is a mistake (one line, exit 2)."""
+    if args.lockstep_wait is not None and not args.lockstep:
+        raise UsageError(f"--lockstep-wait {args.lockstep_wait:g}: only lock-step waits; add --lockstep or drop it")
+    return DEFAULT_LOCKSTEP_WAIT_S if args.lockstep_wait is None else args.lockstep_wait
+
+
 def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
     add_scheme_arg(up)
@@ -733,7 +753,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help=f"start more than {MAX_AGENTS} agent processes (not real time on a 2-core machine)")
     up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
     up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
-    up.add_argument("--lockstep", action="store_true", help="the world waits for every live agent each tick")
+    add_lockstep_args(up, "the world waits for every live agent each tick")
     up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
     up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
@@ -837,7 +857,7 @@ def build_parser() -> argparse.ArgumentParser:
     wo = sub.add_parser("world", help="run the world process")
     add_scenario_args(wo)
     wo.add_argument("--episodes", type=positive_int, default=2)
-    wo.add_argument("--lockstep", action="store_true")
+    add_lockstep_args(wo)
     wo.add_argument("--rate", type=positive_float, default=10.0)
     wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
     wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
@@ -859,7 +879,7 @@ def build_parser() -> argparse.ArgumentParser:
     ag.add_argument("--share-beacons", action="store_true",
                     help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
                          "once per process, not once per agent); each agent still checks and counts its own")
-    ag.add_argument("--lockstep", action="store_true")
+    add_lockstep_args(ag)
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
     ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
@@ -875,7 +895,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     co = sub.add_parser("controller", help="run the central scheme's controller process")
     add_scenario_args(co)
-    co.add_argument("--lockstep", action="store_true")
+    add_lockstep_args(co)
     co.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (default 10)")
     add_policy_args(co)
     co.add_argument("--stats-out", metavar="FILE", help="write the controller's statistics as JSON at exit")

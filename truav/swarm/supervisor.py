@@ -14,7 +14,10 @@ episodes; 130 when the user stopped the run (Ctrl-C, SIGTERM, SIGHUP,
 `truav-swarm down`); 2 when it could not start because of a user mistake;
 1 when something went wrong: an agent or the world could not start, the
 router or the recorder died, the recorder could not finish its file, more
-than ``max_missed_share`` of the actions were missing, a shutdown came from
+than ``max_missed_share`` of the actions were missing, a lock-step run went on
+without a live process's message (it waited ``--lockstep-wait`` for it: the run
+is no longer exact, and summary.json's ``outcome.lockstep`` says how many
+decisions and from which tick), a shutdown came from
 an unknown sender, or a process had to be killed at shutdown.  The summary's
 last lines say what ended the run (and who sent its shutdown) and why it failed.
 
@@ -46,7 +49,7 @@ from truav.faults import load_plan
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
                                   stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
 from truav.swarm.fault_control import FaultController
-from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
+from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, signals_handled
 from truav.swarm.monitor import Monitor
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
                                 prepare_swarm_dir, write_run_file)
@@ -82,6 +85,8 @@ class SwarmOptions:
     seed: int = 0
     episodes: int = 2
     lockstep: bool = False
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    """Lock-step: how long world and agents wait for a live process before the run gives up exactness."""
     rate_hz: float = 10.0
     record: str | None = None
     qtable: str | None = None
@@ -150,6 +155,7 @@ class Outcome:
     warnings: list[str] = field(default_factory=list)
     shutdowns: list[tuple[float, str]] = field(default_factory=list)  # (s since start, sender)
     ticked: bool = False
+    exactness: dict | None = None  # lock-step only: see lockstep_exactness
 
     def fail(self, reason: str) -> None:
         if reason not in self.failures:
@@ -284,7 +290,8 @@ class _Swarm:
         scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep,
                          *self.creds_args]
         common = [*scenario_args, "--router-timeout", str(opts.router_timeout_s)]
-        timing = (["--lockstep"] if opts.lockstep else []) + (["-v"] if opts.verbose else [])
+        timing = (["--lockstep", "--lockstep-wait", repr(opts.lockstep_wait_s)] if opts.lockstep else []) \
+            + (["-v"] if opts.verbose else [])
         faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if self.plan else []
         origin = ["--geo-origin", "%r,%r" % opts.geo_origin] if opts.geo_origin else []
         if opts.record:
@@ -496,6 +503,11 @@ class _Swarm:
         for name in [*logs, *(["controller"] if self.central else [])]:
             if o.ticked and not (self.out / f"{name}.json").is_file() and name not in killed_for_good:
                 o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{logs.get(name, name)}.log)")
+        if opts.lockstep and o.ticked:
+            o.exactness = lockstep_exactness(world, [_read_json(self.out / f"{name}.json") for name in logs],
+                                             _read_json(self.out / "controller.json") if self.central else None)
+            if not o.exactness["exact"]:
+                o.fail(inexact_text(o.exactness, opts.lockstep_wait_s))
         lost = ((world or {}).get("controller_losses") or []) if self.central else []
         if lost:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
@@ -512,6 +524,7 @@ class _Swarm:
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
+                   "lockstep": o.exactness,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         (out / SUMMARY_FILE).write_text(json.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
@@ -548,8 +561,16 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
         lat = world.get("tick_lateness_ms")
         if lat:
             print(f"tick lateness p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms over {lat['n']} ticks")
+        late, stale = world.get("late_actions", 0), world.get("stale_actions", 0)
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
-              f"missed (hovered) {world['deadline_misses']}, agent losses seen {len(world['losses'])}")
+              f"missed (hovered) {world['deadline_misses']}"
+              + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
+              + f", agent losses seen {len(world['losses'])}")
+    ex = o.exactness
+    if ex is not None:
+        print("lock-step: exact (every live process was waited for)" if ex["exact"] else
+              f"lock-step: NOT exact from tick {ex['inexact_from_tick']}: {ex['decisions_without_peer']} decision(s) "
+              f"without a live peer's message, {ex['world_went_on_without']} answer(s) the world went on without")
     rejected = rejection_summary(world, agents)
     if rejected:
         print(rejected)
@@ -566,6 +587,39 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
               f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
     for t, kind, phase in events:
         print(f"fault {kind} {phase} at {t:.1f} s")
+
+
+def lockstep_exactness(world, agents, controller) -> dict:
+    """Lock-step: whether every process waited for every live peer (the run is then exact), else how many
+    decisions were taken without a live process's message, and from which tick (the earliest)."""
+    world_missed = int((world or {}).get("lockstep_missed", 0))
+    ticks = [(world or {}).get("lockstep_missed_from_tick")]
+    per_agent: dict[str, int] = {}
+    for stats in agents:
+        ls = (stats or {}).get("lockstep") or {}
+        if ls.get("decisions_without_peer"):
+            per_agent[f"agent{stats.get('uav')}"] = int(ls["decisions_without_peer"])
+            ticks.append(ls.get("inexact_from_tick"))
+    ctl = ((controller or {}).get("lockstep") or {})
+    ctl_missed = int(ctl.get("decisions_without_peer", 0))
+    ticks.append(ctl.get("inexact_from_tick"))
+    ticks = [t for t in ticks if t is not None]
+    decisions = sum(per_agent.values()) + ctl_missed
+    return {"exact": not (world_missed or decisions), "decisions_without_peer": decisions,
+            "by_agent": per_agent, "controller_decisions_without_peer": ctl_missed,
+            "world_went_on_without": world_missed, "inexact_from_tick": min(ticks) if ticks else None}
+
+
+def inexact_text(ex: dict, wait_s: float) -> str:
+    parts = []
+    if ex["decisions_without_peer"]:
+        who = [f"{a} {n}" for a, n in ex["by_agent"].items()]
+        who += [f"controller {ex['controller_decisions_without_peer']}"] if ex["controller_decisions_without_peer"] else []
+        parts.append(f"{ex['decisions_without_peer']} decision(s) taken without a live peer's message ({', '.join(who)})")
+    if ex["world_went_on_without"]:
+        parts.append(f"the world went on without {ex['world_went_on_without']} live agent answer(s)")
+    return (f"lock-step is no longer exact from tick {ex['inexact_from_tick']} (a live process did not answer within "
+            f"--lockstep-wait {wait_s:g} s; a longer one waits out longer pauses): {'; '.join(parts)}")
 
 
 def _process(who) -> str:
