@@ -130,13 +130,13 @@ _OP_MESSAGE_INDEX = int(Opcode.MESSAGE_INDEX)
 
 # --- statistics -------------------------------------------------------------------------
 MAX_TRACKED_SENDERS = 4096
-"""(src, kind) pairs tracked one by one; further ones pool under OTHER_SENDERS (bounded memory)."""
+"""(src, kind, incarnation) streams tracked one by one; further ones pool under OTHER_SENDERS (bounded memory)."""
 OTHER_SENDERS = "(other senders)"
 
 
 @dataclass(slots=True)
 class SeqStats:
-    """Online sequence tracking for one (src, kind) sender.
+    """Online sequence tracking for one (src, kind, incarnation) stream.
 
     Counted as messages arrive, so a reordered message that later fills a
     gap still counts as ``missing`` and ``backwards``; ``recorder.check``
@@ -162,7 +162,7 @@ class LogSummary:
     chunks: int = 0
     bytes_written: int = 0
     channels: dict[str, int] = field(default_factory=dict)  # key -> messages
-    senders: dict[tuple[str, str], SeqStats] = field(default_factory=dict)  # (src, kind) ->
+    senders: dict[tuple[str, str, int], SeqStats] = field(default_factory=dict)  # (src, kind, inc) ->
 
     @property
     def missing(self) -> int:
@@ -245,6 +245,7 @@ class McapLog:
         self._fox_kinds = self._fox.KINDS if self._fox is not None else frozenset()
         self._fox_chans: dict[str, list[int]] = {}  # topic -> [channel id, sequence]
         self._srcs_seen: set[str] = set()
+        self._first_inc: dict[str, int] = {}  # src -> its first incarnation recorded (the one that may predate us)
         self._auto_flush = auto_flush
         self._fsync = fsync
         self._clock = clock
@@ -277,7 +278,7 @@ class McapLog:
         self._time_min: Optional[int] = None  # over written chunks
         self._time_max: Optional[int] = None
         # recorder statistics
-        self._senders: dict[tuple[str, str], SeqStats] = {}
+        self._senders: dict[tuple[str, str, int], SeqStats] = {}
         self._undecodable = 0
         self._mirror_errors = 0
         self._mirror_messages = 0
@@ -317,7 +318,7 @@ class McapLog:
             chan.count += 1
             self._undecodable += 1
         else:
-            kind, src, seq, t, body = env
+            kind, src, seq, t, body, inc = env
             if publish_time_ns is not None:
                 pub = publish_time_ns
             else:
@@ -325,12 +326,15 @@ class McapLog:
             self._append(chan.id, seq & _U32, log_time_ns, pub, payload)  # raises before counting
             chan.count += 1
             # sequence tracking, inlined (hot path); see SeqStats
-            stats = self._senders.get((src, kind))
-            if stats is None and len(self._senders) >= MAX_TRACKED_SENDERS:  # src is the sender's choice
-                src = OTHER_SENDERS
-                stats = self._senders.get((src, kind))
+            # a restarted sender numbers from 0 again under a new incarnation: a stream of its own
+            stats = self._senders.get((src, kind, inc))
+            if stats is None and len(self._senders) >= MAX_TRACKED_SENDERS:  # src and inc are the sender's choice
+                src, inc = OTHER_SENDERS, 0
+                stats = self._senders.get((src, kind, inc))
             if stats is None:
-                self._senders[(src, kind)] = SeqStats(count=1, first_seq=seq, last_seq=seq)
+                stats = self._senders[(src, kind, inc)] = SeqStats(count=1, first_seq=seq, last_seq=seq)
+                if self._first_inc.setdefault(src, inc) != inc and seq:  # a later process starts at seq 0
+                    stats.gaps, stats.missing = 1, seq
                 if self._fox is not None and src not in self._srcs_seen:
                     self._srcs_seen.add(src)
                     self.write_foxglove(self._fox.joined(src, log_time_ns), log_time_ns, pub)
@@ -499,7 +503,7 @@ class McapLog:
 
     # --- statistics ------------------------------------------------------------------------
     def summary(self) -> LogSummary:
-        """Counts so far: messages per key, per-(src, kind) sequence stats, undecodable."""
+        """Counts so far: messages per key, per-(src, kind, incarnation) sequence stats, undecodable."""
         return LogSummary(
             messages=self._n_messages + self._chunk_n - self._mirror_messages,
             mirror_messages=self._mirror_messages,

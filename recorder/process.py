@@ -167,7 +167,8 @@ class RecorderSummary:
             "missing_by_seq": self.log.missing, "recorder_dropped": self.recorder_dropped,
             "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
             "channels": dict(sorted(self.log.channels.items())),
-            "senders": {f"{src} {kind}": asdict(s) for (src, kind), s in sorted(self.log.senders.items())},
+            "senders": {f"{src} {kind} {inc:016x}": asdict(s)
+                        for (src, kind, inc), s in sorted(self.log.senders.items())},
             "rejected": self.bus.rejected,
         }
 
@@ -196,8 +197,8 @@ class RecorderSummary:
         gappy = sorted((k, s) for k, s in log_.senders.items() if s.missing or s.backwards)
         lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
                      + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
-        for (src, kind), s in gappy[:MAX_SUMMARY_ROWS]:
-            lines.append(f"    {src:<12} {kind:<10} msgs {s.count:>8}  missing {s.missing:>6} in {s.gaps} gaps"
+        for (src, kind, inc), s in gappy[:MAX_SUMMARY_ROWS]:
+            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} in {s.gaps} gaps"
                          + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
         return "\n".join(lines)
 

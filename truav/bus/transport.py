@@ -437,6 +437,11 @@ class Bus:
         return self._identity
 
     @property
+    def incarnation(self) -> int:
+        """The ``inc`` this Bus stamps on what it publishes (one per Bus: a process lifetime)."""
+        return self._seq.incarnation
+
+    @property
     def run(self) -> str:
         return self._run
 
