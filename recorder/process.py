@@ -106,7 +106,7 @@ class RecorderOptions:
     fsync: bool = False
     force: bool = False  # overwrite an existing output file
     geo_origin: tuple[float, float] = DEFAULT_ORIGIN  # (lat, lon) of the area's centre in Foxglove's Map panel
-    compact: bool = True  # rewrite into big chunks at a clean finish (recorder.recover.compact)
+    compact: bool = True  # rewrite into bigger, bounded chunks at a clean finish (recorder.recover.compact)
 
     def validate(self) -> "RecorderOptions":
         """Raise RecorderUsageError for anything a user can get wrong; return self."""
@@ -463,7 +463,8 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
                         % DEFAULT_ORIGIN)
     parser.add_argument("--no-compact", action="store_true",
-                        help="keep the 50 ms chunks at a clean finish instead of rewriting into big ones")
+                        help="keep the 50 ms chunks at a clean finish instead of rewriting them into chunks of "
+                             "up to 2 s compressed harder")
     parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
     parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",

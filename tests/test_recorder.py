@@ -39,7 +39,7 @@ from recorder.mcap_log import (  # noqa: E402
     McapLog,
 )
 from recorder.reader import iter_messages, probe, read_metadata, read_schemas  # noqa: E402
-from recorder.recover import recover  # noqa: E402
+from recorder.recover import compact, recover  # noqa: E402
 
 RUN = "t1"
 T0 = 1_700_000_000_000_000_000  # a wall-clock-like ns timestamp
@@ -394,6 +394,34 @@ def test_recover_every_truncation_point(tmp_path: Path) -> None:
     untouched = recover(path, tmp_path / "copy.mcap")
     assert not untouched.truncated and untouched.torn_bytes == 0
     assert read_metadata(tmp_path / "copy.mcap")["config"] == {"run": RUN}
+
+
+def test_a_compacted_file_cut_at_any_byte_recovers_every_whole_chunk_before_the_cut(tmp_path: Path) -> None:
+    """The finish rewrites a recording into chunks of at most 2 s (not one chunk for a short run), so a
+    copy cut anywhere (a full disk, a copy interrupted) keeps every chunk that ends before the cut."""
+    path = tmp_path / "run.mcap"
+    with McapLog(path) as log:  # 20 s of a run: 4 UAVs beaconing at 10 Hz
+        for tick in range(200):
+            for u in range(4):
+                log.write(key("uav", u, "beacon"), beacon(u, tick, T0 + tick * 100 * MS), T0 + tick * 100 * MS + u)
+    compact(path)
+    all_msgs = [tuple(m) for m in iter_messages(path)]
+    with open(path, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) == 10 and all(c.message_end_time - c.message_start_time < 2_000_000_000 for c in chunks)
+    data = path.read_bytes()
+    for cut in [len(data) // 2, *range(len(data) - 1, 40, -max(11, len(data) // 37))]:
+        cut_path, out = tmp_path / "cut.mcap", tmp_path / "out.mcap"
+        cut_path.write_bytes(data[:cut])
+        recover(cut_path, out, zstd_level=3)
+        whole = [c for c in chunks if c.chunk_start_offset + c.chunk_length <= cut]
+        got = [tuple(m) for m in iter_messages(out)]
+        assert got == all_msgs[:len(got)]  # a prefix, in order
+        # every bus message of the chunks that end before the cut, no more
+        in_whole = sum(1 for m in all_msgs if any(c.message_start_time <= m[2] <= c.message_end_time for c in whole))
+        assert len(got) == in_whole, (cut, len(whole))
+        if cut == len(data) // 2:
+            assert len(got) >= len(all_msgs) // 3  # issue 25: half a file gives back at least a third
 
 
 def test_recover_skips_a_corrupt_chunk_and_a_zero_filled_tail(tmp_path: Path) -> None:
