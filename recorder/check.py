@@ -19,7 +19,7 @@ a recording:
 
 The file is read record by record (the salvage path of :mod:`recorder.reader`),
 so a damaged chunk is counted, not fatal.  ``truav log check`` exits 1 when
-any of these (or duplicates, reordering, undecodable payloads) is found:
+any of these (or duplicates, reordering, undecodable payloads, or no message at all) is found:
 :attr:`CheckReport.problems` lists them.  Figures are exact (computed
 offline over the whole file), unlike the online counts of
 :meth:`recorder.mcap_log.McapLog.summary`.
@@ -99,6 +99,8 @@ class CheckReport:
     def problems(self) -> list[str]:
         """What is wrong with the recording, one phrase each; empty for a complete one."""
         out = []
+        if self.messages == 0:
+            out.append("no bus messages in the file (nothing was recorded, or nothing survived)")
         if not self.finished:
             out.append("unfinished (the recorder died; run `truav log recover` to finish the file)")
         if self.corrupt_chunks:
