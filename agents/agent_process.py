@@ -67,6 +67,8 @@ DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
 
 SENT_KINDS = (schema.KIND_BEACON, schema.KIND_ACTION, schema.KIND_STATE, schema.KIND_HEALTH)
 """What an agent counts as sent in its stats file (``sent``, per incarnation)."""
+SENDER_JOIN_S = 2.0
+"""At the end the agent waits this long for its beacon and health threads, so what it counts as sent is final."""
 MAX_INCARNATIONS_KEPT = 1000
 """Earlier incarnations a restarted agent keeps listing in its stats file (bounded)."""
 
@@ -308,9 +310,11 @@ class AgentNode:
 
     # -- main loop --
     def run(self) -> None:
+        senders = [threading.Thread(target=self._health_loop, name="health", daemon=True)]
         if not self.opts.lockstep:
-            threading.Thread(target=self._beacon_loop, name="beacons", daemon=True).start()
-        threading.Thread(target=self._health_loop, name="health", daemon=True).start()
+            senders.append(threading.Thread(target=self._beacon_loop, name="beacons", daemon=True))
+        for thread in senders:
+            thread.start()
         while not self._stop.is_set():
             msg = self._obs.get()
             if msg is not None and not self.opts.lockstep:
@@ -319,6 +323,8 @@ class AgentNode:
                 break
             self._last_tick = msg.tick
             self.handle(msg)
+        for thread in senders:  # both end on the stop within ~50 ms: then the sent counts are final
+            thread.join(SENDER_JOIN_S)
         self.checkpoint()
 
     def health(self) -> schema.Health:
