@@ -114,8 +114,8 @@ DEFAULT_ZSTD_LEVEL = 3
 # bounded (Foxglove recommends at most 4 MB), so a file cut at any byte keeps every whole chunk before the
 # cut: a chunk closes once it spans COMPACT_CHUNK_SPAN_S of log time or holds COMPACT_CHUNK_BYTES.
 COMPACT_CHUNK_BYTES = 1024 * 1024  # uncompressed: one level-19 compression stays short (the budget below)
-# Two seconds of the run per chunk at most. Measured on the default `up --record` run (one measurement, shared
-# machine): one chunk 463 kB; 1 s chunks +16.5%, 2 s +8.5%, 4 s +4.7%, and cut at half its size that file
+# Two seconds of the run per chunk at most. Measured on a default `up --record` run's file (one measurement,
+# shared machine): one chunk 463 kB; 1 s chunks +16.5%, 2 s +8.5%, 4 s +4.7%, and cut at half its size it
 # recovered 52%, 52% and 42% of its messages.
 COMPACT_CHUNK_SPAN_NS = 2_000_000_000
 COMPACT_ZSTD_LEVEL = 19  # zstd's strongest usual level: ~1-2 MB/s, ~7% smaller than level 9 on a default run
