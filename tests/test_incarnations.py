@@ -7,6 +7,8 @@ SIGKILLed at 4 s and restarted 3 s later, agent 3 frozen for 2 s), recorded:
   agent's messages as duplicates);
 * a copy with one message deleted from the restarted agent's stream fails it, naming the sender,
   its incarnation and the sequence number;
+* so does the same recording with two runtime fault changes (one-shot `truav-swarm faults`
+  commands, each a new `supervisor` incarnation numbering from 0);
 * every agent's stats file says what each of its processes sent, equal to what was recorded.
 
 Real time only bounds what it must: the run lasts 40 s of ticks at 10 Hz whatever the load, and the
@@ -16,6 +18,10 @@ test asserts nothing about deadlines (`max_missed_share` 1: a busy machine may m
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -55,18 +61,39 @@ def copy_without(src: Path, dst: Path, drop) -> int:
     return dropped
 
 
+def runtime_fault_changes(ep: str, world_log: Path, plans: list[Path], results: list) -> None:
+    """Once the world ticks, two one-shot `truav-swarm faults` commands (each sends as `supervisor`,
+    from seq 0, as its own process): a beacon loss, then an empty plan that clears it."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (world_log.exists() and "starting" in world_log.read_text()):
+        time.sleep(0.2)
+    for plan in plans:
+        results.append(subprocess.run([sys.executable, "-m", "truav.swarm.cli", "faults", "--run", "inc", "-e", ep,
+                                       "--plan", str(plan)], capture_output=True, text=True, timeout=60).returncode)
+
+
 def test_crash_and_freeze_recording_passes_log_check_and_a_deleted_message_is_named(tmp_path):
     cfg = Config().replace(scenario={"n_vehicles": 40, "steps_per_episode": 400, "n_uavs": 4},
                            roads={"warmup_steps": 5})
-    out, mcap = tmp_path / "swarm", tmp_path / "run.mcap"
+    out, mcap, ep = tmp_path / "swarm", tmp_path / "run.mcap", free_loopback_endpoint()
+    loss, clear = tmp_path / "loss.toml", tmp_path / "clear.toml"
+    loss.write_text('[[fault]]\nkind = "loss"\nprobability = 0.2\nkeys = "uav/*/beacon"\n')
+    clear.write_text("")
+    changes: list[int] = []
+    changer = threading.Thread(target=runtime_fault_changes, args=(ep, out / "logs" / "world.log", [loss, clear],
+                                                                   changes), daemon=True)
+    changer.start()
     # 40 s of ticks: the restarted agent (back 3 s after its crash at 4 s) took 11 s to start on a loaded machine
     run_swarm(cfg, SwarmOptions(run="inc", episodes=1, out=str(out), plot=False, quiet=True, fault_plan=str(PLAN),
-                                checkpoint_every=5, record=str(mcap), max_missed_share=1.0,
-                                listen=free_loopback_endpoint()))
+                                checkpoint_every=5, record=str(mcap), max_missed_share=1.0, listen=ep))
+    changer.join(60)
+    assert changes == [0, 0]
     assert "resumed from checkpoint" in (out / "logs" / "agent1.log").read_text()
 
     report = check(mcap)
     assert report.problems == [], report.format_report()
+    one_shots = [s for k, s in report.senders.items() if k[:2] == ("supervisor", "control")]  # up's sends faults
+    assert len(one_shots) == 2 and all(s.first_seq == 0 for s in one_shots), report.format_report()
     mine = [s for k, s in report.senders.items() if k[0] == RESTARTED]
     assert {s.incarnation for s in mine} == {1, 2}, report.format_report()
     # the restarted process's longest stream (its actions, or its health reports on a very slow machine)
