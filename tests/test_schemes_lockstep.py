@@ -118,9 +118,9 @@ def test_lockstep_central_swarm_equals_the_in_process_central_driver(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     cp = summary["control_plane"]  # real messages of the model's sizes crossed the bus
     assert cp["bytes_per_state"] == CFG.central.upload_bytes
-    # A command's envelope alone, with its incarnation, is 86-90 B (by the tick's width): longer than the
+    # A command's envelope alone, with its incarnation, is 86-89 B (by the tick's width): longer than the
     # model's 78 B, so commands go unpadded.
     size = [len(schema.encode(schema.Command(uav=0, tick=tick, action=0, pad=b"", src=keys.SRC_CONTROLLER,
-                                             t=1 << 60, inc=1 << 62))) for tick in (0, steps)]
+                                             t=1 << 60, inc=1 << 62))) for tick in (0, 65535)]
     assert max(size[0], CFG.central.download_bytes) <= cp["bytes_per_command"] <= max(size[1], CFG.central.download_bytes)
     assert cp["commands"] == steps * CFG.scenario.n_uavs
