@@ -112,7 +112,7 @@ DEFAULT_ZSTD_LEVEL = 3
 # A finished file is rewritten once into bigger, strongly compressed chunks (see recorder.recover.compact):
 # 50 ms chunks make the indexes a third of the file and halve what zstd can find to share. The chunks stay
 # bounded (Foxglove recommends at most 4 MB), so a file cut at any byte keeps every whole chunk before the
-# cut: a chunk closes once it spans COMPACT_CHUNK_SPAN_S of log time or holds COMPACT_CHUNK_BYTES.
+# cut: a chunk closes before it spans COMPACT_CHUNK_SPAN_NS of log time or once it holds COMPACT_CHUNK_BYTES.
 COMPACT_CHUNK_BYTES = 1024 * 1024  # uncompressed: one level-19 compression stays short (the budget below)
 # Two seconds of the run per chunk at most. Measured on a default `up --record` run's file (one measurement,
 # shared machine): one chunk 463 kB; 1 s chunks +16.5%, 2 s +8.5%, 4 s +4.7%, and cut at half its size it

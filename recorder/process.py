@@ -198,8 +198,8 @@ class RecorderSummary:
         lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
                      + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
         for (src, kind, inc), s in gappy[:MAX_SUMMARY_ROWS]:
-            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} in {s.gaps} gaps"
-                         + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
+            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} "
+                         f"in {s.gaps} gaps" + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
         return "\n".join(lines)
 
 

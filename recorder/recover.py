@@ -9,9 +9,11 @@ time and COMPACT_CHUNK_BYTES each, so a copy cut at any byte still salvages
 every whole chunk before the cut) compressed hard (COMPACT_ZSTD_LEVEL for the
 first COMPACT_STRONG_BUDGET_S seconds of work, then COMPACT_FAST_ZSTD_LEVEL:
 the cost of a long file stays bounded, streamed chunk by chunk), plus the
-summary section (statistics, chunk indexes) that ``make_reader`` and Foxglove want.  :func:`compact` does the same in
-place for a finished file: the recorder calls it at a clean finish.  The output is written to ``<out>.part`` and renamed into
-place, so a crash during recovery never leaves a half file under ``out``.
+summary section (statistics, chunk indexes) that ``make_reader`` and Foxglove
+want.  :func:`compact` does the same in place for a finished file: the
+recorder calls it at a clean finish.  The output is written to
+``<out>.part`` and renamed into place, so a crash during recovery never
+leaves a half file under ``out``.
 """
 
 from __future__ import annotations

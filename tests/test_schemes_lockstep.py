@@ -122,5 +122,6 @@ def test_lockstep_central_swarm_equals_the_in_process_central_driver(tmp_path):
     # model's 78 B, so commands go unpadded.
     size = [len(schema.encode(schema.Command(uav=0, tick=tick, action=0, pad=b"", src=keys.SRC_CONTROLLER,
                                              t=1 << 60, inc=1 << 62))) for tick in (0, 65535)]
-    assert max(size[0], CFG.central.download_bytes) <= cp["bytes_per_command"] <= max(size[1], CFG.central.download_bytes)
+    model = CFG.central.download_bytes
+    assert max(size[0], model) <= cp["bytes_per_command"] <= max(size[1], model)
     assert cp["commands"] == steps * CFG.scenario.n_uavs
