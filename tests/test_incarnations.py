@@ -129,3 +129,25 @@ def test_crash_and_freeze_recording_passes_log_check_and_a_deleted_message_is_na
         for kind, n in me["sent"].items():
             assert recorded[(f"uav/{i}", kind, int(me["inc"], 16))] == n, (i, kind, n)
     assert int(json.loads((out / "agent1.json").read_text())["incarnation"], 16) == second.inc
+
+
+def test_a_restarted_agent_keeps_the_sent_counts_of_its_earlier_processes(tmp_path):
+    """agent<i>.json lists every process of the run that wrote it: a restart (resumed from the
+    checkpoint) keeps the earlier entries; a fresh start, another run's file or junk does not."""
+    from types import SimpleNamespace
+
+    from agents.agent_process import AgentNode
+
+    path = tmp_path / "agent1.json"
+    earlier = {"inc": "00000000000000a1", "steps_from": 0, "steps_to": 40,
+               "sent": {"beacon": 40, "action": 40, "state": 0, "health": 5}}
+    path.write_text(json.dumps({"run": "r", "incarnations": [earlier]}))
+
+    def kept(resumed: bool, run: str = "r") -> list:
+        node = SimpleNamespace(resumed=resumed, opts=SimpleNamespace(stats_out=str(path), run=run))
+        return AgentNode._read_earlier_incarnations(node)
+
+    assert kept(True) == [earlier]
+    assert kept(False) == [] and kept(True, run="other") == []
+    path.write_text("{not json")
+    assert kept(True) == []
