@@ -64,6 +64,14 @@ DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
 """Testing only: ``UAV:MS[,UAV:MS...]`` makes those agents pause MS ms per observation (see debug_delay_s)."""
 
 
+SENT_KINDS = (schema.KIND_BEACON, schema.KIND_ACTION, schema.KIND_STATE, schema.KIND_HEALTH)
+"""What an agent counts as sent in its stats file (``sent``, per incarnation)."""
+SENDER_JOIN_S = 2.0
+"""At the end the agent waits this long for its beacon and health threads, so what it counts as sent is final."""
+MAX_INCARNATIONS_KEPT = 1000
+"""Earlier incarnations a restarted agent keeps listing in its stats file (bounded)."""
+
+
 def debug_delay_s(spec: str, uav: int) -> float:
     """The pause of agent ``uav`` from a DELAY_ENV value ("" for none); ValueError if malformed."""
     for item in filter(None, (part.strip() for part in spec.split(","))):
@@ -177,6 +185,7 @@ class AgentNode:
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         self.n_uavs = cfg.scenario.n_uavs
         self.steps = 0
+        self.resumed = False  # started from its checkpoint: a restart within the same run
         self._last_tick = -1  # the tick of the last observation handled (health reports)
         self.stale_obs_skipped = 0
         """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
@@ -184,6 +193,8 @@ class AgentNode:
         """Observations dropped because their tick was not newer than one already answered (a delayed
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
+        self._steps_at_start = self.steps
+        self._earlier_incarnations = self._read_earlier_incarnations()
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
@@ -281,6 +292,7 @@ class AgentNode:
                 learners.q[0, 0] = ck["q"]
                 self.steps = int(ck["steps"])
                 rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+            self.resumed = True
             log.info("uav %d resumed from checkpoint %s at step %d", o.uav, o.checkpoint, self.steps)
         else:
             log.info("uav %d starts from %s", o.uav, f"the tables of {o.qtable}" if o.qtable else "a fresh table")
@@ -322,9 +334,11 @@ class AgentNode:
 
     # -- main loop --
     def run(self) -> None:
+        senders = [threading.Thread(target=self._health_loop, name="health", daemon=True)]
         if not self.opts.lockstep:
-            threading.Thread(target=self._beacon_loop, name="beacons", daemon=True).start()
-        threading.Thread(target=self._health_loop, name="health", daemon=True).start()
+            senders.append(threading.Thread(target=self._beacon_loop, name="beacons", daemon=True))
+        for thread in senders:
+            thread.start()
         while not self._stop.is_set():
             msg = self._obs.get()
             if msg is not None and not self.opts.lockstep:
@@ -338,6 +352,8 @@ class AgentNode:
                 continue
             self._last_tick = msg.tick
             self.handle(msg)
+        for thread in senders:  # both end on the stop within ~50 ms: then the sent counts are final
+            thread.join(SENDER_JOIN_S)
         self.checkpoint()
 
     def health(self) -> schema.Health:
@@ -548,6 +564,24 @@ class AgentNode:
         return {"n": int(lat.size), "p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
                 "max": float(lat.max())}
 
+    def _read_earlier_incarnations(self) -> list[dict]:
+        """A restarted agent (resumed from its checkpoint) keeps the ``incarnations`` of the stats file its
+        earlier processes of this run wrote; a SIGKILLed one wrote none, so it is not listed."""
+        path = self.opts.stats_out
+        if not (self.resumed and path and Path(path).is_file()):
+            return []
+        try:
+            old = json.loads(Path(path).read_text())
+        except (OSError, ValueError):
+            return []
+        earlier = old.get("incarnations") if isinstance(old, dict) and old.get("run") == self.opts.run else None
+        return [e for e in earlier if isinstance(e, dict)][-MAX_INCARNATIONS_KEPT:] if isinstance(earlier, list) else []
+
+    def sent(self) -> dict[str, int]:
+        """What this process published, by kind: beacons, actions, state uploads (central), health reports."""
+        sent = self.bus.stats().sent
+        return {kind: sent.get(kind, 0) for kind in SENT_KINDS}
+
     def write_stats(self) -> None:
         if self.opts.stats_out:
             self._take_beacons()  # the last tick's beacons count too
@@ -563,6 +597,11 @@ class AgentNode:
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
                     "scheme": self.opts.scheme, **self.scheme_stats()}
+            # what this process sent, to compare with a recording's (uav/<i>, kind, incarnation) streams
+            me = {"inc": f"{self.bus.incarnation:016x}", "steps_from": self._steps_at_start, "steps_to": self.steps,
+                  "sent": self.sent()}
+            data.update(run=self.opts.run, incarnation=me["inc"], sent=me["sent"],
+                        incarnations=[*self._earlier_incarnations, me])
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")
             tmp.write_text(json.dumps(data))

@@ -47,6 +47,7 @@ from recorder.mcap_log import McapLog  # noqa: E402
 from recorder.process import spawn_recorder, stop_recorder, wait_until_recording  # noqa: E402
 from recorder.reader import iter_messages  # noqa: E402
 from truav.bus import keys, transport  # noqa: E402
+from truav.swarm.supervisor import RECORDER_STOP_TIMEOUT_S  # noqa: E402
 
 RUN = "benchbus"
 TARGET_MSGS_S = 100_000
@@ -153,9 +154,18 @@ def recorder_case(endpoint: str, tmp: Path, mode: str, n: int, seconds: float) -
         pub = run_publisher(endpoint, mode, n, seconds)
         wait_quiet(out)
     finally:
-        code = stop_recorder(rec)
+        # The recorder's finish (its backlog, the footer, the compaction) gets what `truav-swarm up` gives it.
+        print(f"{'':52} stopping the recorder (SIGTERM; it has up to {RECORDER_STOP_TIMEOUT_S:.0f} s to finish "
+              f"{out.name}, as under `truav-swarm up`)", flush=True)
+        started = time.monotonic()
+        code = stop_recorder(rec, timeout=RECORDER_STOP_TIMEOUT_S)
+        print(f"{'':52} the recorder " + (f"finished in {time.monotonic() - started:.1f} s" if code == 0 else
+              f"ended with {code} after {time.monotonic() - started:.1f} s"), flush=True)
+    if code == -signal.SIGKILL:
+        raise SystemExit(f"bench: the recorder did not finish {out.name} within {RECORDER_STOP_TIMEOUT_S:.0f} s "
+                         "and was killed")
     if code != 0:
-        raise RuntimeError(f"recorder exited with {code}")
+        raise SystemExit(f"bench: the recorder exited with {code} (see its stderr above)")
     times = [m.log_time for m in iter_messages(out)]
     span = (times[-1] - times[0]) / 1e9 if len(times) > 1 else float("nan")
     data = json.loads(summary.read_text())

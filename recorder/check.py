@@ -1,11 +1,17 @@
 """Audit a recording: which messages did the bus lose, and did the recorder lose any?
 
-Every sender numbers its messages per kind (envelope ``seq`` 0, 1, 2 ...),
-so within a recording:
+Every sender numbers its messages per kind (envelope ``seq`` 0, 1, 2 ...)
+from its start; a restarted sender (an agent started again, each one-shot
+``truav-swarm faults`` command, which sends as ``supervisor``) numbers from
+0 again under a new *incarnation* (envelope ``inc``, random per process
+start).  So the audit runs per stream = (src, kind, incarnation), and within
+a recording:
 
-* a *gap* in one sender's seq numbers = messages that never reached the
+* a *gap* in one stream's seq numbers = messages that never reached the
   recorder (dropped on the bus or by the sender, or sent before the recorder
-  subscribed) — the recorder writes everything it receives;
+  subscribed) — the recorder writes everything it receives; a sender's
+  later incarnations started while the recorder ran, so theirs must start
+  at seq 0 (the first one may predate the recorder);
 * an *unfinished* file (no footer) = the recorder itself died; it lost its
   last <= flush_interval of messages, which show as a cut tail, not as gaps
   (run ``truav log recover`` to finish the file);
@@ -13,7 +19,7 @@ so within a recording:
 
 The file is read record by record (the salvage path of :mod:`recorder.reader`),
 so a damaged chunk is counted, not fatal.  ``truav log check`` exits 1 when
-any of these (or duplicates, reordering, undecodable payloads) is found:
+any of these (or duplicates, reordering, undecodable payloads, or no message at all) is found:
 :attr:`CheckReport.problems` lists them.  Figures are exact (computed
 offline over the whole file), unlike the online counts of
 :meth:`recorder.mcap_log.McapLog.summary`.
@@ -31,14 +37,17 @@ from recorder.reader import SalvageStats, Source, TopicFilter, iter_salvaged_rec
 from recorder.schemas import decode_envelope
 
 MAX_RANGES_SHOWN = 4
+MAX_STREAMS_NAMED = 3  # streams a problem line names (the table lists them all)
 
 
 @dataclass
 class SenderCheck:
-    """Sequence audit of one (src, kind) sender."""
+    """Sequence audit of one (src, kind, incarnation) stream."""
 
     src: str
     kind: str
+    inc: int = 0  # the sender's incarnation (0: a payload without one, from before incarnations)
+    incarnation: int = 1  # its rank among the src's incarnations, in order of their first message
     count: int = 0  # messages present (duplicates included)
     first_seq: Optional[int] = None  # lowest seq present
     last_seq: Optional[int] = None  # highest seq present
@@ -50,6 +59,15 @@ class SenderCheck:
     @property
     def gaps(self) -> int:
         return len(self.gap_ranges)
+
+    @property
+    def label(self) -> str:
+        """``uav/1 action, incarnation 2 (inc 1f3a...)``: how a problem names the stream."""
+        return f"{self.src} {self.kind}, incarnation {self.incarnation} (inc {self.inc:016x})"
+
+    def ranges_text(self, max_ranges: int = 4) -> str:
+        text = ", ".join(f"{lo}" if lo == hi else f"{lo}-{hi}" for lo, hi in self.gap_ranges[:max_ranges])
+        return text + (f", ... (+{self.gaps - max_ranges})" if self.gaps > max_ranges else "")
 
 
 @dataclass
@@ -68,7 +86,7 @@ class CheckReport:
     first_log_time: Optional[int]
     last_log_time: Optional[int]
     channels: dict[str, ChannelCheck]
-    senders: dict[tuple[str, str], SenderCheck]
+    senders: dict[tuple[str, str, int], SenderCheck]  # (src, kind, inc) ->
     corrupt_chunks: int = 0  # chunks whose CRC or compression was bad: their messages are lost
     read_error: Optional[str] = None  # why reading stopped before the end, if it did
 
@@ -81,20 +99,26 @@ class CheckReport:
     def problems(self) -> list[str]:
         """What is wrong with the recording, one phrase each; empty for a complete one."""
         out = []
+        if self.messages == 0:
+            out.append("no bus messages in the file (nothing was recorded, or nothing survived)")
         if not self.finished:
             out.append("unfinished (the recorder died; run `truav log recover` to finish the file)")
         if self.corrupt_chunks:
             out.append(f"{self.corrupt_chunks} corrupt chunk(s) (their messages are lost)")
         if self.read_error:
             out.append(f"unreadable after some point ({self.read_error})")
+        streams = sorted(self.senders.values(), key=lambda c: (c.src, c.kind, c.incarnation))
         if self.missing:
-            out.append(f"{self.missing} message(s) missing by seq")
-        duplicates = sum(s.duplicates for s in self.senders.values())
-        reordered = sum(s.out_of_order for s in self.senders.values())
-        if duplicates:
-            out.append(f"{duplicates} duplicate(s)")
-        if reordered:
-            out.append(f"{reordered} out of order")
+            gappy = [c for c in streams if c.missing]
+            where = "; ".join(f"{c.label}: seq {c.ranges_text(2)}" for c in gappy[:MAX_STREAMS_NAMED])
+            more = f"; ... ({len(gappy) - MAX_STREAMS_NAMED} more streams)" if len(gappy) > MAX_STREAMS_NAMED else ""
+            out.append(f"{self.missing} message(s) missing by seq ({where}{more})")
+        for attr, what in (("duplicates", "duplicate(s)"), ("out_of_order", "out of order")):
+            bad = [c for c in streams if getattr(c, attr)]
+            if bad:
+                where = "; ".join(f"{c.label}: {getattr(c, attr)}" for c in bad[:MAX_STREAMS_NAMED])
+                more = f"; ... ({len(bad) - MAX_STREAMS_NAMED} more streams)" if len(bad) > MAX_STREAMS_NAMED else ""
+                out.append(f"{sum(getattr(c, attr) for c in bad)} {what} ({where}{more})")
         if self.undecodable:
             out.append(f"{self.undecodable} undecodable")
         return out
@@ -117,14 +141,11 @@ class CheckReport:
             f"{self.missing} missing by seq (lost before reaching the recorder)",
             "",
         ]
-        rows = [("src", "kind", "msgs", "first", "last", "missing", "gaps", "dup", "ooo", "gap ranges")]
-        for (src, kind), s in sorted(self.senders.items()):
-            ranges = ", ".join(f"{lo}" if lo == hi else f"{lo}-{hi}" for lo, hi in s.gap_ranges[:max_ranges])
-            if s.gaps > max_ranges:
-                ranges += f", ... (+{s.gaps - max_ranges})"
-            rows.append((src, kind, s.count, s.first_seq, s.last_seq, s.missing, s.gaps,
-                         s.duplicates, s.out_of_order, ranges or "-"))
-        lines += _table(rows, numeric=range(2, 9))
+        rows = [("src", "kind", "#", "inc", "msgs", "first", "last", "missing", "gaps", "dup", "ooo", "gap ranges")]
+        for s in sorted(self.senders.values(), key=lambda c: (c.src, c.kind, c.incarnation)):
+            rows.append((s.src, s.kind, s.incarnation, f"{s.inc:016x}", s.count, s.first_seq, s.last_seq, s.missing,
+                         s.gaps, s.duplicates, s.out_of_order, s.ranges_text(max_ranges) or "-"))
+        lines += _table(rows, numeric=(2, *range(4, 11)))
         lines.append("")
         rows = [("channel", "msgs", "undecodable")]
         rows += [(key, c.messages, c.undecodable) for key, c in sorted(self.channels.items())]
@@ -147,8 +168,8 @@ class _SeqAudit:
 
     __slots__ = ("check", "seen", "top")
 
-    def __init__(self, src: str, kind: str) -> None:
-        self.check = SenderCheck(src=src, kind=kind)
+    def __init__(self, src: str, kind: str, inc: int, incarnation: int) -> None:
+        self.check = SenderCheck(src=src, kind=kind, inc=inc, incarnation=incarnation)
         self.seen: set[int] = set()
         self.top: Optional[int] = None
 
@@ -168,6 +189,9 @@ class _SeqAudit:
         ordered = sorted(self.seen)
         if ordered:
             check.first_seq, check.last_seq = ordered[0], ordered[-1]
+            if check.incarnation > 1 and ordered[0] > 0:  # started while recording: its first messages are lost
+                check.gap_ranges.append((0, ordered[0] - 1))
+                check.missing += ordered[0]
             for lo, hi in zip(ordered, ordered[1:]):
                 if hi > lo + 1:
                     check.gap_ranges.append((lo + 1, hi - 1))
@@ -181,7 +205,8 @@ def check(source: Source) -> CheckReport:
     keep = TopicFilter()  # bus channels only: the JSON mirrors repeat them
     with open_source(source) as stream:
         state = probe(stream)
-        audits: dict[tuple[str, str], _SeqAudit] = {}
+        audits: dict[tuple[str, str, int], _SeqAudit] = {}
+        incarnations: dict[str, dict[int, int]] = {}  # src -> {inc: rank, in order of first message}
         channels: dict[str, ChannelCheck] = {}
         topics: dict[int, str] = {}
         messages = undecodable = 0
@@ -207,9 +232,11 @@ def check(source: Source) -> CheckReport:
                 undecodable += 1
                 channel.undecodable += 1
                 continue
-            audit = audits.get((env.src, env.kind))
+            audit = audits.get((env.src, env.kind, env.inc))
             if audit is None:
-                audit = audits[(env.src, env.kind)] = _SeqAudit(env.src, env.kind)
+                ranks = incarnations.setdefault(env.src, {})
+                rank = ranks.setdefault(env.inc, len(ranks) + 1)
+                audit = audits[(env.src, env.kind, env.inc)] = _SeqAudit(env.src, env.kind, env.inc, rank)
             audit.add(env.seq)
     name = os.fspath(source) if isinstance(source, (str, os.PathLike)) else "<stream>"
     return CheckReport(

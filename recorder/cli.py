@@ -128,6 +128,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if audit.corrupt_chunks or audit.read_error:
         return _fail("truav", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
                               f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+    if audit.messages == 0:  # a report of nothing would look like a run where nothing happened
+        return _fail("truav", f"{args.file}: no bus messages in the file; nothing to report", EXIT_FAILED)
     if args.out is not None:
         try:
             check_out_dir("--out", args.out)

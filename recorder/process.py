@@ -106,7 +106,7 @@ class RecorderOptions:
     fsync: bool = False
     force: bool = False  # overwrite an existing output file
     geo_origin: tuple[float, float] = DEFAULT_ORIGIN  # (lat, lon) of the area's centre in Foxglove's Map panel
-    compact: bool = True  # rewrite into big chunks at a clean finish (recorder.recover.compact)
+    compact: bool = True  # rewrite into bigger, bounded chunks at a clean finish (recorder.recover.compact)
 
     def validate(self) -> "RecorderOptions":
         """Raise RecorderUsageError for anything a user can get wrong; return self."""
@@ -167,7 +167,8 @@ class RecorderSummary:
             "missing_by_seq": self.log.missing, "recorder_dropped": self.recorder_dropped,
             "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
             "channels": dict(sorted(self.log.channels.items())),
-            "senders": {f"{src} {kind}": asdict(s) for (src, kind), s in sorted(self.log.senders.items())},
+            "senders": {f"{src} {kind} {inc:016x}": asdict(s)
+                        for (src, kind, inc), s in sorted(self.log.senders.items())},
             "rejected": self.bus.rejected,
         }
 
@@ -196,9 +197,9 @@ class RecorderSummary:
         gappy = sorted((k, s) for k, s in log_.senders.items() if s.missing or s.backwards)
         lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
                      + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
-        for (src, kind), s in gappy[:MAX_SUMMARY_ROWS]:
-            lines.append(f"    {src:<12} {kind:<10} msgs {s.count:>8}  missing {s.missing:>6} in {s.gaps} gaps"
-                         + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
+        for (src, kind, inc), s in gappy[:MAX_SUMMARY_ROWS]:
+            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} "
+                         f"in {s.gaps} gaps" + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
         return "\n".join(lines)
 
 
@@ -462,7 +463,8 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
                         % DEFAULT_ORIGIN)
     parser.add_argument("--no-compact", action="store_true",
-                        help="keep the 50 ms chunks at a clean finish instead of rewriting into big ones")
+                        help="keep the 50 ms chunks at a clean finish instead of rewriting them into chunks of "
+                             "up to 2 s compressed harder")
     parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
     parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",

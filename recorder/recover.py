@@ -4,11 +4,16 @@ The valid prefix is streamed with mcap's ``StreamReader`` (see
 :mod:`recorder.reader`: framing check, CRC-checked chunks, torn tail
 skipped) and every schema, channel, message, metadata and attachment is
 rewritten, in file order, with :class:`recorder.mcap_log.McapLog` (mcap's
-own record classes) into big chunks (COMPACT_CHUNK_BYTES) compressed hard
-(COMPACT_ZSTD_LEVEL), plus the summary section (statistics, chunk indexes)
-that ``make_reader`` and Foxglove want.  :func:`compact` does the same in
-place for a finished file: the recorder calls it at a clean finish.  The output is written to ``<out>.part`` and renamed into
-place, so a crash during recovery never leaves a half file under ``out``.
+own record classes) into bounded chunks (at most COMPACT_CHUNK_SPAN_NS of log
+time and COMPACT_CHUNK_BYTES each, so a copy cut at any byte still salvages
+every whole chunk before the cut) compressed hard (COMPACT_ZSTD_LEVEL for the
+first COMPACT_STRONG_BUDGET_S seconds of work, then COMPACT_FAST_ZSTD_LEVEL:
+the cost of a long file stays bounded, streamed chunk by chunk), plus the
+summary section (statistics, chunk indexes) that ``make_reader`` and Foxglove
+want.  :func:`compact` does the same in place for a finished file: the
+recorder calls it at a clean finish.  The output is written to
+``<out>.part`` and renamed into place, so a crash during recovery never
+leaves a half file under ``out``.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import time
 from dataclasses import dataclass
 from typing import Optional
 
@@ -23,8 +29,9 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 
 from recorder.mcap_log import (
     COMPACT_CHUNK_BYTES,
+    COMPACT_CHUNK_SPAN_NS,
     COMPACT_FAST_ZSTD_LEVEL,
-    COMPACT_STRONG_MAX_BYTES,
+    COMPACT_STRONG_BUDGET_S,
     COMPACT_ZSTD_LEVEL,
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -65,16 +72,17 @@ class RecoverReport:
 
 def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *,
             compression: str = DEFAULT_COMPRESSION, chunk_bytes: int = COMPACT_CHUNK_BYTES,
-            zstd_level: int | None = None, compacting: bool = False) -> RecoverReport:
+            chunk_span_ns: int = COMPACT_CHUNK_SPAN_NS, zstd_level: int | None = None,
+            compacting: bool = False, strong_budget_s: float = COMPACT_STRONG_BUDGET_S) -> RecoverReport:
     """Salvage ``in_path`` into a finished MCAP at ``out_path`` (must differ).
 
     Also works on a finished file (then it is a plain re-chunking copy).
-    ``zstd_level`` None: COMPACT_ZSTD_LEVEL for inputs up to COMPACT_STRONG_MAX_BYTES,
-    COMPACT_FAST_ZSTD_LEVEL above (level 19 runs at ~2 MB/s).
+    ``zstd_level`` None: COMPACT_ZSTD_LEVEL (~1-2 MB/s) for the chunks closed within
+    ``strong_budget_s`` seconds of starting, COMPACT_FAST_ZSTD_LEVEL for the rest.
     """
+    strong_until = math.inf
     if zstd_level is None:
-        zstd_level = COMPACT_ZSTD_LEVEL if os.path.getsize(in_path) <= COMPACT_STRONG_MAX_BYTES \
-            else COMPACT_FAST_ZSTD_LEVEL
+        zstd_level, strong_until = COMPACT_ZSTD_LEVEL, time.monotonic() + strong_budget_s
     if os.path.abspath(in_path) == os.path.abspath(out_path):
         raise ValueError("recover() needs a different out_path: the input is evidence")
     if compression not in COMPRESSIONS:
@@ -90,7 +98,8 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
         first_record = next(records, None)
         header = first_record if isinstance(first_record, Header) else Header("", "")
         with open(part, "wb") as dst:
-            writer = McapLog(dst, compression=compression, chunk_bytes=chunk_bytes, flush_interval_s=math.inf,
+            writer = McapLog(dst, compression=compression, chunk_bytes=chunk_bytes, chunk_span_ns=chunk_span_ns,
+                             flush_interval_s=math.inf,
                              auto_flush=False, mirrors=False, zstd_level=zstd_level,
                              library=header.library if compacting else f"{RECOVERED_BY} ({header.library})")
             schema_ids: dict[int, int] = {}  # input id -> output id
@@ -104,6 +113,9 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
                         continue
                     writer.add_message(cid, record.sequence, record.log_time, record.publish_time, record.data)
                     counts["messages"] += 1
+                    if not counts["messages"] & 1023 and time.monotonic() > strong_until:  # budget spent
+                        writer.set_zstd_level(COMPACT_FAST_ZSTD_LEVEL)
+                        strong_until = math.inf
                     first = record.log_time if first is None else min(first, record.log_time)
                     last = record.log_time if last is None else max(last, record.log_time)
                 elif isinstance(record, Channel):
@@ -141,7 +153,7 @@ COMPACT_SUFFIX = ".compact"
 
 
 def compact(path: str | os.PathLike[str], *, compression: str = DEFAULT_COMPRESSION) -> tuple[int, int]:
-    """Rewrite a finished recording in place into big chunks; returns (bytes before, after).
+    """Rewrite a finished recording in place into bigger, bounded chunks; returns (bytes before, after).
 
     The copy goes to ``<path>.compact`` (then ``.part``) and is renamed over
     ``path`` only when complete and fsynced, so a crash while compacting

@@ -2,7 +2,7 @@
 
 Deliberately self-contained (msgpack only, no ``truav.bus.schema`` import): the
 recorder must record anything, including payloads the schema module would
-reject, so it only needs the envelope (``kind``, ``src``, ``seq``, ``t``) to
+reject, so it only needs the envelope (``kind``, ``src``, ``seq``, ``t``, ``inc``) to
 route, sequence-check and timestamp a message.  The JSON Schemas document the
 fields of each kind as ``truav.bus.schema`` defines them (for MCAP viewers); the
 mirror builder turns metrics into plain JSON for Foxglove's plots, which cannot
@@ -35,9 +35,10 @@ class Envelope(NamedTuple):
     seq: int
     t: Optional[int]  # sender wall time (ns), None when absent or out of uint64 range
     body: dict
+    inc: int = 0  # the sender's incarnation (a process start); 0 when absent (older payloads) or not an int
 
 
-def envelope_fields(payload: bytes) -> Optional[tuple[str, str, int, Optional[int], dict]]:
+def envelope_fields(payload: bytes) -> Optional[tuple[str, str, int, Optional[int], dict, int]]:
     """:func:`decode_envelope` as a plain tuple (cheaper to build on the hot path)."""
     try:
         body = msgpack.unpackb(payload)
@@ -53,7 +54,10 @@ def envelope_fields(payload: bytes) -> Optional[tuple[str, str, int, Optional[in
     t = body.get("t")
     if type(t) is not int or not 0 <= t <= _U64:
         t = None
-    return kind, src, seq, t, body
+    inc = body.get("inc", 0)
+    if type(inc) is not int:
+        inc = 0
+    return kind, src, seq, t, body, inc
 
 
 def decode_envelope(payload: bytes) -> Optional[Envelope]:
@@ -88,6 +92,7 @@ _ENVELOPE_PROPS = {
     "src": {**_STR, "description": "sender id: world, uav/<i>, controller, recorder, fault, replay"},
     "seq": {**_INT, "description": "per-sender, per-kind counter; a jump means messages were lost"},
     "t": {**_INT, "description": "sender wall clock when stamped, ns since the Unix epoch"},
+    "inc": {**_INT, "description": "sender incarnation (random per process start): seq restarts from 0 with a new one"},
 }
 _BODY_PROPS: dict[str, dict[str, Any]] = {
     "tick": {"tick": _INT, "episode": _INT, "sim_time": _NUM, "deadline_ms": _NUM, "n_uavs": _INT},
@@ -132,7 +137,7 @@ def bus_schema(kind: str) -> dict[str, Any]:
         "description": f"TRUAV bus message, kind={kind!r}, msgpack-encoded map",
         "type": "object",
         "properties": {**_ENVELOPE_PROPS, **body},
-        "required": [*_ENVELOPE_PROPS, *body] if body else ["kind", "src", "seq"],
+        "required": [*(k for k in _ENVELOPE_PROPS if k != "inc"), *body] if body else ["kind", "src", "seq"],
     }
 
 

@@ -20,7 +20,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
 from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry
-from recorder.mcap_log import McapLog, is_mirror_topic
+from recorder.mcap_log import COMPACT_CHUNK_SPAN_NS, McapLog, is_mirror_topic
 from recorder.recover import compact
 from tests.conftest import free_port
 
@@ -112,11 +112,11 @@ def test_recording_mirrors_decode_with_the_sdk_schemas_and_json_schemas_have_no_
     assert any("1 beacon message(s) from uav/1 lost" in m for m in logs)
 
 
-def test_compact_makes_big_chunks_and_keeps_every_message(tmp_path: Path) -> None:
+def test_compact_makes_bigger_bounded_chunks_and_keeps_every_message(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     with McapLog(path, flush_interval_s=1e-9) as log:  # a chunk per message: the worst case of a live run
         log.set_metadata("truav.config", {"toml": "x = 1"})
-        synthetic_run(log, ticks=60)
+        synthetic_run(log, ticks=100)  # 10 s of log time
 
     def content(p: Path):
         with open(p, "rb") as f:
@@ -128,7 +128,11 @@ def test_compact_makes_big_chunks_and_keeps_every_message(tmp_path: Path) -> Non
     size_before, size_after = compact(path)
     after_msgs, after_chunks, after_meta = content(path)
     assert sorted(after_msgs) == sorted(before_msgs) and after_meta == before_meta
-    assert before_chunks > 100 and after_chunks == 1
+    # about one per 2 s of log time (COMPACT_CHUNK_SPAN_NS; the mirrors' late log times start one more)
+    assert before_chunks > 100 and 5 <= after_chunks <= 6
+    with open(path, "rb") as f:
+        spans = [c.message_end_time - c.message_start_time for c in make_reader(f).get_summary().chunk_indexes]
+    assert max(spans) < COMPACT_CHUNK_SPAN_NS
     assert size_after == os.path.getsize(path) and size_after * 3 < size_before
     assert not list(tmp_path.glob("*.compact*"))
 
@@ -209,7 +213,10 @@ def test_up_with_foxglove_serves_live_channels_and_records_a_compact_file(tmp_pa
     assert f"Foxglove: open ws://127.0.0.1:{port}" in out
     with open(record, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
-        assert len(reader.get_summary().chunk_indexes) == 1  # compacted at the clean finish
+        chunks = reader.get_summary().chunk_indexes  # compacted at the clean finish: 2 s chunks, not 50 ms ones
+        span = max(c.message_end_time for c in chunks) - min(c.message_start_time for c in chunks)
+        assert len(chunks) <= span // COMPACT_CHUNK_SPAN_NS + 1, (len(chunks), span)
+        assert all(c.message_end_time - c.message_start_time < COMPACT_CHUNK_SPAN_NS for c in chunks)
         mirrored = {c.topic for c in reader.get_summary().channels.values() if is_mirror_topic(c.topic)}
     assert {"/foxglove/scene", "/foxglove/uav/0/fix", "/foxglove/log"} <= mirrored
 

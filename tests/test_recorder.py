@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # plain `pytest` puts tests/, not the repo root, on sys.path
     sys.path.insert(0, str(REPO))
 
-from recorder.check import check  # noqa: E402
+from recorder.check import CheckReport, check  # noqa: E402
 from recorder.mcap_log import (  # noqa: E402
     JSON_ENCODING,
     JSONSCHEMA_ENCODING,
@@ -39,16 +39,19 @@ from recorder.mcap_log import (  # noqa: E402
     McapLog,
 )
 from recorder.reader import iter_messages, probe, read_metadata, read_schemas  # noqa: E402
-from recorder.recover import recover  # noqa: E402
+from recorder.recover import compact, recover  # noqa: E402
 
 RUN = "t1"
 T0 = 1_700_000_000_000_000_000  # a wall-clock-like ns timestamp
 MS = 1_000_000
 
 
-def beacon(uav: int, seq: int, t: int) -> bytes:
-    return msgpack.packb({"v": 1, "kind": "beacon", "src": f"uav/{uav}", "seq": seq, "t": t,
-                          "uav": uav, "tick": seq, "pos": [10.0 + seq, -2.5], "vel": [1.0, 0.5]})
+def beacon(uav: int, seq: int, t: int, inc: int | None = None) -> bytes:
+    """A beacon payload; without ``inc``, as written before incarnations (still decodable, inc 0)."""
+    body = {"v": 1, "kind": "beacon", "src": f"uav/{uav}", "seq": seq, "t": t}
+    if inc is not None:
+        body["inc"] = inc
+    return msgpack.packb({**body, "uav": uav, "tick": seq, "pos": [10.0 + seq, -2.5], "vel": [1.0, 0.5]})
 
 
 def obs(uav: int, seq: int, t: int) -> bytes:
@@ -231,19 +234,19 @@ def test_check_finds_gaps_duplicates_and_reordering() -> None:
             log.write(key("uav", 8, "beacon"), beacon(8, seq, T0), T0 + 1000 + seq)
         online = log.summary()
     report = check(io.BytesIO(buf.getvalue()))
-    s7 = report.senders[("uav/7", "beacon")]
+    s7 = report.senders[("uav/7", "beacon", 0)]
     assert (s7.count, s7.first_seq, s7.last_seq) == (len(sent), 0, 99)
     assert s7.missing == 4 and s7.gap_ranges == [(10, 12), (50, 50)] and s7.gaps == 2
     assert s7.duplicates == 3 and s7.out_of_order == 0
-    s8 = report.senders[("uav/8", "beacon")]
+    s8 = report.senders[("uav/8", "beacon", 0)]
     assert s8.gap_ranges == [(2, 2)] and s8.missing == 1
     assert report.missing == 5 and report.finished and report.torn_bytes == 0
     assert report.channels[key("uav", 7, "beacon")].messages == len(sent)
     text = report.format_report()
     assert "10-12, 50" in text and "uav/7" in text and "finished" in text
     # the writer's online counters agree on the forward gaps
-    assert online.senders[("uav/7", "beacon")].missing == 4 and online.senders[("uav/7", "beacon")].gaps == 2
-    assert online.senders[("uav/7", "beacon")].backwards == 3
+    assert online.senders[("uav/7", "beacon", 0)].missing == 4 and online.senders[("uav/7", "beacon", 0)].gaps == 2
+    assert online.senders[("uav/7", "beacon", 0)].backwards == 3
 
 
 def test_check_counts_out_of_order() -> None:
@@ -251,8 +254,44 @@ def test_check_counts_out_of_order() -> None:
     with McapLog(buf) as log:
         for i, seq in enumerate([0, 1, 3, 2, 4]):
             log.write(key("uav", 1, "beacon"), beacon(1, seq, T0), T0 + i)
-    s = check(io.BytesIO(buf.getvalue())).senders[("uav/1", "beacon")]
+    s = check(io.BytesIO(buf.getvalue())).senders[("uav/1", "beacon", 0)]
     assert (s.out_of_order, s.duplicates, s.missing) == (1, 0, 0)
+
+
+def _restarts(streams: list[tuple[int, list[int]]]) -> CheckReport:
+    """uav/1's beacons: one (incarnation, seqs) per process start, written one after the other."""
+    buf = io.BytesIO()
+    with McapLog(buf) as log:
+        i = 0
+        for inc, seqs in streams:
+            for seq in seqs:
+                log.write(key("uav", 1, "beacon"), beacon(1, seq, T0 + i, inc), T0 + i)
+                i += 1
+        online = log.summary()
+    assert online.missing == check(io.BytesIO(buf.getvalue())).missing  # the writer's live counts agree
+    return check(io.BytesIO(buf.getvalue()))
+
+
+def test_check_splits_a_sender_at_each_restart_and_finds_a_loss_in_any_incarnation() -> None:
+    """A restarted sender numbers from 0 again under a new incarnation: not duplicates; a message
+    missing from the second process is found and named (sender, incarnation, seq)."""
+    first, second, third = 0xA1, 0xB2, 0xC3
+    complete = _restarts([(first, list(range(40))), (second, list(range(25))), (third, list(range(5)))])
+    assert complete.problems == [], complete.problems
+    assert [(s.incarnation, s.count) for s in sorted(complete.senders.values(), key=lambda s: s.incarnation)] \
+        == [(1, 40), (2, 25), (3, 5)]
+    table = complete.format_report().splitlines()
+    assert table[3].split()[:4] == ["src", "kind", "#", "inc"] and table[6].split()[:4] == ["uav/1", "beacon", "3",
+                                                                                               "00000000000000c3"]
+    lost = _restarts([(first, list(range(40))), (second, [s for s in range(25) if s != 17]), (third, list(range(5)))])
+    assert lost.missing == 1 and len(lost.problems) == 1
+    assert "uav/1 beacon, incarnation 2 (inc 00000000000000b2): seq 17" in lost.problems[0]
+    # a later incarnation started while recording: its first messages missing count too (not the first's)
+    late = _restarts([(first, list(range(3, 40))), (second, list(range(2, 25)))])
+    assert late.missing == 2 and late.senders[("uav/1", "beacon", second)].gap_ranges == [(0, 1)]
+    # within one incarnation a repeat is still a duplicate
+    dup = _restarts([(first, list(range(40))), (second, [*range(25), 7])])
+    assert dup.problems == ["1 duplicate(s) (uav/1 beacon, incarnation 2 (inc 00000000000000b2): 1)"]
 
 
 GARBAGE = [b"", b"\xc1", b"not msgpack at all", msgpack.packb([1, 2, 3]),
@@ -355,6 +394,34 @@ def test_recover_every_truncation_point(tmp_path: Path) -> None:
     untouched = recover(path, tmp_path / "copy.mcap")
     assert not untouched.truncated and untouched.torn_bytes == 0
     assert read_metadata(tmp_path / "copy.mcap")["config"] == {"run": RUN}
+
+
+def test_a_compacted_file_cut_at_any_byte_recovers_every_whole_chunk_before_the_cut(tmp_path: Path) -> None:
+    """The finish rewrites a recording into chunks of at most 2 s (not one chunk for a short run), so a
+    copy cut anywhere (a full disk, a copy interrupted) keeps every chunk that ends before the cut."""
+    path = tmp_path / "run.mcap"
+    with McapLog(path) as log:  # 20 s of a run: 4 UAVs beaconing at 10 Hz
+        for tick in range(200):
+            for u in range(4):
+                log.write(key("uav", u, "beacon"), beacon(u, tick, T0 + tick * 100 * MS), T0 + tick * 100 * MS + u)
+    compact(path)
+    all_msgs = [tuple(m) for m in iter_messages(path)]
+    with open(path, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) == 10 and all(c.message_end_time - c.message_start_time < 2_000_000_000 for c in chunks)
+    data = path.read_bytes()
+    for cut in [len(data) // 2, *range(len(data) - 1, 40, -max(11, len(data) // 37))]:
+        cut_path, out = tmp_path / "cut.mcap", tmp_path / "out.mcap"
+        cut_path.write_bytes(data[:cut])
+        recover(cut_path, out, zstd_level=3)
+        whole = [c for c in chunks if c.chunk_start_offset + c.chunk_length <= cut]
+        got = [tuple(m) for m in iter_messages(out)]
+        assert got == all_msgs[:len(got)]  # a prefix, in order
+        # every bus message of the chunks that end before the cut, no more
+        in_whole = sum(1 for m in all_msgs if any(c.message_start_time <= m[2] <= c.message_end_time for c in whole))
+        assert len(got) == in_whole, (cut, len(whole))
+        if cut == len(data) // 2:
+            assert len(got) >= len(all_msgs) // 3  # issue 25: half a file gives back at least a third
 
 
 def test_recover_skips_a_corrupt_chunk_and_a_zero_filled_tail(tmp_path: Path) -> None:

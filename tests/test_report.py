@@ -155,6 +155,20 @@ def test_empty_recording_still_reports(tmp_path: Path) -> None:
     assert (out / METRICS_CSV_FILE).read_text().startswith("time_s,log_time_ns")
 
 
+def test_cli_report_and_log_check_refuse_a_file_without_messages(tmp_path: Path, capsys) -> None:
+    """Issue 25: `truav report` wrote an empty metrics.csv and exited 0 on an empty recording."""
+    path = tmp_path / "empty.mcap"
+    with McapLog(path) as log:
+        log.set_metadata("truav.recording", {"run": "r"})
+    assert truav_main(["log", "check", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no bus messages" in err[0] and str(path) in err[0], err
+    assert truav_main(["report", str(path), "--out", str(tmp_path / "rep")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"truav: error: {path}: no bus messages in the file; nothing to report"], err
+    assert not (tmp_path / "rep").exists()
+
+
 def test_cli_report_log_check_and_recover(tmp_path: Path, capsys) -> None:
     path = tmp_path / "swarm.mcap"
     make_swarm_recording(path, finish=False)

@@ -128,11 +128,11 @@ def test_encode_requires_stamp() -> None:
 
 
 def test_beacon_size_is_small_and_pinned() -> None:
-    b = Sequencer("uav/3", clock=fake_clock()).stamp(Beacon(uav=3, tick=1234, pos=(1234.567, 987.654),
-                                                            vel=(3.2, -1.5)))
-    assert len(encode(b)) == 101  # documented in the truav.bus.schema docstring
+    b = Sequencer("uav/3", clock=fake_clock(), incarnation=(1 << 62) + 1).stamp(
+        Beacon(uav=3, tick=1234, pos=(1234.567, 987.654), vel=(3.2, -1.5)))
+    assert len(encode(b)) == 114  # documented in the truav.bus.schema docstring
     worst = Beacon(uav=1023, tick=schema.INT64_MAX, pos=(1.0, 2.0), vel=(3.0, 4.0), src="uav/1023",
-                   seq=schema.UINT64_MAX, t=schema.INT64_MAX)
+                   seq=schema.UINT64_MAX, t=schema.INT64_MAX, inc=schema.INT64_MAX)
     assert len(encode(worst)) == schema.BEACON_MAX_BYTES
 
 
@@ -273,7 +273,7 @@ def test_decoded_messages_are_normalised_and_frozen() -> None:
     w["pos"] = [3, 4]  # ints where floats belong: accepted and stored as floats, as by the constructor
     b = decode(msgpack.packb(w))
     assert b.pos == (3.0, 4.0) and all(type(x) is float for x in b.pos)
-    assert b == schema.Beacon(src=b.src, seq=b.seq, t=b.t, uav=b.uav, tick=b.tick, pos=(3, 4), vel=b.vel)
+    assert b == schema.Beacon(src=b.src, seq=b.seq, t=b.t, inc=b.inc, uav=b.uav, tick=b.tick, pos=(3, 4), vel=b.vel)
     with pytest.raises(FrozenInstanceError):
         b.tick = 0  # type: ignore[misc]
 
@@ -440,4 +440,21 @@ def test_padded_state_and_command_have_the_models_sizes(size: int) -> None:
         data = encode(schema.padded(msg, size))
         assert size - 2 <= len(data) <= size or len(encode(msg)) > size
         assert decode(data).pad == bytes(len(decode(data).pad))
-    assert len(encode(schema.padded(state, 200))) == 200 and len(encode(schema.padded(command, 78))) == 78
+    assert len(encode(schema.padded(state, 200))) == 200 and len(encode(schema.padded(command, 100))) == 100
+    assert len(encode(schema.padded(command, 78))) == len(encode(command)) == 90  # the envelope alone is longer
+
+
+def test_each_sequencer_is_a_new_incarnation_and_old_payloads_still_decode() -> None:
+    """A restarted sender numbers from 0 again; its incarnation tells the two streams apart."""
+    first, restarted = Sequencer("uav/1"), Sequencer("uav/1")
+    a = decode(encode(first.stamp(Action(uav=1, tick=5, action=2))))
+    b = decode(encode(restarted.stamp(Action(uav=1, tick=9, action=2))))
+    assert a.seq == b.seq == 0
+    assert a.inc == first.incarnation and b.inc == restarted.incarnation
+    assert 0 < a.inc <= schema.INT64_MAX and a.inc != b.inc
+    # a payload written before incarnations existed (a recording): decoded, incarnation unknown (0)
+    old = {"v": 1, "kind": "action", "src": "uav/1", "seq": 3, "t": 7, "uav": 1, "tick": 5, "action": 2}
+    assert decode(msgpack.packb(old)).inc == 0
+    with pytest.raises(SchemaError) as info:
+        decode(msgpack.packb({**old, "inc": -1}))
+    assert info.value.reason == schema.R_OUT_OF_RANGE

@@ -1,19 +1,23 @@
 """TRUAV wire schema: the one module that encodes and decodes bus messages.
 
-Every message on the bus is a msgpack map.  Five envelope entries come first:
+Every message on the bus is a msgpack map.  Six envelope entries come first:
 
 ``v``     schema version (:data:`SCHEMA_VERSION`)
 ``kind``  one of :data:`KINDS`
 ``src``   sender id: ``world``, ``uav/<i>``, ``recorder``, ``fault``, ``replay``
 ``seq``   per-sender, per-kind counter (0, 1, 2, ...)
 ``t``     sender wall clock when stamped, int nanoseconds
+``inc``   the sender's incarnation: a random 63-bit id drawn once per :class:`Sequencer`
+          (one per process start), so a restarted sender, whose ``seq`` starts from 0
+          again, is a new stream (``(src, inc, kind)``) and not a run of duplicates;
+          0 = unknown (a payload from before incarnations, which still decodes)
 
 followed by the fields of that kind; one frozen dataclass per kind below
 (:class:`Tick`, :class:`Obs`, :class:`Beacon`, :class:`Action`,
 :class:`Metrics`, :class:`Fault`, :class:`Control`, :class:`Positions`, and
 the centralized scheme's :class:`State` upload and :class:`Command`, and an
 agent's :class:`Health` report).  The
-envelope fields ``src``/``seq``/``t`` are keyword-only with "unstamped"
+envelope fields ``src``/``seq``/``t``/``inc`` are keyword-only with "unstamped"
 defaults; a :class:`Sequencer` (or :class:`truav.bus.transport.Bus`, which owns
 one) stamps them just before sending.
 
@@ -31,10 +35,10 @@ float fields, and store plain Python ``int``/``float``/``tuple`` values.
 Floats go on the wire as float64, so a decode/encode round-trip is exact.
 
 Size (measured, pinned by ``tests/test_schema.py``): a stamped beacon from
-``uav/3`` at tick 1234 with a 19-digit ns timestamp is 101 bytes: map header
-1 B, envelope with its keys 41 B, body 59 B (of which the four float64 of
-pos/vel are 36 B).  The worst case (``uav/1023``, 64-bit seq/tick/t) is
-:data:`BEACON_MAX_BYTES` = 120 bytes.  Zenoh adds its own framing on top.
+``uav/3`` at tick 1234 with a 19-digit ns timestamp is 114 bytes: map header
+1 B, envelope with its keys 54 B (13 of them the incarnation), body 59 B (of
+which the four float64 of pos/vel are 36 B).  The worst case (``uav/1023``,
+64-bit seq/tick/t) is :data:`BEACON_MAX_BYTES` = 133 bytes.  Zenoh adds its own framing on top.
 Every kind but ``positions`` and ``control`` must fit in
 :data:`MAX_SMALL_PAYLOAD_BYTES`.
 """
@@ -43,6 +47,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import re
 import threading
 import time
@@ -94,7 +99,7 @@ HOVER = -1  # an agent's explicit hover (world.uavs.HOVER): the central scheme's
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: the largest payload of any kind (positions)
 MAX_CONTROL_PAYLOAD_BYTES = 256 << 10  # control messages may carry plans
 MAX_SMALL_PAYLOAD_BYTES = 16 << 10  # everything else
-BEACON_MAX_BYTES = 120  # worst case of a stamped beacon, see module docstring
+BEACON_MAX_BYTES = 133  # worst case of a stamped beacon, see module docstring
 MAX_VEHICLE_POSITIONS = 32_768  # positions.vehicles cap (x,y float64 each: ~19 B)
 MAX_SRC_LEN = 64
 MAX_NAME_LEN = 64  # metric names, param names, fault kinds, control commands
@@ -125,7 +130,7 @@ R_UNSTAMPED = "unstamped"
 
 _SRC_RE = re.compile(r"[A-Za-z0-9_-]+(?:/[A-Za-z0-9_-]+)*")
 _NAME_RE = re.compile(r"[A-Za-z0-9_.-]+")
-_ENVELOPE_KEYS = ("v", "kind", "src", "seq", "t")
+_ENVELOPE_KEYS = ("v", "kind", "src", "seq", "t", "inc")
 
 
 class SchemaError(ValueError):
@@ -367,6 +372,7 @@ class Envelope:
     src: str = ""
     seq: int = 0
     t: int = 0
+    inc: int = 0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -609,7 +615,7 @@ def _build_registry() -> Mapping[str, type[Envelope]]:
     for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
-        checks = {"src": _src, "seq": _uint64, "t": _uint63, **cls.CHECKS}
+        checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
         cls._PLAN = tuple((name, f"{cls.KIND}.{name}", check) for name, check in checks.items())
         registry[cls.KIND] = cls
     return MappingProxyType(registry)
@@ -623,6 +629,9 @@ _BODY_FIELDS: Mapping[str, tuple[str, ...]] = MappingProxyType(
 _WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
     {kind: frozenset((*_ENVELOPE_KEYS, *body)) for kind, body in _BODY_FIELDS.items()}
 )
+_LEGACY_WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
+    {kind: keys_ - {"inc"} for kind, keys_ in _WIRE_KEYS.items()})
+"""Payloads from before incarnations (older recordings): decoded with ``inc`` 0."""
 _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
     {
         kind: MAX_PAYLOAD_BYTES
@@ -637,8 +646,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
 
 # msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
 # of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
-# (max_map_len 17: an obs, 5 envelope keys + 12 fields.)
-_SMALL_LIMITS = {"max_map_len": 17, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+# (max_map_len 18: an obs, 6 envelope keys + 12 fields.)
+_SMALL_LIMITS = {"max_map_len": 18, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
                  "max_ext_len": 0}
 _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,
@@ -648,7 +657,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
     KIND_STATE: {**_SMALL_LIMITS, "max_map_len": 20, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
     KIND_COMMAND: {**_SMALL_LIMITS, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
-    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 17), "max_array_len": 0},
+    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 18), "max_array_len": 0},
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
 })
@@ -669,7 +678,8 @@ def encode(msg: Message) -> bytes:
         raise SchemaError(R_BAD_TYPE, f"cannot encode {type(msg).__name__}: not a schema message")
     if not msg.src:
         raise SchemaError(R_UNSTAMPED, f"{kind} has no src; stamp it with a Sequencer (or publish via a Bus)")
-    wire: dict[str, Any] = {"v": SCHEMA_VERSION, "kind": kind, "src": msg.src, "seq": msg.seq, "t": msg.t}
+    wire: dict[str, Any] = {"v": SCHEMA_VERSION, "kind": kind, "src": msg.src, "seq": msg.seq, "t": msg.t,
+                            "inc": msg.inc}
     for name in _BODY_FIELDS[kind]:
         wire[name] = getattr(msg, name)
     try:
@@ -755,12 +765,15 @@ def _from_map(obj: dict[Any, Any], size: int) -> Message:
     if size > _SIZE_LIMIT[kind]:
         raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
     if obj.keys() != _WIRE_KEYS[kind]:
-        expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
-        missing = [k for k in expected if k not in obj]
-        if missing:
-            raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
-        extra = [k for k in obj if k not in expected]
-        raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
+        if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
+            obj = {**obj, "inc": 0}
+        else:
+            expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
+            missing = [k for k in expected if k not in obj]
+            if missing:
+                raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
+            extra = [k for k in obj if k not in expected]
+            raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
     if obj["src"] == "":
         raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
     cls = MESSAGE_CLASSES[kind]
@@ -790,17 +803,31 @@ def _with_pad(msg: M, pad: bytes) -> M:
 
 
 # --- stamping ---------------------------------------------------------------------------
+def new_incarnation() -> int:
+    """A fresh incarnation id: 63 random bits from the OS, never 0 (0 means "unknown").
+
+    It names a process lifetime, not simulation randomness, so it comes from ``os.urandom``
+    and not from the run's seeded generators (two starts with the same seed must differ)."""
+    while True:
+        inc = int.from_bytes(os.urandom(8), "little") >> 1
+        if inc:
+            return inc
+
+
 class Sequencer:
-    """Stamps ``src``, ``seq`` (per kind, from 0) and ``t`` on outgoing messages.
+    """Stamps ``src``, ``seq`` (per kind, from 0), ``t`` and ``inc`` on outgoing messages.
 
     ``clock`` returns int nanoseconds (default :func:`time.time_ns`); inject a
-    fake for deterministic tests.  Thread-safe.
+    fake for deterministic tests.  ``incarnation`` (default :func:`new_incarnation`)
+    tells this numbering apart from that of an earlier or later sender of the same
+    ``src``.  Thread-safe.
     """
 
-    def __init__(self, src: str, clock: Callable[[], int] = time.time_ns) -> None:
+    def __init__(self, src: str, clock: Callable[[], int] = time.time_ns, incarnation: int | None = None) -> None:
         self._src = _src("src", src)
         if not self._src:
             raise ValueError("Sequencer src must be non-empty")
+        self._inc = new_incarnation() if incarnation is None else _uint63("inc", incarnation)
         self._clock = clock
         self._next: dict[str, int] = {}
         self._lock = threading.Lock()
@@ -809,8 +836,12 @@ class Sequencer:
     def src(self) -> str:
         return self._src
 
+    @property
+    def incarnation(self) -> int:
+        return self._inc
+
     def stamp(self, msg: M) -> M:
-        """A copy of ``msg`` with this sender's src, the next seq of its kind and t=clock()."""
+        """A copy of ``msg`` with this sender's src and incarnation, the next seq of its kind and t=clock()."""
         kind = type(msg).KIND
         if MESSAGE_CLASSES.get(kind) is not type(msg):
             raise SchemaError(R_BAD_TYPE, f"cannot stamp {type(msg).__name__}: not a schema message")
@@ -822,4 +853,5 @@ class Sequencer:
         object.__setattr__(stamped, "src", self._src)
         object.__setattr__(stamped, "seq", seq)
         object.__setattr__(stamped, "t", t)
+        object.__setattr__(stamped, "inc", self._inc)
         return stamped

@@ -252,6 +252,7 @@ class BusStats:
     overflow: int = 0  # dropped because max_pending deliveries were queued, or evicted from a full inbox
     backoffs: int = 0  # pauses of a ring subscription's pump under a flood of refused messages (Bus.receive_ring)
     rejected: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {sender: n}}, bounded senders
+    sent: dict[str, int] = field(default_factory=dict)  # messages this Bus put with publish(), by kind
 
     @property
     def dropped_malformed(self) -> int:
@@ -407,6 +408,7 @@ class Bus:
         self._deliver_lock = threading.RLock()  # one user callback at a time, whichever thread delivers
         self._filter_lock = threading.Lock()  # the link filter sees one message at a time (inboxes decide off that lock)
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._sent: dict[str, int] = {}  # kind -> messages published (this incarnation's, see stats())
         self._handles: list[Handle] = []
         self._pumps: list[threading.Thread] = []
         self._logged: set[str] = set()
@@ -435,6 +437,11 @@ class Bus:
     @property
     def identity(self) -> str:
         return self._identity
+
+    @property
+    def incarnation(self) -> int:
+        """The ``inc`` this Bus stamps on what it publishes (one per Bus: a process lifetime)."""
+        return self._seq.incarnation
 
     @property
     def run(self) -> str:
@@ -504,6 +511,7 @@ class Bus:
                 overflow=self._overflow,
                 backoffs=self._backoffs,
                 rejected=self.rejections.as_dict(),
+                sent=dict(self._sent),
             )
 
     @property
@@ -545,6 +553,8 @@ class Bus:
             stamped = schema.padded(stamped, pad_to)
         _check_placement(key, stamped)
         self._put(key, schema.encode(stamped))
+        with self._lock:  # counted once handed to Zenoh: what a receiver could have got
+            self._sent[stamped.KIND] = self._sent.get(stamped.KIND, 0) + 1
         if self.guard is not None:
             self.guard.sent(stamped)
         return stamped

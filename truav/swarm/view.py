@@ -47,7 +47,7 @@ class FoxgloveView:
         self.context = context
         self._channels: dict[str, foxglove.Channel] = {}
         self._json: dict[str, Optional[Callable[[dict], bytes]]] = {}  # key -> JSON mirror builder
-        self._seqs: dict[tuple[str, str], int] = {}  # (src, kind) -> highest seq seen
+        self._seqs: dict[tuple[str, str, int], int] = {}  # (src, kind, incarnation) -> highest seq seen
         self._srcs: set[str] = set()
         self.messages = 0  # bus samples handled
         self.errors = 0  # bodies that did not fit their kind's mirror
@@ -69,9 +69,9 @@ class FoxgloveView:
         env = envelope_fields(payload)
         if env is None:
             return
-        kind, src, seq, _t, body = env
-        last = self._seqs.get((src, kind))
-        self._seqs[(src, kind)] = seq if last is None else max(seq, last)
+        kind, src, seq, _t, body, inc = env
+        last = self._seqs.get((src, kind, inc))  # a restarted sender numbers from 0 again: a new stream
+        self._seqs[(src, kind, inc)] = seq if last is None else max(seq, last)
         try:
             if src not in self._srcs:
                 self._srcs.add(src)
