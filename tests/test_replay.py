@@ -458,3 +458,20 @@ def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str
         agent.wait(WAIT_S)
         assert agent.stderr is not None
         agent.stderr.close()
+
+
+def test_help_example_of_a_replay_driven_agent_gives_it_accept_replay(capsys) -> None:
+    """The example in `replay --help` works as written: its agent accepts replayed traffic (without
+    --accept-replay it drops every replayed observation and the example does nothing)."""
+    import re
+    import shlex
+
+    from truav.swarm.cli import build_parser
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["replay", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    commands = [shlex.split(c) for c in re.findall(r"`(truav-swarm [^`]+)`", text)]
+    assert [c[1] for c in commands] == ["agent", "replay"], text
+    agent, replay = (build_parser().parse_args(c[1:]) for c in commands)
+    assert agent.accept_replay and agent.run == "demo"
+    assert replay.topics == ["truav/*/world/tick", f"truav/*/uav/{agent.id[0]}/obs"]  # --id appends
