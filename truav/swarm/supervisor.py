@@ -279,6 +279,10 @@ class _Swarm:
 
     def _start_rest(self) -> bool:
         opts, out, ep = self.opts, self.out, self.endpoint
+        # Asked before any child starts to fill the cache: a cold one costs the first start most of a minute.
+        from truav import kernel_cache  # here: it imports numba
+        self.cold_note = kernel_cache.cold_start_note(kernel_cache.SWARM_KERNELS
+                                                      + (["agents/sac_kernels.py"] if self.central else []))
         write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n})
         scenario = out / SCENARIO_FILE
         scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep,
@@ -348,6 +352,8 @@ class _Swarm:
               f"  watch it: truav-swarm status -e {ep}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
         if opts.foxglove_port is not None:
             print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)", flush=True)
+        if self.cold_note:  # else tick 0 waits for the compiler without a word
+            print(f"{self.cold_note}; tick 0 comes once the world and the agents have them", flush=True)
 
     def _plan_kill(self, who) -> None:
         name = _process(who)
