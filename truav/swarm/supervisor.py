@@ -42,6 +42,7 @@ from truav.bus import guard, keys, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
+from truav.lograte import Every
 from truav.faults import load_plan
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
                                   stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
@@ -294,7 +295,8 @@ class _Swarm:
         if opts.record:
             self.children.start("recorder", _python_module(
                 "recorder.process", "--run", opts.run, "--out", opts.record, "--connect", ep,
-                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args))
+                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args,
+                *(["-v"] if opts.verbose else [])))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
@@ -382,10 +384,13 @@ class _Swarm:
         drawn, last_print = 0, 0.0
         world = children.procs["world"]
         reported: set[int] = set()
+        debug_every = Every(None, STATUS_PERIOD_S) if opts.verbose else None
         while world.poll() is None:
             faults_pending = self.controller is not None and not self.outcome.ticked
             time.sleep(0.05 if faults_pending or not self.outcome.ticked else 0.2)
             monitor.poll()
+            if debug_every is not None and debug_every.due():  # -v: what the bus showed, once a second
+                print(f"debug: supervisor at {self._since():.1f} s: {monitor.debug_line()}", flush=True)
             if not self.outcome.ticked and monitor.t0 is not None:
                 self.outcome.ticked = True
                 if self.controller is not None:
