@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -168,5 +169,7 @@ def test_readme_commands_run_in_order_in_a_fresh_directory(tmp_path: Path) -> No
         name = key(argv)
         if name in CHECKED:
             continue
+        began = time.monotonic()
         rc, text = _run(argv + RUN[name], work, env)
+        print(f"{time.monotonic() - began:6.1f} s  {name}", flush=True)  # the check's cost, command by command
         assert rc == 0, f"`{name}` (+ {' '.join(RUN[name])}) exited {rc}:\n{text[-3000:]}"
