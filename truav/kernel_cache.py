@@ -52,8 +52,10 @@ SWARM_KERNELS = ["world/step.py", "agents/state.py", "agents/reward.py", "agents
 """What the world and the agents of a swarm compile before they join."""
 TRAIN_KERNELS = ["world/step.py", "agents/fused.py"]
 """What `truav train` compiles before its first episode."""
-COLD_COMPILE_S = (45, 60)
-"""Seconds a first start spends compiling on the 2-core reference machine (measured: see the README)."""
+COLD_COMPILE_S = (60, 90)
+"""Seconds a first start spends compiling on the 2-core reference machine: measured beside other jobs (load
+average 5), `truav-swarm up --steps 5 --episodes 1` took 77 s and `truav train --seeds 1 --episodes 1` 92 s
+from an empty cache, seconds of which were the run itself."""
 
 
 def cold_start_note(files: list[str]) -> str | None:
@@ -62,7 +64,7 @@ def cold_start_note(files: list[str]) -> str | None:
         return None
     lo, hi = COLD_COMPILE_S
     return (f"compiling the numba kernels first (nothing cached yet for this checkout in "
-            f"{os.environ.get('NUMBA_CACHE_DIR') or cache_dir()}): about {lo}-{hi} s on 2 cores, once; "
+            f"{os.environ.get('NUMBA_CACHE_DIR') or cache_dir()}): about {lo}-{hi} s on 2 busy cores, once; "
             f"later starts load them in about a second")
 
 
