@@ -15,7 +15,8 @@ from tests.test_swarm_outcomes import Up
 
 def test_a_cold_kernel_cache_costs_no_tick(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty-numba-cache"))  # inherited by every process `up` starts
-    up = Up(tmp_path, "cold", "--agents", "2", "--steps", "20", "--episodes", "1", "--rate", "10")
+    up = Up(tmp_path, "cold", "--agents", "2", "--steps", "20", "--episodes", "1", "--rate", "10",
+            "--max-missed", "1")  # a busy host's missed actions: bounded below where they matter here
     try:
         assert up.wait(timeout=200) == 0, up.output()
     finally:
