@@ -46,6 +46,7 @@ from agents.state import StateEncoder, neighbour_features
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.config import Config
+from truav.lograte import Every
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
 from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, LOCKSTEP_JOIN_GRACE_S
@@ -195,6 +196,7 @@ class AgentNode:
         self.learners = self._make_learners()
         self._steps_at_start = self.steps
         self._earlier_incarnations = self._read_earlier_incarnations()
+        self._debug = Every(log)
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
@@ -409,6 +411,7 @@ class AgentNode:
         state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
                                     nearest, self.encoder.neighbour_sectors(pos, peers, heard),
                                     np.array([[obs.densest_sector]]))
+        r = None
         if obs.episode != self._episode:
             self._episode, self._t = obs.episode, 0
             self.learners.begin_episode(obs.episode, T, greedy=not o.train)
@@ -430,6 +433,13 @@ class AgentNode:
         self._action = int(self.learners.act(state, min(self._t, T - 1), pos)[0, 0])
         self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
         self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
+        if self._debug.due():
+            log.debug("uav %d tick %d: received obs at (%.0f, %.0f) m, %d vehicles in range, %d packets queued, "
+                      "beacons of %d peer(s) in range; decided state %d, reward %s, action %d (%s); sent it "
+                      "(%d steps learned, %d stale observations skipped)", o.uav, obs.tick, *obs.pos,
+                      obs.vehicles_in_range, obs.queued_packets, len(peers[0, 0]), self._state,
+                      "-" if r is None else f"{float(r[0, 0]):.3f}", self._action,
+                      "learning" if o.train else "greedy", self.steps, self.stale_obs_skipped)
 
     def _follow_cells(self, pos: tuple[float, float]) -> None:
         """Range-limited beacons: subscribe to the cells now within range of ``pos``, drop the others."""

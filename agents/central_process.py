@@ -39,6 +39,7 @@ from truav.bus.transport import Bus
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S
+from truav.lograte import Every
 from world.env import LocalObs
 from agents.agent_process import Inexact
 
@@ -71,6 +72,7 @@ class ControllerOptions:
 
 class ControllerNode:
     def __init__(self, cfg: Config, opts: ControllerOptions, bus: Bus):
+        self._debug = Every(log)
         from truav import runio
         from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
         self.cfg, self.opts, self.bus = cfg, opts, bus
@@ -209,6 +211,10 @@ class ControllerNode:
                                                                          pad=b""), pad_to=size)
         self.stats["commands"] += self.n_uavs
         self.stats["decide_ms"].append((time.perf_counter() - t0) * 1e3)
+        if self._debug.due():
+            log.debug("controller tick %d (episode %d, step %d): received uploads of uav %s (%d stale so far); "
+                      "decided in %.1f ms; sent commands %s", tick, episode, step, sorted(got),
+                      self.stats["stale_states"], self.stats["decide_ms"][-1], [int(a) for a in actions])
 
     def write_stats(self) -> None:
         if not self.opts.stats_out:

@@ -74,6 +74,13 @@ class _NoLearner(AgentNode):
         self._action = action
         self.bus.publish(keys.uav_action(self.opts.run, self.opts.uav),
                          schema.Action(uav=self.opts.uav, tick=obs.tick, action=action))
+        if self._debug.due():
+            log.debug("uav %d tick %d: received obs at (%.0f, %.0f) m, %d vehicles in range; sent action %d (%s)",
+                      self.opts.uav, obs.tick, *obs.pos, obs.vehicles_in_range, action, self._why())
+
+    def _why(self) -> str:
+        """Where the scheme's action came from, for the debug line."""
+        return self.opts.scheme
 
 
 class PatrolAgentNode(_NoLearner):
@@ -145,6 +152,9 @@ class PatrolAgentNode(_NoLearner):
             if not missing or left <= 0 or self._stop.is_set():
                 return got
             self._beacon_inbox.wait(min(left, 0.01))
+
+    def _why(self) -> str:
+        return f"the patrol plan, from {len(self._known)} of {self.n_uavs} start positions"
 
     def scheme_stats(self) -> dict:
         return {"deployments": self.deployments, "deployments_incomplete": self.deployments_incomplete,
@@ -235,6 +245,10 @@ class CentralAgentNode(_NoLearner):
             return latest[1]
         self.commands_hovered += 1
         return schema.HOVER
+
+    def _why(self) -> str:
+        return (f"commands so far: {self.commands_fresh} fresh, {self.commands_held} held, "
+                f"{self.commands_hovered} hovered for want of one")
 
     def scheme_stats(self) -> dict:
         return {"commands": {"fresh": self.commands_fresh, "held": self.commands_held,

@@ -278,6 +278,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live agent drops replayed traffic "
+                  "unless given --accept-replay): `truav-swarm agent --id 3 --run demo --accept-replay "
+                  "-e tcp/127.0.0.1:7447`, then `truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447 "
+                  "--topics 'truav/*/world/tick' 'truav/*/uav/3/obs'`.")
+"""`replay --help`'s example (tests/test_replay.py parses its commands with the real parsers)."""
+
+
 def add_swarm_commands(subparsers: Any) -> None:
     """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
     from recorder.process import add_record_args
@@ -297,8 +304,7 @@ def add_swarm_commands(subparsers: Any) -> None:
         description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
                     "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
                     "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
-                    "Example, one live agent driven by a recorded world: --topics 'truav/*/world/tick' "
-                    "'truav/*/uav/3/obs'.")
+                    f"{REPLAY_EXAMPLE}")
     rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
     rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")

@@ -67,6 +67,7 @@ from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry, parse_or
 from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
 from truav.bus import keys, schema, transport
+from truav.lograte import Every
 from truav.swarm.lifeline import signals_handled, watch_supervisor
 
 log = logging.getLogger("truav.recorder")
@@ -239,6 +240,7 @@ class Recorder:
         self._writer: Optional[threading.Thread] = None
         self._error: Optional[str] = None
         self._max_backlog = 0
+        self.written = 0  # messages handed to the log so far (-v lines), but those of the last pull at the stop
         self._started_ns = 0
         self._summary: Optional[RecorderSummary] = None
 
@@ -377,6 +379,7 @@ class Recorder:
                 while burst < BURST and (item := pull()) is not None:
                     write(*item)
                     burst += 1
+                self.written += burst
                 if burst > self._max_backlog:
                     self._max_backlog = burst
         except Exception as exc:  # disk full, I/O error: stop recording, keep what was flushed
@@ -397,9 +400,15 @@ def short_error(exc: BaseException) -> str:
 def run_until_stopped(recorder: Recorder, stop: threading.Event) -> RecorderSummary:
     """Start ``recorder`` and block until ``stop`` or its own stop request is set."""
     recorder.start()
+    debug, before, since = Every(log), 0, time.monotonic()
     try:
         while not (stop.is_set() or recorder.stop_requested.is_set()):
             stop.wait(IDLE_WAKE_S)
+            if debug.due():
+                now, written = time.monotonic(), recorder.written
+                log.debug("recorder: received and wrote %d messages in %.1f s (%d in all, %d the largest burst)",
+                          written - before, now - since, written, recorder._max_backlog)
+                before, since = written, now
     finally:
         summary = recorder.stop()
     return summary
@@ -467,6 +476,7 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                              "up to 2 s compressed harder")
     parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug lines: what was recorded, once a second")
     parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",
                         help=f"client mode: wait this long for the router (default {DEFAULT_ROUTER_WAIT_S:g} s)")
     transport.add_transport_args(parser)
@@ -482,6 +492,9 @@ def cmd_record(args: argparse.Namespace) -> int:
     except (RecorderUsageError, ValueError, OSError) as exc:
         print(f"recorder: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if args.verbose:
+        logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+        logging.getLogger("truav").setLevel(logging.DEBUG)
     stop = threading.Event()
     reasons: list[str] = []
     recorder = Recorder(options, zconfig)

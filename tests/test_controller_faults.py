@@ -28,7 +28,10 @@ def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--scheme", "central", "--scenario", str(scenario),
            "--episodes", "1", "--out", str(out), "--fault-plan", str(plan), "--command-hold", "1", "--quiet",
-           "--no-plot"]
+           "--no-plot",
+           # a busy host makes real-time agents miss actions: not what this test is about (it finishes, and
+           # the summary says what the controller's loss did)
+           "--max-missed", "1"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         text, _ = proc.communicate(timeout=TIMEOUT_S)

@@ -195,7 +195,8 @@ def test_real_time_swarm_with_cells_and_a_low_beacon_rate(tmp_path):
                                      "comm_range_m": 150.0}, roads={"warmup_steps": 10},
                            learner={"neighbour_edges_m": (300.0, 600.0)})
     out = _up(tmp_path, "cells", cfg, "--episodes", "1", "--beacon-hz", "2", "--beacon-cell", "250",
-              "--agents-per-process", "2", "--seed", "2")
+              "--agents-per-process", "2", "--seed", "2",
+              "--max-missed", "1")  # a busy host's missed actions are not what this test is about
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"]["result"] == "ok"
     assert summary["control_plane"]["beacons"] > 0  # the supervisor hears cell beacons

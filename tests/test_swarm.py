@@ -25,6 +25,7 @@ from truav.config import Config, to_toml
 from truav.driver import run_episodes
 from truav.swarm.supervisor import free_loopback_endpoint, wait_for_port
 from truav.bus.transport import Bus, make_config
+from tests.conftest import wait_until
 
 SMALL = {"scenario": {"n_vehicles": 60, "steps_per_episode": 15, "n_uavs": 5}, "roads": {"warmup_steps": 10}}
 
@@ -116,13 +117,15 @@ def test_killed_agent_never_stalls_the_world_and_resumes_from_its_checkpoint(pro
         killed_at = time.monotonic()
         procs.procs["agent2"].send_signal(signal.SIGKILL)
         procs.procs["agent2"].wait(timeout=5)
-        while not lost and time.monotonic() < killed_at + 3:
+        while not lost and time.monotonic() < killed_at + 10:
             time.sleep(0.01)
-        assert lost and lost[0] - killed_at < 1.0  # the loss is seen through liveliness within a second
-        time.sleep(1.5)
-        # the world kept ticking at its rate while the agent was dead
+        # the loss is seen through liveliness (its session's socket closes: milliseconds; a busy host, more)
+        assert lost and lost[0] - killed_at < 5.0, lost
+        # the world kept ticking while the agent was dead (waiting for it, it would stop for good; a busy
+        # host delays a tick by tens of milliseconds, rarely more)
+        wait_until(lambda: len([t for t, _ in ticks if t > killed_at]) >= 10, 15.0)
         after = [t for t, _ in ticks if t > killed_at]
-        assert len(after) >= 10 and np.max(np.diff([killed_at] + after)) < 0.5
+        assert len(after) >= 10 and np.max(np.diff([killed_at] + after)) < 2.0, np.diff([killed_at] + after)
         procs.start("agent2b", "agent", "--id", "2", "--run", "crash", "--seed", "3", "--scenario",
                     str(procs.tmp / "scenario.toml"), "-e", ep, "--checkpoint", str(ck), "--checkpoint-every", "5",
                     "-v")

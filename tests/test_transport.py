@@ -233,11 +233,12 @@ def test_link_filter_drops(bus_factory) -> None:
     flt.drop_suffix = "/action"
     for tick in range(1, 6):
         sender.publish(keys.uav_action(RUN, 1), Action(uav=1, tick=tick, action=3))
-    assert wait_until(lambda: listener.stats().filtered == 5)
-    assert not [m for m in inbox.msgs() if m.tick > 0]
+    # >= : on a busy host more of sync()'s tick-0 resends may still be on their way, and are dropped too
+    assert wait_until(lambda: listener.stats().filtered >= 5)
     # other keys still pass (beacons are droppable under congestion: resend until one lands)
     sync(lambda: sender.publish(keys.uav_beacon(RUN, 1), beacon(1, 9)),
          lambda: any(isinstance(m, Beacon) for m in inbox.msgs()))
+    assert not [m for m in inbox.msgs() if isinstance(m, Action) and m.tick > 0]
 
 
 def test_link_filter_delays_on_one_scheduler_thread(bus_factory) -> None:

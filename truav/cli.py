@@ -152,6 +152,11 @@ def cmd_train(args) -> int:
     scheme = args.scheme
     print(f"training {scheme}: {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
           f"at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) -> {out}", flush=True)
+    from truav import kernel_cache  # here: it imports numba, which `truav --help` does without
+    note = kernel_cache.cold_start_note(kernel_cache.TRAIN_KERNELS
+                                        + (["agents/sac_kernels.py"] if scheme == "central" else []))
+    if note:  # else the progress bar sits at 0 for most of a minute without a word
+        print(note, flush=True)
     t0 = time.perf_counter()
     result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet)
     elapsed = time.perf_counter() - t0

@@ -27,6 +27,7 @@ import numpy as np
 
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
+from truav.lograte import Every
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
@@ -146,6 +147,8 @@ class WorldNode:
         self.world = World(cfg, 1)
         warm_up_kernels(cfg)
         self.stats = WorldStats()
+        self._debug = Every(log)
+        self._missing: list[int] = []  # the last acting tick's UAVs without an answer (debug lines)
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
@@ -387,6 +390,7 @@ class WorldNode:
         self.stats.hover_answers += sum(1 for a in answered.values() if a == HOVER)
         self.stats.actions_received += len(answered)
         self.stats.deadline_misses += self.n_uavs - len(answered)  # no answer: hovers
+        self._missing = sorted(set(range(self.n_uavs)) - set(answered))
         return actions
 
     def _publish_step(self, tick, episode, m, actions) -> None:
@@ -398,6 +402,12 @@ class WorldNode:
                   **rejection_metrics(self.bus.rejections)}
         self.bus.publish(keys.metrics_step(self.opts.run), schema.Metrics(
             scope=schema.SCOPE_STEP, tick=tick, episode=episode, values=values))
+        if self._debug.due():
+            late = "lock-step" if self.opts.lockstep else f"started {self.stats.tick_lateness_ms[-1]:.1f} ms late"
+            log.debug("tick %d (episode %d, %s): sent tick + %d observations; received actions %s "
+                      "(missing: %s, they hover); stepped: coverage %.1f%%, packets %d generated %d delivered",
+                      tick, episode, late, self.n_uavs, actions[0].tolist(), self._missing or "none",
+                      values["coverage_pct"], values["generated"], values["delivered"])
 
 
 def write_stats(path: str | Path, stats: WorldStats) -> None:

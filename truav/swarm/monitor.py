@@ -137,6 +137,17 @@ class Monitor:
                 f"coverage {cov:5.1f}%  PDR so far {pdr:6.3f}  energy/UAV/step {energy:6.1f} J",
                 "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
 
+    def debug_line(self) -> str:
+        """What the supervisor heard so far (its -v line)."""
+        with self.lock:
+            tick = self.ticks[-1][1] if self.ticks else None
+            hovering = self.hovering[-1][1] if self.hovering else 0
+            beacons, controls = sum(self.beacon_count.values()), sum(self.control_count.values())
+            alive, shutdowns = sorted(self.alive), [s for _, s in self.shutdowns]
+        return (f"heard step metrics up to tick {'-' if tick is None else tick} ({int(hovering)} UAVs hovering in it), "
+                f"{beacons} beacons, {controls} uploads/commands; alive: {' '.join(alive) or '-'}; "
+                f"shutdown requests from: {', '.join(shutdowns) or 'nobody'}")
+
     def control_plane(self) -> dict[str, float]:
         self.poll()
         with self.lock:

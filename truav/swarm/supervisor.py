@@ -45,6 +45,7 @@ from truav.bus import guard, keys, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
+from truav.lograte import Every
 from truav.faults import load_plan
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
                                   stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
@@ -285,6 +286,10 @@ class _Swarm:
 
     def _start_rest(self) -> bool:
         opts, out, ep = self.opts, self.out, self.endpoint
+        # Asked before any child starts to fill the cache: a cold one costs the first start most of a minute.
+        from truav import kernel_cache  # here: it imports numba
+        self.cold_note = kernel_cache.cold_start_note(kernel_cache.SWARM_KERNELS
+                                                      + (["agents/sac_kernels.py"] if self.central else []))
         write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n})
         scenario = out / SCENARIO_FILE
         scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep,
@@ -297,7 +302,8 @@ class _Swarm:
         if opts.record:
             self.children.start("recorder", _python_module(
                 "recorder.process", "--run", opts.run, "--out", opts.record, "--connect", ep,
-                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args))
+                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args,
+                *(["-v"] if opts.verbose else [])))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
@@ -355,6 +361,8 @@ class _Swarm:
               f"  watch it: truav-swarm status -e {ep}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
         if opts.foxglove_port is not None:
             print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)", flush=True)
+        if self.cold_note:  # else tick 0 waits for the compiler without a word
+            print(f"{self.cold_note}; tick 0 comes once the world and the agents have them", flush=True)
 
     def _plan_kill(self, who) -> None:
         name = _process(who)
@@ -383,10 +391,13 @@ class _Swarm:
         drawn, last_print = 0, 0.0
         world = children.procs["world"]
         reported: set[int] = set()
+        debug_every = Every(None, STATUS_PERIOD_S) if opts.verbose else None
         while world.poll() is None:
             faults_pending = self.controller is not None and not self.outcome.ticked
             time.sleep(0.05 if faults_pending or not self.outcome.ticked else 0.2)
             monitor.poll()
+            if debug_every is not None and debug_every.due():  # -v: what the bus showed, once a second
+                print(f"debug: supervisor at {self._since():.1f} s: {monitor.debug_line()}", flush=True)
             if not self.outcome.ticked and monitor.t0 is not None:
                 self.outcome.ticked = True
                 if self.controller is not None:
