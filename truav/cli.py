@@ -176,6 +176,9 @@ def cmd_train(args) -> int:
 
 def cmd_evaluate(args) -> int:
     run = Path(args.run)
+    if not run.exists():  # not "its parent has no config.toml": the path the user gave
+        raise runio.RunDirError(f"{args.run}: no such run directory or file (a directory `truav train` wrote, "
+                                f"or its {runio.QTABLE_FILE})")
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     seeds, q = runio.read_qtables(run)
     runio.check_qtables(run, q.shape, cfg)
