@@ -3,7 +3,8 @@ effective config (TOML). A run directory holds:
 
     config.toml     the effective configuration
     metrics.csv     one row per (seed, episode)
-    qtables.npz     q (B, U, S, 16) float32, seeds (B,)
+    qtables.npz     q (B, U, S, 16) float64 (what the learners compute, as in a swarm agent's
+                    checkpoint; a float32 file of older versions still loads), seeds (B,)
     convergence.png sliding-window curves (see truav.plots)
 """
 
@@ -99,7 +100,7 @@ def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarra
     persist-trained swarm is evaluated from there (read_uav_positions)."""
     tmp = run / (QTABLE_FILE + ".tmp.npz")
     extra = {} if uav_pos is None else {"uav_pos": np.asarray(uav_pos, np.float64)}
-    np.savez_compressed(tmp, q=q.astype(np.float32), seeds=np.asarray(seeds), **extra)
+    np.savez_compressed(tmp, q=np.asarray(q, np.float64), seeds=np.asarray(seeds), **extra)
     os.replace(tmp, run / QTABLE_FILE)
 
 
