@@ -170,8 +170,15 @@ def cmd_train(args) -> int:
           f"{cfg.scenario.steps_per_episode} steps at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) "
           f"-> {out}", flush=True)
     t0 = time.perf_counter()
-    result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
-                               chunks=chunks)
+    try:
+        result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
+                                   chunks=chunks)
+    except KeyboardInterrupt:
+        if ckpt is not None:  # a second Ctrl-C: the checkpoints written so far stand
+            raise
+        print(f"interrupted: --scheme {scheme} keeps no checkpoint and cannot resume; train it again with --force",
+              file=sys.stderr)
+        return 130
     elapsed = time.perf_counter() - t0
     if result.stopped:
         done = len(next(iter(result.metrics.values()), []))

@@ -176,7 +176,8 @@ class _StopOnSigint:
         self.stop, self.previous = stop, None
 
     def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
+        # Not in a thread, nor where SIGINT is ignored (started in the background, nohup): that stays so.
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
             self.previous = signal.signal(signal.SIGINT, self._on_sigint)
         return self
 
