@@ -14,7 +14,8 @@ the same control-plane model as the in-process driver (world.world_process).
   (one silent for 10 s is decided without, with a warning).
 - Real time: once all uploads of the tick are in, or ``collect_frac`` of the
   tick period after the first of them arrived; a missing UAV's last upload
-  stands in for it (counted as ``stale_states``).
+  stands in for it (counted as ``stale_states``). After a stall only the
+  newest two ticks waiting are decided (the older ones: ``skipped_ticks``).
 - Policy: a trained actor (``--policy RUN``: `truav train --scheme central`),
   flown greedily, or, without one, learning online from the uploads (random
   actions for the first ``central.learning_starts`` steps, as in process).
@@ -89,7 +90,7 @@ class ControllerNode:
         self._done_tick = -1
         self._episode = -1
         self._stop = threading.Event()
-        self.stats = {"ticks": 0, "commands": 0, "states": 0, "stale_states": 0, "late_states": 0,
+        self.stats = {"ticks": 0, "commands": 0, "states": 0, "stale_states": 0, "late_states": 0, "skipped_ticks": 0,
                       "episodes": 0, "decide_ms": [], "policy": opts.policy or "online learning"}
         run = opts.run
         bus.guard = guard.for_config(cfg)
@@ -97,6 +98,10 @@ class ControllerNode:
         self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
                                   opts.tick_period_s)
         bus.subscribe(keys.all_states(run), self._on_state)
+        # The world's ticks keep the guard's tick window current (it learns the tick from them and from the
+        # commands sent): a controller stalled for more than the window would otherwise refuse every later
+        # upload as out of the window, and never decide again.
+        bus.subscribe(keys.world_tick(run), lambda *_: None)
         bus.subscribe(keys.all_control(run), self._on_control)
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         bus.prepare(*(keys.controller_cmd(run, i) for i in range(self.n_uavs)))
@@ -151,6 +156,13 @@ class ControllerNode:
         with self._cond:
             while not self._stop.is_set():
                 if self._by_tick:
+                    # Real time: after a stall, only the newest ticks are worth deciding (a command for a
+                    # tick long gone is not flown); the older ones are skipped, counted.
+                    while not self.opts.lockstep and len(self._by_tick) > 2:
+                        old = min(self._by_tick)
+                        del self._by_tick[old], self._first_at[old]
+                        self._done_tick = max(self._done_tick, old)
+                        self.stats["skipped_ticks"] += 1
                     tick = min(self._by_tick)
                     got = self._by_tick[tick]
                     waited = time.monotonic() - self._first_at[tick]

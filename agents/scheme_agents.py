@@ -129,9 +129,11 @@ class PatrolAgentNode(_NoLearner):
         o = self.opts
         if self._t <= DEPLOY_REPEATS and not obs.done:
             self.bus.publish(keys.uav_beacon(o.run, o.uav), self._deploy)
+        # Drained every tick, all starts known or not: the inbox checks a beacon's tick when drained, so
+        # the peers' repeats left in it would be refused as stale (tick_out_of_window) at the next deployment.
+        self._take_beacons()
         if len(self._known) == self.n_uavs:
             return
-        self._take_beacons()
         with self._lock:
             late = {j: b for j, b in self._beacons.items() if b.tick == self._deploy.tick and j not in self._known}
         if late:

@@ -10,6 +10,7 @@ entry points as subprocesses.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -35,6 +36,13 @@ def _recording(path: Path) -> bytes:
             payload = msgpack.packb({"v": 1, "kind": "beacon", "src": f"uav/{u}", "seq": i // 3, "t": 10**18 + i})
             log.write(f"truav/r/uav/{u}/beacon", payload, 10**18 + i * 10**6)
     return path.read_bytes()
+
+
+def _dead_pid() -> int:
+    """The PID of a process that has ended (reaped)."""
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
 
 
 @pytest.fixture(scope="module")
@@ -68,6 +76,11 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "corrupt.mcap").write_bytes(bytes(corrupt))
     (d / "unfinished.mcap").write_bytes(data[: len(data) * 2 // 3])  # the recorder "died" two thirds in
     (d / "header_only.mcap").write_bytes(data[:40])
+    for name, info in (("ended_run", {"supervisor_pid": os.getpid()}), ("dead_run", {"supervisor_pid": _dead_pid()}),
+                       ("tls_run", {"supervisor_pid": os.getpid(), "endpoint": "tls/127.0.0.1:7447"})):
+        (d / name).mkdir()
+        (d / name / "swarm.json").write_text(json.dumps({"run": name, "endpoint": "tcp/127.0.0.1:7447", **info}))
+    (d / "ended_run" / "summary.json").write_text("{}")
     names = {p.name.replace(".", "_"): str(p) for p in d.iterdir()}
     names["dir"] = str(d)
     return names
@@ -118,6 +131,7 @@ ROWS = [
     ("evaluate-truncated-npz", "truav", "evaluate {run_trunc}", 2, "qtables.npz"),
     ("evaluate-foreign-npz", "truav", "evaluate {run_foreign}", 2, "qtables.npz"),
     ("evaluate-wrong-shape", "truav", "evaluate {run_shape}", 2, "states"),
+    ("evaluate-no-such-run", "truav", "evaluate {dir}/doesnotexist", 2, "doesnotexist: no such run"),
     # truav experiment
     ("velocity-episodes-0", "truav", "experiment velocity --quick --episodes 0", 2, "--episodes"),
     ("velocity-window-0", "truav", "experiment velocity --quick --window 0", 2, "--window"),
@@ -179,6 +193,12 @@ ROWS = [
     ("status-out-without-run", "swarm", "status --out {dir}/no_run_here", 2, "--out"),  # not the default endpoint
     ("down-out-without-run", "swarm", "down --out {dir}", 2, "--out"),
     ("down-out-garbage-endpoint", "swarm", "down --out {bad_run_dir}", 2, "endpoint"),
+    ("down-no-such-run", "swarm", "down --run nosuch", 2, "no such run: runs/swarm-nosuch/swarm.json does not exist"),
+    ("down-run-ended", "swarm", "down --out {ended_run}", 2, "has ended"),
+    ("status-run-ended", "swarm", "status --out {ended_run}", 2, "has ended"),
+    ("down-supervisor-gone", "swarm", "down --out {dead_run}", 2, "is not running"),
+    ("down-tls-without-creds", "swarm", "down --out {tls_run}", 2, "--creds"),
+    ("status-tls-without-creds", "swarm", "status -e tls/127.0.0.1:7447", 2, "--creds"),
     ("world-config-json5-syntax", "swarm", "world -c {unclosed_json5}", 2, "-c/--config"),  # json5's caret diagram
     ("up-record-in-proc", "swarm", "up --record /proc/truav-test.mcap", 2, "--record"),  # root may "access" it
     ("train-out-in-proc", "truav", "train --out /proc/truav-test", 2, "--out"),
@@ -289,3 +309,20 @@ def test_log_check_is_quiet_and_zero_on_a_complete_recording(files, capsys) -> N
     assert truav_main(["log", "check", files["good_mcap"]]) == 0
     out, err = capsys.readouterr()
     assert ": finished" in out and err == ""
+
+
+def test_a_tls_router_asked_without_credentials_says_credentials_are_needed(tmp_path, capsys) -> None:
+    """A --secure swarm's router at a tcp/ endpoint: Zenoh says only that it cannot connect; the router
+    answers a probe in TLS, so the command says credentials are needed (one line, exit 2)."""
+    import zenoh
+    from conftest import free_port
+    from truav.bus import security
+    port = free_port()
+    security.issue(tmp_path, "sec", 2, f"tcp/127.0.0.1:{port}")
+    router = zenoh.open(zenoh.Config.from_file(str(tmp_path / security.ROUTER_CONFIG)))
+    try:
+        rc = swarm_main(["status", "--run", "sec", "-e", f"tcp/127.0.0.1:{port}"])
+    finally:
+        router.close()
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "speaks TLS" in err and "--creds" in err, err

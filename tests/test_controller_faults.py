@@ -53,3 +53,30 @@ def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
     assert all(c["fresh"] > 0 and c["held"] >= 1 and c["hovered"] > 0 for c in commands), commands
     assert 0 < world["hover_answers"] <= sum(c["hovered"] for c in commands)  # some late, under load
     assert [(kind, phase) for _, kind, phase in summary["fault_events"]] == [("crash", "start")]
+
+
+def test_central_summary_counts_every_controller_incarnation(bus_factory, capsys):
+    """A crashed controller writes no statistics, so its restart's controller.json counts only itself
+    (chaos --scheme central said "90 ticks decided"): the supervisor counts the commands every
+    incarnation sent, as heard on the bus, and says how many incarnations there were."""
+    from truav.bus import keys, schema
+    from truav.swarm.monitor import Monitor
+    from truav.swarm.supervisor import SwarmOptions, _print_central
+    run = "incarnations"
+    monitor = Monitor(n_uavs=2)
+    monitor.attach(bus_factory("supervisor", run=run), run, central=True)
+    for first, last in ((0, 5), (6, 9)):  # one incarnation, killed after tick 5, then its restart
+        ctl = bus_factory("controller", run=run)
+        assert all(ctl.await_subscribers(keys.controller_cmd(run, uav), 30.0) for uav in range(2))
+        for tick in range(first, last + 1):
+            for uav in range(2):
+                ctl.publish(keys.controller_cmd(run, uav), schema.Command(uav=uav, tick=tick, action=1, pad=b""))
+        ctl.close()
+    from conftest import wait_until
+    assert wait_until(lambda: monitor.control_plane()["command_ticks"] == 10, 30.0)
+    cp = monitor.control_plane()
+    restarted = {"ticks": 4, "commands": 8, "stale_states": 0, "policy": "online learning"}
+    _print_central(CFG.replace(scenario={"n_uavs": 2}), SwarmOptions(scheme="central"), {}, [], restarted, cp, 2)
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "2 incarnations: commands for 10 tick(s), 20 command(s) heard on the bus" in line, line
+    assert "the last incarnation: 4 tick(s) decided" in line, line

@@ -23,6 +23,7 @@ import numpy as np
 
 from conftest import run_to_end
 from agents.agent_process import DELAY_ENV
+from truav import runio
 from truav.config import Config, to_toml
 from truav.trainer import run_chunk
 
@@ -90,4 +91,6 @@ def test_lockstep_swarm_learns_the_trainers_tables_with_the_state_refinements(tm
     q, steps = agent_tables(out, cfg)
     assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * cfg.scenario.n_uavs
     assert q.shape[1] == 16 * 4 * 4 * 3 * 3 * 4 * 5  # the refined state space
-    assert np.array_equal(q, expected.q[0])
+    runio.write_qtables(tmp_path, [SEED], expected.q)  # what `truav train` writes: compared as it is, no cast
+    with np.load(tmp_path / runio.QTABLE_FILE) as saved:
+        assert saved["q"].dtype == q.dtype and np.array_equal(q, saved["q"][0])

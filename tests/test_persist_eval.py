@@ -53,3 +53,15 @@ def test_runner_evaluates_a_persist_cell_in_its_training_world():
     got = run_cell(cfg_small, cell).eval
     for key in ("coverage_pct", "pdr", "energy_j"):
         np.testing.assert_array_equal(got[key], expected[key])
+
+
+def test_qtables_file_holds_what_the_learners_computed(tmp_path):
+    """qtables.npz stores the learners' float64 values as they are (a swarm agent's checkpoint does too),
+    so `np.array_equal` on the two files needs no cast; an older float32 file still loads."""
+    from truav import runio
+    q = np.random.default_rng(0).normal(size=(2, 3, 7, 16)) / 3.0  # not representable in float32
+    runio.write_qtables(tmp_path, [0, 1], q)
+    with np.load(tmp_path / runio.QTABLE_FILE) as saved:
+        assert saved["q"].dtype == np.float64 and np.array_equal(saved["q"], q)
+    np.savez_compressed(tmp_path / "old.npz", q=q.astype(np.float32), seeds=np.array([0, 1]))
+    assert np.array_equal(runio.read_qtables(tmp_path / "old.npz")[1], q.astype(np.float32))

@@ -117,14 +117,15 @@ def progress_bar(total: int, desc: str, quiet: bool):
                 bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} env-episodes [{elapsed}<{remaining}{postfix}]")
 
 
-def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet, start_pos=None):
+def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet, start_pos=None, ckpt=None,
+                      chunks=None):
     from truav.trainer import run_parallel
     with progress_bar(len(seeds) * episodes, desc, quiet) as bar:
         def on_progress(n, live):
             bar.update(n)
             bar.set_postfix_str("cov {coverage_pct:.1f}% pdr {pdr:.3f} delay {delay_ms:.0f}ms "
                                 "E {energy_j:.0f}J".format(**live), refresh=False)
-        return run_parallel(kind, cfg, seeds, episodes, workers, train, q, on_progress, start_pos)
+        return run_parallel(kind, cfg, seeds, episodes, workers, train, q, on_progress, start_pos, ckpt, chunks)
 
 
 # -- commands -----------------------------------------------------------------
@@ -144,22 +145,55 @@ def cmd_train(args) -> int:
         extra["learner"] = {"episodes": args.episodes}
     cfg = config_from(args, extra)
     seeds = seed_list(args)
-    out = runio.fresh_dir(args.out if args.out is not None else f"runs/train-{cfg.scenario.uav_speed_mps:g}mps",
-                          args.force)
-    runio.write_config(out, cfg)
-    episodes = cfg.learner.episodes
-    workers = min(args.workers, len(seeds))
+    from truav.trainer import RESUMABLE, Checkpointing, split
     scheme = args.scheme
-    print(f"training {scheme}: {len(seeds)} seeds x {episodes} episodes x {cfg.scenario.steps_per_episode} steps "
-          f"at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) -> {out}", flush=True)
+    episodes = cfg.learner.episodes
+    out_arg = args.out if args.out is not None else f"runs/train-{cfg.scenario.uav_speed_mps:g}mps"
+    chunks = _resume_chunks(args, out_arg, cfg, seeds) if args.resume else None
+    if chunks is None:
+        if not args.force and runio.read_resume_info(Path(out_arg)) is not None:
+            raise runio.RunDirError(f"--out {out_arg}: holds an interrupted training; pass --resume to continue it, "
+                                    f"--force to start afresh, or choose another --out")
+        out = runio.fresh_dir(out_arg, args.force)
+        runio.remove_resume_state(out)
+        runio.write_config(out, cfg)
+        chunks = split(seeds, min(args.workers, len(seeds)))
+        if scheme in RESUMABLE:
+            runio.write_resume_info(out, {"scheme": scheme, "seeds": seeds, "chunks": chunks})
+    else:
+        out = Path(out_arg)
+    workers = len(chunks)
+    ckpt = None if scheme not in RESUMABLE else Checkpointing(
+        save=lambda i, data: runio.write_chunk_state(out, i, data),
+        load=(lambda i: runio.read_chunk_state(out, i)) if args.resume else (lambda i: None))
+    print(f"{'resuming' if args.resume else 'training'} {scheme}: {len(seeds)} seeds x {episodes} episodes x "
+          f"{cfg.scenario.steps_per_episode} steps at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) "
+          f"-> {out}", flush=True)
     from truav import kernel_cache  # here: it imports numba, which `truav --help` does without
     note = kernel_cache.cold_start_note(kernel_cache.TRAIN_KERNELS
                                         + (["agents/sac_kernels.py"] if scheme == "central" else []))
     if note:  # else the progress bar sits at 0 for most of a minute without a word
         print(note, flush=True)
     t0 = time.perf_counter()
-    result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet)
+    try:
+        result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
+                                   chunks=chunks)
+    except KeyboardInterrupt:
+        if ckpt is not None:  # a second Ctrl-C: the checkpoints written so far stand
+            raise
+        print(f"interrupted: --scheme {scheme} keeps no checkpoint and cannot resume; train it again with --force",
+              file=sys.stderr)
+        return 130
     elapsed = time.perf_counter() - t0
+    if result.stopped:
+        done = len(next(iter(result.metrics.values()), []))
+        if done:
+            runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
+        print(f"interrupted: {done} of {episodes} episodes finished for every seed"
+              + (f" ({out / runio.METRICS_FILE})" if done else "")
+              + f"; checkpointed in {out / runio.RESUME_DIR}: the same command with --resume continues it exactly",
+              file=sys.stderr)
+        return 130
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
         runio.write_policy(out, seeds, result.policy)
@@ -176,11 +210,42 @@ def cmd_train(args) -> int:
     for name in (runio.METRICS_FILE, runio.QTABLE_FILE if scheme == "truav" else runio.POLICY_FILE,
                  runio.CONVERGENCE_FILE, runio.CONFIG_FILE):
         print(f"  {out / name}")
+    runio.remove_resume_state(out)  # finished: nothing to resume
     return 0
+
+
+def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[list[int]]:
+    """--resume: the seed chunks of the interrupted training in --out, once its options are checked equal."""
+    from truav.trainer import RESUMABLE
+    if args.force:
+        raise UsageError("--resume and --force exclude each other (continue the training in --out, or replace it)")
+    if args.scheme not in RESUMABLE:
+        raise UsageError(f"--resume: --scheme {args.scheme} cannot continue exactly (its SAC's torch state is not "
+                         f"checkpointed); train it again with --force")
+    out = Path(out_arg)
+    info = runio.read_resume_info(out)
+    if info is None:
+        raise runio.RunDirError(f"--resume: {out} holds no interrupted training (no {runio.RESUME_DIR}/"
+                                f"{runio.RESUME_FILE}); train without --resume")
+    old = out / runio.CONFIG_FILE
+    if not old.is_file() or old.read_text() != to_toml(cfg):
+        raise runio.RunDirError(f"--resume: {out} was trained with another config (--config, --set, --speed or "
+                                f"--episodes differ from {old}); give the interrupted command's options, or --force")
+    if info.get("seeds") != seeds or info.get("scheme") != args.scheme:
+        raise runio.RunDirError(f"--resume: {out} was trained with seeds {info.get('seeds')} and --scheme "
+                                f"{info.get('scheme')}; give the interrupted command's --seeds/--seed-start/--scheme")
+    chunks = info.get("chunks")
+    if not (isinstance(chunks, list) and sum(chunks, []) == seeds):
+        raise runio.RunDirError(f"--resume: {out / runio.RESUME_DIR / runio.RESUME_FILE} is damaged (its chunks of "
+                                f"seeds do not add up to the seeds)")
+    return chunks
 
 
 def cmd_evaluate(args) -> int:
     run = Path(args.run)
+    if not run.exists():  # not "its parent has no config.toml": the path the user gave
+        raise runio.RunDirError(f"{args.run}: no such run directory or file (a directory `truav train` wrote, "
+                                f"or its {runio.QTABLE_FILE})")
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     seeds, q = runio.read_qtables(run)
     runio.check_qtables(run, q.shape, cfg)
@@ -227,6 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="worker processes (default: all cores)")
     tr.add_argument("--out", help="output directory (default runs/train-<speed>mps)")
     tr.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    tr.add_argument("--resume", action="store_true",
+                    help="continue the interrupted training in --out (Ctrl-C checkpoints it at the episodes' end) "
+                         "exactly as if it had not stopped; same options only (scheme truav)")
     tr.add_argument("--quiet", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 

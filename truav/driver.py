@@ -61,7 +61,8 @@ class FusedEpisode(Protocol):
 
 def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes: int,
                  on_episode: EpisodeCallback | None = None, start_pos: np.ndarray | None = None,
-                 end_pos: np.ndarray | None = None, world: World | None = None) -> dict[str, np.ndarray]:
+                 end_pos: np.ndarray | None = None, world: World | None = None, first_episode: int = 0,
+                 after_episode: Callable[[int], bool] | None = None) -> dict[str, np.ndarray]:
     """Run `episodes` episodes of one World per seed; returns {metric: (E, B)}.
 
     start_pos (B, U, 2): under scenario.uav_start = "persist", the swarm starts
@@ -69,18 +70,25 @@ def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes
     positions at the end, so an evaluation can continue a trained swarm.
     world: run in this World instead of a new one: reset here if it never
     was, otherwise gone on with (e.g. the one training ran in; every episode
-    then starts with start_episode)."""
+    then starts with start_episode).
+
+    first_episode: go on with episodes first_episode..episodes-1 of a run whose earlier ones this
+    world and controller ran (a resumed training: the exploration schedule follows the episode).
+    after_episode(episode): called at each episode's end, with everything of it done (a checkpoint
+    taken there continues exactly); True stops the run there (the metrics then end with it)."""
     world = World(cfg, len(seeds)) if world is None else world
     with ThreadPoolExecutor(max_workers=max(1, min(len(seeds), os.cpu_count() or 1))) as pool:
         if len(seeds) > 1:
             world.draw_map = pool.map  # each env's draws from its own generator, on threads
         try:
-            return _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos)
+            return _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos, first_episode,
+                        after_episode)
         finally:
             world.draw_map = map  # the pool ends here; a world gone on with later draws without it
 
 
-def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos) -> dict[str, np.ndarray]:
+def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos, first_episode=0,
+         after_episode=None) -> dict[str, np.ndarray]:
     fresh = world.episode < 0
     control = getattr(controller, "control", None)  # see ControlPlane
     fused = getattr(controller, "run_episode", None) if control is None and getattr(controller, "fused", False) \
@@ -89,7 +97,7 @@ def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos
     history: dict[str, list[np.ndarray]] = {}
     if fresh:
         obs = world.reset([seeding.world_rng(s) for s in seeds], start_pos, defer_draws=defer)
-    for episode in range(episodes):
+    for episode in range(first_episode, episodes):
         if episode or not fresh:
             obs = world.start_episode(defer_draws=defer)
         controller.begin_episode(episode, obs)
@@ -102,14 +110,16 @@ def _run(cfg, seeds, controller, episodes, on_episode, world, start_pos, end_pos
             history.setdefault(key, []).append(value)
         if on_episode is not None:
             on_episode(episode, summary)
-        if episode == 0:
+        if after_episode is not None and after_episode(episode):
+            break
+        if episode == first_episode:
             # Everything alive now (numba's compiled kernels and their type objects:
             # a large graph) lives to the end; frozen, the cyclic collector no longer
             # walks it on every full collection between episodes.
             gc.freeze()
     if end_pos is not None:
         end_pos[...] = world.uav_pos
-    return {k: np.stack(v) for k, v in history.items()}
+    return {k: np.stack(v) for k, v in history.items()} if history else {}
 
 
 def _step_episode(world: World, controller: Controller, control) -> None:

@@ -3,14 +3,20 @@ effective config (TOML). A run directory holds:
 
     config.toml     the effective configuration
     metrics.csv     one row per (seed, episode)
-    qtables.npz     q (B, U, S, 16) float32, seeds (B,)
+    qtables.npz     q (B, U, S, 16) float64 (what the learners compute, as in a swarm agent's
+                    checkpoint; a float32 file of older versions still loads), seeds (B,)
     convergence.png sliding-window curves (see truav.plots)
+    resume/         while a training is unfinished (interrupted): resume.json (seeds, scheme, the
+                    chunks of seeds) and chunk<i>.pkl, each chunk's state at an episode boundary
+                    (`truav train --resume` continues from it exactly); removed when it completes
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import os
+import shutil
 import zipfile
 import zlib
 from pathlib import Path
@@ -24,6 +30,10 @@ CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
 QTABLE_FILE = "qtables.npz"
 CONVERGENCE_FILE = "convergence.png"
+
+
+RESUME_DIR = "resume"
+RESUME_FILE = "resume.json"
 
 
 class RunDirError(UserError):
@@ -99,7 +109,7 @@ def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarra
     persist-trained swarm is evaluated from there (read_uav_positions)."""
     tmp = run / (QTABLE_FILE + ".tmp.npz")
     extra = {} if uav_pos is None else {"uav_pos": np.asarray(uav_pos, np.float64)}
-    np.savez_compressed(tmp, q=q.astype(np.float32), seeds=np.asarray(seeds), **extra)
+    np.savez_compressed(tmp, q=np.asarray(q, np.float64), seeds=np.asarray(seeds), **extra)
     os.replace(tmp, run / QTABLE_FILE)
 
 
@@ -226,3 +236,36 @@ def read_policy(path: str | Path, index: int, cfg: Config) -> dict[str, np.ndarr
             raise RunDirError(f"{p}: {k} is {arrays[k].shape[1:]}, this scenario ({u} UAVs, central.hidden {h}) "
                               f"needs {shape}")
     return {k: v[index:index + 1].astype(np.float32) for k, v in arrays.items()}
+
+
+# -- an unfinished training's checkpoints (truav train --resume) ------------------------------------
+def write_resume_info(run: Path, info: dict) -> None:
+    d = Path(run) / RESUME_DIR
+    d.mkdir(exist_ok=True)
+    atomic_write_bytes(d / RESUME_FILE, json.dumps(info, indent=1).encode())
+
+
+def read_resume_info(run: Path) -> dict | None:
+    """The unfinished training's resume.json, or None if ``run`` holds none (or an unreadable one)."""
+    try:
+        info = json.loads((Path(run) / RESUME_DIR / RESUME_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) else None
+
+
+def write_chunk_state(run: Path, chunk: int, data: bytes) -> None:
+    atomic_write_bytes(Path(run) / RESUME_DIR / f"chunk{chunk}.pkl", data)
+
+
+def read_chunk_state(run: Path, chunk: int) -> bytes | None:
+    """A chunk's pickled state, or None if it never checkpointed. Pickle runs code: it is read only
+    from the run directory this command itself wrote, the one the user names with --out."""
+    try:
+        return (Path(run) / RESUME_DIR / f"chunk{chunk}.pkl").read_bytes()
+    except FileNotFoundError:
+        return None
+
+
+def remove_resume_state(run: Path) -> None:
+    shutil.rmtree(Path(run) / RESUME_DIR, ignore_errors=True)

@@ -11,9 +11,13 @@ number.
 from __future__ import annotations
 
 import multiprocessing as mp
+import pickle
 import queue as queue_mod
+import signal
+import threading
+import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -40,6 +44,27 @@ class RunResult:
     """(B, U, 2) where the UAVs were at the end: a persist-trained swarm's station."""
     policy: dict[str, np.ndarray] | None = None
     """The central scheme: its trained actors {actor0..actor5: (B, ...)} (agents.sac.BatchedSAC.state_dict)."""
+    stopped: bool = False
+    """Stopped early (Checkpointing.stop): metrics hold the episodes every chunk finished; q is None."""
+
+
+RESUMABLE = ("truav",)
+"""Schemes whose training continues exactly from a checkpoint (the central SAC's torch state is not pickled)."""
+
+
+@dataclass
+class Checkpointing:
+    """Checkpoints of a training at episode boundaries, for an exact continuation.
+
+    A chunk's state (episode reached, its World and controller with every generator, the metrics so
+    far) is pickled after an episode when ``every_s`` seconds passed since the last one, and when
+    ``stop`` is set (SIGINT, see run_parallel), which also ends the chunk there. ``save(chunk, data)``
+    and ``load(chunk) -> data | None`` are the caller's (files); they run in the chunk's process."""
+
+    save: Callable[[int, bytes], None]
+    load: Callable[[int], bytes | None]
+    every_s: float = 60.0
+    stop: Any = None
 
 
 def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np.ndarray | None):
@@ -65,12 +90,51 @@ def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np
     raise ValueError(f"unknown controller {kind!r} (known: {', '.join(CONTROLLERS)})")
 
 
+def _state_bytes(episode: int, world, controller, history: dict) -> bytes:
+    draw_map, world.draw_map = world.draw_map, map  # the driver's thread pool is not part of the state
+    try:
+        return pickle.dumps({"episode": episode, "world": world, "controller": controller, "history": history},
+                            protocol=pickle.HIGHEST_PROTOCOL)
+    finally:
+        world.draw_map = draw_map
+
+
 def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bool = True,
-              q: np.ndarray | None = None, on_episode=None, start_pos: np.ndarray | None = None) -> RunResult:
-    """One batch of seeds in this process (start_pos: see driver.run_episodes)."""
-    controller = make_controller(kind, cfg, seeds, train, q)
+              q: np.ndarray | None = None, on_episode=None, start_pos: np.ndarray | None = None,
+              ckpt: Checkpointing | None = None, index: int = 0) -> RunResult:
+    """One batch of seeds in this process (start_pos: see driver.run_episodes); with ``ckpt``, from
+    and to chunk ``index``'s checkpoint."""
+    from world.env import World
+    saved = ckpt.load(index) if ckpt is not None else None
+    if saved is not None:  # the caller's own file of an earlier run of this command (runio.read_chunk_state)
+        state = pickle.loads(saved)
+        first, world, controller, history = state["episode"], state["world"], state["controller"], state["history"]
+    else:
+        first, world, controller, history = 0, World(cfg, len(seeds)), make_controller(kind, cfg, seeds, train, q), {}
     end_pos = np.zeros((len(seeds), cfg.scenario.n_uavs, 2))
-    metrics = run_episodes(cfg, seeds, controller, episodes, on_episode, start_pos, end_pos)
+    last_save = [time.monotonic()]
+
+    def episode_done(e: int, summary: dict) -> None:
+        for key, value in summary.items():
+            history.setdefault(key, []).append(np.array(value))
+        if on_episode is not None:
+            on_episode(e, summary)
+
+    def after_episode(e: int) -> bool:
+        if ckpt is None or e + 1 >= episodes:
+            return False
+        stop = ckpt.stop is not None and ckpt.stop.is_set()
+        if stop or time.monotonic() - last_save[0] >= ckpt.every_s:
+            ckpt.save(index, _state_bytes(e + 1, world, controller, history))
+            last_save[0] = time.monotonic()
+        return stop
+
+    run_episodes(cfg, seeds, controller, episodes, episode_done, start_pos, end_pos, world=world,
+                 first_episode=first, after_episode=after_episode)
+    metrics = {k: np.stack(v) for k, v in history.items()}
+    stopped = bool(history) and len(next(iter(history.values()))) < episodes
+    if stopped:
+        return RunResult(list(seeds), metrics, None, end_pos, None, stopped=True)
     table = controller.learners.q if isinstance(controller, TruavController) else None
     policy = None
     if kind == "central":
@@ -83,13 +147,15 @@ def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
             for k in LIVE_METRICS}
 
 
-def _worker(index, kind, cfg, seeds, episodes, train, q, start_pos, out):
+def _worker(index, kind, cfg, seeds, episodes, train, q, start_pos, out, ckpt=None):
     try:
+        if ckpt is not None:  # Ctrl-C reaches the whole process group: the parent sets ckpt.stop
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         if kind == "truav":  # the cores are shared out as processes (run_parallel)
             from agents.fused import set_threads
             set_threads(1)
         result = run_chunk(kind, cfg, seeds, episodes, train, q,
-                           lambda e, m: out.put(("episode", index, len(seeds), _live(m))), start_pos)
+                           lambda e, m: out.put(("episode", index, len(seeds), _live(m))), start_pos, ckpt, index)
         out.put(("done", index, result))
     except BaseException as exc:  # report, then let the process end
         out.put(("error", index, f"{type(exc).__name__}: {exc}"))
@@ -102,9 +168,46 @@ def split(seq: list, parts: int) -> list[list]:
     return [seq[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+class _StopOnSigint:
+    """While a checkpointed run lasts, the first SIGINT sets ``stop`` (every chunk checkpoints at its
+    episode's end and ends); a second one interrupts at once, as usual."""
+
+    def __init__(self, stop) -> None:
+        self.stop, self.previous = stop, None
+
+    def __enter__(self):
+        # Not in a thread, nor where SIGINT is ignored (started in the background, nohup): that stays so.
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+            self.previous = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def _on_sigint(self, signum, frame) -> None:
+        if self.stop.is_set():
+            raise KeyboardInterrupt
+        self.stop.set()
+
+    def __exit__(self, *exc) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+
+
+def _merge(seeds: list[int], ordered: list[RunResult]) -> RunResult:
+    if any(r.stopped for r in ordered):  # the episodes every chunk finished
+        done = min(len(next(iter(r.metrics.values()), [])) for r in ordered)
+        metrics = {k: np.concatenate([r.metrics[k][:done] for r in ordered], axis=1) for k in ordered[0].metrics} \
+            if done else {}
+        return RunResult(list(seeds), metrics, None, None, None, stopped=True)
+    metrics = {k: np.concatenate([r.metrics[k] for r in ordered], axis=1) for k in ordered[0].metrics}
+    q_all = None if ordered[0].q is None else np.concatenate([r.q for r in ordered])
+    policy = None if ordered[0].policy is None else \
+        {k: np.concatenate([r.policy[k] for r in ordered]) for k in ordered[0].policy}
+    return RunResult(list(seeds), metrics, q_all, np.concatenate([r.uav_pos for r in ordered]), policy)
+
+
 def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, workers: int = 1,
                  train: bool = True, q: np.ndarray | None = None,
-                 on_progress: ProgressCallback | None = None, start_pos: np.ndarray | None = None) -> RunResult:
+                 on_progress: ProgressCallback | None = None, start_pos: np.ndarray | None = None,
+                 ckpt: Checkpointing | None = None, chunks: list[list[int]] | None = None) -> RunResult:
     """run_chunk over seed chunks in `workers` processes; results in seed order.
 
     TRUAV's fused kernel runs on one thread in each worker process: two
@@ -112,20 +215,42 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     whose kernel runs the 10 on two threads (measured: 124k against 85k
     env-steps/s steady, bench/bench_trainer.py), and a batch equals its seeds
     one by one, so the split changes no number. A single chunk (one seed, or
-    one worker) gives the kernel every thread instead."""
-    chunks = split(list(seeds), workers)
-    if len(chunks) == 1:
-        if kind == "truav":  # the workers set one thread each (_worker): this process keeps its own setting
-            from agents.fused import set_threads
-            set_threads(workers)
-        return run_chunk(kind, cfg, list(seeds), episodes, train, q,
-                         None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)), start_pos)
+    one worker) gives the kernel every thread instead.
+
+    ckpt (TRUAV only, RESUMABLE): checkpoint each chunk (see Checkpointing); SIGINT then stops the
+    run at the chunks' next episode ends, checkpointed, and the result says ``stopped``. chunks: the
+    seed split to use (a resumed run's, whatever ``workers`` is now)."""
+    if ckpt is not None and kind not in RESUMABLE:
+        raise ValueError(f"{kind}: training cannot be checkpointed (only {', '.join(RESUMABLE)})")
+    chunks = chunks or split(list(seeds), workers)
     ctx = mp.get_context("fork")
+    if ckpt is not None and ckpt.stop is None:
+        ckpt.stop = ctx.Event()
+    with _StopOnSigint(ckpt.stop) if ckpt is not None else _NoGuard():
+        if len(chunks) == 1:
+            if kind == "truav":  # the workers set one thread each (_worker): this process keeps its own setting
+                from agents.fused import set_threads
+                set_threads(workers)
+            return run_chunk(kind, cfg, list(seeds), episodes, train, q,
+                             None if on_progress is None else lambda e, m: on_progress(len(seeds), _live(m)),
+                             start_pos, ckpt, 0)
+        return _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress, start_pos, ckpt)
+
+
+class _NoGuard:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+
+def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress, start_pos, ckpt) -> RunResult:
     out = ctx.Queue()
     bounds = np.cumsum([0] + [len(c) for c in chunks])
     procs = [ctx.Process(target=_worker, daemon=True,
                          args=(i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi],
-                               None if start_pos is None else start_pos[lo:hi], out))
+                               None if start_pos is None else start_pos[lo:hi], out, ckpt))
              for i, (c, lo, hi) in enumerate(zip(chunks, bounds[:-1], bounds[1:]))]
     for p in procs:
         p.start()
@@ -150,9 +275,4 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
             if p.is_alive():
                 p.terminate()
             p.join(timeout=5)
-    ordered = [results[i] for i in range(len(procs))]
-    metrics = {k: np.concatenate([r.metrics[k] for r in ordered], axis=1) for k in ordered[0].metrics}
-    q_all = None if ordered[0].q is None else np.concatenate([r.q for r in ordered])
-    policy = None if ordered[0].policy is None else \
-        {k: np.concatenate([r.policy[k] for r in ordered]) for k in ordered[0].policy}
-    return RunResult(list(seeds), metrics, q_all, np.concatenate([r.uav_pos for r in ordered]), policy)
+    return _merge(seeds, [results[i] for i in range(len(procs))])

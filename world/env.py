@@ -142,6 +142,11 @@ class World:
         """(B, 4) uint64 PCG64 states while an episode's draws are deferred (start_episode)."""
 
     # -- episode control ------------------------------------------------------
+    def __setstate__(self, state: dict) -> None:
+        """An unpickled world (a training checkpoint): pickling copies the totals' views of _totals apart."""
+        self.__dict__.update(state)
+        self.totals = EpisodeTotals.of(self._totals)
+
     def reset(self, rngs: list[np.random.Generator], uav_pos: np.ndarray | None = None,
               defer_draws: bool = False) -> LocalObs:
         """Spawn traffic from each env's generator, warm it up, start episode 0.

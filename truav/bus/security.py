@@ -454,6 +454,29 @@ def tls_endpoint(endpoint: str) -> str:
     return f"tls/{rest}"
 
 
+TLS_PROBE = b"\x00\x10not a tls record"
+"""Bytes that are no TLS record (content type 0): a TLS server answers them with an alert record."""
+
+
+def answers_tls(endpoint: str, timeout_s: float = 1.0) -> bool:
+    """Whether a TLS server listens at a ``tcp/`` or ``tls/`` HOST:PORT endpoint (a --secure swarm's
+    router): it answers bytes that are no TLS record with a TLS alert (content type 21, version 3.x),
+    where a plain Zenoh router just closes the link. False when nothing answers."""
+    import socket
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.split("?")[0].split("#")[0].rpartition(":")
+    if proto not in ("tcp", "tls") or not port.isdigit():
+        return False
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s) as sock:
+            sock.settimeout(timeout_s)
+            sock.sendall(TLS_PROBE)
+            reply = sock.recv(2)
+    except OSError:
+        return False
+    return len(reply) == 2 and reply[0] == 0x15 and reply[1] == 0x03
+
+
 def _write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=1) + "\n")  # JSON is JSON5
 

@@ -89,6 +89,7 @@ class Children:
         self.on_start = on_start  # (name, Popen) -> None
         self.procs: dict[str, subprocess.Popen] = {}
         self.argv: dict[str, list[str]] = {}
+        self.starts: dict[str, int] = {}  # name -> times started (a restarted process: its incarnations)
         self.started_at: dict[str, float] = {}
         self._log_offset: dict[str, int] = {}
         self._logs: list = []
@@ -103,6 +104,7 @@ class Children:
                                 env=child_env())  # ...and each child stops if the supervisor dies (truav.swarm.lifeline)
         self.procs[name] = proc
         self.argv[name] = argv
+        self.starts[name] = self.starts.get(name, 0) + 1
         self.started_at[name] = time.monotonic()
         if self.pid_file is not None:
             self.pid_file.write_text(json.dumps(self.pids()))

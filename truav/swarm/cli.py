@@ -68,12 +68,25 @@ def check_transport(args, listen_flag: str = "-l/--listen") -> None:
         check_endpoint("-e/--connect", ep)
     for ep in getattr(args, "listen", None) or []:
         check_endpoint(listen_flag, ep)
+    if not isinstance(connect, str):
+        check_tls_creds(args)
     if getattr(args, "config", None) is not None:
         check_in_file("-c/--config", args.config)
         try:
             zenoh.Config.from_file(args.config)
         except zenoh.ZError as exc:
             raise UserError(f"-c/--config {args.config}: not a Zenoh config ({_one_line(exc)})") from None
+
+
+def check_tls_creds(args, flag: str = "-e/--connect") -> None:
+    """A tls/ endpoint is a --secure swarm's router: without this component's certificate (--creds or
+    -c) Zenoh only says it cannot connect, so say what is missing, before connecting."""
+    if getattr(args, "creds", None) or getattr(args, "config", None):
+        return
+    for ep in getattr(args, "connect", None) or []:
+        if isinstance(ep, str) and ep.startswith("tls/"):
+            raise UserError(f"{flag} {ep}: a TLS router (a --secure swarm) admits only clients with its "
+                            f"credentials: pass --creds DIR (the run's <out>/creds)")
 
 
 def _one_line(exc: Exception) -> str:
@@ -478,19 +491,49 @@ def cmd_controller(args) -> int:
     return EXIT_ROUTER_LOST if reasons.router_lost else 0
 
 
-def _endpoint_from_out(args, out: Path | None, explicit: bool) -> None:
+def _pid_running(pid) -> bool:
+    """Whether process ``pid`` exists (one of another user's counts; a zombie does not)."""
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return True  # unknown: do not call the run ended on a guess
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except OSError:
+            return True
+        return True
+
+
+def _endpoint_from_out(args, out: Path | None, explicit: bool, need_run: bool = False) -> None:
     """Without -e, connect where the run writing ``out`` has its router (from its swarm.json). An --out
-    the user named must hold one: connecting to the default endpoint instead would be a silent guess."""
-    from truav.swarm.outdir import RUN_FILE, read_run_file
+    the user named (or, with ``need_run``, the default one) must hold one: connecting to the default
+    endpoint instead would be a silent guess. A run that has ended (its summary written, or its
+    supervisor gone) is said to have ended, not looked for on a router that is no longer there."""
+    from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
     if args.connect or args.config or getattr(args, "creds", None) or out is None:  # --creds has its router
         return
     info = read_run_file(out)
     if info and isinstance(info, dict) and isinstance(info.get("endpoint"), str) and info["endpoint"]:
         check_endpoint(f"{out / RUN_FILE}: endpoint", info["endpoint"])
+        run = info.get("run") if isinstance(info.get("run"), str) else args.run
+        if (out / SUMMARY_FILE).is_file():  # written when a run ends; removed when one starts
+            raise UserError(f"run {run!r} in {out} has ended ({out / SUMMARY_FILE} holds its summary): "
+                            f"nothing of it is running")
+        if not _pid_running(info.get("supervisor_pid")):
+            raise UserError(f"run {run!r} in {out} has ended (its supervisor, PID {info['supervisor_pid']} "
+                            f"in {out / RUN_FILE}, is not running)")
         args.connect = [info["endpoint"]]
     elif explicit:
         raise UserError(f"--out {out}: no swarm run's {RUN_FILE} with its router endpoint there "
                         f"(a directory `truav-swarm up --out` wrote); or give -e/--connect ENDPOINT")
+    elif need_run:
+        raise UserError(f"--run {args.run}: no such run: {out / RUN_FILE} does not exist (`truav-swarm up "
+                        f"--run {args.run}` writes it); for a run with another --out pass --out DIR, or "
+                        f"-e/--connect ENDPOINT")
+    check_tls_creds(args, f"{out / RUN_FILE}: endpoint")
 
 
 def cmd_status(args) -> int:
@@ -526,7 +569,7 @@ def cmd_down(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
     out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
-    _endpoint_from_out(args, out, explicit=args.out is not None)
+    _endpoint_from_out(args, out, explicit=args.out is not None, need_run=True)
     _creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
         key = keys.control(args.run, "shutdown")
@@ -923,6 +966,13 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return args.func(args)
         except zenoh.ZError as exc:  # almost always: no router where --connect points
+            if not (getattr(args, "creds", None) or getattr(args, "config", None)):
+                from truav.bus.security import answers_tls
+                for ep in getattr(args, "connect", None) or []:
+                    if isinstance(ep, str) and answers_tls(ep):  # a --secure swarm's router, asked in plain TCP
+                        raise UserError(f"-e/--connect {ep}: the router there speaks TLS (a --secure swarm) and "
+                                        f"admits only clients with its credentials: pass --creds DIR (the run's "
+                                        f"<out>/creds)") from None
             print(f"truav-swarm: error: Zenoh could not open a session ({str(exc).split(' at ')[0].strip()}); is a "
                   f"router running there? Start one with `truav-swarm router`, or pass -e/--connect ENDPOINT",
                   file=sys.stderr)

@@ -45,6 +45,7 @@ class Monitor:
     control_count: dict = field(default_factory=lambda: defaultdict(int))  # kind -> messages
     control_bytes: dict = field(default_factory=lambda: defaultdict(int))  # kind -> payload bytes
     control_span: list = field(default_factory=list)  # [first, last] receive time (s) of any of them
+    command_ticks: set = field(default_factory=set)  # ticks commands were heard for (every controller incarnation)
 
     def attach(self, bus: Bus, run: str, central: bool = False, tracks_from_world: bool = False) -> None:
         """central: also measure the state uploads and commands; tracks_from_world: UAV tracks from the
@@ -102,6 +103,8 @@ class Monitor:
             for r in control:
                 self.control_count[r.msg.KIND] += 1
                 self.control_bytes[r.msg.KIND] += len(r.raw)
+                if r.msg.KIND == schema.KIND_COMMAND:
+                    self.command_ticks.add(r.msg.tick)
                 t = r.recv_ns / 1e9
                 self.control_span = [min(self.control_span[0], t), max(self.control_span[1], t)] \
                     if self.control_span else [t, t]
@@ -158,9 +161,10 @@ class Monitor:
             ups, downs = self.control_count[schema.KIND_STATE], self.control_count[schema.KIND_COMMAND]
             up_b, down_b = self.control_bytes[schema.KIND_STATE], self.control_bytes[schema.KIND_COMMAND]
             cspan = self.control_span[1] - self.control_span[0] if len(self.control_span) == 2 else 0.0
+            command_ticks = len(self.command_ticks)
         per_s = n / span if span and span > 0 else float("nan")
         return {"states": ups, "bytes_per_state": up_b / ups if ups else float("nan"),
-                "commands": downs, "bytes_per_command": down_b / downs if downs else float("nan"),
+                "commands": downs, "command_ticks": command_ticks, "bytes_per_command": down_b / downs if downs else float("nan"),
                 "central_bytes_per_s": (up_b + down_b) / cspan if cspan > 0 else float("nan"),
                 "beacons": n, "bytes_per_beacon": size / n if n else float("nan"),
                 "beacons_per_s_total": per_s, "beacons_per_s_per_uav": per_s / uavs,

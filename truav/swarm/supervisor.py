@@ -541,11 +541,13 @@ class _Swarm:
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed,
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
-            "fault_events": events, "timeline": timeline}, indent=1))
+            "fault_events": events, "timeline": timeline,
+            "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None},
+            indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             if self.central:
-                _print_central(cfg, opts, world, agents, controller, cp)
+                _print_central(cfg, opts, world, agents, controller, cp, self.children.starts.get("controller", 1))
             if opts.plot and monitor.tracks:
                 from truav.swarm.plots import swarm_figure
                 picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
@@ -647,13 +649,19 @@ def central_model_bytes_per_s(cfg: Config, rate_hz: float) -> float:
     return (up_b + down_b) * rate_hz / c.update_period_steps
 
 
-def _print_central(cfg, opts, world, agents, controller, cp) -> None:
+def _print_central(cfg, opts, world, agents, controller, cp, incarnations: int = 1) -> None:
     c = cfg.central
     model = central_model_bytes_per_s(cfg, opts.rate_hz)
     ctl = controller or {}
-    print(f"controller ({ctl.get('policy', opts.policy or 'learning online')}): {ctl.get('ticks', 0)} tick(s) decided, "
-          f"{ctl.get('commands', 0)} command(s) sent, {ctl.get('stale_states', 0)} missing upload(s) filled from "
-          f"the last one" + (f", decision p99 {ctl['decide_ms']['p99']:.1f} ms" if ctl.get("decide_ms") else ""))
+    policy = ctl.get('policy', opts.policy or 'learning online')
+    own = (f"{ctl.get('ticks', 0)} tick(s) decided, {ctl.get('commands', 0)} command(s) sent, "
+           f"{ctl.get('stale_states', 0)} missing upload(s) filled from the last one"
+           + (f", decision p99 {ctl['decide_ms']['p99']:.1f} ms" if ctl.get("decide_ms") else ""))
+    if incarnations > 1:  # a crashed incarnation writes no statistics: the bus counts every one's commands
+        print(f"controller ({policy}), {incarnations} incarnations: commands for {cp.get('command_ticks', 0)} tick(s), "
+              f"{cp.get('commands', 0)} command(s) heard on the bus; the last incarnation: {own}")
+    else:
+        print(f"controller ({policy}): {own}")
     counts = {"fresh": 0, "held": 0, "hovered": 0}
     for a in agents:
         for k, v in ((a or {}).get("commands") or {}).items():
