@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -74,3 +77,17 @@ def test_resume_with_another_config_or_scheme_is_refused(tmp_path, monkeypatch, 
         assert len(err) == 1 and names in err[0], (extra, err)
     assert truav_main(["train", *ARGS, "--out", str(tmp_path / "none"), "--resume"]) == 2
     assert "holds no interrupted training" in capsys.readouterr().err
+
+
+def test_a_damaged_checkpoint_is_one_line_before_anything_runs(tmp_path: Path) -> None:
+    """A truncated chunk checkpoint is refused by --resume in one line (exit 2), not a worker's traceback."""
+    from truav.runio import RESUME_DIR, write_resume_info
+    out = tmp_path / "run"
+    args = ["train", *ARGS, "--out", str(out)]
+    assert subprocess.run([sys.executable, "-m", "truav.cli", *args], capture_output=True).returncode == 0
+    write_resume_info(out, {"scheme": "truav", "seeds": [0, 1], "chunks": [[0, 1]]})
+    (out / RESUME_DIR / "chunk0.pkl").write_bytes(b"\x80\x05garbage")
+    proc = subprocess.run([sys.executable, "-m", "truav.cli", *args, "--resume"], capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    assert "chunk0.pkl is damaged" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr

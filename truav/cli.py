@@ -238,6 +238,13 @@ def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[li
     if not (isinstance(chunks, list) and sum(chunks, []) == seeds):
         raise runio.RunDirError(f"--resume: {out / runio.RESUME_DIR / runio.RESUME_FILE} is damaged (its chunks of "
                                 f"seeds do not add up to the seeds)")
+    from truav.trainer import check_saved_chunk
+    for index, chunk in enumerate(chunks):  # a damaged file is one line here, not a worker's traceback later
+        saved = runio.read_chunk_state(out, index)
+        problem = None if saved is None else check_saved_chunk(saved, len(chunk))
+        if problem:
+            raise runio.RunDirError(f"--resume: {out / runio.RESUME_DIR}/chunk{index}.pkl is damaged ({problem}); "
+                                    f"train again with --force")
     return chunks
 
 

@@ -99,6 +99,20 @@ def _state_bytes(episode: int, world, controller, history: dict) -> bytes:
         world.draw_map = draw_map
 
 
+def check_saved_chunk(saved: bytes, n_seeds: int) -> str | None:
+    """What is wrong with a chunk checkpoint (runio.read_chunk_state) of ``n_seeds`` seeds, or None."""
+    try:
+        state = pickle.loads(saved)
+    except Exception as exc:  # truncated or overwritten: any unpickling error
+        return f"{type(exc).__name__}: {exc}"
+    if not (isinstance(state, dict) and {"episode", "world", "controller", "history"} <= state.keys()
+            and isinstance(state["episode"], int) and isinstance(state["history"], dict)):
+        return "not a training checkpoint"
+    if getattr(state["world"], "batch", None) != n_seeds:
+        return f"it holds {getattr(state['world'], 'batch', None)} seeds, the chunk {n_seeds}"
+    return None
+
+
 def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bool = True,
               q: np.ndarray | None = None, on_episode=None, start_pos: np.ndarray | None = None,
               ckpt: Checkpointing | None = None, index: int = 0) -> RunResult:
