@@ -34,6 +34,7 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             tcp_port)
 from truav.config import Config, load_config
 from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
+from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -624,7 +625,8 @@ def _swarm_options(args):
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
-                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons)
+                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
+                        restart=args.restart, restart_limit=args.restart_limit)
     return cfg, opts
 
 
@@ -768,6 +770,13 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--share-beacons", action="store_true",
                     help="with --agents-per-process K > 1: each agent process subscribes to beacons once for its K "
                          "agents (each still checks, filters and counts its own)")
+    up.add_argument("--restart", choices=RESTART_POLICIES, default=DEFAULT_RESTART_POLICY,
+                    help="on-failure (default): restart an agent or the controller that dies on its own, from its "
+                         "checkpoint, after a backoff, and a dead router on its endpoint; never: leave them down "
+                         "(truav/swarm/healing.py; in lock-step a restart makes the run inexact, and the summary says so)")
+    up.add_argument("--restart-limit", type=non_negative_int, default=DEFAULT_RESTART_LIMIT, metavar="N",
+                    help=f"restarts of one process before it is left down and the run fails (default "
+                         f"{DEFAULT_RESTART_LIMIT})")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
