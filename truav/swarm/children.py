@@ -226,7 +226,8 @@ def exit_text(code: int | None) -> str:
     return f"exit code {code}"
 
 
-def _truav_process(pid: int) -> bool:
+def truav_process(pid: int) -> bool:
+    """Whether ``pid`` runs a TRUAV swarm command (PIDs get reused: never signal another program)."""
     try:
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
@@ -245,11 +246,11 @@ def stop_recorded_pids(out: Path, wait_s: float = 0.0, pid_file: str = "pids.jso
     except (OSError, ValueError, TypeError, AttributeError):
         return 0
     deadline = time.monotonic() + wait_s
-    while any(_truav_process(p) for p in pids) and time.monotonic() < deadline:
+    while any(truav_process(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     count = 0
     for pid in pids:
-        if _truav_process(pid):
+        if truav_process(pid):
             try:
                 os.kill(pid, signal.SIGTERM)
                 count += 1

@@ -553,11 +553,12 @@ class _Swarm:
         children = self.children
         if self.controller is not None:
             self.controller.stop()
-        children.thaw(self.fleet)  # a frozen agent must run to stop; SIGTERM alone would wait for ever
+        pausable = [*self.fleet, "world", "recorder"]  # what a fault plan may freeze
+        children.thaw(pausable)  # a frozen process must run to stop; SIGTERM alone would wait for ever
         if normal_end:
             children.wait_exit(self.fleet, AGENT_EXIT_GRACE_S)
         killed = children.stop(["world"], timeout=WORLD_STOP_TIMEOUT_S)
-        children.thaw(self.fleet)  # the plan's last thaw may have been cancelled
+        children.thaw(pausable)  # the plan's last thaw may have been cancelled
         killed += children.stop(self.fleet, timeout=AGENT_STOP_TIMEOUT_S)
         for name in killed:
             self.outcome.fail(f"{name} did not stop within {AGENT_STOP_TIMEOUT_S:.0f} s of SIGTERM and was killed: "
