@@ -91,3 +91,24 @@ def test_restarts_back_off_and_stop_at_the_limit():
     assert h.died("agent1", 102, "exit code 1", 7.0, now=30.0) is None and h.given_up == ["agent1"]
     assert Healer("never").died("agent1", 1, "exit code 1", 0.0, 0.0) is None
     assert time.time_ns() >= r.restarted_wall_ns >= r.died_wall_ns > 0
+
+
+def test_after_a_router_outage_the_guard_follows_the_world_again(monkeypatch):
+    """A router restart took longer than the guard's tick window: without the resync every later tick and
+    observation was refused as out of window, and the agents hovered to the end (68% missed)."""
+    from truav.bus import guard, schema
+    from truav.config import Config
+    now = [100.0]
+    monkeypatch.setattr(guard.time, "monotonic", lambda: now[0])
+    g = guard.for_config(Config())
+
+    def tick(t: int):
+        return g.check("k", schema.Tick(src="world", seq=t, t=0, tick=t, episode=0, sim_time=0.0, deadline_ms=50.0,
+                                        n_uavs=Config().scenario.n_uavs))
+
+    assert tick(10) is None
+    assert tick(10 + guard.TICK_WINDOW + 50)[0] == guard.R_TICK  # a jump while the world is heard: refused
+    now[0] += 7.0  # 7 s of silence: the world went on by 70 ticks at 10 Hz
+    assert tick(2 ** 40)[0] == guard.R_TICK  # no further than the silence allows
+    assert tick(10 + 70 + guard.TICK_WINDOW) is None and g.tick == 10 + 70 + guard.TICK_WINDOW
+    assert tick(10)[0] == guard.R_TICK  # and the old window is gone

@@ -88,12 +88,15 @@ class FaultController:
 
     def _apply(self, f: Fault, phase: str) -> None:
         uav = f.params.get("target", f.params.get("uav"))
+        message = schema.Fault(fault=f.kind, phase=phase, target=_target(f), params=_params(f))
+        if phase == schema.PHASE_START:  # before the signal: a router killed would take the message with it
+            self.bus.publish(keys.fault(self.run, f.kind), message)
         if f.kind == "crash":
             (self.hooks["kill"] if phase == schema.PHASE_START else self.hooks["restart"])(uav)
         elif f.kind == "freeze":
             (self.hooks["freeze"] if phase == schema.PHASE_START else self.hooks["thaw"])(uav)
-        self.bus.publish(keys.fault(self.run, f.kind), schema.Fault(
-            fault=f.kind, phase=phase, target=_target(f), params=_params(f)))
+        if phase != schema.PHASE_START:
+            self.bus.publish(keys.fault(self.run, f.kind), message)
         log.info("fault %s: %s", phase, f.describe())
 
 

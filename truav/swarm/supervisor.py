@@ -244,6 +244,8 @@ class _Swarm:
         self.planned_exits: set[int] = set()  # PIDs the fault plan killed
         self.healer = Healer(opts.restart, opts.restart_limit)
         self.bus: Bus | None = None  # the supervisor's session, once open (restarts are published on it)
+        self.router_down_ns: int | None = None  # wall clock of the router's death, until it is back
+        self.router_outages: list[tuple[int, int]] = []  # (died, listening again), wall-clock ns
         self.endpoint = opts.listen
         self.t0 = time.monotonic()
         self.t0_wall_ns = time.time_ns()  # the same instant on the wall clock (recordings' log times)
@@ -380,6 +382,8 @@ class _Swarm:
         p = self.children.procs.get(name)
         if p is not None:
             self.planned_exits.add(p.pid)
+        if name == "router":
+            self.router_down_ns = time.time_ns()
         self.children.send(name, signal.SIGKILL)
 
     def _plan_restart(self, who) -> None:
@@ -388,17 +392,24 @@ class _Swarm:
             ok, error = self._restart_router()
             if not ok:
                 self.outcome.fail(f"the router could not be restarted on {self.endpoint} after the plan's crash: {error}")
+            self._await_router(ROUTER_RECONNECT_WAIT_S)  # the plan's "end" message then reaches the recorder
         else:
             self.children.restart(name)
 
     def _restart_router(self) -> tuple[bool, str]:
         """The router again, with its own command line, on the same endpoint; its clients reconnect by themselves."""
         proc = self.children.start("router", self.children.argv["router"])
-        return self._wait_router(proc, ROUTER_START_TIMEOUT_S)
+        ok, error = self._wait_router(proc, ROUTER_START_TIMEOUT_S)
+        if ok:  # messages sent in between were lost on the wire: the soak's checker needs to know when
+            self.router_outages.append((self.router_down_ns or time.time_ns(), time.time_ns()))
+            self.router_down_ns = None
+        return ok, error
 
     def _died(self, name: str, p) -> bool:
         """A process died on its own mid-run: say how, restart it if the policy allows; False if it stays down."""
         cause = exit_text(p.returncode)
+        if name == "router":
+            self.router_down_ns = time.time_ns()
         r = self.healer.died(name, p.pid, cause, self._since(), time.monotonic(),
                              cap=ROUTER_BACKOFF_MAX_S if name == "router" else RESTART_BACKOFF_MAX_S)
         last = self.children.last_line(name)
@@ -640,7 +651,8 @@ class _Swarm:
             "control_plane": cp, "elapsed_s": elapsed,
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
-            "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns}, indent=1))
+            "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
+            "router_outages_wall_ns": self.router_outages}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             if self.central:
