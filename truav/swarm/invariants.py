@@ -114,15 +114,28 @@ def _log_check(record: str | None, outages: list[list[int]]) -> Invariant:
         return Invariant(name, True, f"`truav log check {record}`: exit 0")
     problem = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
     # "truav log check: FILE: p1; p2": with the router killed, losses are expected; anything else is not
-    others = [p for p in problem.rsplit(": ", 1)[-1].split("; ") if not re.search(r"\bmissing\b", p)]
+    others = [p for p in _outside_parentheses(problem.split(f"{record}: ", 1)[-1]).split("; ")
+              if p.strip() and not re.search(r"\bmissing\b", p)]
     if outages and not others:
         gaps, unexplained = _gaps_outside(record, outages)
         if not unexplained:
-            return Invariant(name, True, f"{problem.rsplit(': ', 1)[-1]}, all in {gaps} gap(s) while the router "
+            return Invariant(name, True, f"{_outside_parentheses(problem.split(f'{record}: ', 1)[-1])}, all in "
+                                         f"{gaps} gap(s) while the router "
                                          f"was down ({len(outages)} outage(s)); nothing else")
         return Invariant(name, False, f"{problem}; {len(unexplained)} gap(s) outside any router outage, e.g. "
                                       f"{unexplained[0]}")
     return Invariant(name, False, f"exit {done.returncode}: {problem}")
+
+
+def _outside_parentheses(text: str) -> str:
+    """``text`` without its (possibly nested) parenthesised details, which may hold "; " themselves."""
+    out, depth = [], 0
+    for n, c in enumerate(text):
+        depth += c == "(" and (depth > 0 or n == 0 or text[n - 1] == " ")  # "message(s)" is not a detail
+        if depth == 0:
+            out.append(c)
+        depth -= c == ")" and depth > 0
+    return "".join(out).replace(" ;", ";").strip()
 
 
 def _gaps_outside(record: str, outages: list[tuple[int, int]]) -> tuple[int, list[str]]:
