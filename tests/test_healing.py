@@ -38,8 +38,9 @@ def up(tmp_path):
 RUN = ["--agents", "2", "--steps", "100", "--episodes", "12", "--rate", "20"]
 
 
-def test_an_agent_killed_outside_any_plan_is_restarted_and_resumes_from_its_checkpoint(up):
-    u = up("healagent", *RUN)
+def test_an_agent_killed_outside_any_plan_is_restarted_and_resumes_from_its_checkpoint(up, tmp_path):
+    record = tmp_path / "heal.mcap"
+    u = up("healagent", *RUN, "--record", str(record))
     u.wait_ticking()
     # agent 0 checkpoints every 50 steps (SwarmOptions.checkpoint_every): wait for its first one
     assert wait_until(lambda: (u.out / "agent0.npz").is_file(), 60.0, 0.1), u.output()
@@ -60,6 +61,13 @@ def test_an_agent_killed_outside_any_plan_is_restarted_and_resumes_from_its_chec
     agent0 = [p for p in summary["processes"] if p["name"] == "agent0"]
     assert [p["exit_code"] for p in agent0] == [-signal.SIGKILL, 0]
     assert not u.left_running(), out
+    # the recording shows the restart as a span, from the death to the new process
+    from recorder.reader import iter_messages
+    from truav.bus import schema
+    spans = [schema.decode(payload) for key, payload, _, _ in iter_messages(record, include=["*/fault/restart"])]
+    assert [(m.phase, m.target, m.params["cause"]) for m in spans] == [
+        ("start", "uav/0", "killed by SIGKILL"), ("end", "uav/0", "killed by SIGKILL")], spans
+    assert spans[1].params["new_pid"] == agent0[1]["pid"]
 
 
 def test_a_router_killed_mid_run_is_restarted_on_its_endpoint_and_the_run_ends_ok(up):
@@ -112,3 +120,9 @@ def test_after_a_router_outage_the_guard_follows_the_world_again(monkeypatch):
     assert tick(2 ** 40)[0] == guard.R_TICK  # no further than the silence allows
     assert tick(10 + 70 + guard.TICK_WINDOW) is None and g.tick == 10 + 70 + guard.TICK_WINDOW
     assert tick(10)[0] == guard.R_TICK  # and the old window is gone
+    # the supervisor hears step metrics first: they move the window too, once
+    from truav.bus import schema as sc
+    now[0] += 3.0
+    before = g.tick
+    metrics = sc.Metrics(src="world", seq=1, t=0, scope="step", tick=before + 100, episode=0, values={})
+    assert g.check("k", metrics) is None and g.tick == before + 100

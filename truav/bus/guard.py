@@ -41,8 +41,9 @@ TICK_WINDOW = 64
 """A message's tick must lie within this many ticks of the current one."""
 TICK_RESYNC_S = 1.0
 """After this long without a tick or observation accepted (the router was down, or restarted), a world
-tick or observation ahead of the window is accepted (only the world may send them): the world went on meanwhile, and every later message would be
-refused otherwise.  The jump may reach at most TICK_WINDOW + RESYNC_TICKS_PER_S per second of silence."""
+tick, observation or step metric ahead of the window is accepted and moves the window (only the world
+sends them): the world went on meanwhile, and every later message would be refused otherwise.  The
+jump may reach at most TICK_WINDOW + RESYNC_TICKS_PER_S per second of silence."""
 RESYNC_TICKS_PER_S = 1000
 AREA_MARGIN_M = 1.0
 SPEED_MARGIN = 1.01
@@ -172,6 +173,7 @@ class Guard:
                 or tick > cur + TICK_WINDOW + RESYNC_TICKS_PER_S * silence:
             return False
         log.info("tick %d after %.1f s without one (last %d): following the world again", tick, silence, cur)
+        self._advance(tick)
         return True
 
     def _near(self, tick: int) -> bool:
@@ -199,7 +201,8 @@ class Guard:
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
         tick = getattr(msg, "tick", None)
-        if tick is not None and not self._near(tick) and not (isinstance(msg, (schema.Tick, schema.Obs)) and self._resync(tick)):
+        resyncs = isinstance(msg, (schema.Tick, schema.Obs, schema.Metrics))  # the world's own (sender checked)
+        if tick is not None and not self._near(tick) and not (resyncs and self._resync(tick)):
             return R_TICK, f"tick {tick}, current {self._tick}"
         if isinstance(msg, schema.Obs):
             if not b.in_area(msg.pos):

@@ -429,7 +429,11 @@ class _Swarm:
         return True
 
     def _heal_due(self) -> None:
+        with self.monitor.lock:
+            ending = bool(self.monitor.shutdowns)
         for r in self.healer.due(time.monotonic()):
+            if ending and r.process != "router":  # the run is ending: nothing to rejoin (the router still serves it)
+                continue
             if r.process == "router":
                 ok, error = self._restart_router()
                 if not ok:
