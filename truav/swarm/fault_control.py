@@ -80,11 +80,12 @@ class FaultController:
                 self._stop.wait(min(wait, 0.1))
                 continue
             heapq.heappop(heap)
+            applied = time.monotonic() - t0  # when it was due and applied (a router's restart then takes a while)
             try:
                 self._apply(f, phase)
             except Exception:  # a failed signal must not end the schedule
                 log.exception("fault %s %s failed", f.describe(), phase)
-            self.events.append((time.monotonic() - t0, f.kind, phase))
+            self.events.append((applied, f.kind, phase))
 
     def _apply(self, f: Fault, phase: str) -> None:
         uav = f.params.get("target", f.params.get("uav"))

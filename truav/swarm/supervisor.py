@@ -392,7 +392,6 @@ class _Swarm:
             ok, error = self._restart_router()
             if not ok:
                 self.outcome.fail(f"the router could not be restarted on {self.endpoint} after the plan's crash: {error}")
-            self._await_router(ROUTER_RECONNECT_WAIT_S)  # the plan's "end" message then reaches the recorder
         else:
             self.children.restart(name)
 
