@@ -9,7 +9,7 @@ import signal
 import pytest
 
 from truav.faults import PlanError, load_plan, plan_from_dict
-from truav.nemesis import FIRST_FAULT_S, heal_at, quiet_tail_s, random_plan
+from truav.nemesis import FIRST_FAULT_S, RESTART_SETTLE_S, heal_at, quiet_tail_s, random_plan
 from truav.swarm import cli as swarm_cli
 from truav.swarm import invariants
 
@@ -49,7 +49,7 @@ def test_the_schedule_hits_every_part_and_heals_before_the_end():
         who = _process(f)
         if who is not None:
             assert busy.get(who, -1.0) <= f.start, f
-            busy[who] = _end(f)
+            busy[who] = _end(f) + (RESTART_SETTLE_S if f.kind == "crash" else 0.0)  # a restart rejoins first
     # only what the swarm has: no controller without scheme central, no recorder without a recording
     plain = random_plan(d, 5, seed=1)
     assert not {f.params.get("target") for f in plain.faults} & {"controller", "recorder"}
@@ -95,6 +95,9 @@ def test_the_checker_sees_a_restart_that_did_not_resume_from_its_last_checkpoint
     (logs / "agent1.log").write_text(good)
     row = invariants._resumed(tmp_path, procs)
     assert row.held and "steps 50" in row.detail, row
+    # a process killed while starting leaves only its resume line: still from the last checkpoint
+    (logs / "agent1.log").write_text(good + "uav 1 resumed from checkpoint a.npz at step 50\n" + good.split("\n", 2)[2])
+    assert invariants._resumed(tmp_path, procs + [{"name": "agent1", "pid": 3}]).held
     (logs / "agent1.log").write_text(good.replace("at step 50\nuav 1 joined", "at step 0\nuav 1 joined"))
     row = invariants._resumed(tmp_path, procs)
     assert not row.held and "resumed at step 0, its last checkpoint was at step 50" in row.detail, row

@@ -8,7 +8,8 @@ central), a router kill (restarted 0.5-2 s later on its endpoint), and the
 link faults: loss, latency, observation loss and partitions, 3-12 s each.
 Every fault ends by :func:`heal_at`: the last :func:`quiet_tail_s` seconds
 (a minute, or a third of a shorter run) are quiet, so the checker can see the
-swarm recover.  A process is never hit twice at once.
+swarm recover.  A process is never hit twice at once, nor within
+:data:`RESTART_SETTLE_S` of its restart.
 
 Pure computation: a numpy Generator seeded with ``seed`` draws everything, so
 the same arguments give the same plan, and the plan written to a file gives
@@ -33,6 +34,8 @@ PAUSE_S = (1.0, 6.0)
 CRASH_RESTART_S = (2.0, 6.0)
 ROUTER_RESTART_S = (0.5, 2.0)
 LINK_S = (3.0, 12.0)
+RESTART_SETTLE_S = 10.0
+"""A crashed process is left alone this long after its restart (it loads, resumes and rejoins first)."""
 MIN_FAULT_S = 1.0
 """A fault that would have to end sooner than this before the heal is not scheduled."""
 
@@ -89,7 +92,7 @@ def _draw(move: str, rng: np.random.Generator, t: float, heal: float, n: int,
             return None
         uav = int(rng.choice(agents))
         length = until(CRASH_RESTART_S if move == "crash" else PAUSE_S)
-        busy[f"agent{uav}"] = t + length
+        busy[f"agent{uav}"] = t + length + (RESTART_SETTLE_S if move == "crash" else 0.0)
         if move == "crash":
             return Fault("crash", t, params={"uav": uav, "restart_after": length})
         return Fault("freeze", t, length, {"uav": uav})
@@ -105,7 +108,7 @@ def _draw(move: str, rng: np.random.Generator, t: float, heal: float, n: int,
         if not free(target):
             return None
         length = until(CRASH_RESTART_S if target == CONTROLLER else ROUTER_RESTART_S)
-        busy[target] = t + length
+        busy[target] = t + length + RESTART_SETTLE_S
         return Fault("crash", t, params={"target": target, "restart_after": length})
     length = until(LINK_S)
     if move == "loss":

@@ -172,6 +172,9 @@ _JOINED = re.compile(r"uav (\d+) joined run")
 
 
 def _resumed(out: Path, procs: list[dict]) -> Invariant:
+    """From each restarted agent's log (its processes append to one file): every "resumed from checkpoint
+    at step N" names the last checkpoint written before it, and every later join that had a checkpoint
+    to resume from did.  (A process killed while still starting may leave only its resume line.)"""
     name = "every restarted agent resumed from its checkpoint"
     restarted = sorted({p["name"] for p in procs if p["name"].startswith("agent")
                         and sum(q["name"] == p["name"] for q in procs) > 1})
@@ -182,29 +185,30 @@ def _resumed(out: Path, procs: list[dict]) -> Invariant:
         except OSError:
             bad.append(f"{agent}: no log")
             continue
-        last_ck, resumed, joins = None, None, 0
+        last_ck, resumed, joins = None, False, 0
         for line in text.splitlines():
             if m := _CHECKPOINT.search(line):
                 last_ck = int(m.group(2))
             elif m := _RESUMED.search(line):
-                resumed = int(m.group(2))
+                step = int(m.group(2))
+                if step != last_ck:
+                    bad.append(f"{agent}: resumed at step {step}, its last checkpoint was "
+                               f"{'none' if last_ck is None else f'at step {last_ck}'}")
+                steps.append(step)
+                resumed = True
             elif _JOINED.search(line):
-                if joins and resumed != last_ck:
-                    bad.append(f"{agent} restart {joins}: resumed at "
-                               f"{'no checkpoint' if resumed is None else f'step {resumed}'}, its last checkpoint "
-                               f"was {'none' if last_ck is None else f'at step {last_ck}'}")
-                elif joins:
-                    steps.append(resumed)
-                joins, resumed = joins + 1, None
-        expected = sum(p["name"] == agent for p in procs)
-        if joins != expected:
-            bad.append(f"{agent}: {expected} process(es) started, {joins} joined the run")
+                if joins and not resumed and last_ck is not None:
+                    bad.append(f"{agent} restart {joins}: started fresh, its checkpoint at step {last_ck} unused")
+                elif joins and not resumed:
+                    steps.append(None)
+                joins, resumed = joins + 1, False
     if bad:
         return Invariant(name, False, "; ".join(bad[:3]))
-    if not steps:
+    if not restarted:
         return Invariant(name, True, "no agent was restarted")
-    return Invariant(name, True, f"{len(steps)} restart(s) of {len(restarted)} agent(s), each from its last checkpoint"
-                                 f" (steps {', '.join('fresh' if s is None else str(s) for s in steps[:8])}"
+    n = sum(p["name"] in restarted for p in procs) - len(restarted)
+    return Invariant(name, True, f"{n} restart(s) of {len(restarted)} agent(s); {len(steps)} resumed, each from its "
+                                 f"last checkpoint (steps {', '.join('fresh' if s is None else str(s) for s in steps[:8])}"
                                  f"{', ...' if len(steps) > 8 else ''})")
 
 
