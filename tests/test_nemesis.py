@@ -123,6 +123,8 @@ def test_the_checker_looks_for_missed_actions_only_after_the_heal(tmp_path):
     row = invariants._quiet_tail({"timeline": {"hovering": hovering}}, plan, 10.0)
     assert row.held and row.name == "no missed action in the last 12 s (after the heal)", row
     hovering[-1][1] = 2.0
+    early = invariants._quiet_tail({"timeline": {"hovering": hovering[:300]}}, plan, 10.0)  # ended at 30 s
+    assert not early.held and "before the heal (35.0 s)" in early.detail, early
     bad = invariants._quiet_tail({"timeline": {"hovering": hovering}}, plan, 10.0)
     assert not bad.held and bad.detail.startswith("2 UAV-tick(s) without an action")
     assert "1 of 2 invariants held: the run is NOT sound" in invariants.table([row, bad])

@@ -190,6 +190,10 @@ def _check(out: Path, sub: Path, rc: int, plan: FaultPlan, opts: SwarmOptions, r
     return all(r.held for r in rows)
 
 
+NEMESIS_ROUTER_TIMEOUT_S = 30.0
+"""World and agents wait this long for a killed router to come back in a nemesis run (see run_nemesis)."""
+
+
 def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float) -> int:
     """A soak: one run under the nemesis's seeded random plan, then the checker (exit 1 on a violation)."""
     from truav.nemesis import heal_at, random_plan
@@ -216,8 +220,13 @@ def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float
           + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) + f"), healed by {heal_at(duration_s):g} s; "
           f"plan {plan_path}", flush=True)
     sub = out / "faulted"
+    timeout = opts.router_timeout_s
+    if timeout < NEMESIS_ROUTER_TIMEOUT_S and any(f.params.get("target") == "router" for f in plan.faults):
+        timeout = NEMESIS_ROUTER_TIMEOUT_S
+        print(f"nemesis: --router-timeout {opts.router_timeout_s:g} raised to {timeout:g} s for its router kills "
+              f"(a loaded host took 7 s to start a router, and clients reconnect with a backoff)", flush=True)
     run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=str(plan_path), plot=False, record=record,
-                                   resume=False)
+                                   resume=False, router_timeout_s=timeout)
     rc = run_swarm(cfg, run_opts)
     held = _check(out, sub, rc, plan, opts, record)
     return rc or (0 if held else 1)
