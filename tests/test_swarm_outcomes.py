@@ -194,6 +194,8 @@ def test_agents_that_cannot_start_fail_the_run_at_once_with_their_error(tmp_path
 @pytest.mark.parametrize("victim", ["router", "recorder"])
 def test_losing_the_router_or_the_recorder_fails_the_run_and_leaves_no_process(up, tmp_path, victim):
     args = ["--agents", "2", "--steps", "50", "--episodes", "40", "--rate", "20"]
+    if victim == "router":  # by default the router is restarted (tests/test_healing.py)
+        args += ["--restart", "never"]
     if victim == "recorder":
         args += ["--record", str(tmp_path / "run.mcap")]
     u = up(f"lose{victim}", *args)

@@ -40,10 +40,16 @@ start of the run:
     restart_after = 5.0       # omit: never restarted
 
     [[fault]]
-    kind = "freeze"           # SIGSTOP, then SIGCONT
+    kind = "freeze"           # SIGSTOP, then SIGCONT (a pause)
     start = 30.0
     duration = 3.0
-    uav = 4                   # or target = "controller" (scheme central), for crash too
+    uav = 4                   # or target = "controller" (scheme central), "world" or "recorder" (--record)
+
+    [[fault]]
+    kind = "crash"            # SIGKILL the router; restarted on its endpoint (clients reconnect)
+    start = 40.0
+    target = "router"         # or "controller" (scheme central)
+    restart_after = 1.0       # required for the router: the swarm cannot run without it
 
 Scheme central adds the controller's links: its uplink is `keys = "uav/*/state"`
 (received by `dst = "controller"`), its downlink `keys = "controller/cmd/*"`;
@@ -92,8 +98,10 @@ _ALLOWED = {
 }
 _COMMON = {"kind", "start", "duration"}
 CONTROLLER = "controller"
-"""The one process a crash or freeze may name by ``target`` (scheme central), and a partition's group member."""
-PROCESS_TARGETS = (CONTROLLER,)
+"""A process a crash or freeze may name by ``target`` (scheme central), and a partition's group member."""
+ROUTER, WORLD, RECORDER = "router", "world", "recorder"
+TARGETS = {"crash": (CONTROLLER, ROUTER), "freeze": (CONTROLLER, WORLD, RECORDER)}
+"""The processes a crash or freeze may name by ``target`` (agents are named by ``uav``)."""
 
 
 class PlanError(UserError):
@@ -133,6 +141,14 @@ class FaultPlan:
             {"kind": f.kind, "start": f.start, **({} if math.isinf(f.duration) else {"duration": f.duration}),
              **f.params} for f in self.faults]}
 
+    def to_toml(self, header: str = "") -> str:
+        """The plan as a plan file (``load_plan`` of it gives this plan back); ``header``: comment lines."""
+        lines = [f"# {line}".rstrip() for line in header.splitlines()]
+        lines.append(f"seed = {self.seed}")
+        for fault in self.to_dict()["fault"]:
+            lines += ["", "[[fault]]"] + [f"{k} = {_toml_value(v)}" for k, v in fault.items()]
+        return "\n".join(lines) + "\n"
+
     @property
     def link_faults(self) -> tuple[Fault, ...]:
         return tuple(f for f in self.faults if f.kind in LINK_KINDS)
@@ -140,6 +156,18 @@ class FaultPlan:
     @property
     def process_faults(self) -> tuple[Fault, ...]:
         return tuple(f for f in self.faults if f.kind in PROCESS_KINDS)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)  # repr of a float reads back as the same float
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {v!r}")
 
 
 def _number(where: str, key: str, v: Any, lo: float = 0.0, hi: float = math.inf) -> float:
@@ -250,12 +278,14 @@ def _check_params(where: str, kind: str, p: dict[str, Any]) -> dict[str, Any]:
                 _uav(where, "uavs", u)
     else:  # crash, freeze
         if "uav" not in p and "target" not in p:
-            raise PlanError(f"{where}: missing uav (an agent's id) or target (\"controller\")")
+            raise PlanError(f"{where}: missing uav (an agent's id) or target ({' or '.join(map(repr, TARGETS[kind]))})")
         if "uav" in p and "target" in p:
-            raise PlanError(f"{where}: give uav (an agent's id) or target (\"controller\"), not both")
-        if "target" in p and p["target"] not in PROCESS_TARGETS:
-            raise PlanError(f"{where}: target must be one of {', '.join(map(repr, PROCESS_TARGETS))}, "
+            raise PlanError(f"{where}: give uav (an agent's id) or target, not both")
+        if "target" in p and p["target"] not in TARGETS[kind]:
+            raise PlanError(f"{where}: target must be one of {', '.join(map(repr, TARGETS[kind]))}, "
                             f"got {p['target']!r}")
+        if kind == "crash" and p.get("target") == ROUTER and "restart_after" not in p:
+            raise PlanError(f"{where}: a crash of the router needs restart_after (the swarm cannot run without it)")
         if "uav" in p:
             _uav(where, "uav", p["uav"])
         if "restart_after" in p:

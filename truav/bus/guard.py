@@ -27,6 +27,7 @@ past the cap) and one log line per (sender, reason).
 from __future__ import annotations
 
 import logging
+import time
 import threading
 from dataclasses import dataclass
 
@@ -39,6 +40,12 @@ MAX_TRACKED_SENDERS = 256
 OTHER_SENDERS = "(other senders)"
 TICK_WINDOW = 64
 """A message's tick must lie within this many ticks of the current one."""
+TICK_RESYNC_S = 1.0
+"""After this long without a tick or observation accepted (the router was down, or restarted), a world
+tick, observation or step metric ahead of the window is accepted and moves the window (only the world
+sends them): the world went on meanwhile, and every later message would be refused otherwise.  The
+jump may reach at most TICK_WINDOW + RESYNC_TICKS_PER_S per second of silence."""
+RESYNC_TICKS_PER_S = 1000
 AREA_MARGIN_M = 1.0
 SPEED_MARGIN = 1.01
 
@@ -140,6 +147,7 @@ class Guard:
         self._tick: int | None = None
         self._last_action = [-1] * bounds.n_uavs
         self._lock = threading.Lock()
+        self._advanced_at = time.monotonic()
 
     @property
     def tick(self) -> int | None:
@@ -154,8 +162,20 @@ class Guard:
 
     def _advance(self, tick: int) -> None:
         with self._lock:
+            self._advanced_at = time.monotonic()
             if self._tick is None or tick > self._tick:
                 self._tick = tick
+
+    def _resync(self, tick: int) -> bool:
+        """Whether a world tick ahead of the window ends a silence (see TICK_RESYNC_S)."""
+        silence = time.monotonic() - self._advanced_at
+        cur = self._tick
+        if cur is None or tick <= cur or silence < TICK_RESYNC_S \
+                or tick > cur + TICK_WINDOW + RESYNC_TICKS_PER_S * silence:
+            return False
+        log.info("tick %d after %.1f s without one (last %d): following the world again", tick, silence, cur)
+        self._advance(tick)
+        return True
 
     def _near(self, tick: int) -> bool:
         cur = self._tick
@@ -182,7 +202,8 @@ class Guard:
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
         tick = getattr(msg, "tick", None)
-        if tick is not None and not self._near(tick):
+        resyncs = isinstance(msg, (schema.Tick, schema.Obs, schema.Metrics))  # the world's own (sender checked)
+        if tick is not None and not self._near(tick) and not (resyncs and self._resync(tick)):
             return R_TICK, f"tick {tick}, current {self._tick}"
         if isinstance(msg, schema.Obs):
             if not b.in_area(msg.pos):

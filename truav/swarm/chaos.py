@@ -1,6 +1,13 @@
 """`truav-swarm chaos --plan FILE`: the same seed with and without a fault
 plan, side by side: a degradation table (coverage, PDR, delay, energy,
-missed actions, tick lateness) and a figure with the fault windows shaded."""
+missed actions, tick lateness) and a figure with the fault windows shaded.
+
+`truav-swarm chaos --nemesis random --duration 10m --seed S`: a soak.  A
+seeded random plan (truav.nemesis), written to <out>/nemesis-plan.toml (so
+`chaos --plan` of it runs the same schedule again), flies one recorded run;
+no baseline.  After either, the checker (truav.swarm.invariants) reports its
+invariants on the faulted run as a table, in <out>/invariants.txt and .json,
+and `chaos` exits 1 on a violation."""
 
 from __future__ import annotations
 
@@ -17,7 +24,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from truav.config import Config  # noqa: E402
-from truav.faults import load_plan  # noqa: E402
+from truav.faults import FaultPlan, load_plan  # noqa: E402
+from truav.swarm import invariants  # noqa: E402
 from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
 from truav.swarm.plots import fault_lanes  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
@@ -135,6 +143,7 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
         print(f"truav-swarm: error: {exc}", file=sys.stderr)
         return 2
     results = {}
+    rc_faulted = 0
     for name, plan in (("baseline", None), ("faulted", plan_path)):
         print(f"== {name} run ==", flush=True)
         sub = out / name
@@ -142,7 +151,12 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
                                        record=str(out / f"{name}.mcap") if opts.record else None,
                                        resume=opts.resume and sub.is_dir() and any(sub.iterdir()))
         rc = run_swarm(cfg, run_opts)
-        if rc:
+        if name == "faulted":  # the checker judges it, however it ended
+            rc_faulted = rc
+            held = _check(out, sub, rc, load_plan(plan_path), opts, run_opts.record)
+            if rc or not held:
+                return rc or 1
+        elif rc:
             return rc
         results[name] = _load(sub)
     table = degradation_table(results["baseline"], results["faulted"])
@@ -153,4 +167,56 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
     (out / "degradation.txt").write_text(table + "\n" + (f"\nwarning: {warning}\n" if warning else ""))
     path = chaos_figure(results["baseline"], results["faulted"], plan_path, opts.rate_hz, out / "chaos.png")
     print(f"figure: {path}")
-    return 0
+    return rc_faulted
+
+
+def _check(out: Path, sub: Path, rc: int, plan: FaultPlan, opts: SwarmOptions, record: str | None) -> bool:
+    """The checker's table on the faulted run, printed and written; whether every invariant held."""
+    if not (sub / "summary.json").is_file():  # it never started (a user mistake, told already)
+        return False
+    rows = invariants.check_run(sub, rc, plan, opts.rate_hz, record)
+    txt, _ = invariants.write(out, rows)
+    print(f"\n== invariants of the faulted run ({txt}) ==\n{invariants.table(rows)}", flush=True)
+    return all(r.held for r in rows)
+
+
+NEMESIS_ROUTER_TIMEOUT_S = 30.0
+"""World and agents wait this long for a killed router to come back in a nemesis run (see run_nemesis)."""
+
+
+def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float) -> int:
+    """A soak: one run under the nemesis's seeded random plan, then the checker (exit 1 on a violation)."""
+    from truav.nemesis import heal_at, random_plan
+    out = Path(opts.out or f"runs/chaos-{opts.run}")
+    try:
+        prepare_chaos_dir(out, resume=False, force=opts.force)
+    except OutDirError as exc:
+        print(f"truav-swarm: error: {exc}", file=sys.stderr)
+        return 2
+    record = opts.record or str(out / "faulted.mcap")  # the recording is one of the invariants
+    plan = random_plan(duration_s, cfg.scenario.n_uavs, opts.seed, central=opts.scheme == "central",
+                       recording=True)
+    plan_path = out / "nemesis-plan.toml"
+    plan_path.write_text(plan.to_toml(
+        f"truav-swarm chaos --nemesis {nemesis} --duration {duration_s:g}s --seed {opts.seed} "
+        f"({cfg.scenario.n_uavs} agents, scheme {opts.scheme})\n"
+        f"{len(plan.faults)} fault(s), all healed by {heal_at(duration_s):g} s after tick 0; run it again with\n"
+        f"truav-swarm chaos --plan {plan_path} (same seed and flags: the same schedule)"))
+    kinds: dict[str, int] = {}
+    for f in plan.faults:
+        label = f"{f.kind} {f.params['target']}" if "target" in f.params else f.kind
+        kinds[label] = kinds.get(label, 0) + 1
+    print(f"nemesis {nemesis} (seed {opts.seed}): {len(plan.faults)} fault(s) over {duration_s:g} s ("
+          + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) + f"), healed by {heal_at(duration_s):g} s; "
+          f"plan {plan_path}", flush=True)
+    sub = out / "faulted"
+    timeout = opts.router_timeout_s
+    if timeout < NEMESIS_ROUTER_TIMEOUT_S and any(f.params.get("target") == "router" for f in plan.faults):
+        timeout = NEMESIS_ROUTER_TIMEOUT_S
+        print(f"nemesis: --router-timeout {opts.router_timeout_s:g} raised to {timeout:g} s for its router kills "
+              f"(a loaded host took 7 s to start a router, and clients reconnect with a backoff)", flush=True)
+    run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=str(plan_path), plot=False, record=record,
+                                   resume=False, router_timeout_s=timeout)
+    rc = run_swarm(cfg, run_opts)
+    held = _check(out, sub, rc, plan, opts, record)
+    return rc or (0 if held else 1)

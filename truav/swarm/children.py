@@ -7,6 +7,7 @@ failed child ended with (its one-line error), for the console.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -93,6 +94,8 @@ class Children:
         self.started_at: dict[str, float] = {}
         self._log_offset: dict[str, int] = {}
         self._logs: list = []
+        self.incarnations: list[tuple[str, subprocess.Popen, float]] = []  # every process started, in order
+        self._rss: dict[int, list[int]] = {}  # pid -> [first kB sampled after RSS_SETTLE_S, max kB]
 
     def start(self, name: str, argv: list[str]) -> subprocess.Popen:
         path = self.log_dir / f"{name}.log"
@@ -106,6 +109,7 @@ class Children:
         self.argv[name] = argv
         self.starts[name] = self.starts.get(name, 0) + 1
         self.started_at[name] = time.monotonic()
+        self.incarnations.append((name, proc, self.started_at[name]))
         if self.pid_file is not None:
             self.pid_file.write_text(json.dumps(self.pids()))
         if self.on_start is not None:
@@ -169,6 +173,28 @@ class Children:
             self.procs[n].wait()
         return left
 
+    def sample_rss(self) -> None:
+        """Note the resident memory of every live process (for the memory-growth check of a soak)."""
+        now = time.monotonic()
+        for _, proc, started in self.incarnations:
+            if proc.poll() is None and now - started >= RSS_SETTLE_S:
+                kb = rss_kb(proc.pid)
+                if kb is not None:
+                    first_max = self._rss.setdefault(proc.pid, [kb, kb])
+                    first_max[1] = max(first_max[1], kb)
+
+    def incarnation_stats(self, t0: float) -> list[dict]:
+        """Every process started: name, PID, start (s since ``t0``), exit code (None: still running), and
+        its resident memory when first sampled and at most (MB), for summary.json."""
+        out = []
+        for name, proc, started in self.incarnations:
+            rss = self._rss.get(proc.pid)
+            out.append({"name": name, "pid": proc.pid, "started_s": round(started - t0, 2),
+                        "exit_code": proc.poll(),
+                        "rss_first_mb": round(rss[0] / 1024, 1) if rss else None,
+                        "rss_max_mb": round(rss[1] / 1024, 1) if rss else None})
+        return out
+
     def close_logs(self) -> None:
         for f in self._logs:
             f.close()
@@ -178,7 +204,32 @@ class Children:
         return {n: p.pid for n, p in self.procs.items()}
 
 
-def _truav_process(pid: int) -> bool:
+RSS_SETTLE_S = 10.0
+"""A process's memory is first sampled this long after its start (imports, JIT compilation and
+first allocations are done by then), so growth is measured from a settled process."""
+
+
+def rss_kb(pid: int) -> int | None:
+    """VmRSS of a process in kB (Linux /proc), or None."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def exit_text(code: int | None) -> str:
+    """How a process ended, for people: "killed by SIGKILL", "exit code 1"."""
+    if code is not None and code < 0:
+        with contextlib.suppress(ValueError):
+            return f"killed by {signal.Signals(-code).name}"
+    return f"exit code {code}"
+
+
+def truav_process(pid: int) -> bool:
+    """Whether ``pid`` runs a TRUAV swarm command (PIDs get reused: never signal another program)."""
     try:
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
@@ -197,11 +248,11 @@ def stop_recorded_pids(out: Path, wait_s: float = 0.0, pid_file: str = "pids.jso
     except (OSError, ValueError, TypeError, AttributeError):
         return 0
     deadline = time.monotonic() + wait_s
-    while any(_truav_process(p) for p in pids) and time.monotonic() < deadline:
+    while any(truav_process(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.2)
     count = 0
     for pid in pids:
-        if _truav_process(pid):
+        if truav_process(pid):
             try:
                 os.kill(pid, signal.SIGTERM)
                 count += 1

@@ -34,6 +34,8 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             tcp_port)
 from truav.config import Config, load_config
 from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
+from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
+from truav.nemesis import NEMESES
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
@@ -672,7 +674,8 @@ def _swarm_options(args):
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
-                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons)
+                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
+                        restart=args.restart, restart_limit=args.restart_limit)
     return cfg, opts
 
 
@@ -681,12 +684,45 @@ def load_plan_for(path: str):
     return load_plan(path)
 
 
+def duration_s(text: str) -> float:
+    """A run's length: seconds, or a number with s, m or h (90, 90s, 10m, 1h)."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?)\s*([smh]?)\s*", text)
+    if not m or float(m.group(1)) <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive duration such as 90s, 10m or 1h, got {text!r}")
+    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
+
+
 def cmd_chaos(args) -> int:
-    from truav.swarm.chaos import run_chaos
+    from truav.swarm.chaos import run_chaos, run_nemesis
     if args.fault_plan is not None:  # one plan per chaos run: the faulted half flies --plan
         raise UsageError("--fault-plan: chaos takes its plan from --plan (the baseline run has none); "
                          "drop --fault-plan")
+    if (args.plan is None) == (args.nemesis is None):
+        raise UsageError("--plan FILE or --nemesis random: give one of them")
+    if args.nemesis is None:
+        for flag, value in (("--duration", args.duration),):
+            if value is not None:
+                raise UsageError(f"{flag}: only with --nemesis (a --plan run lasts --episodes)")
+        args.episodes = 2 if args.episodes is None else args.episodes
+    else:
+        if args.duration is None:
+            raise UsageError("--nemesis: give --duration (e.g. 10m): the schedule is drawn for the run's length")
+        if args.episodes is not None:
+            raise UsageError("--episodes: --nemesis sets it from --duration; give one of them")
+        if args.lockstep:
+            raise UsageError("--lockstep: the nemesis schedules faults in seconds of real time; lock-step ticks "
+                             "are not paced (use --plan with a plan of your own)")
+        if args.agents_per_process != 1:
+            raise UsageError(f"--agents-per-process {args.agents_per_process}: the nemesis crashes and pauses single "
+                             f"agent processes; use 1 agent per process")
+        if args.resume:
+            raise UsageError("--resume: a nemesis run starts afresh (re-run its plan with --plan instead)")
+        args.episodes = 1  # replaced below, once the episode length is known
     cfg, opts = _swarm_options(args)
+    if args.nemesis is not None:
+        import math
+        opts.episodes = max(1, math.ceil(args.duration * opts.rate_hz / cfg.scenario.steps_per_episode))
+        return run_nemesis(cfg, opts, args.nemesis, args.duration)
     check_plan("--plan", args.plan, cfg.scenario.n_uavs, args.scheme)
     return run_chaos(cfg, opts, args.plan)
 
@@ -831,6 +867,13 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--share-beacons", action="store_true",
                     help="with --agents-per-process K > 1: each agent process subscribes to beacons once for its K "
                          "agents (each still checks, filters and counts its own)")
+    up.add_argument("--restart", choices=RESTART_POLICIES, default=DEFAULT_RESTART_POLICY,
+                    help="on-failure (default): restart an agent or the controller that dies on its own, from its "
+                         "checkpoint, after a backoff, and a dead router on its endpoint; never: leave them down "
+                         "(truav/swarm/healing.py; in lock-step a restart makes the run inexact, and the summary says so)")
+    up.add_argument("--restart-limit", type=non_negative_int, default=DEFAULT_RESTART_LIMIT, metavar="N",
+                    help=f"restarts of one process before it is left down and the run fails (default "
+                         f"{DEFAULT_RESTART_LIMIT})")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
@@ -857,10 +900,17 @@ def build_parser() -> argparse.ArgumentParser:
     add_up_args(up)
     up.set_defaults(func=cmd_up)
 
-    ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan; degradation table + figure")
+    ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "
+                                      "or soak under a random nemesis; then check the invariants")
     add_up_args(ch)
-    ch.add_argument("--plan", required=True, metavar="FILE", help="fault plan TOML (examples in deploy/plans/)")
-    ch.set_defaults(func=cmd_chaos)
+    ch.add_argument("--plan", metavar="FILE", help="fault plan TOML (examples in deploy/plans/)")
+    ch.add_argument("--nemesis", choices=NEMESES,
+                    help="instead of --plan: a seeded random plan (--seed) of crashes, pauses, router kills and link "
+                         "faults, healed before the end, written to <out>/nemesis-plan.toml; one recorded run, no "
+                         "baseline")
+    ch.add_argument("--duration", type=duration_s, metavar="T",
+                    help="--nemesis: how long the run lasts (e.g. 90s, 10m; sets --episodes)")
+    ch.set_defaults(func=cmd_chaos, episodes=None)
 
     fa = sub.add_parser("faults", help="replace the fault plan of a running swarm (link faults)")
     fa.add_argument("--run", type=run_name, default="demo")

@@ -80,20 +80,24 @@ class FaultController:
                 self._stop.wait(min(wait, 0.1))
                 continue
             heapq.heappop(heap)
+            applied = time.monotonic() - t0  # when it was due and applied (a router's restart then takes a while)
             try:
                 self._apply(f, phase)
             except Exception:  # a failed signal must not end the schedule
                 log.exception("fault %s %s failed", f.describe(), phase)
-            self.events.append((time.monotonic() - t0, f.kind, phase))
+            self.events.append((applied, f.kind, phase))
 
     def _apply(self, f: Fault, phase: str) -> None:
         uav = f.params.get("target", f.params.get("uav"))
+        message = schema.Fault(fault=f.kind, phase=phase, target=_target(f), params=_params(f))
+        if phase == schema.PHASE_START:  # before the signal: a router killed would take the message with it
+            self.bus.publish(keys.fault(self.run, f.kind), message)
         if f.kind == "crash":
             (self.hooks["kill"] if phase == schema.PHASE_START else self.hooks["restart"])(uav)
         elif f.kind == "freeze":
             (self.hooks["freeze"] if phase == schema.PHASE_START else self.hooks["thaw"])(uav)
-        self.bus.publish(keys.fault(self.run, f.kind), schema.Fault(
-            fault=f.kind, phase=phase, target=_target(f), params=_params(f)))
+        if phase != schema.PHASE_START:
+            self.bus.publish(keys.fault(self.run, f.kind), message)
         log.info("fault %s: %s", phase, f.describe())
 
 

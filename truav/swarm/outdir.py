@@ -37,7 +37,7 @@ RESULT_PATTERNS = ("agent*.json", "agent*.json.tmp", "world.json", "world.json.t
 """Results of one run: removed at every start (with --resume too), so a summary never shows an earlier run's."""
 STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
 """What a resumed run continues from."""
-CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json")
+CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json", "nemesis-plan.toml", "invariants.txt", "invariants.json")
 CHAOS_RUNS = ("baseline", "faulted")
 
 

@@ -13,13 +13,21 @@ Honest outcomes.  The exit code is 0 only when the world ran all its
 episodes; 130 when the user stopped the run (Ctrl-C, SIGTERM, SIGHUP,
 `truav-swarm down`); 2 when it could not start because of a user mistake;
 1 when something went wrong: an agent or the world could not start, the
-router or the recorder died, the recorder could not finish its file, more
-than ``max_missed_share`` of the actions were missing, a lock-step run went on
-without a live process's message (it waited ``--lockstep-wait`` for it: the run
-is no longer exact, and summary.json's ``outcome.lockstep`` says how many
-decisions and from which tick), a shutdown came from
+router died and could not be restarted (or died with ``--restart never``), the
+recorder died, a process died more than ``--restart-limit`` times, the recorder
+could not finish its file, more than ``max_missed_share`` of the actions were
+missing, a lock-step run went on without a live process's message (it waited
+``--lockstep-wait`` for it: the run is no longer exact, and summary.json's
+``outcome.lockstep`` says how many decisions and from which tick), a shutdown came from
 an unknown sender, or a process had to be killed at shutdown.  The summary's
 last lines say what ended the run (and who sent its shutdown) and why it failed.
+
+Healing (:mod:`truav.swarm.healing`): with ``--restart on-failure`` (the
+default) an agent or controller that dies on its own is restarted from its
+checkpoint after a backoff, and a dead router is restarted on its endpoint;
+each restart is in the console, the summary, summary.json ("restarts") and
+the recording (truav/<run>/fault/restart).  summary.json's "processes" lists
+every process started (PID, exit code, memory).
 
 Shutdown loses nothing.  Frozen agents are thawed first; agents get
 :data:`AGENT_EXIT_GRACE_S` to leave on the world's shutdown, then SIGTERM and
@@ -47,9 +55,11 @@ from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
 from truav.lograte import Every
 from truav.faults import load_plan
-from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
-                                  stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
+from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, exit_text,
+                                  free_loopback_endpoint, stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
 from truav.swarm.fault_control import FaultController
+from truav.swarm.healing import (DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_RECORD,
+                                 RESTART_BACKOFF_MAX_S, ROUTER_BACKOFF_MAX_S, Healer, Restart)
 from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, signals_handled
 from truav.swarm.monitor import Monitor
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
@@ -75,6 +85,10 @@ RECORDER_STOP_TIMEOUT_S = 90.0
 """The recorder writes its backlog and footer (its writer alone may take 60 s), then rewrites the
 file into big chunks (seconds per 10 MB); SIGKILL after this long."""
 ROUTER_STOP_TIMEOUT_S = 5.0
+ROUTER_RECONNECT_WAIT_S = 10.0
+"""After restarting the router: how long the supervisor waits for its own session to reconnect."""
+RSS_PERIOD_S = 5.0
+"""How often the supervisor samples its children's memory (summary.json "processes")."""
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
 CENTRAL_VALUE_BYTES = 4
@@ -134,6 +148,10 @@ class SwarmOptions:
     less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
     share_beacons: bool = False
     """With agents_per_process > 1: one beacon subscription per process, fanned out to its agents' inboxes."""
+    restart: str = DEFAULT_RESTART_POLICY
+    """on-failure: restart an agent, the controller or the router that dies on its own (truav.swarm.healing); never."""
+    restart_limit: int = DEFAULT_RESTART_LIMIT
+    """Restarts of one process before it is left down and the run fails."""
 
 
 def agent_groups(n: int, per_process: int) -> list[list[int]]:
@@ -157,6 +175,7 @@ class Outcome:
     shutdowns: list[tuple[float, str]] = field(default_factory=list)  # (s since start, sender)
     ticked: bool = False
     exactness: dict | None = None  # lock-step only: see lockstep_exactness
+    restarts: list[dict] = field(default_factory=list)  # truav.swarm.healing.Restart.as_dict(), in order
 
     def fail(self, reason: str) -> None:
         if reason not in self.failures:
@@ -230,8 +249,13 @@ class _Swarm:
         self.outcome = Outcome()
         self.controller: FaultController | None = None
         self.planned_exits: set[int] = set()  # PIDs the fault plan killed
+        self.healer = Healer(opts.restart, opts.restart_limit)
+        self.bus: Bus | None = None  # the supervisor's session, once open (restarts are published on it)
+        self.router_down_ns: int | None = None  # wall clock of the router's death, until it is back
+        self.router_outages: list[tuple[int, int]] = []  # (died, listening again), wall-clock ns
         self.endpoint = opts.listen
         self.t0 = time.monotonic()
+        self.t0_wall_ns = time.time_ns()  # the same instant on the wall clock (recordings' log times)
 
     def _started(self, name: str, proc) -> None:
         print(f"started {name} (pid {proc.pid}, log {self.children.log_dir / name}.log)", flush=True)
@@ -275,6 +299,9 @@ class _Swarm:
             router_args, self.creds_args, self.bus_config = secure_setup(self.out, self.opts, self.n, self.endpoint)
             self.endpoint = tls_endpoint(self.endpoint)
         proc = self.children.start("router", _python_module("truav.swarm.cli", "router", *router_args))
+        return self._wait_router(proc, timeout)
+
+    def _wait_router(self, proc, timeout: float) -> tuple[bool, str]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if ROUTER_READY_LINE in self.children.log_text("router"):
@@ -308,6 +335,7 @@ class _Swarm:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
+            self.bus = bus
             bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
             # Real time: a flood costs the monitor a bounded amount of work, as it does the world and agents.
             bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
@@ -315,7 +343,7 @@ class _Swarm:
             if opts.record and not self._recorder_ready(bus):
                 return False
             if self.plan:
-                hooks = {"kill": self._plan_kill, "restart": lambda u: self.children.restart(_process(u)),
+                hooks = {"kill": self._plan_kill, "restart": self._plan_restart,
                          "freeze": lambda u: self.children.send(_process(u), signal.SIGSTOP),
                          "thaw": lambda u: self.children.send(_process(u), signal.SIGCONT)}
                 self.controller = FaultController(bus, opts.run, self.plan, hooks)
@@ -369,7 +397,96 @@ class _Swarm:
         p = self.children.procs.get(name)
         if p is not None:
             self.planned_exits.add(p.pid)
+        if name == "router":
+            self.router_down_ns = time.time_ns()
         self.children.send(name, signal.SIGKILL)
+
+    def _plan_restart(self, who) -> None:
+        name = _process(who)
+        if name == "router":
+            ok, error = self._restart_router()
+            if not ok:
+                self.outcome.fail(f"the router could not be restarted on {self.endpoint} after the plan's crash: {error}")
+        else:
+            self.children.restart(name)
+
+    def _restart_router(self) -> tuple[bool, str]:
+        """The router again, with its own command line, on the same endpoint; its clients reconnect by themselves."""
+        proc = self.children.start("router", self.children.argv["router"])
+        ok, error = self._wait_router(proc, ROUTER_START_TIMEOUT_S)
+        if ok:  # messages sent in between were lost on the wire: the soak's checker needs to know when
+            self.router_outages.append((self.router_down_ns or time.time_ns(), time.time_ns()))
+            self.router_down_ns = None
+        return ok, error
+
+    def _died(self, name: str, p) -> bool:
+        """A process died on its own mid-run: say how, restart it if the policy allows; False if it stays down."""
+        cause = exit_text(p.returncode)
+        if name == "router":
+            self.router_down_ns = time.time_ns()
+        r = self.healer.died(name, p.pid, cause, self._since(), time.monotonic(),
+                             cap=ROUTER_BACKOFF_MAX_S if name == "router" else RESTART_BACKOFF_MAX_S)
+        last = self.children.last_line(name)
+        what = "the router" if name == "router" else name
+        if r is None:
+            if self.opts.restart == "never" or name == "router":  # the router's failure is the caller's
+                return False
+            self.outcome.fail(f"{what} died {self.opts.restart_limit + 1} times ({cause} the last time; its last log "
+                              f"line: {last}); not restarted again (--restart-limit {self.opts.restart_limit})")
+            return False
+        note = f"{what} died mid-run ({cause}) at {r.died_s:.1f} s; its last log line: {last}"
+        self.outcome.warnings.append(note)
+        due = self.healer.pending[name][0] - time.monotonic()
+        print(f"{note}\n  restarting it in {max(due, 0):.1f} s (restart {r.number} of at most {self.opts.restart_limit})",
+              flush=True)
+        self._publish_restart(r, schema_phase="start")
+        return True
+
+    def _heal_due(self) -> None:
+        with self.monitor.lock:
+            ending = bool(self.monitor.shutdowns)
+        for r in self.healer.due(time.monotonic()):
+            if ending and r.process != "router":  # the run is ending: nothing to rejoin (the router still serves it)
+                continue
+            if r.process == "router":
+                ok, error = self._restart_router()
+                if not ok:
+                    self.outcome.fail(f"the router died mid-run ({r.cause}) at {r.died_s:.1f} s and could not be "
+                                      f"restarted on {self.endpoint}: {error}")
+                    continue
+            else:
+                self.children.start(r.process, self.children.argv[r.process])
+            self.healer.done(r, self.children.procs[r.process].pid, self._since())
+            self.outcome.restarts.append(r.as_dict())
+            print(f"restarted {r.process} (pid {r.new_pid}) at {r.restarted_s:.1f} s"
+                  + (f" on {self.endpoint}" if r.process == "router" else " from its checkpoint"
+                     if r.process != "controller" else ""), flush=True)
+            if r.process == "router":  # its start was lost with the router: both phases once it is back
+                self._await_router(ROUTER_RECONNECT_WAIT_S)
+                self._publish_restart(r, schema_phase="start")
+            self._publish_restart(r, schema_phase="end")
+
+    def _await_router(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while self.bus is not None and time.monotonic() < deadline:
+            with contextlib.suppress(Exception):
+                if list(self.bus.session.info.routers_zid()):
+                    return
+            time.sleep(0.05)
+
+    def _publish_restart(self, r: Restart, schema_phase: str) -> None:
+        """In the recording (and `truav report`'s fault spans): a restart span from death to restart."""
+        if self.bus is None:
+            return
+        from truav.bus import schema
+        target = keys.uav_identity(int(r.process[5:])) if r.process.startswith("agent") and r.process[5:].isdigit() \
+            else r.process
+        params = {"cause": r.cause, "restart": r.number, "old_pid": r.old_pid}
+        if r.new_pid is not None:
+            params["new_pid"] = r.new_pid
+        with contextlib.suppress(Exception):  # a router going down under the put must not stop the watch
+            self.bus.publish(keys.fault(self.opts.run, RESTART_RECORD),
+                             schema.Fault(fault=RESTART_RECORD, phase=schema_phase, target=target, params=params))
 
     def _recorder_ready(self, bus: Bus) -> bool:
         proc = self.children.procs["recorder"]
@@ -392,6 +509,7 @@ class _Swarm:
         world = children.procs["world"]
         reported: set[int] = set()
         debug_every = Every(None, STATUS_PERIOD_S) if opts.verbose else None
+        last_rss = 0.0
         while world.poll() is None:
             faults_pending = self.controller is not None and not self.outcome.ticked
             time.sleep(0.05 if faults_pending or not self.outcome.ticked else 0.2)
@@ -404,18 +522,24 @@ class _Swarm:
                     self.controller.start(monitor.t0)
             for name in ("router", "recorder"):
                 p = children.procs.get(name)
-                if p is not None and p.poll() is not None:
-                    what = "the router" if name == "router" else "the recorder"
-                    self.outcome.fail(f"{what} exited mid-run ({_exit_text(p.returncode)}) at {self._since():.1f} s"
-                                      + ("; the recording is incomplete" if name == "recorder" else ""))
-                    return False
+                if p is None or p.poll() is None or p.pid in reported:
+                    continue
+                reported.add(p.pid)
+                if name == "router" and (p.pid in self.planned_exits or self._died(name, p)):
+                    continue  # the plan or the healer restarts it
+                what = "the router" if name == "router" else "the recorder"
+                self.outcome.fail(f"{what} exited mid-run ({exit_text(p.returncode)}) at {self._since():.1f} s"
+                                  + ("; the recording is incomplete" if name == "recorder" else "")
+                                  + (f"; not restarted again (--restart-limit {self.opts.restart_limit})"
+                                     if name in self.healer.given_up else ""))
+                return False
             for name in self.fleet:
                 p = children.procs.get(name)
                 if p is None or p.poll() is None or p.pid in reported:
                     continue
                 reported.add(p.pid)
                 if not self.outcome.ticked:  # before the first tick: it could not start
-                    self.outcome.fail(f"{name} could not start ({_exit_text(p.returncode)}): "
+                    self.outcome.fail(f"{name} could not start ({exit_text(p.returncode)}): "
                                       f"{children.last_line(name)}")
                     return False
                 with monitor.lock:
@@ -427,10 +551,16 @@ class _Swarm:
                         print(f"{name} killed by the fault plan at {self._since():.1f} s"
                               + ("; the UAVs fly on without commands" if name == "controller" else ""), flush=True)
                     continue
-                note = f"{name} exited mid-run ({_exit_text(p.returncode)}): {children.last_line(name)}" \
-                    + ("; the UAVs fly on without commands" if name == "controller" else "")
+                if p.returncode != 0 and not shut_down and self._died(name, p):
+                    continue
+                note = f"{name} exited mid-run ({exit_text(p.returncode)}); its last log line: " \
+                    f"{children.last_line(name)}" + ("; the UAVs fly on without commands" if name == "controller" else "")
                 self.outcome.warnings.append(note)
                 print(note, flush=True)
+            self._heal_due()
+            if time.monotonic() - last_rss >= RSS_PERIOD_S:
+                children.sample_rss()
+                last_rss = time.monotonic()
             now = time.monotonic()
             if opts.quiet or now - last_print < (STATUS_PERIOD_S if tty else 5.0):
                 continue
@@ -445,7 +575,7 @@ class _Swarm:
             else:
                 print(" | ".join(lines[:2]), flush=True)
         if world.returncode:
-            self.outcome.fail(f"the world exited with {_exit_text(world.returncode)}: {children.last_line('world')}")
+            self.outcome.fail(f"the world exited with {exit_text(world.returncode)}: {children.last_line('world')}")
             return False
         return True
 
@@ -455,11 +585,12 @@ class _Swarm:
         children = self.children
         if self.controller is not None:
             self.controller.stop()
-        children.thaw(self.fleet)  # a frozen agent must run to stop; SIGTERM alone would wait for ever
+        pausable = [*self.fleet, "world", "recorder"]  # what a fault plan may freeze
+        children.thaw(pausable)  # a frozen process must run to stop; SIGTERM alone would wait for ever
         if normal_end:
             children.wait_exit(self.fleet, AGENT_EXIT_GRACE_S)
         killed = children.stop(["world"], timeout=WORLD_STOP_TIMEOUT_S)
-        children.thaw(self.fleet)  # the plan's last thaw may have been cancelled
+        children.thaw(pausable)  # the plan's last thaw may have been cancelled
         killed += children.stop(self.fleet, timeout=AGENT_STOP_TIMEOUT_S)
         for name in killed:
             self.outcome.fail(f"{name} did not stop within {AGENT_STOP_TIMEOUT_S:.0f} s of SIGTERM and was killed: "
@@ -470,7 +601,7 @@ class _Swarm:
                                   f"{RECORDER_STOP_TIMEOUT_S:.0f} s and was killed (try `truav log recover`)")
             elif children.procs["recorder"].returncode and not any("recorder" in f for f in self.outcome.failures):
                 self.outcome.fail(f"the recorder failed to finish {self.opts.record} "
-                                  f"({_exit_text(children.procs['recorder'].returncode)}): "
+                                  f"({exit_text(children.procs['recorder'].returncode)}): "
                                   f"{children.last_line('recorder')}")
         others = [n for n in children.procs if n not in ("world", "recorder", "router", *self.fleet)]  # the viewer
         children.stop(others, timeout=WORLD_STOP_TIMEOUT_S)
@@ -519,6 +650,10 @@ class _Swarm:
                                              _read_json(self.out / "controller.json") if self.central else None)
             if not o.exactness["exact"]:
                 o.fail(inexact_text(o.exactness, opts.lockstep_wait_s))
+        if opts.lockstep and o.restarts:
+            o.warnings.append(f"{len(o.restarts)} restart(s) in a lock-step run: a restarted process resumed from its "
+                              f"checkpoint while the world went on without it, so this run is not exactly a clean "
+                              f"run of seed {opts.seed}")
         lost = ((world or {}).get("controller_losses") or []) if self.central else []
         if lost:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
@@ -535,15 +670,16 @@ class _Swarm:
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
-                   "lockstep": o.exactness,
+                   "lockstep": o.exactness, "restarts": o.restarts,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         (out / SUMMARY_FILE).write_text(json.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed,
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
-            "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None},
-            indent=1))
+            "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
+            "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
+            "router_outages_wall_ns": self.router_outages}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             if self.central:
@@ -555,6 +691,9 @@ class _Swarm:
                 print(f"picture: {picture}")
             if opts.record:
                 print(f"recording: {opts.record}")
+        for r in o.restarts:
+            print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
+                  f"{r['cause']}; restart {r['number']})")
         for note in o.warnings:
             print(f"warning: {note}")
         print(f"ended by: {o.ended_by}")
@@ -685,11 +824,6 @@ def _print_central(cfg, opts, world, agents, controller, cp, incarnations: int =
               f"({np.mean([e['ctrl_energy_j'] for e in eps]):.1f} J)")
 
 
-def _exit_text(code: int | None) -> str:
-    if code is not None and code < 0:
-        with contextlib.suppress(ValueError):
-            return f"killed by {signal.Signals(-code).name}"
-    return f"exit code {code}"
 
 
 def rejection_summary(world, agents) -> str:

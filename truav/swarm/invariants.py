@@ -1,0 +1,305 @@
+"""The checker of `truav-swarm chaos`: what a user relies on, checked from a run's outputs.
+
+Jepsen's checker after its nemesis: once a faulted run has ended, every
+invariant below is checked from what the run left (summary.json, the logs,
+/proc, the recording) and reported as a table, in the console and in
+<out>/invariants.txt and .json; any violation makes `chaos` exit 1.
+
+* the run ended ok (exit code 0, result ok);
+* the recording passes `truav log check` (the CLI, run as a user would);
+  when the router was killed, messages published while no router was up are
+  lost on the wire: gaps that all fall within a router outage (from its death
+  to :data:`RECONNECT_SLACK_S` after its restart) are reported, not violations;
+* every agent restarted (by the plan or the supervisor) resumed from its last
+  checkpoint (its log: the step it resumed at is the step of the last
+  checkpoint it wrote before it died);
+* no action was missed in the last :func:`quiet_window_s` seconds, all after
+  the plan's last fault ended;
+* no process the supervisor started is left running;
+* no process's memory grew by more than :data:`MAX_RSS_GROWTH_MB` (from its first
+  sample, a settled process, to its largest);
+* no traceback and no ERROR line in any log;
+* every child's exit code is honest: 0, or SIGKILL from the plan's crash or a
+  death the supervisor saw and restarted (or reported), and the supervisor's
+  own exit code is the one its summary states.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import signal
+import subprocess
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from truav.faults import FaultPlan
+
+MAX_RSS_GROWTH_MB = 100.0
+"""Memory growth allowed per process over a run (the issue's 3-8 min soaks grew by at most 34 MB)."""
+RECONNECT_SLACK_S = 10.0
+"""After a router restart, how long its clients may take to reconnect (Zenoh retries with a backoff)."""
+QUIET_WINDOW_S = 30.0
+LOG_CHECK_TIMEOUT_S = 600.0
+PROCESS_GRACE_S = 5.0
+
+
+@dataclass
+class Invariant:
+    name: str
+    held: bool
+    detail: str
+
+
+def heal_time(plan: FaultPlan) -> float:
+    """When the plan's last fault has ended (s after tick 0); inf if one lasts to the end."""
+    ends = [f.start + float(f.params.get("restart_after", 0.0)) if f.kind == "crash" else f.end for f in plan.faults]
+    return max(ends, default=0.0)
+
+
+def quiet_window_s(plan: FaultPlan, run_s: float) -> float:
+    """The last seconds of a run of ``run_s`` checked for missed actions: at most 30 s, all after the heal
+    (half the quiet tail, so the swarm has had the other half to recover); 0 when the plan never heals."""
+    heal = heal_time(plan)
+    return 0.0 if not math.isfinite(heal) or heal >= run_s else min(QUIET_WINDOW_S, (run_s - heal) / 2)
+
+
+def check_run(out: Path, rc: int, plan: FaultPlan, rate_hz: float, record: str | None) -> list[Invariant]:
+    """Every invariant of the run written to ``out`` (a `truav-swarm up --out`) that exited with ``rc``."""
+    summary = _json(out / "summary.json") or {}
+    outcome = summary.get("outcome") or {}
+    procs = summary.get("processes") or []
+    rows = [Invariant("the run ended ok", rc == 0 and outcome.get("result") == "ok",
+                      f"exit code {rc}, result {outcome.get('result')}"
+                      + (f": {'; '.join(outcome.get('failures') or [])}" if outcome.get("failures") else ""))]
+    rows.append(_log_check(record, summary.get("router_outages_wall_ns") or []))
+    rows.append(_resumed(out, procs))
+    rows.append(_quiet_tail(summary, plan, rate_hz))
+    rows.append(_left_behind(procs))
+    rows.append(_memory(procs))
+    rows.append(_log_lines(out / "logs"))
+    rows.append(_exit_codes(procs, plan, outcome, rc))
+    return rows
+
+
+def table(rows: list[Invariant]) -> str:
+    width = max(len(r.name) for r in rows)
+    lines = [f"{'invariant':<{width}}  {'':8}  detail", "-" * (width + 40)]
+    lines += [f"{r.name:<{width}}  {'held' if r.held else 'VIOLATED':8}  {r.detail}" for r in rows]
+    held = sum(r.held for r in rows)
+    lines.append(f"{held} of {len(rows)} invariants held" + ("" if held == len(rows) else ": the run is NOT sound"))
+    return "\n".join(lines)
+
+
+def write(out: Path, rows: list[Invariant]) -> tuple[Path, Path]:
+    txt, js = out / "invariants.txt", out / "invariants.json"
+    txt.write_text(table(rows) + "\n")
+    js.write_text(json.dumps({"held": all(r.held for r in rows), "invariants": [asdict(r) for r in rows]}, indent=1))
+    return txt, js
+
+
+# -- the invariants -------------------------------------------------------------------
+def _log_check(record: str | None, outages: list[list[int]]) -> Invariant:
+    name = "the recording passes truav log check"
+    if not record:
+        return Invariant(name, True, "nothing recorded (no --record): not checked")
+    try:
+        done = subprocess.run([sys.executable, "-m", "truav.cli", "log", "check", record], capture_output=True,
+                              text=True, timeout=LOG_CHECK_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        return Invariant(name, False, f"`truav log check {record}` took more than {LOG_CHECK_TIMEOUT_S:.0f} s")
+    if done.returncode == 0:
+        return Invariant(name, True, f"`truav log check {record}`: exit 0")
+    problem = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
+    # "truav log check: FILE: p1; p2": with the router killed, losses are expected; anything else is not
+    if outages and only_losses(problem, record):
+        gaps, unexplained = _gaps_outside(record, outages)
+        if not unexplained:
+            return Invariant(name, True, f"{_outside_parentheses(problem.split(f'{record}: ', 1)[-1])}, all in "
+                                         f"{gaps} gap(s) while the router "
+                                         f"was down ({len(outages)} outage(s)); nothing else")
+        return Invariant(name, False, f"{problem}; {len(unexplained)} gap(s) outside any router outage, e.g. "
+                                      f"{unexplained[0]}")
+    return Invariant(name, False, f"exit {done.returncode}: {problem}")
+
+
+def only_losses(problem: str, record: str) -> bool:
+    """Whether `truav log check`'s error line ("truav log check: FILE: p1 (details); p2") names only
+    messages missing (lost on the wire), nothing else (duplicates, reordering, damage, an unfinished file)."""
+    parts = _outside_parentheses(problem.split(f"{record}: ", 1)[-1]).split("; ")
+    return all(re.search(r"\bmissing\b", p) for p in parts if p.strip())
+
+
+def _outside_parentheses(text: str) -> str:
+    """``text`` without its (possibly nested) parenthesised details, which may hold "; " themselves."""
+    out, depth = [], 0
+    for n, c in enumerate(text):
+        depth += c == "(" and (depth > 0 or n == 0 or text[n - 1] == " ")  # "message(s)" is not a detail
+        if depth == 0:
+            out.append(c)
+        depth -= c == ")" and depth > 0
+    return "".join(out).replace(" ;", ";").strip()
+
+
+def _gaps_outside(record: str, outages: list[tuple[int, int]]) -> tuple[int, list[str]]:
+    """The seq gaps of every sender's stream, and those not within a router outage (plus reconnect slack)."""
+    from recorder.reader import iter_messages
+    from recorder.schemas import decode_envelope
+    windows = [(a - int(1e9), b + int(RECONNECT_SLACK_S * 1e9)) for a, b in outages]
+    last: dict[tuple[str, str], tuple[int, int]] = {}  # (src, kind) -> (seq, log_ns)
+    gaps, outside = 0, []
+    for key, payload, log_ns, _ in iter_messages(record):
+        env = decode_envelope(payload)
+        if env is None:
+            continue
+        stream = (env.src, env.kind)
+        prev = last.get(stream)
+        last[stream] = (env.seq, log_ns)
+        if prev is None or env.seq <= prev[0]:  # a new incarnation numbers from 0 again (or a reordering)
+            continue
+        if env.seq > prev[0] + 1:
+            gaps += 1
+            if not any(lo <= log_ns and prev[1] <= hi for lo, hi in windows):
+                outside.append(f"{env.src} {env.kind} seq {prev[0] + 1}-{env.seq - 1}")
+    return gaps, outside
+
+
+_RESUMED = re.compile(r"uav (\d+) resumed from checkpoint .* at step (\d+)")
+_CHECKPOINT = re.compile(r"uav (\d+): checkpoint at step (\d+)")
+_JOINED = re.compile(r"uav (\d+) joined run")
+
+
+def _resumed(out: Path, procs: list[dict]) -> Invariant:
+    """From each restarted agent's log (its processes append to one file): every "resumed from checkpoint
+    at step N" names the last checkpoint written before it, and every later join that had a checkpoint
+    to resume from did.  (A process killed while still starting may leave only its resume line.)"""
+    name = "every restarted agent resumed from its checkpoint"
+    restarted = sorted({p["name"] for p in procs if p["name"].startswith("agent")
+                        and sum(q["name"] == p["name"] for q in procs) > 1})
+    bad, steps = [], []
+    for agent in restarted:
+        try:
+            text = (out / "logs" / f"{agent}.log").read_text(errors="replace")
+        except OSError:
+            bad.append(f"{agent}: no log")
+            continue
+        last_ck, resumed, joins = None, False, 0
+        for line in text.splitlines():
+            if m := _CHECKPOINT.search(line):
+                last_ck = int(m.group(2))
+            elif m := _RESUMED.search(line):
+                step = int(m.group(2))
+                if step != last_ck:
+                    bad.append(f"{agent}: resumed at step {step}, its last checkpoint was "
+                               f"{'none' if last_ck is None else f'at step {last_ck}'}")
+                steps.append(step)
+                resumed = True
+            elif _JOINED.search(line):
+                if joins and not resumed and last_ck is not None:
+                    bad.append(f"{agent} restart {joins}: started fresh, its checkpoint at step {last_ck} unused")
+                elif joins and not resumed:
+                    steps.append(None)
+                joins, resumed = joins + 1, False
+    if bad:
+        return Invariant(name, False, "; ".join(bad[:3]))
+    if not restarted:
+        return Invariant(name, True, "no agent was restarted")
+    n = sum(p["name"] in restarted for p in procs) - len(restarted)
+    return Invariant(name, True, f"{n} restart(s) of {len(restarted)} agent(s); {len(steps)} resumed, each from its "
+                                 f"last checkpoint (steps {', '.join('fresh' if s is None else str(s) for s in steps[:8])}"
+                                 f"{', ...' if len(steps) > 8 else ''})")
+
+
+def _quiet_tail(summary: dict, plan: FaultPlan, rate_hz: float) -> Invariant:
+    hovering = (summary.get("timeline") or {}).get("hovering") or []
+    if not hovering:
+        return Invariant("no missed action after the heal", False, "no step metrics heard")
+    end_tick = hovering[-1][0]
+    window = quiet_window_s(plan, end_tick / rate_hz)
+    name = f"no missed action in the last {window:.0f} s (after the heal)"
+    if window <= 0 and not math.isfinite(heal_time(plan)):  # a plan of one's own may fault to the end
+        return Invariant("no missed action after the heal", True,
+                         "not checked: the plan's faults last to the end of the run (no quiet tail)")
+    if window <= 0:
+        return Invariant("no missed action after the heal", False,
+                         f"the run's last tick ({end_tick / rate_hz:.1f} s) came before the heal "
+                         f"({heal_time(plan):.1f} s)")
+    ticks = [(t, h) for t, h in hovering if t / rate_hz >= end_tick / rate_hz - window]
+    missed = sum(h for _, h in ticks)
+    return Invariant(name, missed == 0, f"{missed:g} UAV-tick(s) without an action in ticks {ticks[0][0]}-{end_tick}"
+                                        f" (the last fault ended at {heal_time(plan):.1f} s)")
+
+
+def _running(pid: int) -> bool:
+    """A process of this run still running (not a zombie, and still a TRUAV command: PIDs get reused)."""
+    from truav.swarm.children import truav_process
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z" and truav_process(pid)
+
+
+def _left_behind(procs: list[dict]) -> Invariant:
+    import time
+    deadline = time.monotonic() + PROCESS_GRACE_S
+    while any(_running(p["pid"]) for p in procs) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [f"{p['name']} (pid {p['pid']})" for p in procs if _running(p["pid"])]
+    return Invariant("no process left behind", not left and bool(procs),
+                     f"still running: {', '.join(left)}" if left else f"all {len(procs)} process(es) started have exited")
+
+
+def _memory(procs: list[dict]) -> Invariant:
+    growth = [(p["rss_max_mb"] - p["rss_first_mb"], p) for p in procs if p.get("rss_first_mb") is not None]
+    name = f"memory growth at most {MAX_RSS_GROWTH_MB:g} MB per process"
+    if not growth:
+        return Invariant(name, True, "no process lived long enough to be sampled")
+    worst, p = max(growth, key=lambda g: g[0])
+    return Invariant(name, worst <= MAX_RSS_GROWTH_MB,
+                     f"worst: {p['name']} (pid {p['pid']}) {p['rss_first_mb']:.0f} -> {p['rss_max_mb']:.0f} MB "
+                     f"({worst:+.1f} MB); {len(growth)} process(es) sampled")
+
+
+def _log_lines(logs: Path) -> Invariant:
+    hits = []
+    for path in sorted(logs.glob("*.log")):
+        for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            if "Traceback" in line or " ERROR " in line:
+                hits.append(f"{path.name}:{n}: {line.strip()[:120]}")
+    return Invariant("no traceback or ERROR line in the logs", not hits,
+                     f"{len(hits)} line(s), first {hits[0]}" if hits else f"{len(list(logs.glob('*.log')))} log(s) read")
+
+
+def _exit_codes(procs: list[dict], plan: FaultPlan, outcome: dict, rc: int) -> Invariant:
+    planned: dict[str, int] = {}
+    for f in plan.faults:
+        if f.kind == "crash":
+            who = f.params.get("target", f.params.get("uav"))
+            name = who if isinstance(who, str) else f"agent{who}"
+            planned[name] = planned.get(name, 0) + 1
+    healed = {r["old_pid"] for r in outcome.get("restarts") or []}
+    bad = []
+    for p in procs:
+        code = p["exit_code"]
+        if code == 0 or p["pid"] in healed:
+            continue
+        if code == -signal.SIGKILL and planned.get(p["name"], 0) > 0:
+            planned[p["name"]] -= 1
+            continue
+        bad.append(f"{p['name']} (pid {p['pid']}): {'still running' if code is None else f'exit {code}'}")
+    if outcome.get("exit_code") != rc or (rc == 0) != (outcome.get("result") == "ok"):
+        bad.append(f"the supervisor exited {rc}, its summary says {outcome.get('exit_code')} ({outcome.get('result')})")
+    return Invariant("honest exit codes", not bad,
+                     "; ".join(bad[:3]) if bad else f"{len(procs)} process(es): 0, or killed by the plan "
+                                                   f"({sum(1 for p in procs if p['exit_code'] == -signal.SIGKILL)}),"
+                                                   f" or restarted by the supervisor ({len(healed)})")
+
+
+def _json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
