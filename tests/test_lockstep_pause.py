@@ -81,7 +81,8 @@ def test_pause_beyond_the_bound_says_not_exact_and_fails(tmp_path):
     outcome = json.loads((out / "summary.json").read_text())["outcome"]
     ex = outcome["lockstep"]
     assert ex["exact"] is False and outcome["result"] == "failed", outcome
-    assert ex["decisions_without_peer"] >= 1 and set(ex["by_agent"]) <= {"agent0", "agent2"}, ex
+    # the paused agent's peers went on without it (with a 1 s bound on a busy host it may itself too)
+    assert ex["decisions_without_peer"] >= 1 and set(ex["by_agent"]) & {"agent0", "agent2"}, ex
     assert ex["world_went_on_without"] >= 1 and ex["inexact_from_tick"] > 0, ex
     assert f"lock-step is no longer exact from tick {ex['inexact_from_tick']}" in text
     assert "NOT exact" in text
