@@ -16,22 +16,8 @@ import time
 import pytest
 
 from tests.conftest import wait_until
-from tests.test_swarm_outcomes import Up
+from tests.test_swarm_outcomes import up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
 from truav.swarm.healing import Healer, backoff_s
-
-
-@pytest.fixture
-def up(tmp_path):
-    started: list[Up] = []
-
-    def start(run: str, *args: str) -> Up:
-        u = Up(tmp_path, run, *args)
-        started.append(u)
-        return u
-
-    yield start
-    for u in started:
-        u.close()
 
 
 # Long enough that a restart on a busy machine comes back before the world's last tick (60 s at 20 Hz).
