@@ -121,7 +121,10 @@ def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
 
 
 def write_run_file(out: Path, info: dict) -> None:
-    (out / RUN_FILE).write_text(json.dumps(info, indent=1))
+    """Atomically: `status`, `down` and tests read it while the run starts (a half-written file read as empty)."""
+    tmp = out / f".{RUN_FILE}.tmp"
+    tmp.write_text(json.dumps(info, indent=1))
+    os.replace(tmp, out / RUN_FILE)
 
 
 def read_run_file(out: Path) -> dict | None:
