@@ -49,7 +49,7 @@ from truav.config import Config
 from truav.lograte import Every
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
-from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, LOCKSTEP_JOIN_GRACE_S
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S, LOCKSTEP_JOIN_GRACE_S
 from world.uavs import action_velocity
 
 log = logging.getLogger("truav.agent")

@@ -39,7 +39,7 @@ from truav.bus import guard, keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
-from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.lograte import Every
 from world.env import LocalObs
 from agents.agent_process import Inexact

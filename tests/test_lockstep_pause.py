@@ -22,7 +22,7 @@ from conftest import run_to_end
 from agents.agent_process import DELAY_ENV, AgentNode, AgentOptions
 from truav.bus import keys
 from truav.config import Config, to_toml
-from truav.swarm.lifeline import LOCKSTEP_JOIN_GRACE_S
+from truav.bus.schema import LOCKSTEP_JOIN_GRACE_S
 from truav.trainer import run_chunk
 
 SEED = 5

@@ -31,7 +31,7 @@ from truav.lograte import Every
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
-from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.swarm.secure_cli import rejection_metrics
 from world.env import World
 from world.uavs import HOVER

@@ -574,6 +574,14 @@ class Positions(Envelope):
 
 HEALTH_PERIOD_S = 1.0
 """How often an agent publishes its Health report (and once at its start)."""
+DEFAULT_LOCKSTEP_WAIT_S = 60.0
+"""Lock-step (``--lockstep-wait``): how long the world waits for a live agent's action and an agent for a
+live peer's beacon (a paused or swapped-out process) before going on without it; the run is then no
+longer exact, and says so (the supervisor)."""
+LOCKSTEP_JOIN_GRACE_S = 2.0
+"""Lock-step: a peer not heard from since it (re)joined is waited for this long only: a restarted agent
+joins between the world's ticks and gets no observation before the next one, so its beacon of the
+current tick never comes."""
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,8 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
 from truav.config import Config, load_config
-from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.nemesis import NEMESES
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router

@@ -92,14 +92,6 @@ def signals_handled(signals: Iterable[signal.Signals], handler: Callable[[int, o
 
 DEFAULT_ROUTER_TIMEOUT_S = 10.0
 """A world or agent that has had no router this long stops (agents checkpoint first)."""
-DEFAULT_LOCKSTEP_WAIT_S = 60.0
-"""Lock-step (``--lockstep-wait``): how long the world waits for a live agent's action and an agent for a
-live peer's beacon (a paused or swapped-out process) before going on without it; the run is then no
-longer exact, and says so (truav.swarm.supervisor)."""
-LOCKSTEP_JOIN_GRACE_S = 2.0
-"""Lock-step: a peer not heard from since it (re)joined is waited for this long only: a restarted agent
-joins between the world's ticks and gets no observation before the next one, so its beacon of the
-current tick never comes."""
 ROUTER_POLL_S = 0.5
 
 

@@ -60,7 +60,8 @@ from truav.swarm.children import (Children, ListenError, check_listen, default_e
 from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import (DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_RECORD,
                                  RESTART_BACKOFF_MAX_S, ROUTER_BACKOFF_MAX_S, Healer, Restart)
-from truav.swarm.lifeline import DEFAULT_LOCKSTEP_WAIT_S, DEFAULT_ROUTER_TIMEOUT_S, signals_handled
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
 from truav.swarm.monitor import Monitor
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
                                 prepare_swarm_dir, write_run_file)
