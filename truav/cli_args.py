@@ -14,23 +14,15 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import re
-import signal
 import sys
-import tempfile
-from pathlib import Path
 from typing import Callable, NoReturn
 
-EXIT_USAGE = 2
-EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
-"""What a shell reports for a Unix tool killed by SIGPIPE (`truav log check FILE | head`)."""
+from truav.checks import (  # noqa: F401  (re-exported: the command lines take their checks from here)
+    check_endpoint, check_in_file, check_out_dir, check_out_file, make_dir)
+from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
 
 MAX_SEED = 2**63 - 1
 """Seeds feed numpy's SeedSequence, which takes any non-negative integer; this keeps them in an int64."""
-
-
-class UserError(ValueError):
-    """A user mistake: the message names the flag or file and says what is wrong."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -126,92 +118,3 @@ def run_name(text: str) -> str:
         return keys.validate_run(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9+-]*)/(?P<address>[^?#\s]+)(\?[^#\s]*)?(#\S*)?$")
-_HOST_PORT_PROTOCOLS = {"tcp", "udp", "tls", "quic", "ws"}
-
-
-def check_endpoint(flag: str, text: str, tcp_only: bool = False) -> str:
-    """A Zenoh locator ``<protocol>/<address>[?metadata][#config]``; host:port for IP protocols."""
-    m = _ENDPOINT.match(text)
-    if not m:
-        raise UserError(f"{flag} {text!r}: not a Zenoh endpoint (expected e.g. tcp/127.0.0.1:7447)")
-    proto, address = m["proto"], m["address"]
-    if tcp_only and proto != "tcp":
-        raise UserError(f"{flag} {text!r}: must be a tcp/HOST:PORT endpoint here")
-    if proto in _HOST_PORT_PROTOCOLS:
-        host, _, port = address.rpartition(":")
-        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise UserError(f"{flag} {text!r}: expected {proto}/HOST:PORT with a port in [0, 65535]")
-    return text
-
-
-# -- files ---------------------------------------------------------------------------
-def check_in_file(flag: str, path: str) -> Path:
-    """An existing, readable regular file."""
-    p = Path(path)
-    if not path:
-        raise UserError(f"{flag}: empty path")
-    if not p.exists():
-        raise UserError(f"{flag} {path}: no such file")
-    if not p.is_file():
-        raise UserError(f"{flag} {path}: not a regular file")
-    if not os.access(p, os.R_OK):
-        raise UserError(f"{flag} {path}: not readable")
-    return p
-
-
-def _writable_parent(flag: str, path: str, p: Path) -> None:
-    """The nearest existing ancestor of ``p`` must be a writable directory (so p can be created)."""
-    for parent in [p.absolute(), *p.absolute().parents]:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UserError(f"{flag} {path}: {parent} is not a directory")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise UserError(f"{flag} {path}: {parent} is not writable")
-            _probe_write(flag, path, parent)
-            return
-
-
-def _probe_write(flag: str, path: str, directory: Path) -> None:
-    """Create and remove a file in ``directory``: os.access says yes to root everywhere, but /proc, a
-    read-only mount or a full disk still refuse, and that should be found before anything starts."""
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".truav-probe-", dir=directory)
-    except OSError as exc:
-        raise UserError(f"{flag} {path}: cannot write in {directory} ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.unlink(probe)
-
-
-def check_out_dir(flag: str, path: str) -> Path:
-    """A directory that exists or can be created (its existing contents are the caller's business)."""
-    if not path:
-        raise UserError(f"{flag}: empty path (give a directory)")
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise UserError(f"{flag} {path}: exists and is not a directory")
-    _writable_parent(flag, path, p)
-    return p
-
-
-def check_out_file(flag: str, path: str) -> Path:
-    """A file path that can be created: not a directory, under a directory that exists or can be made."""
-    if not path:
-        raise UserError(f"{flag}: empty path (give a file)")
-    p = Path(path)
-    if p.is_dir():
-        raise UserError(f"{flag} {path}: is a directory")
-    _writable_parent(flag, path, p.parent)
-    return p
-
-
-def make_dir(flag: str, path: str | Path) -> Path:
-    """mkdir -p, with a failure as a UserError naming the flag (a full disk, a race with a file)."""
-    p = Path(path)
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{flag} {path}: cannot create the directory ({exc.strerror or exc})") from None
-    return p

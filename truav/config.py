@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from truav.cli_args import UserError
+from truav.errors import UserError
 
 
 UAV_STARTS = ("random", "persist", "center")

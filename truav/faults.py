@@ -80,7 +80,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from truav.cli_args import UserError
+from truav.errors import UserError
 from truav.config import read_toml
 
 LINK_KINDS = ("loss", "latency", "partition", "obs_loss")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from truav.cli_args import UserError
+from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
 
 CONFIG_FILE = "config.toml"
@@ -42,7 +42,7 @@ class RunDirError(UserError):
 
 def fresh_dir(path: str | Path, force: bool = False) -> Path:
     """Create an output directory; refuse to overwrite a non-empty one unless force."""
-    from truav.cli_args import check_out_dir, make_dir
+    from truav.checks import check_out_dir, make_dir
     p = check_out_dir("--out", os.fspath(path))
     if p.exists() and any(p.iterdir()) and not force:
         raise RunDirError(f"--out {p}: exists and is not empty (choose another --out, or --force)")

@@ -28,7 +28,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from truav.bus import keys, security
-from truav.cli_args import UserError
+from truav.errors import UserError
 
 DEFAULT_PORT = 7447
 _HOST_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,30}$")
