@@ -68,7 +68,7 @@ from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
-from truav.swarm.lifeline import signals_handled, watch_supervisor
+from truav.lifecycle import signals_handled, watch_supervisor
 
 log = logging.getLogger("truav.recorder")
 

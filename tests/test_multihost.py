@@ -40,7 +40,7 @@ import pytest
 from tests import netns
 from truav.config import Config, to_toml
 from truav.swarm import deploy
-from truav.swarm.lifeline import child_env
+from truav.lifecycle import child_env
 from truav.trainer import run_chunk
 
 REPO = Path(__file__).resolve().parents[1]
@@ -211,7 +211,7 @@ def test_three_hosts_lockstep_equals_one_host_and_rides_out_a_cut_link(hosts, tm
     def start(host: str, name: str, *argv: str) -> subprocess.Popen:
         log = open(logs / f"{name}.log", "wb")
         try:
-            # child_env: each process also stops by itself if this test process dies (truav/swarm/lifeline.py).
+            # child_env: each process also stops by itself if this test process dies (truav/lifecycle.py).
             return hosts.popen(host, [*CLI, *argv, "--creds", str(creds / host)], stdout=log,
                                stderr=subprocess.STDOUT, cwd=tmp_path, env=child_env())
         finally:

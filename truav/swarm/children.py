@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from truav.bus.transport import DEFAULT_ENDPOINT
-from truav.swarm.lifeline import child_env
+from truav.lifecycle import child_env
 
 ROUTER_READY_LINE = b"router listening on"
 """What `truav-swarm router` prints once its endpoints are open."""
@@ -104,7 +104,7 @@ class Children:
         self._logs.append(log)
         proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True,  # Ctrl-C reaches the supervisor only...
-                                env=child_env())  # ...and each child stops if the supervisor dies (truav.swarm.lifeline)
+                                env=child_env())  # ...and each child stops if the supervisor dies (truav.lifecycle)
         self.procs[name] = proc
         self.argv[name] = argv
         self.starts[name] = self.starts.get(name, 0) + 1

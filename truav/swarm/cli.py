@@ -34,7 +34,7 @@ from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_f
                             tcp_port)
 from truav.config import Config, load_config
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
-from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.nemesis import NEMESES
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router

@@ -7,7 +7,7 @@ the bus (liveliness, step metrics, beacons, shutdown requests) for a live
 status table, and at the end (or on Ctrl-C, SIGTERM or SIGHUP) stops every
 process it started, by PID, and prints a summary; it also draws
 <out>/summary.png.  Killed outright, it cannot: its children then notice it is
-gone and stop by themselves (:mod:`truav.swarm.lifeline`).
+gone and stop by themselves (:mod:`truav.lifecycle`).
 
 Honest outcomes.  The exit code is 0 only when the world ran all its
 episodes; 130 when the user stopped the run (Ctrl-C, SIGTERM, SIGHUP,
@@ -61,7 +61,7 @@ from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import (DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_RECORD,
                                  RESTART_BACKOFF_MAX_S, ROUTER_BACKOFF_MAX_S, Healer, Restart)
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
-from truav.swarm.lifeline import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
 from truav.swarm.monitor import Monitor
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
                                 prepare_swarm_dir, write_run_file)
