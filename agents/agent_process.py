@@ -22,6 +22,11 @@ neighbour beacons collect in an :class:`~truav.bus.inbox.Inbox` that the main
 loop drains once per decision (cheap arrival keeps the fan-out of 20+
 agents' beacons off the CPU); in real time one thread sends this agent's
 beacon in its slot of the tick (:mod:`agents.beacon_schedule`).
+
+:class:`AgentNode` is made of parts, one module each: what only lock-step
+uses (agents.lockstep_node), what only real time uses (agents.realtime_node)
+and its health report and stats file (agents.agent_reports); this module holds
+the options, the bus wiring, the main loop and the decision.
 """
 
 from __future__ import annotations
@@ -38,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.beacon_cells import BeaconCells, CellFollower, subscription_radius_m
-from agents.beacon_schedule import BeaconSchedule, sends_beacon
+from agents.agent_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
+from agents.lockstep_node import Inexact, LockstepBeacons
 from agents.qlearning import QLearners, geofence
+from agents.realtime_node import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
@@ -49,28 +55,20 @@ from truav.config import Config
 from truav.lograte import Every
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
-from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S, LOCKSTEP_JOIN_GRACE_S
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.uavs import action_velocity
 
 log = logging.getLogger("truav.agent")
 
 CONTROL_SHUTDOWN = "shutdown"
-REALTIME_BEACON_MAX_AGE_TICKS = 10
-"""Real time: a neighbour's beacon older than this many ticks (1 s at 10 Hz) is ignored."""
-HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
-"""How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
 DONE_ACK_ACTION = 0
 """The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
 DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
 """Testing only: ``UAV:MS[,UAV:MS...]`` makes those agents pause MS ms per observation (see debug_delay_s)."""
 
 
-SENT_KINDS = (schema.KIND_BEACON, schema.KIND_ACTION, schema.KIND_STATE, schema.KIND_HEALTH)
-"""What an agent counts as sent in its stats file (``sent``, per incarnation)."""
 SENDER_JOIN_S = 2.0
 """At the end the agent waits this long for its beacon and health threads, so what it counts as sent is final."""
-MAX_INCARNATIONS_KEPT = 1000
-"""Earlier incarnations a restarted agent keeps listing in its stats file (bounded)."""
 
 
 def debug_delay_s(spec: str, uav: int) -> float:
@@ -88,31 +86,10 @@ def debug_delay_s(spec: str, uav: int) -> float:
     return 0.0
 
 
-def realtime_inbox_capacity(n_uavs: int) -> int:
-    """Messages a real-time agent's inbox holds before evicting the oldest: a few ticks of every peer's
-    beacons (it drains once a tick), so a flood costs at most this many decodes per tick."""
-    return max(transport.REALTIME_RECEIVE_RING, 4 * n_uavs)
-
-
 def checkpoint_due(steps: int, uav: int, n_uavs: int, every: int) -> bool:
     """Whether UAV ``uav`` checkpoints after ``steps`` steps: every ``every`` steps, at an offset
     by id so that a swarm's agents take turns (a write and fsync each) instead of all in one tick."""
     return (steps + uav * every // max(n_uavs, 1)) % every == 0
-
-
-class Inexact:
-    """Lock-step decisions taken without a live process's message (the wait ran out): how many, from which tick."""
-
-    def __init__(self) -> None:
-        self.decisions = 0
-        self.from_tick: int | None = None
-
-    def add(self, tick: int) -> None:
-        self.decisions += 1
-        self.from_tick = tick if self.from_tick is None else min(self.from_tick, tick)
-
-    def as_dict(self) -> dict:
-        return {"decisions_without_peer": self.decisions, "inexact_from_tick": self.from_tick}
 
 
 @dataclass
@@ -178,7 +155,10 @@ class AgentOptions:
         return max(REALTIME_BEACON_MAX_AGE_TICKS, 2 * self.beacon_every)
 
 
-class AgentNode:
+class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
+    """One agent: the bus wiring, the main loop and the TRUAV decision; the lock-step and real-time halves
+    and the reports are its parts (agents.lockstep_node, agents.realtime_node, agents.agent_reports)."""
+
     def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None):
         """``beacon_inbox(bus)``, if given, returns this agent's beacon inbox (fed by a subscription its
         process shares among the agents it hosts); by default the agent subscribes on its own bus."""
@@ -188,8 +168,6 @@ class AgentNode:
         self.steps = 0
         self.resumed = False  # started from its checkpoint: a restart within the same run
         self._last_tick = -1  # the tick of the last observation handled (health reports)
-        self.stale_obs_skipped = 0
-        """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
         self.out_of_order_obs = 0
         """Observations dropped because their tick was not newer than one already answered (a delayed
         observation overtaken by a later one): learning from it would pair the wrong transition."""
@@ -199,14 +177,7 @@ class AgentNode:
         self._debug = Every(log)
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
-        self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
-        self._beacons: dict[int, schema.Beacon] = {}  # real time: each peer's freshest beacon
-        self._beacons_at: dict[int, dict[int, schema.Beacon]] = {}  # lock-step: tick -> {peer: its beacon}
-        self._used_tick = -1  # lock-step: beacons of this tick or earlier come too late to be used
         self._gone: set[int] = set()  # peers whose liveliness token vanished
-        self._heard: set[int] = set()  # lock-step: peers whose beacon came since they (last) joined
-        self.inexact = Inexact()
-        """Lock-step: the decisions taken without a live peer's (or, central, the controller's) message."""
         self._latency_ms: list[float] = []
         self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
@@ -216,18 +187,8 @@ class AgentNode:
         self._state = 0
         self._action = 0
         self._velocity = (0.0, 0.0)
-        self._pending_beacon = None
-        self._schedule = BeaconSchedule(opts.tick_period_s, opts.beacon_phase, opts.beacon_spread, opts.uav,
-                                        self.n_uavs)
-        self._cells = None if opts.beacon_cell_m is None else BeaconCells(
-            opts.beacon_cell_m, cfg.scenario.area_m, subscription_radius_m(cfg, opts.beacon_every,
-                                                                           opts.beacon_max_age_ticks))
-        if self._cells is not None and self._cells.radius_m == float("inf"):
-            raise ValueError("beacon_cell_m: the state holds the nearest neighbour's direction at any distance "
-                             "(learner.neighbour_sectors); range-limited beacons would change it")
-        self._follower = None if self._cells is None else CellFollower(self._cells)
-        self._cell_subs: dict = {}  # range-limited beacons: map cell -> its subscription handle
-        self._own_pos = (0.0, 0.0)
+        self._init_lockstep()
+        self._init_realtime()
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
@@ -259,7 +220,7 @@ class AgentNode:
         bus.declare_liveliness(keys.alive_uav(run, me))
 
     def _setup_scheme(self, bus: Bus) -> None:
-        """Subscriptions and publishers another scheme's agent adds (agents.scheme_agents), before it joins."""
+        """Subscriptions and publishers another scheme's agent adds (agents.scheme_process), before it joins."""
 
     def scheme_stats(self) -> dict:
         """Statistics another scheme's agent adds to its stats file."""
@@ -314,7 +275,7 @@ class AgentNode:
         if uav is not None and uav != self.opts.uav:
             with self._lock:
                 self._gone.discard(uav)
-                self._heard.discard(uav)  # a restarted peer: not waited for long before its first beacon
+                self._lockstep_peer_joined(uav)  # a restarted peer: not waited for long before its first beacon
             log.info("uav %d: peer uav %d joined", self.opts.uav, uav)
 
     def _on_leave(self, key: str) -> None:
@@ -322,17 +283,15 @@ class AgentNode:
         if uav is not None and uav != self.opts.uav:
             with self._lock:
                 self._gone.add(uav)
-                self._beacons.pop(uav, None)
-                for at_tick in self._beacons_at.values():
-                    at_tick.pop(uav, None)
+                self._realtime_peer_lost(uav)
+                self._lockstep_peer_lost(uav)
             log.info("uav %d: peer uav %d lost", self.opts.uav, uav)
 
     def stop(self) -> None:
         self._stopped_ns = time.time_ns()
         self._stop.set()
         self._obs.put(None)
-        with self._beacon_due:
-            self._beacon_due.notify()
+        self._wake_beacon_thread()
 
     # -- main loop --
     def run(self) -> None:
@@ -357,47 +316,6 @@ class AgentNode:
         for thread in senders:  # both end on the stop within ~50 ms: then the sent counts are final
             thread.join(SENDER_JOIN_S)
         self.checkpoint()
-
-    def health(self) -> schema.Health:
-        """This agent's health report: what its bus refused, by reason and (the most refused) sender."""
-        by_reason = sorted(self.bus.rejections.by_reason().items(), key=lambda kv: (-kv[1], kv[0]))
-        by_sender: dict[str, int] = {}
-        for per_sender in self.bus.rejections.as_dict().values():
-            for sender, n in per_sender.items():  # a name a flood chose: shown in printable ASCII only
-                shown = "".join(c if " " <= c <= "~" else "?" for c in sender)[:schema.MAX_SRC_LEN] or "?"
-                by_sender[shown] = by_sender.get(shown, 0) + n
-        top = sorted(by_sender.items(), key=lambda kv: (-kv[1], kv[0]))[:schema.MAX_HEALTH_SENDERS]
-        return schema.Health(uav=self.opts.uav, last_tick=self._last_tick, steps=self.steps,
-                             stale_obs_skipped=self.stale_obs_skipped,
-                             rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top))
-
-    def _health_loop(self) -> None:
-        """About once a second (and at once, so `truav-swarm status` sees a fresh agent): the health report."""
-        while True:
-            try:
-                self.bus.publish(keys.uav_health(self.opts.run, self.opts.uav), self.health())
-            except RuntimeError:  # bus closed at shutdown
-                return
-            if self._stop.wait(HEALTH_PERIOD_S):
-                return
-
-    def _newest_obs(self, msg: schema.Obs) -> schema.Obs | None:
-        """Real time: the world applies only the current tick's action, so an agent that fell behind
-        (a slow spell, a flood) answers the newest observation and skips the older ones, counted,
-        instead of answering each after its deadline and staying behind. None: stop."""
-        while True:
-            try:
-                nxt = self._obs.get_nowait()
-            except queue.Empty:
-                return msg
-            if nxt is None:
-                return None
-            # The newest tick is answered, whatever the arrival order (a delayed one can come after it).
-            older, msg = (nxt, msg) if nxt.tick < msg.tick else (msg, nxt)
-            if self.stale_obs_skipped == 0:
-                log.info("uav %d: behind the world, answering tick %d and skipping tick %d (stale observations "
-                         "are skipped from now on, counted in the stats)", self.opts.uav, msg.tick, older.tick)
-            self.stale_obs_skipped += 1
 
     def handle(self, obs: schema.Obs) -> None:
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
@@ -441,49 +359,14 @@ class AgentNode:
                       "-" if r is None else f"{float(r[0, 0]):.3f}", self._action,
                       "learning" if o.train else "greedy", self.steps, self.stale_obs_skipped)
 
-    def _follow_cells(self, pos: tuple[float, float]) -> None:
-        """Range-limited beacons: subscribe to the cells now within range of ``pos``, drop the others."""
-        self._own_pos = pos
-        add, drop = self._follower.move(*pos)
-        for cell in drop:
-            self._cell_subs.pop(cell).close()
-        for cell in add:
-            self._cell_subs[cell] = self.bus.feed(self._beacon_inbox, keys.beacons_in_cell(self.opts.run, cell))
-
     def _send_beacon(self, obs: schema.Obs) -> None:
         o = self.opts
         beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
-        key = keys.uav_beacon(o.run, o.uav)
-        if self._cells is not None:
-            self._follow_cells(obs.pos)
-            key = keys.uav_beacon_in_cell(o.run, o.uav, self._cells.cell_of(*obs.pos))
+        key = self._beacon_key(obs)
         if o.lockstep:  # every agent waits for it, the last observation's included
             self.bus.publish(key, beacon)
             return
-        for r in self._tick_inbox.drain():
-            self._schedule.observe(r.msg.tick, r.msg.t / 1e9)
-        self._schedule.observe(obs.tick, obs.t / 1e9)  # later than its tick's start: never lowers the estimate wrongly
-        if obs.done or not sends_beacon(obs.tick, o.uav, o.beacon_every):  # done: no one acts on this tick
-            return
-        due = time.monotonic() + self._schedule.due(obs.tick) - time.time()  # world clock -> this host's monotonic
-        with self._beacon_due:
-            self._pending_beacon = (due, key, beacon)
-            self._beacon_due.notify()
-
-    def _beacon_loop(self) -> None:
-        """Real time: one thread sends the latest pending beacon at its due time."""
-        while not self._stop.is_set():
-            with self._beacon_due:
-                pending = self._pending_beacon
-                if pending is None or pending[0] > time.monotonic():
-                    wait = 0.05 if pending is None else min(pending[0] - time.monotonic(), 0.05)
-                    self._beacon_due.wait(max(wait, 0.0))
-                    continue
-                self._pending_beacon = None
-            try:
-                self.bus.publish(pending[1], pending[2])
-            except RuntimeError:  # bus closed at shutdown
-                return
+        self._schedule_beacon(obs, key, beacon)
 
     def _take_beacons(self) -> None:
         """Move the beacons heard since the last call from the inbox into the neighbour tables."""
@@ -499,59 +382,17 @@ class AgentNode:
                 if b.uav in self._gone:
                     continue
                 if self.opts.lockstep:
-                    self._heard.add(b.uav)
-                    if b.tick > self._used_tick:
-                        self._beacons_at.setdefault(b.tick, {})[b.uav] = b
-                    continue
-                prev = self._beacons.get(b.uav)
-                if prev is None or b.tick >= prev.tick:
-                    self._beacons[b.uav] = b
+                    self._keep_lockstep_beacon(b)
+                else:
+                    self._keep_freshest_beacon(b)
 
     def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
         """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
         self._take_beacons()
-        if self.opts.lockstep:
-            fresh = self._lockstep_beacons(tick)
-        else:
-            oldest = tick - self.opts.beacon_max_age_ticks
-            with self._lock:
-                fresh = {j: b for j, b in self._beacons.items() if b.tick >= oldest}
-            if self._cells is not None:  # beyond the radius a beacon cannot change the state (agents.beacon_cells)
-                fresh = {j: b for j, b in fresh.items() if self._cells.in_range(self._own_pos, b.pos)}
+        fresh = self._lockstep_beacons(tick) if self.opts.lockstep else self._realtime_beacons_in_range(tick)
         ids = sorted(fresh)
         peers = np.array([[[fresh[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
         return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
-
-    def _lockstep_beacons(self, tick: int) -> dict[int, schema.Beacon]:
-        """The beacons of exactly ``tick`` of every peer not known gone (waited for); older ones are dropped.
-
-        A live peer heard since it joined is waited for up to ``lockstep_wait_s`` (a paused process); one
-        not heard yet (a slow starter, a restarted agent the world did not send this tick to) for
-        LOCKSTEP_JOIN_GRACE_S. Deciding without a live peer's beacon is counted (:class:`Inexact`)."""
-        start = time.monotonic()
-        wait_s = self.opts.lockstep_wait_s
-        while True:
-            with self._lock:
-                got = self._beacons_at.get(tick, {})
-                # Every peer not known gone, so a slow starter is not skipped.
-                missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone and j not in got]
-                waited = time.monotonic() - start
-                waiting = [j for j in missing if waited < (wait_s if j in self._heard else LOCKSTEP_JOIN_GRACE_S)]
-            if not waiting or self._stop.is_set():
-                break
-            # Woken once enough beacons came for all the missing ones, not for each; a peer's loss shows within 50 ms.
-            self._beacon_inbox.wait(0.05, min_ready=len(missing))
-            self._take_beacons()
-        if missing and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
-            self.inexact.add(tick)
-            log.warning("uav %d, tick %d: no beacon from live peer(s) %s within %.1f s; deciding without them "
-                        "(the run is no longer exact)", self.opts.uav, tick, missing, time.monotonic() - start)
-        with self._lock:
-            fresh = self._beacons_at.pop(tick, {})
-            self._used_tick = max(self._used_tick, tick)
-            for old in [t for t in self._beacons_at if t <= tick]:
-                del self._beacons_at[old]
-        return fresh
 
     def checkpoint(self) -> None:
         """Atomically write the Q-table, step count and generator state."""
@@ -566,53 +407,7 @@ class AgentNode:
         os.replace(tmp, path)
         log.info("uav %d: checkpoint at step %d -> %s", self.opts.uav, self.steps, path)
 
-    def latency_stats(self) -> dict[str, float]:
-        with self._lock:
-            lat = np.array(self._latency_ms)
-        if lat.size == 0:
-            return {"n": 0}
-        return {"n": int(lat.size), "p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
-                "max": float(lat.max())}
 
-    def _read_earlier_incarnations(self) -> list[dict]:
-        """A restarted agent (resumed from its checkpoint) keeps the ``incarnations`` of the stats file its
-        earlier processes of this run wrote; a SIGKILLed one wrote none, so it is not listed."""
-        path = self.opts.stats_out
-        if not (self.resumed and path and Path(path).is_file()):
-            return []
-        try:
-            old = json.loads(Path(path).read_text())
-        except (OSError, ValueError):
-            return []
-        earlier = old.get("incarnations") if isinstance(old, dict) and old.get("run") == self.opts.run else None
-        return [e for e in earlier if isinstance(e, dict)][-MAX_INCARNATIONS_KEPT:] if isinstance(earlier, list) else []
-
-    def sent(self) -> dict[str, int]:
-        """What this process published, by kind: beacons, actions, state uploads (central), health reports."""
-        sent = self.bus.stats().sent
-        return {kind: sent.get(kind, 0) for kind in SENT_KINDS}
-
-    def write_stats(self) -> None:
-        if self.opts.stats_out:
-            self._take_beacons()  # the last tick's beacons count too
-            with self._lock:
-                samples = [round(x, 3) for x in self._latency_ms]
-                senders = list(self._latency_from)
-            st = self.bus.stats()
-            data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
-                    "out_of_order_obs": self.out_of_order_obs,
-                    **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
-                    "beacon_latency_ms": self.latency_stats(),
-                    "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
-                    "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
-                            "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
-                    "scheme": self.opts.scheme, **self.scheme_stats()}
-            # what this process sent, to compare with a recording's (uav/<i>, kind, incarnation) streams
-            me = {"inc": f"{self.bus.incarnation:016x}", "steps_from": self._steps_at_start, "steps_to": self.steps,
-                  "sent": self.sent()}
-            data.update(run=self.opts.run, incarnation=me["inc"], sent=me["sent"],
-                        incarnations=[*self._earlier_incarnations, me])
-            p = Path(self.opts.stats_out)
-            tmp = p.with_name(p.name + ".tmp")
-            tmp.write_text(json.dumps(data))
-            tmp.replace(p)
+__all__ = ["AgentNode", "AgentOptions", "CONTROL_SHUTDOWN", "DELAY_ENV", "DONE_ACK_ACTION", "HEALTH_PERIOD_S",
+           "Inexact", "MAX_INCARNATIONS_KEPT", "REALTIME_BEACON_MAX_AGE_TICKS", "SENT_KINDS", "checkpoint_due",
+           "debug_delay_s", "realtime_inbox_capacity"]

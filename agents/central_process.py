@@ -3,7 +3,7 @@
 It runs the in-process driver's own controller, agents.central.CentralController
 with B = 1 (its soft actor-critic, joint state and reward), fed from the bus:
 every UAV uploads its local state on ``uav/<i>/state`` each control round
-(agents.scheme_agents.CentralAgentNode); once a tick's uploads are in, the
+(agents.scheme_process.CentralAgentNode); once a tick's uploads are in, the
 controller calls ``begin_episode`` / ``observe`` / ``act`` exactly as the
 in-process driver does and publishes one command per UAV on
 ``controller/cmd/<i>``, padded to ``central.download_bytes``. The radio effects
@@ -42,7 +42,7 @@ from truav.faults import attach_plan, load_plan
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.lograte import Every
 from world.env import LocalObs
-from agents.agent_process import Inexact
+from agents.lockstep_node import Inexact
 
 log = logging.getLogger("truav.controller")
 

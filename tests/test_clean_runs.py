@@ -7,7 +7,7 @@ import time
 import pytest
 
 from agents.agent_process import AgentOptions
-from agents.scheme_agents import DEPLOY_REPEATS, PatrolAgentNode
+from agents.scheme_process import DEPLOY_REPEATS, PatrolAgentNode
 from conftest import wait_until
 from truav.bus import guard, keys, schema
 from truav.config import Config

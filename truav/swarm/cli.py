@@ -340,7 +340,7 @@ def cmd_agent(args) -> int:
     """One agent, or several (``--id`` repeated) hosted in this process: each with its own Zenoh session,
     identity, credentials, checkpoint and statistics, on its own thread (fewer processes for a large swarm)."""
     from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
-    from agents.scheme_agents import make_agent_node
+    from agents.scheme_process import make_agent_node
     _setup_logging(args.verbose)
     cfg = scenario_from(args)
     _check_creds_fit(args, cfg)

@@ -1,0 +1,92 @@
+"""What only a lock-step agent does: keep its peers' beacons per tick and wait for every live peer's.
+
+A decision uses exactly its own tick's beacons, so a peer already on the next tick cannot change it.
+A live peer heard since it joined is waited for up to ``lockstep_wait_s``; one not heard yet for
+LOCKSTEP_JOIN_GRACE_S. A decision taken without a live process's message is counted (:class:`Inexact`):
+the run is then no longer exactly reproducible.
+
+:class:`LockstepBeacons` is a part of agents.agent_process.AgentNode (which also holds the real-time
+half, agents.realtime_node); it uses the node's lock, stop event, beacon inbox and peers gone.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from truav.bus import schema
+from truav.bus.schema import LOCKSTEP_JOIN_GRACE_S
+
+log = logging.getLogger("truav.agent")
+
+
+class Inexact:
+    """Lock-step decisions taken without a live process's message (the wait ran out): how many, from which tick."""
+
+    def __init__(self) -> None:
+        self.decisions = 0
+        self.from_tick: int | None = None
+
+    def add(self, tick: int) -> None:
+        self.decisions += 1
+        self.from_tick = tick if self.from_tick is None else min(self.from_tick, tick)
+
+    def as_dict(self) -> dict:
+        return {"decisions_without_peer": self.decisions, "inexact_from_tick": self.from_tick}
+
+
+class LockstepBeacons:
+    """The lock-step half of an agent node: beacons per tick, the wait for a tick's, the inexact count."""
+
+    def _init_lockstep(self) -> None:
+        self._beacons_at: dict[int, dict[int, schema.Beacon]] = {}  # lock-step: tick -> {peer: its beacon}
+        self._used_tick = -1  # lock-step: beacons of this tick or earlier come too late to be used
+        self._heard: set[int] = set()  # lock-step: peers whose beacon came since they (last) joined
+        self.inexact = Inexact()
+        """Lock-step: the decisions taken without a live peer's (or, central, the controller's) message."""
+
+    def _keep_lockstep_beacon(self, b: schema.Beacon) -> None:
+        """A peer's beacon heard (under the node's lock): kept for its tick unless that tick is decided."""
+        self._heard.add(b.uav)
+        if b.tick > self._used_tick:
+            self._beacons_at.setdefault(b.tick, {})[b.uav] = b
+
+    def _lockstep_peer_joined(self, uav: int) -> None:
+        """Under the node's lock: a restarted peer is not waited for long before its first beacon."""
+        self._heard.discard(uav)
+
+    def _lockstep_peer_lost(self, uav: int) -> None:
+        """Under the node's lock: a lost peer's beacons are not used."""
+        for at_tick in self._beacons_at.values():
+            at_tick.pop(uav, None)
+
+    def _lockstep_beacons(self, tick: int) -> dict[int, schema.Beacon]:
+        """The beacons of exactly ``tick`` of every peer not known gone (waited for); older ones are dropped.
+
+        A live peer heard since it joined is waited for up to ``lockstep_wait_s`` (a paused process); one
+        not heard yet (a slow starter, a restarted agent the world did not send this tick to) for
+        LOCKSTEP_JOIN_GRACE_S. Deciding without a live peer's beacon is counted (:class:`Inexact`)."""
+        start = time.monotonic()
+        wait_s = self.opts.lockstep_wait_s
+        while True:
+            with self._lock:
+                got = self._beacons_at.get(tick, {})
+                # Every peer not known gone, so a slow starter is not skipped.
+                missing = [j for j in range(self.n_uavs) if j != self.opts.uav and j not in self._gone and j not in got]
+                waited = time.monotonic() - start
+                waiting = [j for j in missing if waited < (wait_s if j in self._heard else LOCKSTEP_JOIN_GRACE_S)]
+            if not waiting or self._stop.is_set():
+                break
+            # Woken once enough beacons came for all the missing ones, not for each; a peer's loss shows within 50 ms.
+            self._beacon_inbox.wait(0.05, min_ready=len(missing))
+            self._take_beacons()
+        if missing and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
+            self.inexact.add(tick)
+            log.warning("uav %d, tick %d: no beacon from live peer(s) %s within %.1f s; deciding without them "
+                        "(the run is no longer exact)", self.opts.uav, tick, missing, time.monotonic() - start)
+        with self._lock:
+            fresh = self._beacons_at.pop(tick, {})
+            self._used_tick = max(self._used_tick, tick)
+            for old in [t for t in self._beacons_at if t <= tick]:
+                del self._beacons_at[old]
+        return fresh
