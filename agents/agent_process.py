@@ -24,8 +24,8 @@ agents' beacons off the CPU); in real time one thread sends this agent's
 beacon in its slot of the tick (:mod:`agents.beacon_schedule`).
 
 :class:`AgentNode` is made of parts, one module each: what only lock-step
-uses (agents.lockstep_node), what only real time uses (agents.realtime_node)
-and its health report and stats file (agents.agent_reports); this module holds
+uses (agents.agent_process_lockstep), what only real time uses (agents.agent_process_realtime)
+and its health report and stats file (agents.agent_process_reports); this module holds
 the options, the bus wiring, the main loop and the decision.
 """
 
@@ -43,16 +43,17 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.agent_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
-from agents.lockstep_node import Inexact, LockstepBeacons
+from agents.agent_process_lockstep import Inexact, LockstepBeacons
+from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
+from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
 from agents.qlearning import QLearners, geofence
-from agents.realtime_node import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.lograte import Every
+from truav.runio import read_qtables
 from truav.faults import attach_plan, load_plan
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
@@ -157,7 +158,8 @@ class AgentOptions:
 
 class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
     """One agent: the bus wiring, the main loop and the TRUAV decision; the lock-step and real-time halves
-    and the reports are its parts (agents.lockstep_node, agents.realtime_node, agents.agent_reports)."""
+    and the reports are its parts (agents.agent_process_lockstep, agents.agent_process_realtime,
+    agents.agent_process_reports)."""
 
     def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None):
         """``beacon_inbox(bus)``, if given, returns this agent's beacon inbox (fed by a subscription its
@@ -246,7 +248,6 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         rng = seeding.agent_rng(o.seed, o.uav)
         q = None
         if o.qtable:
-            from truav.runio import read_qtables
             _, tables = read_qtables(o.qtable)
             q = tables[o.qtable_index, o.uav][None, None]
         learners = QLearners(self.cfg.learner, self.encoder.n_states, [rng], 1, 1, q=q, fence=geofence(self.cfg))

@@ -40,9 +40,11 @@ from truav.bus.transport import Bus
 from truav.config import Config
 from truav.faults import attach_plan, load_plan
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav import runio
 from truav.lograte import Every
+from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
 from world.env import LocalObs
-from agents.lockstep_node import Inexact
+from agents.agent_process_lockstep import Inexact
 
 log = logging.getLogger("truav.controller")
 
@@ -74,8 +76,6 @@ class ControllerOptions:
 class ControllerNode:
     def __init__(self, cfg: Config, opts: ControllerOptions, bus: Bus):
         self._debug = Every(log)
-        from truav import runio
-        from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.n_uavs = cfg.scenario.n_uavs
         params = runio.read_policy(opts.policy, opts.policy_index, cfg) if opts.policy else None

@@ -31,6 +31,7 @@ import time
 import numpy as np
 
 from agents.agent_process import DONE_ACK_ACTION, AgentNode, AgentOptions
+from agents.patrol import PatrolController
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
@@ -85,7 +86,6 @@ class _NoLearner(AgentNode):
 
 class PatrolAgentNode(_NoLearner):
     def _make_learners(self):
-        from agents.patrol import PatrolController
         self.patrol = PatrolController(self.cfg, [self.opts.seed])
         self.deployments = 0
         self.deployments_incomplete = 0

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.central import ControlCounters
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.lograte import Every
@@ -97,6 +98,29 @@ def warm_up_kernels(cfg: Config) -> None:
     world.start_episode()
 
 
+def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick: int, episode: int, obs,
+                  done: bool) -> None:
+    """What the world sends for a tick: its stamp, every UAV's observation and (every
+    POSITIONS_EVERY_TICKS ticks) all positions."""
+    run, sc, lockstep, n_uavs = opts.run, cfg.scenario, opts.lockstep, cfg.scenario.n_uavs
+    period_ms = 1e3 / opts.rate_hz
+    bus.publish(keys.world_tick(run), schema.Tick(
+        tick=tick, episode=episode, sim_time=tick * sc.step_s,
+        deadline_ms=opts.lockstep_wait_s * 1e3 if lockstep else opts.deadline_frac * period_ms,
+        n_uavs=n_uavs))
+    for i in range(n_uavs):
+        bus.publish(keys.uav_obs(run, i), schema.Obs(
+            tick=tick, episode=episode, uav=i, pos=tuple(obs.pos[0, i]),
+            vehicles_in_range=int(obs.vehicles_in_range[0, i]), queued_packets=int(obs.queued[0, i]),
+            relayed=int(obs.relayed[0, i]), covered=int(obs.covered[0, i]),
+            energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done,
+            densest_sector=int(obs.densest_sector[0, i])))
+    if tick % POSITIONS_EVERY_TICKS == 0:
+        vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
+        bus.publish(keys.world_positions(run), schema.Positions(
+            tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, vehicles))))
+
+
 class WorldNode:
     """Drives a one-environment World from bus traffic."""
 
@@ -122,7 +146,6 @@ class WorldNode:
         self.central = opts.scheme == "central"
         self._plane = None
         if self.central:
-            from agents.central import ControlCounters
             self._plane = ControlCounters(cfg, 1)
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
         bus.accept_replay = opts.accept_replay
@@ -297,28 +320,13 @@ class WorldNode:
 
         Lock-step waits for an answer to the ``done`` observation too (an acknowledgement, not applied):
         the next tick goes out only once every agent alive at publication has finished this one."""
-        run, sc, lockstep = self.opts.run, self.cfg.scenario, self.opts.lockstep
+        lockstep = self.opts.lockstep
         with self._cond:
             self._tick = tick if lockstep or not done else -1
             self._round = tick
             self._actions = {}
             expected = set(self._alive)  # one who joins later never saw this tick's observation
-        period_ms = 1e3 / self.opts.rate_hz
-        self.bus.publish(keys.world_tick(run), schema.Tick(
-            tick=tick, episode=episode, sim_time=tick * sc.step_s,
-            deadline_ms=self.opts.lockstep_wait_s * 1e3 if lockstep else self.opts.deadline_frac * period_ms,
-            n_uavs=self.n_uavs))
-        for i in range(self.n_uavs):
-            self.bus.publish(keys.uav_obs(run, i), schema.Obs(
-                tick=tick, episode=episode, uav=i, pos=tuple(obs.pos[0, i]),
-                vehicles_in_range=int(obs.vehicles_in_range[0, i]), queued_packets=int(obs.queued[0, i]),
-                relayed=int(obs.relayed[0, i]), covered=int(obs.covered[0, i]),
-                energy_j=float(obs.energy_j[0, i]), speed_max=sc.uav_speed_mps, done=done,
-                densest_sector=int(obs.densest_sector[0, i])))
-        if tick % POSITIONS_EVERY_TICKS == 0:
-            vehicles = np.round(self.world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
-            self.bus.publish(keys.world_positions(run), schema.Positions(
-                tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, vehicles))))
+        publish_round(self.bus, self.cfg, self.opts, self.world, tick, episode, obs, done)
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
         if done and not lockstep:
             return actions
@@ -369,4 +377,5 @@ class WorldNode:
                       values["coverage_pct"], values["generated"], values["delivered"])
 
 
-__all__ = ["WorldNode", "WorldOptions", "WorldStats", "action_digest", "warm_up_kernels", "write_stats"]
+__all__ = ["WorldNode", "WorldOptions", "WorldStats", "action_digest", "publish_round", "warm_up_kernels",
+           "write_stats"]

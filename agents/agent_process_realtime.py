@@ -3,7 +3,7 @@ tick from a thread of its own (agents.beacon_schedule), keep each peer's freshes
 range-limited beacons (``beacon_cell_m``), follow the map cells within range (agents.beacon_cells).
 
 :class:`RealtimeBeacons` is a part of agents.agent_process.AgentNode (which also holds the lock-step
-half, agents.lockstep_node); it uses the node's bus, options, lock, stop event and peers gone.
+half, agents.agent_process_lockstep); it uses the node's bus, options, lock, stop event and peers gone.
 """
 
 from __future__ import annotations

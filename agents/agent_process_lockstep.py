@@ -6,7 +6,7 @@ LOCKSTEP_JOIN_GRACE_S. A decision taken without a live process's message is coun
 the run is then no longer exactly reproducible.
 
 :class:`LockstepBeacons` is a part of agents.agent_process.AgentNode (which also holds the real-time
-half, agents.realtime_node); it uses the node's lock, stop event, beacon inbox and peers gone.
+half, agents.agent_process_realtime); it uses the node's lock, stop event, beacon inbox and peers gone.
 """
 
 from __future__ import annotations
