@@ -60,7 +60,10 @@ from typing import Any, ClassVar, TypeVar, Union
 import msgpack
 import numpy as np
 
+from truav.bus import keys
 from truav.bus.keys import MAX_UAVS
+from world.uavs import HOVER, N_ACTIONS  # noqa: F401  (re-exported: an action is an int in [0, N_ACTIONS), or
+# HOVER, an agent's explicit hover: the central scheme's autopilot without commands)
 
 SCHEMA_VERSION = 1
 
@@ -94,8 +97,6 @@ FAULT_FREEZE = "freeze"
 FAULT_KINDS = (FAULT_LOSS, FAULT_LATENCY, FAULT_PARTITION, FAULT_CRASH, FAULT_FREEZE)
 
 # --- limits -------------------------------------------------------------------
-N_ACTIONS = 16  # an action is an int in [0, N_ACTIONS), or HOVER
-HOVER = -1  # an agent's explicit hover (world.uavs.HOVER): the central scheme's autopilot without commands
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: the largest payload of any kind (positions)
 MAX_CONTROL_PAYLOAD_BYTES = 256 << 10  # control messages may carry plans
 MAX_SMALL_PAYLOAD_BYTES = 16 << 10  # everything else
@@ -365,6 +366,9 @@ class Envelope:
     """Envelope fields shared by every kind; ``src=""`` means "not stamped yet"."""
 
     KIND: ClassVar[str] = ""
+    PLACE: ClassVar[tuple[str, ...]] = ()
+    """The key it is published on, after ``truav/<run>/``: its first chunks, named in :mod:`truav.bus.keys`
+    (a ``uav`` key: ``uav``, then the UAV id, then its last chunk; see :mod:`truav.bus.placement`)."""
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({})
     _PLAN: ClassVar[tuple[tuple[str, str, Check], ...]] = ()
     """(field, "kind.field", check) for every field, envelope first; set by _build_registry."""
@@ -385,6 +389,7 @@ class Tick(Envelope):
     """World clock tick: agents must answer with an action before ``deadline_ms``."""
 
     KIND: ClassVar[str] = KIND_TICK
+    PLACE: ClassVar[tuple[str, ...]] = (keys.WORLD, keys.TICK)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {"tick": _uint63, "episode": _uint63, "sim_time": _nonneg, "deadline_ms": _positive, "n_uavs": _n_uavs}
     )
@@ -400,6 +405,7 @@ class Obs(Envelope):
     """World -> agent ``uav``: its local observation and last-step reward terms."""
 
     KIND: ClassVar[str] = KIND_OBS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.OBS)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "tick": _uint63,
@@ -436,6 +442,7 @@ class Beacon(Envelope):
     """Agent ``uav`` -> all: lightweight position/velocity beacon."""
 
     KIND: ClassVar[str] = KIND_BEACON
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.BEACON)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {"uav": _uav_id, "tick": _uint63, "pos": _vec2, "vel": _vec2}
     )
@@ -450,6 +457,7 @@ class Action(Envelope):
     """Agent ``uav`` -> world: chosen action for ``tick``, in ``[0, N_ACTIONS)``."""
 
     KIND: ClassVar[str] = KIND_ACTION
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.ACTION)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {"uav": _uav_id, "tick": _uint63, "action": _action_or_hover})
     uav: int
@@ -466,6 +474,7 @@ class State(Envelope):
     control-plane model charges, so the traffic measured on the bus is the modelled one."""
 
     KIND: ClassVar[str] = KIND_STATE
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.STATE)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "uav": _uav_id,
@@ -503,6 +512,7 @@ class Command(Envelope):
     ``central.download_bytes`` (see :class:`State`)."""
 
     KIND: ClassVar[str] = KIND_COMMAND
+    PLACE: ClassVar[tuple[str, ...]] = (keys.CONTROLLER,)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {"uav": _uav_id, "tick": _uint63, "action": _action, "pad": _pad})
     uav: int
@@ -516,6 +526,7 @@ class Metrics(Envelope):
     """World -> recorder: named finite numbers for one step or one episode."""
 
     KIND: ClassVar[str] = KIND_METRICS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.METRICS_ROOT,)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "scope": _choice(SCOPES),
@@ -535,6 +546,7 @@ class Fault(Envelope):
     """Fault controller -> all: a fault of kind ``fault`` starts or ends on ``target``."""
 
     KIND: ClassVar[str] = KIND_FAULT
+    PLACE: ClassVar[tuple[str, ...]] = (keys.FAULT_ROOT,)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "fault": _name,
@@ -554,6 +566,7 @@ class Control(Envelope):
     """Operator/tool -> all: a command (e.g. a replay or fault plan) with JSON-like args."""
 
     KIND: ClassVar[str] = KIND_CONTROL
+    PLACE: ClassVar[tuple[str, ...]] = (keys.CONTROL_ROOT,)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({"command": _name, "args": _json_like})
     command: str
     args: dict[str, Any]
@@ -564,6 +577,7 @@ class Positions(Envelope):
     """World -> recorder: all UAV and (capped) vehicle positions, for maps."""
 
     KIND: ClassVar[str] = KIND_POSITIONS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.WORLD, keys.POSITIONS)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {"tick": _uint63, "uavs": _points(MAX_UAVS), "vehicles": _points(MAX_VEHICLE_POSITIONS)}
     )
@@ -592,6 +606,7 @@ class Health(Envelope):
     only the :data:`MAX_HEALTH_SENDERS` most refused senders."""
 
     KIND: ClassVar[str] = KIND_HEALTH
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.HEALTH)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "uav": _uav_id,
