@@ -62,7 +62,7 @@ def check_placement(key: str, msg: Message) -> None:
     body_uav = getattr(msg, "uav", None)
     if key_uav is not None and body_uav is not None and body_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
-    src_uav = src_uav(msg.src)
+    src_uav = uav_of_src(msg.src)
     if src_uav is not None and src_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
     last = key.rsplit("/", 1)[-1]
@@ -89,5 +89,5 @@ def size_limit_of_key(key: str) -> int:
 
 
 @functools.lru_cache(maxsize=4096)
-def src_uav(src: str) -> int | None:
+def uav_of_src(src: str) -> int | None:
     return keys.parse_uav_identity(src)

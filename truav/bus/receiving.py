@@ -53,7 +53,7 @@ class RawReceiver:
                 return None
             key = str(sample.key_expr)
             # Not even a recorder keeps a payload too large for its key's kind: checked before copying.
-            limit = _size_limit_of_key(key)
+            limit = size_limit_of_key(key)
             if len(sample.payload) > limit:
                 self._bus._count_received(1, delivered=0)
                 self._bus._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{len(sample.payload)} bytes, "
