@@ -46,7 +46,7 @@ class Site:
 
 TLS_FILE_KEYS = ("root_ca_certificate", "listen_private_key", "listen_certificate", "connect_private_key",
                  "connect_certificate")
-"""The TLS settings that name files; a relative one is read next to its config file (transport.make_config)."""
+"""The TLS settings that name files; a relative one is read next to its config file (zenoh_config.make_config)."""
 
 
 def _file_namer(directory: Path | None):
