@@ -6,7 +6,8 @@ of each ``main()`` prints it as one line naming the flag or file and exits
 with code 2, before anything starts.  Everything else (a bug) keeps its
 traceback.  The argparse types here reject bad values at parse time, so the
 rest of the code never sees them; :class:`OneLineParser` makes argparse's own
-errors one line too.
+errors one line too.  :func:`add_transport_args` adds the zenoh transport flags every bus
+command shares (their values become a config in :mod:`truav.bus.zenoh_config`).
 """
 
 from __future__ import annotations
