@@ -288,7 +288,7 @@ REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live ag
 def add_swarm_commands(subparsers: Any) -> None:
     """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
     from recorder.process import add_record_args
-    from truav.bus.transport import add_transport_args
+    from truav.cli_args import add_transport_args
 
     rec = subparsers.add_parser(
         "record", help="record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)",

@@ -66,6 +66,7 @@ from recorder.mcap_log import (
 from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry, parse_origin
 from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
+from truav import cli_args
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
 from truav.lifecycle import signals_handled, watch_supervisor
@@ -479,7 +480,7 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug lines: what was recorded, once a second")
     parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",
                         help=f"client mode: wait this long for the router (default {DEFAULT_ROUTER_WAIT_S:g} s)")
-    transport.add_transport_args(parser)
+    cli_args.add_transport_args(parser)
     return parser
 
 

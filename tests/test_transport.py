@@ -20,6 +20,7 @@ import conftest
 from conftest import free_port
 import zenoh
 
+from truav import cli_args
 from truav.bus import keys, schema, transport
 from truav.bus.schema import Action, Beacon, Obs, SchemaError
 
@@ -85,7 +86,7 @@ def test_make_config_turns_multicast_off_and_sets_endpoints() -> None:
 
 
 def test_config_from_args(tmp_path) -> None:
-    parser = transport.add_transport_args(argparse.ArgumentParser())
+    parser = cli_args.add_transport_args(argparse.ArgumentParser())
     args = parser.parse_args(["-m", "peer", "-e", "tcp/127.0.0.1:7000", "-e", "tcp/127.0.0.1:7001",
                               "-l", "tcp/127.0.0.1:0"])
     conf = transport.config_from_args(args)

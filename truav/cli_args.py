@@ -6,7 +6,8 @@ of each ``main()`` prints it as one line naming the flag or file and exits
 with code 2, before anything starts.  Everything else (a bug) keeps its
 traceback.  The argparse types here reject bad values at parse time, so the
 rest of the code never sees them; :class:`OneLineParser` makes argparse's own
-errors one line too.
+errors one line too.  :func:`add_transport_args` adds the zenoh transport flags every bus
+command shares (their values become a config in :mod:`truav.bus.zenoh_config`).
 """
 
 from __future__ import annotations
@@ -118,3 +119,21 @@ def run_name(text: str) -> str:
         return keys.validate_run(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the zenoh-example style flags ``-e/--connect``, ``-l/--listen``, ``-c/--config``, ``-m/--mode``."""
+    from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODES  # deferred: zenoh is imported only by bus commands
+    group = parser.add_argument_group("zenoh transport")
+    group.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=[],
+                       help=f"endpoint to connect to (repeatable; client default {DEFAULT_ENDPOINT})")
+    group.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=[],
+                       help="endpoint to listen on (repeatable)")
+    group.add_argument("-c", "--config", metavar="FILE", default=None, help="zenoh JSON5 config file")
+    group.add_argument("-m", "--mode", choices=MODES, default=None,
+                       help="zenoh session mode (default: client, or the config file's)")
+    group.add_argument("--creds", metavar="DIR", default=None,
+                       help="credentials directory of a --secure swarm (truav-swarm certs): use this "
+                            "component's certificate and zenoh config from it (instead of -c)")
+    return parser
+

@@ -24,18 +24,28 @@ import itertools
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import zenoh
 
 from truav.bus import schema
 from truav.bus.schema import Message
 
-if TYPE_CHECKING:
-    from truav.bus.transport import Bus
-
 DEFAULT_INBOX_CAPACITY = 4096
 """Messages held before the oldest are evicted (counted as overflow): 10 s of 20 agents' beacons at 10 Hz."""
+
+
+class InboxBus(Protocol):
+    """What an inbox uses of its :class:`truav.bus.transport.Bus` (which imports this module)."""
+
+    def _clock(self) -> int: ...
+    def _filters_nothing(self) -> bool: ...
+    def _count_received(self, n: int, delivered: int | None = None) -> None: ...
+    def _count_overflow(self) -> None: ...
+    def _refuse_replayed(self, key: str, sample: zenoh.Sample) -> bool: ...
+    def _payload(self, key: str, sample: zenoh.Sample, max_bytes: int | None) -> bytes | None: ...
+    def _admit(self, key: str, raw: bytes, arrival_ns: int) -> float | None: ...
+    def _decode(self, key: str, raw: bytes) -> Message | None: ...
 
 
 class Received(NamedTuple):
@@ -51,7 +61,7 @@ class Received(NamedTuple):
 class Inbox:
     """Valid messages on one key expression, decoded by :meth:`drain` on the reader's thread."""
 
-    def __init__(self, bus: Bus, capacity: int = DEFAULT_INBOX_CAPACITY, compact: bool = True) -> None:
+    def __init__(self, bus: InboxBus, capacity: int = DEFAULT_INBOX_CAPACITY, compact: bool = True) -> None:
         """``compact``: a full inbox first validates what it holds and keeps the valid messages
         (nothing valid is lost to junk: lock-step); False: it just evicts the oldest (real time: only
         the freshest beacons matter, and a flood then costs no decoding until the reader drains)."""

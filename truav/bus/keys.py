@@ -52,6 +52,15 @@ SRC_FAULT = "fault"
 SRC_REPLAY = "replay"
 SRC_CONTROLLER = "controller"
 
+# First chunks (after ``truav/<run>/``) of the data keys, and the world's two keys.
+WORLD = "world"
+TICK = "tick"
+POSITIONS = "positions"
+UAV = "uav"
+METRICS_ROOT = "metrics"  # metrics(run, scope) builds its keys
+FAULT_ROOT = "fault"
+CONTROL_ROOT = "control"
+
 # Last chunks of the per-UAV keys.
 OBS = "obs"
 BEACON = "beacon"
@@ -100,17 +109,17 @@ def everything(run: str) -> str:
 
 # --- world ---------------------------------------------------------------
 def world_tick(run: str) -> str:
-    return f"{prefix(run)}/world/tick"
+    return f"{prefix(run)}/{WORLD}/{TICK}"
 
 
 def world_positions(run: str) -> str:
-    return f"{prefix(run)}/world/positions"
+    return f"{prefix(run)}/{WORLD}/{POSITIONS}"
 
 
 # --- per UAV ---------------------------------------------------------------
 def uav_prefix(run: str, i: int) -> str:
     """``truav/<run>/uav/<i>``: everything agent ``i`` may publish lives below this."""
-    return f"{prefix(run)}/uav/{validate_uav_id(i)}"
+    return f"{prefix(run)}/{UAV}/{validate_uav_id(i)}"
 
 
 def uav_obs(run: str, i: int) -> str:
@@ -131,7 +140,7 @@ def uav_state(run: str, i: int) -> str:
 
 
 def all_states(run: str) -> str:
-    return f"{prefix(run)}/uav/*/{STATE}"
+    return f"{prefix(run)}/{UAV}/*/{STATE}"
 
 
 def uav_health(run: str, i: int) -> str:
@@ -140,7 +149,7 @@ def uav_health(run: str, i: int) -> str:
 
 
 def all_health(run: str) -> str:
-    return f"{prefix(run)}/uav/*/{HEALTH}"
+    return f"{prefix(run)}/{UAV}/*/{HEALTH}"
 
 
 def controller_cmd(run: str, i: int) -> str:
@@ -153,12 +162,12 @@ def all_commands(run: str) -> str:
 
 
 def all_obs(run: str) -> str:
-    return f"{prefix(run)}/uav/*/{OBS}"
+    return f"{prefix(run)}/{UAV}/*/{OBS}"
 
 
 def all_beacons(run: str) -> str:
     """``truav/<run>/uav/*/beacon``."""
-    return f"{prefix(run)}/uav/*/{BEACON}"
+    return f"{prefix(run)}/{UAV}/*/{BEACON}"
 
 
 def uav_beacon_in_cell(run: str, i: int, cell: tuple[int, int]) -> str:
@@ -187,14 +196,14 @@ def cell_chunk(cell: tuple[int, int]) -> str:
 
 def all_actions(run: str) -> str:
     """``truav/<run>/uav/*/action`` (what the world subscribes to)."""
-    return f"{prefix(run)}/uav/*/{ACTION}"
+    return f"{prefix(run)}/{UAV}/*/{ACTION}"
 
 
 # --- metrics, faults, control -----------------------------------------------
 def metrics(run: str, scope: str) -> str:
     if scope not in (SCOPE_STEP, SCOPE_EPISODE):
         raise ValueError(f"metrics scope must be {SCOPE_STEP!r} or {SCOPE_EPISODE!r}, got {scope!r}")
-    return f"{prefix(run)}/metrics/{scope}"
+    return f"{prefix(run)}/{METRICS_ROOT}/{scope}"
 
 
 def metrics_step(run: str) -> str:
@@ -206,27 +215,27 @@ def metrics_episode(run: str) -> str:
 
 
 def all_metrics(run: str) -> str:
-    return f"{prefix(run)}/metrics/*"
+    return f"{prefix(run)}/{METRICS_ROOT}/*"
 
 
 def fault(run: str, kind: str) -> str:
     """``truav/<run>/fault/<kind>``, e.g. ``fault(run, "loss")``."""
-    return f"{prefix(run)}/fault/{_check_chunk(kind, 'fault kind')}"
+    return f"{prefix(run)}/{FAULT_ROOT}/{_check_chunk(kind, 'fault kind')}"
 
 
 def all_faults(run: str) -> str:
-    return f"{prefix(run)}/fault/*"
+    return f"{prefix(run)}/{FAULT_ROOT}/*"
 
 
 def control(run: str, *parts: str) -> str:
     """``truav/<run>/control/<part>[/<part>...]``, e.g. ``control(run, "replay", "plan")``."""
     if not parts:
         raise ValueError("control key needs at least one part, e.g. control(run, 'fault_plan')")
-    return "/".join([f"{prefix(run)}/control", *(_check_chunk(p, "control key part") for p in parts)])
+    return "/".join([f"{prefix(run)}/{CONTROL_ROOT}", *(_check_chunk(p, "control key part") for p in parts)])
 
 
 def all_control(run: str) -> str:
-    return f"{prefix(run)}/control/**"
+    return f"{prefix(run)}/{CONTROL_ROOT}/**"
 
 
 # --- liveliness tokens --------------------------------------------------------

@@ -29,7 +29,7 @@ import zenoh
 
 from truav.bus import keys
 from truav.cli import UsageError, parse_sets
-from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
+from truav.cli_args import (OneLineParser, UserError, add_transport_args, check_endpoint, check_in_file, check_out_dir, check_out_file,
                             non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
 from truav.config import Config, load_config
@@ -37,7 +37,7 @@ from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, watch_router, watch_supervisor
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.nemesis import NEMESES
-from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, apply_creds, config_from_args, run_router
+from truav.bus.transport import DEFAULT_ENDPOINT, Bus, apply_creds, config_from_args, run_router
 
 log = logging.getLogger("truav.swarm")
 

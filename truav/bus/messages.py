@@ -1,0 +1,354 @@
+"""The message kinds of the wire schema (:mod:`truav.bus.schema`): one frozen dataclass per kind, which
+validates itself on construction, its key placement (``PLACE``), the registry by kind and the size
+and parsing limits of each kind."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from types import MappingProxyType
+from typing import Any, ClassVar, TypeVar, Union
+
+from truav.bus import keys
+from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _finite, _int,
+                                    _json_like, _n_uavs, _name, _nonneg, _pad, _param_value, _points, _positive,
+                                    _printable_src, _sector, _src, _str_map, _text, _uav_id, _uint63, _uint64, _vec2)
+from truav.bus.keys import MAX_UAVS
+from truav.bus.schema_names import (
+    _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
+    KIND_OBS, KIND_POSITIONS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
+    MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
+    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, SCOPES)
+
+# --- message classes ------------------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class Envelope:
+    """Envelope fields shared by every kind; ``src=""`` means "not stamped yet"."""
+
+    KIND: ClassVar[str] = ""
+    PLACE: ClassVar[tuple[str, ...]] = ()
+    """The key it is published on, after ``truav/<run>/``: its first chunks, named in :mod:`truav.bus.keys`
+    (a ``uav`` key: ``uav``, then the UAV id, then its last chunk; see :mod:`truav.bus.placement`)."""
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({})
+    _PLAN: ClassVar[tuple[tuple[str, str, Check], ...]] = ()
+    """(field, "kind.field", check) for every field, envelope first; set by _build_registry."""
+
+    src: str = ""
+    seq: int = 0
+    t: int = 0
+    inc: int = 0
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name, path, check in self._PLAN:
+            set_(self, name, check(path, getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class Tick(Envelope):
+    """World clock tick: agents must answer with an action before ``deadline_ms``."""
+
+    KIND: ClassVar[str] = KIND_TICK
+    PLACE: ClassVar[tuple[str, ...]] = (keys.WORLD, keys.TICK)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"tick": _uint63, "episode": _uint63, "sim_time": _nonneg, "deadline_ms": _positive, "n_uavs": _n_uavs}
+    )
+    tick: int
+    episode: int
+    sim_time: float
+    deadline_ms: float
+    n_uavs: int
+
+
+@dataclass(frozen=True)
+class Obs(Envelope):
+    """World -> agent ``uav``: its local observation and last-step reward terms."""
+
+    KIND: ClassVar[str] = KIND_OBS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.OBS)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "tick": _uint63,
+            "episode": _uint63,
+            "uav": _uav_id,
+            "pos": _vec2,
+            "vehicles_in_range": _uint63,
+            "queued_packets": _uint63,
+            "relayed": _uint63,
+            "covered": _uint63,
+            "energy_j": _nonneg,
+            "speed_max": _nonneg,
+            "done": _bool,
+            "densest_sector": _sector,
+        }
+    )
+    tick: int
+    episode: int
+    uav: int
+    pos: tuple[float, float]
+    vehicles_in_range: int
+    queued_packets: int
+    relayed: int
+    covered: int
+    energy_j: float
+    speed_max: float
+    done: bool
+    densest_sector: int = 0
+    """Sensing of denser areas (learner.sense_range_m): 1 + the densest direction sector, 0 none / off."""
+
+
+@dataclass(frozen=True)
+class Beacon(Envelope):
+    """Agent ``uav`` -> all: lightweight position/velocity beacon."""
+
+    KIND: ClassVar[str] = KIND_BEACON
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.BEACON)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "pos": _vec2, "vel": _vec2}
+    )
+    uav: int
+    tick: int
+    pos: tuple[float, float]
+    vel: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Action(Envelope):
+    """Agent ``uav`` -> world: chosen action for ``tick``, in ``[0, N_ACTIONS)``."""
+
+    KIND: ClassVar[str] = KIND_ACTION
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.ACTION)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "action": _action_or_hover})
+    uav: int
+    tick: int
+    action: int
+
+
+@dataclass(frozen=True)
+class State(Envelope):
+    """Agent ``uav`` -> central controller: its local state report for ``tick`` (scheme central).
+
+    The values the controller's joint state and reward need (agents.central.uav_states), and
+    ``pad``: the message is padded to ``central.upload_bytes``, the report size the in-process
+    control-plane model charges, so the traffic measured on the bus is the modelled one."""
+
+    KIND: ClassVar[str] = KIND_STATE
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.STATE)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "tick": _uint63,
+            "episode": _uint63,
+            "step": _uint63,
+            "pos": _vec2,
+            "vehicles_in_range": _uint63,
+            "queued_packets": _uint63,
+            "relayed": _uint63,
+            "covered": _uint63,
+            "energy_j": _nonneg,
+            "done": _bool,
+            "pad": _pad,
+        }
+    )
+    uav: int
+    tick: int
+    episode: int
+    step: int
+    """Step within the episode (the world's t when the observation was made)."""
+    pos: tuple[float, float]
+    vehicles_in_range: int
+    queued_packets: int
+    relayed: int
+    covered: int
+    energy_j: float
+    done: bool
+    pad: bytes
+
+
+@dataclass(frozen=True)
+class Command(Envelope):
+    """Central controller -> agent ``uav``: the action to fly from ``tick`` on, padded to
+    ``central.download_bytes`` (see :class:`State`)."""
+
+    KIND: ClassVar[str] = KIND_COMMAND
+    PLACE: ClassVar[tuple[str, ...]] = (keys.CONTROLLER,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "action": _action, "pad": _pad})
+    uav: int
+    tick: int
+    action: int
+    pad: bytes
+
+
+@dataclass(frozen=True)
+class Metrics(Envelope):
+    """World -> recorder: named finite numbers for one step or one episode."""
+
+    KIND: ClassVar[str] = KIND_METRICS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.METRICS_ROOT,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "scope": _choice(SCOPES),
+            "tick": _uint63,
+            "episode": _uint63,
+            "values": _str_map(MAX_METRIC_VALUES, _finite),
+        }
+    )
+    scope: str
+    tick: int
+    episode: int
+    values: dict[str, float]
+
+
+@dataclass(frozen=True)
+class Fault(Envelope):
+    """Fault controller -> all: a fault of kind ``fault`` starts or ends on ``target``."""
+
+    KIND: ClassVar[str] = KIND_FAULT
+    PLACE: ClassVar[tuple[str, ...]] = (keys.FAULT_ROOT,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "fault": _name,
+            "phase": _choice(PHASES),
+            "target": _text(MAX_TARGET_LEN),
+            "params": _str_map(MAX_FAULT_PARAMS, _param_value),
+        }
+    )
+    fault: str
+    phase: str
+    target: str
+    params: dict[str, float | int | str]
+
+
+@dataclass(frozen=True)
+class Control(Envelope):
+    """Operator/tool -> all: a command (e.g. a replay or fault plan) with JSON-like args."""
+
+    KIND: ClassVar[str] = KIND_CONTROL
+    PLACE: ClassVar[tuple[str, ...]] = (keys.CONTROL_ROOT,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({"command": _name, "args": _json_like})
+    command: str
+    args: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Positions(Envelope):
+    """World -> recorder: all UAV and (capped) vehicle positions, for maps."""
+
+    KIND: ClassVar[str] = KIND_POSITIONS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.WORLD, keys.POSITIONS)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"tick": _uint63, "uavs": _points(MAX_UAVS), "vehicles": _points(MAX_VEHICLE_POSITIONS)}
+    )
+    tick: int
+    uavs: tuple[tuple[float, float], ...]
+    vehicles: tuple[tuple[float, float], ...]
+
+
+HEALTH_PERIOD_S = 1.0
+"""How often an agent publishes its Health report (and once at its start)."""
+DEFAULT_LOCKSTEP_WAIT_S = 60.0
+"""Lock-step (``--lockstep-wait``): how long the world waits for a live agent's action and an agent for a
+live peer's beacon (a paused or swapped-out process) before going on without it; the run is then no
+longer exact, and says so (the supervisor)."""
+LOCKSTEP_JOIN_GRACE_S = 2.0
+"""Lock-step: a peer not heard from since it (re)joined is waited for this long only: a restarted agent
+joins between the world's ticks and gets no observation before the next one, so its beacon of the
+current tick never comes."""
+
+
+@dataclass(frozen=True)
+class Health(Envelope):
+    """Agent ``uav`` -> supervisor, status, recorder: what it refused so far, every HEALTH_PERIOD_S.
+
+    Bounded whatever a flood sends it: ``rejected`` by reason (the fixed ``R_*`` codes), ``senders``
+    only the :data:`MAX_HEALTH_SENDERS` most refused senders."""
+
+    KIND: ClassVar[str] = KIND_HEALTH
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.HEALTH)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "last_tick": _int(-1, (1 << 63) - 1),
+            "steps": _uint63,
+            "stale_obs_skipped": _uint63,
+            "rejected": _count_map(MAX_HEALTH_REASONS, _name),
+            "senders": _count_map(MAX_HEALTH_SENDERS, _printable_src),
+        }
+    )
+    uav: int
+    last_tick: int
+    """The last observation's tick it answered (-1: none yet); not ``tick``, so an agent far behind
+    the world still gets its report through the receivers' tick window."""
+    steps: int
+    stale_obs_skipped: int
+    rejected: dict[str, int]
+    senders: dict[str, int]
+
+
+Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health]
+M = TypeVar("M", bound=Envelope)
+
+_ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
+
+
+def _build_registry() -> Mapping[str, type[Envelope]]:
+    registry: dict[str, type[Envelope]] = {}
+    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health):
+        body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
+        assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
+        checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
+        cls._PLAN = tuple((name, f"{cls.KIND}.{name}", check) for name, check in checks.items())
+        registry[cls.KIND] = cls
+    return MappingProxyType(registry)
+
+
+MESSAGE_CLASSES: Mapping[str, type[Envelope]] = _build_registry()
+KINDS: tuple[str, ...] = tuple(MESSAGE_CLASSES)
+_BODY_FIELDS: Mapping[str, tuple[str, ...]] = MappingProxyType(
+    {kind: tuple(cls.CHECKS) for kind, cls in MESSAGE_CLASSES.items()}
+)
+_WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
+    {kind: frozenset((*_ENVELOPE_KEYS, *body)) for kind, body in _BODY_FIELDS.items()}
+)
+_LEGACY_WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
+    {kind: keys_ - {"inc"} for kind, keys_ in _WIRE_KEYS.items()})
+"""Payloads from before incarnations (older recordings): decoded with ``inc`` 0."""
+_SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
+    {
+        kind: MAX_PAYLOAD_BYTES
+        if kind == KIND_POSITIONS
+        else MAX_CONTROL_PAYLOAD_BYTES
+        if kind == KIND_CONTROL
+        else MAX_SMALL_PAYLOAD_BYTES
+        for kind in KINDS
+    }
+)
+
+
+# msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
+# of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
+# (max_map_len 18: an obs, 6 envelope keys + 12 fields.)
+_SMALL_LIMITS = {"max_map_len": 18, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+                 "max_ext_len": 0}
+_UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
+    KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,
+    KIND_METRICS: {**_SMALL_LIMITS, "max_map_len": MAX_METRIC_VALUES, "max_array_len": 0},
+    KIND_FAULT: {**_SMALL_LIMITS, "max_map_len": MAX_FAULT_PARAMS, "max_array_len": 0,
+                 "max_str_len": max(MAX_PARAM_STR_LEN, MAX_TARGET_LEN)},
+    KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
+    KIND_STATE: {**_SMALL_LIMITS, "max_map_len": 20, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
+    KIND_COMMAND: {**_SMALL_LIMITS, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
+    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 18), "max_array_len": 0},
+    KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
+                   "max_str_len": MAX_ARGS_STR_LEN},
+})
+_LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
+    {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})
+
+
+def size_limit(kind: str) -> int:
+    """Largest encoded size in bytes accepted for ``kind``."""
+    return _SIZE_LIMIT[kind]
+

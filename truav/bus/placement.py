@@ -1,0 +1,93 @@
+"""Which message kind belongs on which key, and what that implies: the payload limit of a key, its
+congestion control, and whether a message may appear on it (:func:`check_placement`).
+
+The key-to-kind table is derived from the schema: each message class names the key chunks it lives on
+(``PLACE``, built from :mod:`truav.bus.keys`' names)."""
+
+from __future__ import annotations
+
+import functools
+
+import zenoh
+
+from truav.bus import keys, schema
+from truav.bus.schema import Message, SchemaError
+
+# Drop reasons added by the Bus on top of the schema's R_* reasons.
+R_KEY_MISMATCH = "key_mismatch"  # payload does not belong on that key (kind, uav id, src)
+
+# Kinds where the freshest value wins and loss is tolerable: published with
+# CongestionControl.DROP.  Everything else (tick, obs, action, metrics, fault,
+# control, and unknown keys) uses BLOCK, so a full queue delays rather than
+# silently drops it.  Zenoh's default is DROP, which under CPU load drops even
+# small messages queued behind a large one (seen in tests with 1 MiB payloads).
+DROPPABLE_KINDS = frozenset({schema.KIND_BEACON, schema.KIND_POSITIONS})
+
+
+# Which message kind belongs on which key (after ``truav/<run>/``): each message class's PLACE.
+KIND_BY_KEY = {cls.PLACE: kind for kind, cls in schema.MESSAGE_CLASSES.items()}
+
+
+def congestion_control(key: str) -> zenoh.CongestionControl:
+    """DROP for keys of :data:`DROPPABLE_KINDS` (beacons, positions), BLOCK for everything else."""
+    droppable = expected_kind(key) in DROPPABLE_KINDS
+    return zenoh.CongestionControl.DROP if droppable else zenoh.CongestionControl.BLOCK
+
+
+def expected_kind(key: str) -> str | None:
+    """The message kind that belongs on a TRUAV key, or None if the key is not a known data key."""
+    parts = key.split("/")
+    if len(parts) < 3 or parts[0] != keys.ROOT:
+        return None
+    rest = parts[2:]
+    if rest[0] == keys.UAV:
+        if len(rest) == 4 and rest[2] == keys.BEACON:  # a range-limited beacon under its map cell
+            return schema.KIND_BEACON
+        return KIND_BY_KEY.get((keys.UAV, rest[2])) if len(rest) == 3 else None
+    if rest[0] == keys.WORLD:
+        return KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None
+    return KIND_BY_KEY.get((rest[0],)) if len(rest) >= 2 else None
+
+
+def check_placement(key: str, msg: Message) -> None:
+    """SchemaError(R_KEY_MISMATCH) if ``msg`` does not belong on ``key``.
+
+    Checked: the kind the key carries, the body's ``uav`` against the key's
+    UAV id, a ``uav/<j>`` sender only on keys of UAV ``j``, the metrics scope
+    and the fault kind against the last key chunk.
+    """
+    kind, key_uav = key_facts(key)
+    if kind is not None and kind != msg.KIND:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} message on {key} (expects {kind})", src=msg.src)
+    body_uav = getattr(msg, "uav", None)
+    if key_uav is not None and body_uav is not None and body_uav != key_uav:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
+    src_uav = uav_of_src(msg.src)
+    if src_uav is not None and src_uav != key_uav:
+        raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
+    last = key.rsplit("/", 1)[-1]
+    if kind == schema.KIND_METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.scope} metrics on {key}", src=msg.src)
+    if kind == schema.KIND_FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
+        raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
+    if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
+        raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+
+
+# A process sees the same few keys and senders over and over: parse each once (bounded caches,
+# so a flood of distinct keys from a misbehaving peer cannot grow memory).
+@functools.lru_cache(maxsize=4096)
+def key_facts(key: str) -> tuple[str | None, int | None]:
+    """(expected_kind, UAV id) of a key."""
+    return expected_kind(key), keys.parse_uav_id(key)
+
+
+@functools.lru_cache(maxsize=4096)
+def size_limit_of_key(key: str) -> int:
+    kind = expected_kind(key)
+    return schema.size_limit(kind) if kind is not None else schema.MAX_PAYLOAD_BYTES
+
+
+@functools.lru_cache(maxsize=4096)
+def uav_of_src(src: str) -> int | None:
+    return keys.parse_uav_identity(src)
