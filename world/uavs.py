@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from truav.actions import HOVER, N_ACTIONS  # noqa: F401  (re-exported for the world model's users)
 from truav.config import EnergyConfig
 
-N_ACTIONS = 16
-HOVER = -1
 _ANGLES = np.deg2rad(45.0 * (np.arange(N_ACTIONS) % 8))
 _FRACTION = np.where(np.arange(N_ACTIONS) < 8, 0.5, 1.0)
 # Row N_ACTIONS is HOVER (index -1 wraps to it).

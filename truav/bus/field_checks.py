@@ -16,7 +16,7 @@ from truav.bus.keys import MAX_UAVS
 from truav.bus.schema_names import (INT64_MAX, MAX_ARGS_DEPTH, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_NAME_LEN,
                                     MAX_PARAM_STR_LEN, MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_OUT_OF_RANGE,
                                     UINT64_MAX, _NAME_RE, _SRC_RE, SchemaError)
-from world.uavs import HOVER, N_ACTIONS
+from truav.actions import HOVER, N_ACTIONS
 
 # --- field checks: (field path, value) -> normalised value, or SchemaError --------
 Check = Callable[[str, Any], Any]

@@ -66,5 +66,5 @@ from truav.bus.messages import (  # noqa: F401
     Command, Control, Envelope, Fault, Health, Message, Metrics, Obs, Positions, State, Tick, size_limit)
 from truav.bus.codec import (  # noqa: F401
     Sequencer, decode, encode, new_incarnation, padded, peek_src, unpack_limits)
-from world.uavs import HOVER, N_ACTIONS  # noqa: F401  (an action is an int in [0, N_ACTIONS), or HOVER, an
-# agent's explicit hover: the central scheme's autopilot without commands; world.uavs is their one source)
+from truav.actions import HOVER, N_ACTIONS  # noqa: F401  (an action is an int in [0, N_ACTIONS), or HOVER, an
+# agent's explicit hover: the central scheme's autopilot without commands; truav/actions.py is their one source)
