@@ -87,8 +87,8 @@ def flood_payloads(n: int) -> list[tuple[str, bytes]]:
 
 
 def swarm_ticks(n_ticks: int) -> list[list[tuple[str, bytes]]]:
-    """The mix of bench_recorder.swarm_mix, keyed under this run, grouped per tick."""
-    from bench_recorder import swarm_mix
+    """The mix of recorder_payloads.swarm_mix, keyed under this run, grouped per tick."""
+    from recorder_payloads import swarm_mix
 
     flat = [(k.replace("truav/bench/", f"truav/{RUN}/"), p) for k, p, _ in swarm_mix(n_ticks)]
     return [flat[i:i + SWARM_MSGS_PER_TICK] for i in range(0, len(flat), SWARM_MSGS_PER_TICK)]

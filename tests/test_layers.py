@@ -93,6 +93,7 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.metadata",               ANALYSIS),
     ("recorder.schemas",                ANALYSIS),
     ("recorder.foxglove",               ANALYSIS),
+    ("truav.experiments.cells",         ANALYSIS),
     ("truav.experiments.runner",        ANALYSIS),
     ("truav.experiments.report",        ANALYSIS),
     ("truav.experiments.velocity",      ANALYSIS),

@@ -22,7 +22,7 @@ from agents.controller import TruavController
 from agents.state import all_peers, neighbour_features
 from truav import runio
 from truav.driver import run_episodes
-from truav.experiments.faults import plan_text
+from truav.experiments.fault_sweep import plan_text
 from truav.faults import PlanFilter, plan_from_dict
 
 

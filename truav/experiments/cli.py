@@ -17,15 +17,17 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
-import re
-import socket
 import time
 from pathlib import Path
 from typing import Any
 
 from truav import runio
 from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
+from truav.cli_config import UsageError, add_config_args, config_from
 from truav.experiments import runner, scale, velocity
+from truav.experiments.cli_executor import (  # noqa: F401  (re-exported)
+    RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
+from truav.experiments.cli_faults import add_fault_sweep_parser
 
 QUICK_CONFIG: dict[str, dict[str, Any]] = {
     "scenario": {"n_vehicles": 60, "steps_per_episode": 20},
@@ -38,7 +40,6 @@ QUICK = {"seeds": 2, "episodes": 6, "eval_episodes": 2, "window": 3, "speeds": [
 
 
 def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, int]:
-    from truav.cli import UsageError
     out = {s: default for s in schemes}
     for item in items:
         name, _, value = item.partition("=")
@@ -49,14 +50,12 @@ def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, in
 
 
 def _check_schemes(schemes) -> None:
-    from truav.cli import UsageError
     if "central" in schemes and importlib.util.find_spec("torch") is None:
         raise UsageError("the centralized baseline needs PyTorch: pip install -e '.[central]' "
                          "(or leave it out: --schemes truav patrol)")
 
 
 def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help: str) -> None:
-    from truav.cli import add_config_args
     add_config_args(p)
     p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
                    help=f"schemes to run (default: {' '.join(default_schemes)})")
@@ -80,45 +79,6 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
     add_executor_args(p)
 
 
-def add_executor_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local: a pool of worker processes (default); ray: cells as Ray tasks (extra `ray`)")
-    p.add_argument("--address", help="with --executor ray: the cluster to join, e.g. HEAD:6379 "
-                                     "(default: start a local Ray instance of --workers CPUs)")
-
-
-def check_executor(args) -> None:
-    from truav.cli import UsageError
-    if args.address and args.executor != "ray":
-        raise UsageError("--address needs --executor ray")
-    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
-        raise UsageError("--executor ray needs Ray: pip install -e '.[ray]'")
-    if args.address:
-        check_ray_address(args.address)
-
-
-RAY_ADDRESS_RE = re.compile(r"(?:ray://)?(?P<host>[A-Za-z0-9._-]+|\[[0-9A-Fa-f:]+\]):(?P<port>[0-9]{1,5})")
-RAY_PROBE_TIMEOUT_S = 3.0
-"""How long --address's head may take to accept a TCP connection: ray.init itself waits minutes."""
-
-
-def check_ray_address(address: str) -> None:
-    """--address is `auto` (RAY_ADDRESS or a cluster started here) or HOST:PORT / ray://HOST:PORT of a
-    head that accepts connections: checked before anything runs, as ray.init would hang on it."""
-    from truav.cli import UsageError
-    if address == "auto":
-        return
-    m = RAY_ADDRESS_RE.fullmatch(address)
-    if m is None or not 0 < int(m.group("port")) < 65536:
-        raise UsageError(f"--address {address}: expected HOST:PORT, ray://HOST:PORT or auto (e.g. HEAD:6379)")
-    host = m.group("host").strip("[]")
-    try:
-        socket.create_connection((host, int(m.group("port"))), timeout=RAY_PROBE_TIMEOUT_S).close()
-    except OSError as exc:
-        reason = exc.strerror or type(exc).__name__.replace("Error", " error").lower()
-        raise UsageError(f"--address {address}: no Ray head answers there ({reason})") from None
-
-
 def add_experiment_parser(sub) -> None:
     """Register `truav experiment ...` on the main parser's subcommands."""
     ex = sub.add_parser("experiment", help="the paper's experiments (velocity sweep, scalability)",
@@ -134,12 +94,10 @@ def add_experiment_parser(sub) -> None:
     s.add_argument("--vehicles", nargs="+", type=positive_int, help="vehicle counts (default 200 1000)")
     s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default 15)")
     s.set_defaults(func=cmd_scale)
-    from truav.experiments.faults import add_fault_sweep_parser
     add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
 
 
 def _setup(args, default_out: str, default_episodes: int | None):
-    from truav.cli import config_from
     quick = args.quick
     # --quick only fills in what the user left out: an explicit flag, --config or --set wins.
     cfg = config_from(args, base=QUICK_CONFIG if quick else None)
@@ -161,7 +119,6 @@ def _setup(args, default_out: str, default_episodes: int | None):
 
 
 def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
-    from truav.cli import UsageError
     make_dir("--out", out)
     runio.write_config(out, cfg)
     todo = runner.pending_cells(cfg, out, cells)
@@ -195,7 +152,6 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
 
 
 def _finish(out: Path, cfg, cells, write, window: int, elapsed: float) -> int:
-    from truav.cli import UsageError
     done = [c for c in cells if runner.cell_path(out, cfg, c).is_file()]
     if not done:
         raise UsageError(f"{out} holds no finished cells of this experiment")

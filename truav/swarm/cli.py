@@ -28,7 +28,7 @@ from pathlib import Path
 import zenoh
 
 from truav.bus import keys
-from truav.cli import UsageError, parse_sets
+from truav.cli_config import UsageError, parse_sets
 from truav.cli_args import (OneLineParser, UserError, check_endpoint, check_in_file, check_out_dir, check_out_file,
                             non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
