@@ -730,7 +730,8 @@ def cmd_chaos(args) -> int:
 
 def cmd_faults(args) -> int:
     from truav.bus import schema
-    from truav.faults import CONTROL_FAULTS, load_plan
+    from truav.fault_filter import CONTROL_FAULTS
+    from truav.faults import load_plan
     check_in_file("--plan", args.plan)
     plan = load_plan(args.plan)
     _creds(args, "supervisor")
