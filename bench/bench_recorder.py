@@ -33,12 +33,10 @@ from typing import Callable
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from recorder.mcap_log import McapLog  # noqa: E402
-from recorder_payloads import N_UAVS, Batch, beacons, swarm_mix  # noqa: E402  (bench/ is on sys.path)
+from recorder_payloads import (  # noqa: E402  (bench/ is on sys.path)
+    N_UAVS, SWARM_MSGS_PER_TICK, TARGET_MSGS_S, TICK_HZ, WORLD_MSGS_PER_TICK, Batch, beacons, swarm_mix)
 
-TARGET_MSGS_S = 100_000
-TICK_HZ = 10
-WORLD_MSGS_PER_TICK = 3  # tick, positions, step metrics (episode metrics are rare)
-SWARM_MSGS_S = (N_UAVS * 3 + WORLD_MSGS_PER_TICK) * TICK_HZ  # beacon + obs + action per agent
+SWARM_MSGS_S = SWARM_MSGS_PER_TICK * TICK_HZ
 
 
 def run_mcaplog(batch: Batch, path: str, mirrors: bool) -> float:

@@ -7,7 +7,11 @@ from __future__ import annotations
 
 import msgpack
 
+TARGET_MSGS_S = 100_000
 N_UAVS = 20
+TICK_HZ = 10
+WORLD_MSGS_PER_TICK = 3  # tick, positions, step metrics (episode metrics are rare)
+SWARM_MSGS_PER_TICK = N_UAVS * 3 + WORLD_MSGS_PER_TICK  # beacon + obs + action per agent
 RUN = "bench"
 T0 = 1_732_200_000_000_000_000
 
