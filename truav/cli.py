@@ -23,7 +23,7 @@ from truav.cli_args import (  # noqa: F401  (the number types are shared from he
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
 from truav.cli_config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
     UsageError, add_config_args, add_preset_arg, config_from, parse_sets, preset_from)
-from truav.config import Config, to_toml
+from truav.config import Config, LearnerConfig, ScenarioConfig, to_toml
 from truav.experiments.cli import add_experiment_parser
 from truav.seeding import EVAL_SEED_OFFSET
 
@@ -229,10 +229,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--scheme", choices=("truav", "central"), default="truav",
                     help="truav (Q-tables, default) or central (the centralized SAC; writes policy.npz for "
                          "`truav-swarm up --scheme central --policy RUN`)")
-    tr.add_argument("--speed", type=positive_float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
-    tr.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (default 10, as the paper)")
-    tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
-    tr.add_argument("--episodes", type=positive_int, help="episodes (default: learner.episodes, 5000)")
+    tr.add_argument("--speed", type=positive_float,
+                    help=f"UAV speed in m/s (default: scenario.uav_speed_mps, {ScenarioConfig().uav_speed_mps:g})")
+    tr.add_argument("--seeds", type=positive_int, default=10,
+                    help="number of seeds (default %(default)s, as the paper)")
+    tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
+    tr.add_argument("--episodes", type=positive_int,
+                    help=f"episodes (default: learner.episodes, {LearnerConfig().episodes})")
     tr.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                     help="worker processes (default: all cores)")
     tr.add_argument("--out", help="output directory (default runs/train-<speed>mps)")
@@ -245,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
-    ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default 20)")
+    ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
     ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],

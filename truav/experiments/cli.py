@@ -24,6 +24,7 @@ from typing import Any
 from truav import runio
 from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from
+from truav.config import LearnerConfig
 from truav.experiments import runner, scale, velocity
 from truav.experiments.cli_executor import (  # noqa: F401  (re-exported)
     RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
@@ -37,6 +38,12 @@ QUICK_CONFIG: dict[str, dict[str, Any]] = {
 """--quick: a small city and short episodes, every code path exercised in seconds."""
 QUICK = {"seeds": 2, "episodes": 6, "eval_episodes": 2, "window": 3, "speeds": [5.0, 15.0, 25.0],
          "uavs": [2, 4], "vehicles": [30, 60]}
+FULL = {"seeds": 10, "eval_episodes": 100, "window": 500, "scale_episodes": 1000}
+"""The full run's sizes where a flag is not given (the help texts name these)."""
+
+
+def _listed(values) -> str:
+    return " ".join(f"{v:g}" for v in values)
 
 
 def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, int]:
@@ -59,15 +66,17 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
     add_config_args(p)
     p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
                    help=f"schemes to run (default: {' '.join(default_schemes)})")
-    p.add_argument("--seeds", type=positive_int, help="number of seeds (default 10)")
-    p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
+    p.add_argument("--seeds", type=positive_int, help=f"number of seeds (default {FULL['seeds']})")
+    p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
     p.add_argument("--episodes", type=positive_int, help=episodes_help)
     p.add_argument("--episodes-for", action="append", default=[], metavar="SCHEME=N",
                    help="training episodes of one scheme (repeatable), e.g. central=1000")
-    p.add_argument("--eval-episodes", type=positive_int, help="greedy evaluation episodes per seed (default 100)")
-    p.add_argument("--window", type=positive_int, help="episodes per training window in the tidy CSV (default 500)")
+    p.add_argument("--eval-episodes", type=positive_int,
+                   help=f"greedy evaluation episodes per seed (default {FULL['eval_episodes']})")
+    p.add_argument("--window", type=positive_int,
+                   help=f"episodes per training window in the tidy CSV (default {FULL['window']})")
     p.add_argument("--seeds-per-cell", type=positive_int, default=5,
-                   help="seeds run as one batch per cell (default 5); changing it re-runs cells")
+                   help="seeds run as one batch per cell (default %(default)s); changing it re-runs cells")
     p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                    help="worker processes (default: all cores)")
     p.add_argument("--out", help="output directory (resumed if it holds finished cells)")
@@ -85,14 +94,17 @@ def add_experiment_parser(sub) -> None:
                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ex_sub = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     v = ex_sub.add_parser("velocity", help="schemes x speeds x seeds: CSV, summary, four-panel figure")
-    _common(v, velocity.CHOICES, velocity.SCHEMES, "training episodes per scheme (default learner.episodes, 5000)")
-    v.add_argument("--speeds", nargs="+", type=positive_float, help="UAV speeds in m/s (default 5 10 15 20 25)")
+    _common(v, velocity.CHOICES, velocity.SCHEMES,
+            f"training episodes per scheme (default learner.episodes, {LearnerConfig().episodes})")
+    v.add_argument("--speeds", nargs="+", type=positive_float,
+                   help=f"UAV speeds in m/s (default {_listed(velocity.SPEEDS)})")
     v.set_defaults(func=cmd_velocity)
     s = ex_sub.add_parser("scale", help="TRUAV vs centralized as UAVs and vehicles grow, with control traffic")
-    _common(s, velocity.CHOICES, scale.SCHEMES, "training episodes per scheme (default 1000)")
-    s.add_argument("--uavs", nargs="+", type=positive_int, help="swarm sizes (default 5 10 20)")
-    s.add_argument("--vehicles", nargs="+", type=positive_int, help="vehicle counts (default 200 1000)")
-    s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default 15)")
+    _common(s, velocity.CHOICES, scale.SCHEMES, f"training episodes per scheme (default {FULL['scale_episodes']})")
+    s.add_argument("--uavs", nargs="+", type=positive_int, help=f"swarm sizes (default {_listed(scale.UAVS)})")
+    s.add_argument("--vehicles", nargs="+", type=positive_int,
+                   help=f"vehicle counts (default {_listed(scale.VEHICLES)})")
+    s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default %(default)g)")
     s.set_defaults(func=cmd_scale)
     add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
 
@@ -105,12 +117,12 @@ def _setup(args, default_out: str, default_episodes: int | None):
     def pick(given, quick_value, full_value):
         return given if given is not None else (quick_value if quick else full_value)
 
-    n_seeds = pick(args.seeds, QUICK["seeds"], 10)
+    n_seeds = pick(args.seeds, QUICK["seeds"], FULL["seeds"])
     seeds = list(range(args.seed_start, args.seed_start + n_seeds))
     base_ep = pick(args.episodes, QUICK["episodes"], default_episodes or cfg.learner.episodes)
     episodes = _parse_episodes_for(args.episodes_for, velocity.CHOICES, base_ep)
-    eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], 100)
-    window = pick(args.window, QUICK["window"], 500)
+    eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], FULL["eval_episodes"])
+    window = pick(args.window, QUICK["window"], FULL["window"])
     out = check_out_dir("--out", args.out if args.out is not None else default_out + ("-quick" if quick else ""))
     if not args.report_only:
         _check_schemes(args.schemes)
@@ -176,7 +188,7 @@ def cmd_velocity(args) -> int:
 
 
 def cmd_scale(args) -> int:
-    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/scale", 1000)
+    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/scale", FULL["scale_episodes"])
     uavs = args.uavs or (QUICK["uavs"] if args.quick else list(scale.UAVS))
     vehicles = args.vehicles or (QUICK["vehicles"] if args.quick else list(scale.VEHICLES))
     cells = scale.plan(args.schemes, uavs, vehicles, args.speed, seeds, episodes, eval_episodes, args.seeds_per_cell)

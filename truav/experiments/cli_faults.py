@@ -21,8 +21,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--quick", action="store_true",
                    help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
-    p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default 0)")
-    p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default 10)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
+    p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
     p.add_argument("--schemes", nargs="+", choices=("truav", "central", "patrol"),
                    help="compare these schemes under the same link loss, latency and process crash levels "
