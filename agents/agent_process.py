@@ -54,7 +54,8 @@ from truav.bus import guard, keys, schema, transport
 from truav.config import Config
 from truav.lograte import Every
 from truav.runio import read_qtables
-from truav.faults import attach_plan, load_plan
+from truav.fault_filter import attach_plan
+from truav.faults import load_plan
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.uavs import action_velocity

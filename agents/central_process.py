@@ -38,7 +38,8 @@ import numpy as np
 from truav.bus import guard, keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
-from truav.faults import attach_plan, load_plan
+from truav.fault_filter import attach_plan
+from truav.faults import load_plan
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav import runio
 from truav.lograte import Every

@@ -48,12 +48,9 @@ from recorder.process import spawn_recorder, stop_recorder, wait_until_recording
 from recorder.reader import iter_messages  # noqa: E402
 from truav.bus import keys, transport  # noqa: E402
 from truav.swarm.supervisor import RECORDER_STOP_TIMEOUT_S  # noqa: E402
+from recorder_payloads import N_UAVS, SWARM_MSGS_PER_TICK, TARGET_MSGS_S, TICK_HZ, swarm_mix  # noqa: E402
 
 RUN = "benchbus"
-TARGET_MSGS_S = 100_000
-N_UAVS = 20
-TICK_HZ = 10
-SWARM_MSGS_PER_TICK = 3 * N_UAVS + 3
 READY_TIMEOUT_S = 20.0
 QUIET_S = 0.5  # the recorder's file has not grown for this long: it has written everything it got
 DRAIN_TIMEOUT_S = 60.0
@@ -87,8 +84,7 @@ def flood_payloads(n: int) -> list[tuple[str, bytes]]:
 
 
 def swarm_ticks(n_ticks: int) -> list[list[tuple[str, bytes]]]:
-    """The mix of bench_recorder.swarm_mix, keyed under this run, grouped per tick."""
-    from bench_recorder import swarm_mix
+    """The mix of recorder_payloads.swarm_mix, keyed under this run, grouped per tick."""
 
     flat = [(k.replace("truav/bench/", f"truav/{RUN}/"), p) for k, p, _ in swarm_mix(n_ticks)]
     return [flat[i:i + SWARM_MSGS_PER_TICK] for i in range(0, len(flat), SWARM_MSGS_PER_TICK)]

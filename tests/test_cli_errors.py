@@ -97,7 +97,7 @@ def nothing_starts(monkeypatch, tmp_path):
         raise Started("work started before the mistake was caught")
     import recorder.process
     import recorder.replay
-    import truav.experiments.faults
+    import truav.experiments.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
     import truav.swarm.cli
@@ -105,7 +105,7 @@ def nothing_starts(monkeypatch, tmp_path):
     import truav.trainer
     for module, name in ((truav.trainer, "run_parallel"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
-                         (truav.experiments.faults, "run_sweep"), (truav.swarm.cli, "Bus"),
+                         (truav.experiments.fault_sweep, "run_sweep"), (truav.swarm.cli, "Bus"),
                          (truav.swarm.cli, "run_router"), (recorder.process, "cmd_record"),
                          (recorder.replay, "replay_on_bus"),
                          (subprocess, "Popen")):
@@ -262,7 +262,7 @@ def test_quick_does_not_override_explicit_settings(files, tmp_path, monkeypatch)
 
 def test_fault_sweep_keeps_explicit_episode_length(tmp_path, monkeypatch) -> None:
     """The sweep's own episode length gives way to a scenario.steps_per_episode the user set."""
-    import truav.experiments.faults as sweep
+    import truav.experiments.fault_sweep as sweep
     seen = []
     monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: seen.append((cfg, kw)) or out / "f.png")
     for extra in ([], ["--set", "scenario.steps_per_episode=30"]):

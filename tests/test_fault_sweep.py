@@ -4,7 +4,7 @@ import csv
 import json
 
 from agents.agent_process import DELAY_ENV
-from truav.experiments import faults as fault_sweep
+from truav.experiments import fault_sweep
 from truav.config import Config
 
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from truav.faults import FaultPlan, PlanError, PlanFilter, load_plan, plan_from_dict, uniform
+from truav.fault_filter import PlanFilter, uniform
+from truav.faults import FaultPlan, PlanError, load_plan, plan_from_dict
 
 RUN = "r"
 T0 = 1_000_000_000_000

@@ -234,7 +234,8 @@ def test_rejections_are_bounded_by_sender_and_logged_once(caplog) -> None:
 
 
 def test_fault_filter_state_is_bounded_under_unique_senders() -> None:
-    from truav.faults import MAX_LINK_STATES, PlanFilter, plan_from_dict
+    from truav.fault_filter import MAX_LINK_STATES, PlanFilter
+    from truav.faults import plan_from_dict
     f = PlanFilter(plan_from_dict({"fault": [{"kind": "loss", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5}]}), RUN, 0)
     for n in range(MAX_LINK_STATES + 5000):
         f.decide(keys.uav_beacon(RUN, 0), f"m{n}", "uav/1", 1)

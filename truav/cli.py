@@ -13,7 +13,6 @@ import argparse
 import os
 import sys
 import time
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -22,75 +21,14 @@ import numpy as np
 from truav import runio
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
-from truav.config import Config, load_config, to_toml
-
-EVAL_SEED_OFFSET = 10_000
-"""Evaluation runs on held-out traffic: world seed = training seed + this."""
+from truav.cli_config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
+    UsageError, add_config_args, add_preset_arg, config_from, parse_sets, preset_from)
+from truav.config import Config, LearnerConfig, ScenarioConfig, to_toml
+from truav.experiments.cli import add_experiment_parser
+from truav.seeding import EVAL_SEED_OFFSET
 
 SUMMARY_METRICS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0),
                    ("delay_ms", "delay ms", 1.0), ("energy_j", "energy kJ/UAV", 1e-3))
-
-
-class UsageError(UserError):
-    """A user mistake on the command line."""
-
-
-def parse_sets(items: list[str]) -> dict[str, dict[str, Any]]:
-    """--set section.key=value (value in TOML syntax; bare words are strings)."""
-    out: dict[str, dict[str, Any]] = {}
-    for item in items:
-        if "=" not in item or "." not in item.split("=", 1)[0]:
-            raise UsageError(f"--set expects section.key=value, got {item!r}")
-        dotted, raw = item.split("=", 1)
-        section, key = dotted.strip().split(".", 1)
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
-        out.setdefault(section, {})[key] = value
-    return out
-
-
-def add_preset_arg(p: argparse.ArgumentParser, help_text: str | None = None) -> None:
-    from truav.presets import PRESETS
-    p.add_argument("--preset", metavar="NAME", help=help_text or (
-        f"scenario preset applied before --config and --set: {' or '.join(PRESETS)} (default literal: "
-        "the paper's Table read literally); `truav config show --preset paper` lists each choice and its source"))
-
-
-def preset_from(args) -> dict[str, dict[str, Any]]:
-    """The overrides of --preset ({} if not given); an unknown name is a UsageError."""
-    from truav.presets import preset_overrides
-    name = getattr(args, "preset", None)
-    if name is None:
-        return {}
-    try:
-        return preset_overrides(name)
-    except KeyError as exc:
-        raise UsageError(f"--preset: {exc.args[0]}") from None
-
-
-def add_config_args(p: argparse.ArgumentParser) -> None:
-    add_preset_arg(p)
-    p.add_argument("--config", "-c", metavar="FILE", help="TOML file overriding the defaults (or the preset)")
-    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one config value (repeatable), e.g. --set scenario.n_uavs=8")
-
-
-def config_from(args, extra: dict[str, dict[str, Any]] | None = None,
-                base: dict[str, dict[str, Any]] | None = None) -> Config:
-    """Defaults < --preset < ``base`` (e.g. --quick) < --config file < --set < ``extra`` (dedicated flags)."""
-    overrides = parse_sets(args.set)
-    for section, values in (extra or {}).items():
-        for key, value in values.items():
-            if key in overrides.get(section, {}) and overrides[section][key] != value:
-                raise UsageError(f"--set {section}.{key}={overrides[section][key]} contradicts the flag that sets "
-                                 f"it to {value}; give one of them")
-        overrides.setdefault(section, {}).update(values)
-    layered = preset_from(args)
-    for section, values in (base or {}).items():
-        layered[section] = {**layered.get(section, {}), **values}
-    return load_config(args.config, overrides, layered)
 
 
 def seed_list(args) -> list[int]:
@@ -291,10 +229,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--scheme", choices=("truav", "central"), default="truav",
                     help="truav (Q-tables, default) or central (the centralized SAC; writes policy.npz for "
                          "`truav-swarm up --scheme central --policy RUN`)")
-    tr.add_argument("--speed", type=positive_float, help="UAV speed in m/s (default: scenario.uav_speed_mps, 15)")
-    tr.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (default 10, as the paper)")
-    tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
-    tr.add_argument("--episodes", type=positive_int, help="episodes (default: learner.episodes, 5000)")
+    tr.add_argument("--speed", type=positive_float,
+                    help=f"UAV speed in m/s (default: scenario.uav_speed_mps, {ScenarioConfig().uav_speed_mps:g})")
+    tr.add_argument("--seeds", type=positive_int, default=10,
+                    help="number of seeds (default %(default)s, as the paper)")
+    tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
+    tr.add_argument("--episodes", type=positive_int,
+                    help=f"episodes (default: learner.episodes, {LearnerConfig().episodes})")
     tr.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                     help="worker processes (default: all cores)")
     tr.add_argument("--out", help="output directory (default runs/train-<speed>mps)")
@@ -307,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
-    ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default 20)")
+    ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
     ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
@@ -316,7 +257,6 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--quiet", action="store_true")
     ev.set_defaults(func=cmd_evaluate)
 
-    from truav.experiments.cli import add_experiment_parser
     add_experiment_parser(sub)  # truav experiment velocity | scale
     from recorder.cli import add_log_commands
     add_log_commands(sub)  # truav log recover | log check | report

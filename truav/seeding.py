@@ -13,6 +13,9 @@ WORLD_ROLE = 0
 AGENT_ROLE = 1
 BASELINE_ROLE = 2
 
+EVAL_SEED_OFFSET = 10_000
+"""Evaluation runs on held-out traffic: world seed = training seed + this (`truav evaluate`, experiment cells)."""
+
 
 def world_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(WORLD_ROLE,)))

@@ -30,7 +30,8 @@ from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.lograte import Every
 from truav.config import Config
-from truav.faults import attach_plan, load_plan
+from truav.fault_filter import attach_plan
+from truav.faults import load_plan
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.bus.rejections import rejection_metrics

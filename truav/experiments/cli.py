@@ -17,15 +17,18 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
-import re
-import socket
 import time
 from pathlib import Path
 from typing import Any
 
 from truav import runio
 from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
+from truav.cli_config import UsageError, add_config_args, config_from
+from truav.config import LearnerConfig
 from truav.experiments import runner, scale, velocity
+from truav.experiments.cli_executor import (  # noqa: F401  (re-exported)
+    RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
+from truav.experiments.cli_faults import add_fault_sweep_parser
 
 QUICK_CONFIG: dict[str, dict[str, Any]] = {
     "scenario": {"n_vehicles": 60, "steps_per_episode": 20},
@@ -35,10 +38,15 @@ QUICK_CONFIG: dict[str, dict[str, Any]] = {
 """--quick: a small city and short episodes, every code path exercised in seconds."""
 QUICK = {"seeds": 2, "episodes": 6, "eval_episodes": 2, "window": 3, "speeds": [5.0, 15.0, 25.0],
          "uavs": [2, 4], "vehicles": [30, 60]}
+FULL = {"seeds": 10, "eval_episodes": 100, "window": 500, "scale_episodes": 1000}
+"""The full run's sizes where a flag is not given (the help texts name these)."""
+
+
+def _listed(values) -> str:
+    return " ".join(f"{v:g}" for v in values)
 
 
 def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, int]:
-    from truav.cli import UsageError
     out = {s: default for s in schemes}
     for item in items:
         name, _, value = item.partition("=")
@@ -49,26 +57,26 @@ def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, in
 
 
 def _check_schemes(schemes) -> None:
-    from truav.cli import UsageError
     if "central" in schemes and importlib.util.find_spec("torch") is None:
         raise UsageError("the centralized baseline needs PyTorch: pip install -e '.[central]' "
                          "(or leave it out: --schemes truav patrol)")
 
 
 def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help: str) -> None:
-    from truav.cli import add_config_args
     add_config_args(p)
     p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
                    help=f"schemes to run (default: {' '.join(default_schemes)})")
-    p.add_argument("--seeds", type=positive_int, help="number of seeds (default 10)")
-    p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default 0)")
+    p.add_argument("--seeds", type=positive_int, help=f"number of seeds (default {FULL['seeds']})")
+    p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
     p.add_argument("--episodes", type=positive_int, help=episodes_help)
     p.add_argument("--episodes-for", action="append", default=[], metavar="SCHEME=N",
                    help="training episodes of one scheme (repeatable), e.g. central=1000")
-    p.add_argument("--eval-episodes", type=positive_int, help="greedy evaluation episodes per seed (default 100)")
-    p.add_argument("--window", type=positive_int, help="episodes per training window in the tidy CSV (default 500)")
+    p.add_argument("--eval-episodes", type=positive_int,
+                   help=f"greedy evaluation episodes per seed (default {FULL['eval_episodes']})")
+    p.add_argument("--window", type=positive_int,
+                   help=f"episodes per training window in the tidy CSV (default {FULL['window']})")
     p.add_argument("--seeds-per-cell", type=positive_int, default=5,
-                   help="seeds run as one batch per cell (default 5); changing it re-runs cells")
+                   help="seeds run as one batch per cell (default %(default)s); changing it re-runs cells")
     p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
                    help="worker processes (default: all cores)")
     p.add_argument("--out", help="output directory (resumed if it holds finished cells)")
@@ -80,66 +88,28 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
     add_executor_args(p)
 
 
-def add_executor_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local: a pool of worker processes (default); ray: cells as Ray tasks (extra `ray`)")
-    p.add_argument("--address", help="with --executor ray: the cluster to join, e.g. HEAD:6379 "
-                                     "(default: start a local Ray instance of --workers CPUs)")
-
-
-def check_executor(args) -> None:
-    from truav.cli import UsageError
-    if args.address and args.executor != "ray":
-        raise UsageError("--address needs --executor ray")
-    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
-        raise UsageError("--executor ray needs Ray: pip install -e '.[ray]'")
-    if args.address:
-        check_ray_address(args.address)
-
-
-RAY_ADDRESS_RE = re.compile(r"(?:ray://)?(?P<host>[A-Za-z0-9._-]+|\[[0-9A-Fa-f:]+\]):(?P<port>[0-9]{1,5})")
-RAY_PROBE_TIMEOUT_S = 3.0
-"""How long --address's head may take to accept a TCP connection: ray.init itself waits minutes."""
-
-
-def check_ray_address(address: str) -> None:
-    """--address is `auto` (RAY_ADDRESS or a cluster started here) or HOST:PORT / ray://HOST:PORT of a
-    head that accepts connections: checked before anything runs, as ray.init would hang on it."""
-    from truav.cli import UsageError
-    if address == "auto":
-        return
-    m = RAY_ADDRESS_RE.fullmatch(address)
-    if m is None or not 0 < int(m.group("port")) < 65536:
-        raise UsageError(f"--address {address}: expected HOST:PORT, ray://HOST:PORT or auto (e.g. HEAD:6379)")
-    host = m.group("host").strip("[]")
-    try:
-        socket.create_connection((host, int(m.group("port"))), timeout=RAY_PROBE_TIMEOUT_S).close()
-    except OSError as exc:
-        reason = exc.strerror or type(exc).__name__.replace("Error", " error").lower()
-        raise UsageError(f"--address {address}: no Ray head answers there ({reason})") from None
-
-
 def add_experiment_parser(sub) -> None:
     """Register `truav experiment ...` on the main parser's subcommands."""
     ex = sub.add_parser("experiment", help="the paper's experiments (velocity sweep, scalability)",
                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ex_sub = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     v = ex_sub.add_parser("velocity", help="schemes x speeds x seeds: CSV, summary, four-panel figure")
-    _common(v, velocity.CHOICES, velocity.SCHEMES, "training episodes per scheme (default learner.episodes, 5000)")
-    v.add_argument("--speeds", nargs="+", type=positive_float, help="UAV speeds in m/s (default 5 10 15 20 25)")
+    _common(v, velocity.CHOICES, velocity.SCHEMES,
+            f"training episodes per scheme (default learner.episodes, {LearnerConfig().episodes})")
+    v.add_argument("--speeds", nargs="+", type=positive_float,
+                   help=f"UAV speeds in m/s (default {_listed(velocity.SPEEDS)})")
     v.set_defaults(func=cmd_velocity)
     s = ex_sub.add_parser("scale", help="TRUAV vs centralized as UAVs and vehicles grow, with control traffic")
-    _common(s, velocity.CHOICES, scale.SCHEMES, "training episodes per scheme (default 1000)")
-    s.add_argument("--uavs", nargs="+", type=positive_int, help="swarm sizes (default 5 10 20)")
-    s.add_argument("--vehicles", nargs="+", type=positive_int, help="vehicle counts (default 200 1000)")
-    s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default 15)")
+    _common(s, velocity.CHOICES, scale.SCHEMES, f"training episodes per scheme (default {FULL['scale_episodes']})")
+    s.add_argument("--uavs", nargs="+", type=positive_int, help=f"swarm sizes (default {_listed(scale.UAVS)})")
+    s.add_argument("--vehicles", nargs="+", type=positive_int,
+                   help=f"vehicle counts (default {_listed(scale.VEHICLES)})")
+    s.add_argument("--speed", type=positive_float, default=15.0, help="UAV speed in m/s (default %(default)g)")
     s.set_defaults(func=cmd_scale)
-    from truav.experiments.faults import add_fault_sweep_parser
     add_fault_sweep_parser(ex_sub)  # truav experiment faults: beacon loss / latency sweep on the real swarm
 
 
 def _setup(args, default_out: str, default_episodes: int | None):
-    from truav.cli import config_from
     quick = args.quick
     # --quick only fills in what the user left out: an explicit flag, --config or --set wins.
     cfg = config_from(args, base=QUICK_CONFIG if quick else None)
@@ -147,12 +117,12 @@ def _setup(args, default_out: str, default_episodes: int | None):
     def pick(given, quick_value, full_value):
         return given if given is not None else (quick_value if quick else full_value)
 
-    n_seeds = pick(args.seeds, QUICK["seeds"], 10)
+    n_seeds = pick(args.seeds, QUICK["seeds"], FULL["seeds"])
     seeds = list(range(args.seed_start, args.seed_start + n_seeds))
     base_ep = pick(args.episodes, QUICK["episodes"], default_episodes or cfg.learner.episodes)
     episodes = _parse_episodes_for(args.episodes_for, velocity.CHOICES, base_ep)
-    eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], 100)
-    window = pick(args.window, QUICK["window"], 500)
+    eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], FULL["eval_episodes"])
+    window = pick(args.window, QUICK["window"], FULL["window"])
     out = check_out_dir("--out", args.out if args.out is not None else default_out + ("-quick" if quick else ""))
     if not args.report_only:
         _check_schemes(args.schemes)
@@ -161,7 +131,6 @@ def _setup(args, default_out: str, default_episodes: int | None):
 
 
 def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
-    from truav.cli import UsageError
     make_dir("--out", out)
     runio.write_config(out, cfg)
     todo = runner.pending_cells(cfg, out, cells)
@@ -195,7 +164,6 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
 
 
 def _finish(out: Path, cfg, cells, write, window: int, elapsed: float) -> int:
-    from truav.cli import UsageError
     done = [c for c in cells if runner.cell_path(out, cfg, c).is_file()]
     if not done:
         raise UsageError(f"{out} holds no finished cells of this experiment")
@@ -220,7 +188,7 @@ def cmd_velocity(args) -> int:
 
 
 def cmd_scale(args) -> int:
-    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/scale", 1000)
+    cfg, seeds, episodes, eval_episodes, window, out = _setup(args, "runs/scale", FULL["scale_episodes"])
     uavs = args.uavs or (QUICK["uavs"] if args.quick else list(scale.UAVS))
     vehicles = args.vehicles or (QUICK["vehicles"] if args.quick else list(scale.VEHICLES))
     cells = scale.plan(args.schemes, uavs, vehicles, args.speed, seeds, episodes, eval_episodes, args.seeds_per_cell)

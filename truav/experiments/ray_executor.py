@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 from truav.config import Config
-from truav.experiments.runner import Cell, CellResult, cell_path, run_cell, save_cell, single_threaded
+from truav.experiments.cells import Cell, CellResult, cell_path, run_cell, save_cell, single_threaded
 
 
 def _cell_task(base: Config, cell: Cell) -> CellResult:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np  # noqa: E402
 
-from truav.experiments.runner import CellResult  # noqa: E402
+from truav.experiments.cells import CellResult  # noqa: E402
 from truav.stats import MIN_SEEDS_FOR_BAND, mean_ci, sliding_mean  # noqa: E402
 
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "energy_above_hover_j", "throughput_kbps",

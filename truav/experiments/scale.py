@@ -22,7 +22,8 @@ import numpy as np
 
 from truav.config import Config
 from truav.experiments import report
-from truav.experiments.runner import Cell, CellResult, seed_chunks
+from truav.experiments.cells import Cell, CellResult
+from truav.experiments.runner import seed_chunks
 
 SCHEMES = ("truav", "central")
 UAVS = (5, 10, 20)

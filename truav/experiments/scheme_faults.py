@@ -153,7 +153,7 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
         cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
     policies: dict[str, str | None] = {"truav": qtable, "central": policy}
     if "truav" in schemes and qtable is None:
-        from truav.experiments.faults import train_policy
+        from truav.experiments.fault_sweep import train_policy
         n = size.train_episodes["truav"]
         print(f"training TRUAV in process ({n} episodes) for the swarm to fly", flush=True)
         policies["truav"] = str(train_policy(cfg, out, n, seed))
@@ -164,7 +164,7 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
     todo = points(size, schemes)
     point = partial(run_point, cfg, out, seed, policies, rate_hz, size, len(todo))
     if executor == "ray":
-        from truav.experiments.faults import SWARM_CPUS
+        from truav.experiments.fault_sweep import SWARM_CPUS
         from truav.experiments.ray_executor import run_points_on_ray
         cpus = os.cpu_count() or 1
         texts = run_points_on_ray(lambda p: point(*p), [(n, *p) for n, p in enumerate(todo)], cpus, address,

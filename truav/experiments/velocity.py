@@ -21,7 +21,8 @@ from pathlib import Path
 from truav.config import Config
 from truav.experiments import report
 from truav.stats import MIN_SEEDS_FOR_BAND
-from truav.experiments.runner import Cell, CellResult, seed_chunks
+from truav.experiments.cells import Cell, CellResult
+from truav.experiments.runner import seed_chunks
 
 SCHEMES = ("truav", "central", "patrol")
 CHOICES = SCHEMES + ("patrol_ctrl",)

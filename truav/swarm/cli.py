@@ -28,7 +28,7 @@ from pathlib import Path
 import zenoh
 
 from truav.bus import keys
-from truav.cli import UsageError, parse_sets
+from truav.cli_config import UsageError, parse_sets
 from truav.cli_args import (OneLineParser, UserError, add_transport_args, check_endpoint, check_in_file, check_out_dir, check_out_file,
                             non_negative_float, non_negative_int, positive_float, positive_int, run_main, run_name, seed_int, share,
                             tcp_port)
@@ -730,7 +730,8 @@ def cmd_chaos(args) -> int:
 
 def cmd_faults(args) -> int:
     from truav.bus import schema
-    from truav.faults import CONTROL_FAULTS, load_plan
+    from truav.fault_filter import CONTROL_FAULTS
+    from truav.faults import load_plan
     check_in_file("--plan", args.plan)
     plan = load_plan(args.plan)
     _creds(args, "supervisor")

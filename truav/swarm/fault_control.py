@@ -2,7 +2,7 @@
 on `truav/<run>/fault/<kind>` (so logs show them) and sends the real signals
 for process faults: SIGKILL (+ restart from the checkpoint) for a crash,
 SIGSTOP/SIGCONT for a freeze. Link faults need no action here: every
-process applies them itself (truav.faults.PlanFilter).
+process applies them itself (truav.fault_filter.PlanFilter).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from truav.bus import keys, security
-from truav.cli import UsageError
+from truav.cli_config import UsageError
 from truav.cli_args import positive_int
 
 

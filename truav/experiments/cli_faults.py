@@ -1,0 +1,72 @@
+"""`truav experiment faults`: its parser and command (the sweep itself is
+truav.experiments.fault_sweep, the scheme comparison truav.experiments.scheme_faults).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from truav import runio
+from truav.cli_args import check_out_dir, positive_float, seed_int
+from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
+from truav.config import ConfigError, read_toml
+from truav.experiments import fault_sweep
+from truav.experiments.cli_executor import add_executor_args, check_executor
+
+
+def add_fault_sweep_parser(ex_sub) -> None:
+    """`truav experiment faults` in the experiment command group."""
+    p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
+    add_config_args(p)
+    p.add_argument("--quick", action="store_true",
+                   help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
+    p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
+    p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
+    p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
+    p.add_argument("--schemes", nargs="+", choices=("truav", "central", "patrol"),
+                   help="compare these schemes under the same link loss, latency and process crash levels "
+                        "(truav.experiments.scheme_faults: comparison.csv, comparison-<metric>.png); "
+                        "default: the TRUAV beacon sweep (faults.csv, faults.png)")
+    p.add_argument("--policy", metavar="RUN", help="with --schemes central: the controller's trained actor "
+                                                   "(`truav train --scheme central`; default: train one first)")
+    add_executor_args(p)
+    p.set_defaults(func=cmd_fault_sweep)
+
+
+def cmd_fault_sweep(args) -> int:
+    size = "quick" if args.quick else "full"
+    cfg = config_from(args)
+    out = check_out_dir("--out", args.out if args.out is not None else f"runs/faults{'-quick' if args.quick else ''}")
+    if args.qtable is not None:  # the policy every swarm run flies: check it fits before the first run
+        run = Path(args.qtable)
+        try:
+            _, q = runio.read_qtables(run)
+            runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
+        except runio.RunDirError as exc:
+            raise UsageError(f"--qtable: {exc}") from None
+    check_executor(args)
+    given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
+    keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
+    if args.schemes:
+        from truav.experiments.scheme_faults import run_comparison
+        schemes = tuple(dict.fromkeys(args.schemes))
+        if args.policy is not None:
+            if "central" not in schemes:
+                raise UsageError("--policy: only --schemes central flies a trained controller")
+            from truav.swarm.cli import check_policy
+            check_policy("--policy", args.policy, cfg, 0)
+        if "central" in schemes:
+            from truav.swarm.cli import check_central_sizes
+            check_central_sizes(cfg)
+        paths = run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable, policy=args.policy,
+                               rate_hz=args.rate, keep_steps=keep_steps, executor=args.executor,
+                               address=args.address)
+        print("\n" + "\n".join(map(str, [out / "comparison.csv", *paths])))
+        return 0
+    if args.policy is not None:
+        raise UsageError("--policy: only with --schemes central")
+    path = fault_sweep.run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate,
+                                 keep_steps=keep_steps, executor=args.executor, address=args.address)
+    print(f"\n{out / 'faults.csv'}\n{path}")
+    return 0
