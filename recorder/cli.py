@@ -192,9 +192,9 @@ def add_log_commands(subparsers: Any) -> None:
 def cmd_record(args: argparse.Namespace) -> int:
     import math
 
-    from recorder.process import cmd_record as run_record
+    from recorder.cli_process import cmd_record as run_record
 
-    # The flags recorder.process leaves to later (a NaN there reaches int() mid-start).
+    # The flags recorder.cli_process leaves to later (a NaN there reaches int() mid-start).
     for flag, value, positive in (("--flush-ms", args.flush_ms, True), ("--router-wait", args.router_wait, False)):
         if not math.isfinite(value) or value < 0 or (positive and value == 0):
             return _fail("truav-swarm", f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
@@ -287,7 +287,7 @@ REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live ag
 
 def add_swarm_commands(subparsers: Any) -> None:
     """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
-    from recorder.process import add_record_args
+    from recorder.cli_process import add_record_args
     from truav.bus.transport import add_transport_args
 
     rec = subparsers.add_parser(
