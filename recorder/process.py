@@ -54,7 +54,7 @@ import threading
 import time
 import tomllib
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -64,12 +64,12 @@ from recorder.mcap_log import (
     DEFAULT_COMPRESSION,
     DEFAULT_FLUSH_INTERVAL_S,
     LIBRARY,
-    LogSummary,
     McapLog,
 )
 from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry
 from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
+from recorder.summary import RecorderSummary
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
 from truav.lifecycle import signals_handled, watch_supervisor
@@ -87,7 +87,6 @@ WRITER_JOIN_TIMEOUT_S = 60.0  # a large backlog takes a while to write
 DEFAULT_ROUTER_WAIT_S = 10.0  # a client waits this long for the router (it may start after us)
 DEFAULT_READY_TIMEOUT_S = 10.0
 STOP_GRACE_S = 10.0  # stop_recorder: SIGTERM, then SIGKILL after this long
-MAX_SUMMARY_ROWS = 200  # channel / sender rows in the printed summary
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -137,76 +136,6 @@ class RecorderOptions:
             except tomllib.TOMLDecodeError as exc:
                 raise RecorderUsageError(f"the run config is not valid TOML: {exc}") from None
         return self
-
-
-@dataclass
-class RecorderSummary:
-    """What the recorder did; :meth:`format` is the text printed at the end."""
-
-    run: str
-    path: str
-    started_ns: int
-    stopped_ns: int
-    stop_reason: str
-    log: LogSummary
-    bus: transport.BusStats
-    max_backlog: int = 0  # most messages waiting for the writer at once
-    error: Optional[str] = None
-    compacted: Optional[tuple[int, int]] = None  # file size before and after the compaction at the finish
-
-    @property
-    def duration_s(self) -> float:
-        return max(self.stopped_ns - self.started_ns, 0) / 1e9
-
-    @property
-    def recorder_dropped(self) -> int:
-        """Messages that reached this process but are not in the file (Bus queue full)."""
-        return self.bus.overflow + self.bus.callback_errors
-
-    def to_json(self) -> dict[str, Any]:
-        """Plain-JSON form (for ``--summary-json`` and the summary metadata)."""
-        return {
-            "run": self.run, "path": self.path, "started_ns": self.started_ns, "stopped_ns": self.stopped_ns,
-            "duration_s": self.duration_s, "stop_reason": self.stop_reason, "error": self.error,
-            "messages": self.log.messages, "mirror_messages": self.log.mirror_messages,
-            "undecodable": self.log.undecodable, "bytes": self.log.bytes_written, "chunks": self.log.chunks,
-            "missing_by_seq": self.log.missing, "recorder_dropped": self.recorder_dropped,
-            "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
-            "channels": dict(sorted(self.log.channels.items())),
-            "senders": {f"{src} {kind} {inc:016x}": asdict(s)
-                        for (src, kind, inc), s in sorted(self.log.senders.items())},
-            "rejected": self.bus.rejected,
-        }
-
-    def format(self) -> str:
-        """Headline, then messages per channel, then per-sender sequence gaps."""
-        log_ = self.log
-        rate = log_.messages / self.duration_s if self.duration_s > 0 else 0.0
-        lines = [
-            f"recorder: run {self.run} -> {self.path} ({self.stop_reason})",
-            f"  {log_.messages} messages on {len(log_.channels)} channels in {self.duration_s:.1f} s "
-            f"({rate:,.0f} msgs/s), {log_.mirror_messages} mirror messages, {log_.bytes_written:,} bytes, "
-            f"{log_.chunks} chunks" + (f"; compacted at the finish to {self.compacted[1]:,} bytes"
-                                       if self.compacted else ""),
-            f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
-            f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
-        ]
-        if self.error:
-            lines.append(f"  ERROR: {self.error}")
-        if log_.channels:
-            lines.append("  messages per channel:")
-            items = sorted(log_.channels.items())
-            width = max(len(k) for k, _ in items[:MAX_SUMMARY_ROWS])
-            lines += [f"    {k:<{width}}  {n:>9}" for k, n in items[:MAX_SUMMARY_ROWS]]
-            if len(items) > MAX_SUMMARY_ROWS:
-                lines.append(f"    ... {len(items) - MAX_SUMMARY_ROWS} more channels")
-        gappy = sorted((k, s) for k, s in log_.senders.items() if s.missing or s.backwards)
-        lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
-                     + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
-        for (src, kind, inc), s in gappy[:MAX_SUMMARY_ROWS]:
-            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} "
-                         f"in {s.gaps} gaps" + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
-        return "\n".join(lines)
 
 
 PULL_IDLE_S = 0.001  # writer sleep when the bus is quiet (bounds added latency, not the flush)
