@@ -5,7 +5,9 @@ record`` and ``truav-swarm record``, see :mod:`recorder.cli`);
 :func:`options_from_args` turns them into the :class:`recorder.process.RecorderOptions`
 the node runs with, and :func:`cmd_record` runs it.  ``recorder.process.recorder_argv``
 builds this command line for supervisors; ``python -m recorder.process`` (the
-old spelling) hands over to :func:`main`.
+old spelling) hands over to :func:`main`.  The recording node itself is
+imported when a command runs, so building the parser (``truav --help``) does
+not load mcap's reader, zstd and the recovery code.
 """
 
 from __future__ import annotations
@@ -14,23 +16,18 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 from recorder.foxglove import DEFAULT_ORIGIN, parse_origin
-from recorder.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, DEFAULT_FLUSH_INTERVAL_S
-from recorder.process import (
-    DEFAULT_ROUTER_WAIT_S,
-    EXIT_FAILED,
-    EXIT_OK,
-    EXIT_USAGE,
-    RecorderOptions,
-    RecorderUsageError,
-    record,
-)
+from recorder.mcap_writer import COMPRESSIONS, DEFAULT_COMPRESSION, DEFAULT_FLUSH_INTERVAL_S
 from truav.bus import keys, transport
 
-__all__ = ["add_record_args", "options_from_args", "zenoh_config_from_args", "cmd_record", "main",
-           "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE"]
+if TYPE_CHECKING:
+    from recorder.process import RecorderOptions
+
+__all__ = ["add_record_args", "options_from_args", "zenoh_config_from_args", "cmd_record", "main"]
+
+DEFAULT_ROUTER_WAIT_S = 10.0  # a client waits this long for the router (it may start after us)
 
 
 def zenoh_config_from_args(args: argparse.Namespace) -> Any:
@@ -43,6 +40,8 @@ def zenoh_config_from_args(args: argparse.Namespace) -> Any:
 
 
 def options_from_args(args: argparse.Namespace) -> RecorderOptions:
+    from recorder.process import RecorderOptions, RecorderUsageError  # the node: mcap, zstd, foxglove
+
     toml_text = None
     if args.config_toml:
         path = Path(args.config_toml)
@@ -93,6 +92,8 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def cmd_record(args: argparse.Namespace) -> int:
     """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as in :mod:`recorder.process`."""
+    from recorder.process import EXIT_USAGE, RecorderUsageError, record  # the node: mcap, zstd, foxglove
+
     try:
         options = options_from_args(args)
         transport.apply_creds(args, keys.SRC_RECORDER)

@@ -84,7 +84,6 @@ CMD_STOP = "stop"
 # --- timing ------------------------------------------------------------------------------
 IDLE_WAKE_S = 0.25  # writer wake-up when nothing is pending (bounds stop latency, costs nothing)
 WRITER_JOIN_TIMEOUT_S = 60.0  # a large backlog takes a while to write
-DEFAULT_ROUTER_WAIT_S = 10.0  # a client waits this long for the router (it may start after us)
 DEFAULT_READY_TIMEOUT_S = 10.0
 STOP_GRACE_S = 10.0  # stop_recorder: SIGTERM, then SIGKILL after this long
 
