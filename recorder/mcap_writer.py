@@ -204,7 +204,7 @@ class McapWriter:
             self._stream = output
             self._owned = False
         self._offset = 0  # bytes written so far = offset of the next record
-        self._closed = False
+        self.closed = False  # a plain attribute: McapLog reads it per message
         self._open = OpenChunk(clock)
         self._registry = Registry(self._open)
         self.append = self._open.append  # the hot path: one bound method, no indirection
@@ -219,10 +219,6 @@ class McapWriter:
         self._offset += len(MCAP_MAGIC)
         self._write_records(Header(profile=PROFILE, library=library))
         self._stream.flush()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
 
     @property
     def messages(self) -> int:
@@ -263,7 +259,7 @@ class McapWriter:
         """Append one message to a channel of :meth:`add_channel` (no envelope decoding, no
         mirrors); the chunk closes once it holds ``chunk_bytes``, before a message that would make
         its log times span ``chunk_span_ns`` or more, or on the timer when auto_flush."""
-        if self._closed:
+        if self.closed:
             raise ValueError("add_message() on a closed McapLog")
         span = self._chunk_span  # a chunk's messages, in whatever order, stay within a span of log time
         chunk = self._open
@@ -287,7 +283,7 @@ class McapWriter:
         :func:`time.monotonic`).  Returns True when a chunk was written.  Call it
         every few tens of ms from the recorder loop even when no message arrives.
         """
-        if self._closed or self._open.n == 0:
+        if self.closed or self._open.n == 0:
             return False
         if (self._clock() if now is None else now) - self._open.opened < self._interval:
             return False
@@ -297,13 +293,13 @@ class McapWriter:
     def next_flush_due(self) -> Optional[float]:
         """Clock reading at which :meth:`maybe_flush` will write, None if nothing is pending;
         a process wrapper can use it as its receive timeout."""
-        if self._closed or self._open.n == 0:
+        if self.closed or self._open.n == 0:
             return None
         return self._open.opened + self._interval
 
     def flush(self) -> None:
         """Write the open chunk now (whatever its age) and flush the stream."""
-        if not self._closed:
+        if not self.closed:
             self._close_chunk()
             self._sync()
 
@@ -314,7 +310,7 @@ class McapWriter:
         Non-str values are JSON-encoded.  Written and flushed at once (outside
         any chunk), so it survives a crash that comes right after.
         """
-        if self._closed:
+        if self.closed:
             raise ValueError("set_metadata() on a closed McapLog")
         record = Metadata(
             name=name,
@@ -331,7 +327,7 @@ class McapWriter:
 
     def add_attachment(self, record: Attachment) -> None:
         """An Attachment record, written outside chunks and indexed in the summary."""
-        if self._closed:
+        if self.closed:
             raise ValueError("add_attachment() on a closed McapLog")
         offset = self._offset
         length = self._write_records(record)
@@ -342,7 +338,7 @@ class McapWriter:
     def close(self) -> None:
         """Write the last chunk, the summary section (schemas, channels, statistics,
         chunk and metadata indexes), the footer and the closing magic.  Idempotent."""
-        if self._closed:
+        if self.closed:
             return
         self._close_chunk()
         self._write_records(DataEnd(data_section_crc=0))  # 0: not computed, as Writer's default
@@ -362,7 +358,7 @@ class McapWriter:
         self._stream.write(MCAP_MAGIC)
         self._offset += len(MCAP_MAGIC)
         self._sync()
-        self._closed = True
+        self.closed = True
         if self._owned:
             self._stream.close()
 
