@@ -1,15 +1,21 @@
-"""Command-line builders for the recorder tools.
+"""Command-line builders for the recorder tools: recordings under one noun, ``truav log``.
 
 * :func:`add_log_commands` adds to ``truav``::
 
-      truav log recover IN OUT      # finish an unfinished MCAP (recorder killed)
-      truav log check FILE          # per-sender messages and sequence gaps
-      truav report FILE [--out DIR] # map, metric timelines, agent latency; metrics.csv
+      truav log record --run RUN --out FILE [-e ENDPOINT] [--config-toml FILE]   # until Ctrl-C / SIGTERM
+      truav log play FILE [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused]
+      truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
+      truav log check FILE               # per-sender messages and sequence gaps
+      truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
 
-* :func:`add_swarm_commands` adds to ``truav-swarm``::
+  and ``truav report``, an alias of ``truav log report``;
+* :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
+  record`` (of ``truav log record``) and ``truav-swarm replay`` (of ``truav log play``).
 
-      truav-swarm record --run RUN --out FILE [-e ENDPOINT] [--config-toml FILE]
-      truav-swarm replay FILE [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused]
+An alias and its ``truav log`` spelling are built by the same function
+(:func:`add_record_parser`, :func:`add_play_parser`, :func:`add_report_parser`)
+and run the same command; only the one-line help in the parent's list says
+"alias of ...", and an error names the program it was typed to.
 
 Every command sets ``func(args) -> exit code`` and reports user mistakes
 (missing file, not an MCAP, a pattern matching nothing) in one line on
@@ -25,6 +31,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from truav.checks import check_endpoint, check_in_file
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -148,11 +155,205 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# --- truav log record / play (aliases truav-swarm record / replay) ---------------------------------
+def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
+    import math
+
+    from recorder.cli_process import cmd_record as run_record
+
+    # The flags recorder.cli_process leaves to later (a NaN there reaches int() mid-start).
+    for flag, value, positive in (("--flush-ms", args.flush_ms, True), ("--router-wait", args.router_wait, False)):
+        if not math.isfinite(value) or value < 0 or (positive and value == 0):
+            return _fail(prog, f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
+    try:
+        check_out_file("--out", args.out)
+    except ValueError as exc:
+        return _fail(prog, str(exc))
+    if args.config_toml is not None:
+        from truav.config import ConfigError, read_toml
+        try:
+            read_toml(args.config_toml, "--config-toml", ConfigError)
+        except ConfigError as exc:
+            return _fail(prog, str(exc))
+    return run_record(args)
+
+
+def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
+    import signal
+
+    from recorder.replay import (CONTROL_PART, KeyboardControl, Replayer, ReplayOptions, ReplayUsageError,
+                                 recording_info, replay_on_bus, split_patterns)
+    from truav.bus import keys
+    from truav.bus.transport import apply_creds, config_from_args
+
+    problem = _mcap_file(args.file)
+    if problem:
+        return _fail(prog, problem)
+    try:
+        include, exclude = split_patterns(args.topics, args.exclude)
+        options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
+                                include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
+                                paused=args.paused, with_control=args.with_control)
+        apply_creds(args, keys.SRC_REPLAY)
+        zconfig = config_from_args(args)
+    except (ReplayUsageError, ValueError) as exc:
+        return _fail(prog, str(exc))
+    from recorder.check import check
+    audit = check(args.file)  # a damaged chunk would stop the replay halfway: say so first
+    if audit.corrupt_chunks or audit.read_error:
+        return _fail(prog, f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
+                                    f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+    try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
+        info = recording_info(options.path)
+        target = Replayer(options, lambda _key, _payload: None, info).target_run
+        if target is None:
+            return _fail(prog, f"{args.file}: no truav/<run>/ keys to replay")
+    except ReplayUsageError as exc:
+        return _fail(prog, str(exc))
+    except damage_errors() as exc:
+        return _fail(prog, f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); "
+                                    f"`truav log recover` salvages the rest")
+    keyboard = KeyboardControl.available() and not args.no_keys
+    stop = threading.Event()
+    quiet = args.quiet
+
+    def on_state(command: str) -> None:
+        if not quiet:
+            print(f"replay: {command}", file=sys.stderr, flush=True)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # signal handlers only work there
+        previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        if not quiet:
+            hint = "space pause/resume, s step, q quit; " if keyboard else ""
+            recorded = ", ".join(repr(r) for r in info.runs)
+            runs = f"run {recorded}" if list(info.runs) == [target] else f"recorded run(s) {recorded} as {target!r}"
+            print(f"replay: {args.file} ({runs}){' (paused)' if args.paused else ''}; {hint}bus commands on "
+                  f"{keys.control(target, CONTROL_PART)}", file=sys.stderr, flush=True)
+        stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
+    except ReplayUsageError as exc:
+        return _fail(prog, str(exc))
+    except Exception as exc:  # zenoh could not open (no router...): one line
+        from recorder.process import short_error
+
+        return _fail(prog, f"replay failed: {short_error(exc)}", EXIT_FAILED)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(stats.format())
+    return EXIT_OK
+
+
+REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live agent drops replayed traffic "
+                  "unless given --accept-replay): `truav-swarm agent --id 3 --run demo --accept-replay "
+                  "-e tcp/127.0.0.1:7447`, then `truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447 "
+                  "--topics 'truav/*/world/tick' 'truav/*/uav/3/obs'`.")
+"""`replay --help`'s example (tests/test_replay.py parses its commands with the real parsers)."""
+
+
+
+
+# --- the parsers, each built by one function (the `truav log` spelling and its alias share it) ----------
+RECORD_HELP = "record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)"
+PLAY_HELP = "re-publish a recording onto Zenoh with its original timing"
+REPORT_HELP = "pictures of a recorded run: map, metric timelines, agent latency; metrics.csv"
+
+
+def alias_help(new: str) -> str:
+    """The one-line help of an old spelling in its parent's command list."""
+    return f"alias of `{new}`"
+
+
+def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
+    """``record``: the recorder process's flags (:func:`recorder.cli_process.add_record_args`)."""
+    from recorder.cli_process import add_record_args
+
+    rec = subparsers.add_parser(
+        "record", help=help,
+        description="Record every message under truav/<run>/ into an MCAP file: one channel per key "
+                    "(msgpack, with a JSON Schema), JSON mirrors of beacons, positions and metrics for "
+                    "Foxglove, the run config as metadata. Stops on Ctrl-C, SIGTERM or a 'stop' control "
+                    "message on truav/<run>/control/recorder, finishes the file and prints a summary.")
+    add_record_args(rec)
+    return rec
+
+
+def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentParser:
+    """``play`` (``truav log``) or ``replay`` (``truav-swarm``): re-publish a recording."""
+    from truav.cli_args import add_transport_args
+
+    rp = subparsers.add_parser(
+        name, help=help,
+        description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
+                    "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
+                    "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
+                    f"{REPLAY_EXAMPLE}")
+    rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+    rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
+    rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
+    rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
+                    help="replay only keys matching these globs (* also matches /); !PATTERN excludes")
+    rp.add_argument("--exclude", nargs="+", default=[], metavar="PATTERN", help="skip keys matching these globs")
+    rp.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
+                    help="skip the first S seconds of the recording")
+    rp.add_argument("--duration", type=positive_float, default=None, metavar="S", help="replay only S seconds")
+    rp.add_argument("--paused", action="store_true", help="start paused (then: space/s, or bus commands)")
+    rp.add_argument("--run", metavar="NEW", help="publish under truav/NEW/ instead of the recorded run")
+    rp.add_argument("--with-control", action="store_true",
+                    help="also replay recorded control messages (skipped by default: old stop/shutdown "
+                         "commands would hit live processes)")
+    rp.add_argument("--no-keys", action="store_true", help="ignore the keyboard even on a terminal")
+    rp.add_argument("--quiet", action="store_true", help="print only the final summary")
+    add_transport_args(rp)
+    return rp
+
+
+def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
+    rep = subparsers.add_parser(
+        "report", help=help,
+        description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
+                    "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
+                    "and metrics.csv from a recording.")
+    rep.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+    rep.add_argument("--out", metavar="DIR", help="output directory (default: <FILE stem>_report next to FILE)")
+    return rep
+
+
+def _check_endpoints(args: argparse.Namespace) -> None:
+    """What ``truav-swarm``'s main checks before any command: the -e/-l endpoints are Zenoh
+    locators, a -c file exists (``truav log record|play`` run under ``truav``'s main)."""
+    for ep in args.connect or []:
+        check_endpoint("-e/--connect", ep)
+    for ep in args.listen or []:
+        check_endpoint("-l/--listen", ep)
+    if args.config is not None:
+        check_in_file("-c/--config", args.config)
+
+
+def cmd_log_record(args: argparse.Namespace) -> int:
+    """``truav log record``: ``truav-swarm record``'s command, its errors named ``truav``."""
+    _check_endpoints(args)
+    return cmd_record(args, prog="truav")
+
+
+def cmd_log_play(args: argparse.Namespace) -> int:
+    """``truav log play``: ``truav-swarm replay``'s command, its errors named ``truav``."""
+    _check_endpoints(args)
+    return cmd_replay(args, prog="truav")
+
+
+# --- the command groups ---------------------------------------------------------------------------
 def add_log_commands(subparsers: Any) -> None:
-    """Add ``log recover``, ``log check`` and ``report`` to the ``truav`` CLI."""
-    log = subparsers.add_parser("log", help="inspect and repair MCAP recordings of swarm runs",
-                                description="Inspect and repair MCAP recordings made by the TRUAV recorder.")
+    """Add ``log record|play|report|check|recover`` to the ``truav`` CLI, and ``report``, an alias of
+    ``log report``."""
+    log = subparsers.add_parser("log", help="record, play, report on, check and repair MCAP recordings of swarm runs",
+                                description="Record, play, report on, check and repair MCAP recordings made by "
+                                            "the TRUAV recorder.")
     log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
+    add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
+    add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)
+    add_report_parser(log_sub, REPORT_HELP).set_defaults(func=cmd_report)
 
     rec = log_sub.add_parser(
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",
@@ -178,148 +379,10 @@ def add_log_commands(subparsers: Any) -> None:
     chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)
 
-    rep = subparsers.add_parser(
-        "report", help="pictures of a recorded run: map, metric timelines, agent latency; metrics.csv",
-        description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
-                    "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
-                    "and metrics.csv from a recording.")
-    rep.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
-    rep.add_argument("--out", metavar="DIR", help="output directory (default: <FILE stem>_report next to FILE)")
-    rep.set_defaults(func=cmd_report)
-
-
-# --- truav-swarm record / replay ----------------------------------------------------------------
-def cmd_record(args: argparse.Namespace) -> int:
-    import math
-
-    from recorder.process import cmd_record as run_record
-
-    # The flags recorder.process leaves to later (a NaN there reaches int() mid-start).
-    for flag, value, positive in (("--flush-ms", args.flush_ms, True), ("--router-wait", args.router_wait, False)):
-        if not math.isfinite(value) or value < 0 or (positive and value == 0):
-            return _fail("truav-swarm", f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
-    try:
-        check_out_file("--out", args.out)
-    except ValueError as exc:
-        return _fail("truav-swarm", str(exc))
-    if args.config_toml is not None:
-        from truav.config import ConfigError, read_toml
-        try:
-            read_toml(args.config_toml, "--config-toml", ConfigError)
-        except ConfigError as exc:
-            return _fail("truav-swarm", str(exc))
-    return run_record(args)
-
-
-def cmd_replay(args: argparse.Namespace) -> int:
-    import signal
-
-    from recorder.replay import (CONTROL_PART, KeyboardControl, Replayer, ReplayOptions, ReplayUsageError,
-                                 recording_info, replay_on_bus, split_patterns)
-    from truav.bus import keys
-    from truav.bus.transport import apply_creds, config_from_args
-
-    problem = _mcap_file(args.file)
-    if problem:
-        return _fail("truav-swarm", problem)
-    try:
-        include, exclude = split_patterns(args.topics, args.exclude)
-        options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
-                                include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
-                                paused=args.paused, with_control=args.with_control)
-        apply_creds(args, keys.SRC_REPLAY)
-        zconfig = config_from_args(args)
-    except (ReplayUsageError, ValueError) as exc:
-        return _fail("truav-swarm", str(exc))
-    from recorder.check import check
-    audit = check(args.file)  # a damaged chunk would stop the replay halfway: say so first
-    if audit.corrupt_chunks or audit.read_error:
-        return _fail("truav-swarm", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                                    f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
-    try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
-        info = recording_info(options.path)
-        target = Replayer(options, lambda _key, _payload: None, info).target_run
-        if target is None:
-            return _fail("truav-swarm", f"{args.file}: no truav/<run>/ keys to replay")
-    except ReplayUsageError as exc:
-        return _fail("truav-swarm", str(exc))
-    except damage_errors() as exc:
-        return _fail("truav-swarm", f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); "
-                                    f"`truav log recover` salvages the rest")
-    keyboard = KeyboardControl.available() and not args.no_keys
-    stop = threading.Event()
-    quiet = args.quiet
-
-    def on_state(command: str) -> None:
-        if not quiet:
-            print(f"replay: {command}", file=sys.stderr, flush=True)
-
-    previous = {}
-    if threading.current_thread() is threading.main_thread():  # signal handlers only work there
-        previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        if not quiet:
-            hint = "space pause/resume, s step, q quit; " if keyboard else ""
-            recorded = ", ".join(repr(r) for r in info.runs)
-            runs = f"run {recorded}" if list(info.runs) == [target] else f"recorded run(s) {recorded} as {target!r}"
-            print(f"replay: {args.file} ({runs}){' (paused)' if args.paused else ''}; {hint}bus commands on "
-                  f"{keys.control(target, CONTROL_PART)}", file=sys.stderr, flush=True)
-        stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
-    except ReplayUsageError as exc:
-        return _fail("truav-swarm", str(exc))
-    except Exception as exc:  # zenoh could not open (no router...): one line
-        from recorder.process import short_error
-
-        return _fail("truav-swarm", f"replay failed: {short_error(exc)}", EXIT_FAILED)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    print(stats.format())
-    return EXIT_OK
-
-
-REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live agent drops replayed traffic "
-                  "unless given --accept-replay): `truav-swarm agent --id 3 --run demo --accept-replay "
-                  "-e tcp/127.0.0.1:7447`, then `truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447 "
-                  "--topics 'truav/*/world/tick' 'truav/*/uav/3/obs'`.")
-"""`replay --help`'s example (tests/test_replay.py parses its commands with the real parsers)."""
+    add_report_parser(subparsers, alias_help("truav log report")).set_defaults(func=cmd_report)
 
 
 def add_swarm_commands(subparsers: Any) -> None:
-    """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI."""
-    from recorder.process import add_record_args
-    from truav.cli_args import add_transport_args
-
-    rec = subparsers.add_parser(
-        "record", help="record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)",
-        description="Record every message under truav/<run>/ into an MCAP file: one channel per key "
-                    "(msgpack, with a JSON Schema), JSON mirrors of beacons, positions and metrics for "
-                    "Foxglove, the run config as metadata. Stops on Ctrl-C, SIGTERM or a 'stop' control "
-                    "message on truav/<run>/control/recorder, finishes the file and prints a summary.")
-    add_record_args(rec)
-    rec.set_defaults(func=cmd_record)
-
-    rp = subparsers.add_parser(
-        "replay", help="re-publish a recording onto Zenoh with its original timing",
-        description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
-                    "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
-                    "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
-                    f"{REPLAY_EXAMPLE}")
-    rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
-    rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
-    rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
-    rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
-                    help="replay only keys matching these globs (* also matches /); !PATTERN excludes")
-    rp.add_argument("--exclude", nargs="+", default=[], metavar="PATTERN", help="skip keys matching these globs")
-    rp.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
-                    help="skip the first S seconds of the recording")
-    rp.add_argument("--duration", type=positive_float, default=None, metavar="S", help="replay only S seconds")
-    rp.add_argument("--paused", action="store_true", help="start paused (then: space/s, or bus commands)")
-    rp.add_argument("--run", metavar="NEW", help="publish under truav/NEW/ instead of the recorded run")
-    rp.add_argument("--with-control", action="store_true",
-                    help="also replay recorded control messages (skipped by default: old stop/shutdown "
-                         "commands would hit live processes)")
-    rp.add_argument("--no-keys", action="store_true", help="ignore the keyboard even on a terminal")
-    rp.add_argument("--quiet", action="store_true", help="print only the final summary")
-    add_transport_args(rp)
-    rp.set_defaults(func=cmd_replay)
+    """Add ``record`` and ``replay`` to the ``truav-swarm`` CLI: aliases of ``truav log record|play``."""
+    add_record_parser(subparsers, alias_help("truav log record")).set_defaults(func=cmd_record)
+    add_play_parser(subparsers, "replay", alias_help("truav log play")).set_defaults(func=cmd_replay)

@@ -1,11 +1,16 @@
 """The recorder as a Zenoh process: everything under ``truav/<run>/`` into one MCAP file.
 
-Run it alone, or let a supervisor start it as a subprocess::
+This module is the recording node (:class:`Recorder`, its options and summary,
+and :func:`record`, the process's life); its command line is
+:mod:`recorder.cli_process`.  Run it alone, or let a supervisor start it as a
+subprocess (:func:`recorder_argv`)::
 
-    python -m recorder.process --run RUN --out FILE -e tcp/127.0.0.1:PORT [--config-toml FILE]
+    python -m recorder.cli_process --run RUN --out FILE -e tcp/127.0.0.1:PORT [--config-toml FILE]
 
-(``truav-swarm record`` is the same with the ``truav-swarm`` flags.)  The
-process prints nothing on stdout but one summary when it stops, and exits
+(``python -m recorder.process`` is the same command, its spelling before the
+split; ``truav log record`` and its alias ``truav-swarm record`` are the same
+with the ``truav`` flags checked first.)  The process prints nothing on
+stdout but one summary when it stops, and exits
 
 * 0 after SIGTERM, SIGINT or a ``stop`` control message on
   ``truav/<run>/control/recorder``, once the file is finished (footer
@@ -36,7 +41,6 @@ Log time is the time the writer pulls the sample (wall clock, ns); publish time 
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import logging
@@ -50,7 +54,7 @@ import threading
 import time
 import tomllib
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -60,13 +64,12 @@ from recorder.mcap_log import (
     DEFAULT_COMPRESSION,
     DEFAULT_FLUSH_INTERVAL_S,
     LIBRARY,
-    LogSummary,
     McapLog,
 )
-from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry, parse_origin
+from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry
 from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
-from truav import cli_args
+from recorder.summary import RecorderSummary
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
 from truav.lifecycle import signals_handled, watch_supervisor
@@ -74,16 +77,15 @@ from truav.lifecycle import signals_handled, watch_supervisor
 log = logging.getLogger("truav.recorder")
 
 # --- names other tools rely on ---------------------------------------------------------
+ENTRY_MODULE = "recorder.cli_process"  # `python -m ENTRY_MODULE` runs the recorder (recorder_argv)
 CONTROL_PART = "recorder"  # commands arrive on keys.control(run, CONTROL_PART)
 CMD_STOP = "stop"
 
 # --- timing ------------------------------------------------------------------------------
 IDLE_WAKE_S = 0.25  # writer wake-up when nothing is pending (bounds stop latency, costs nothing)
 WRITER_JOIN_TIMEOUT_S = 60.0  # a large backlog takes a while to write
-DEFAULT_ROUTER_WAIT_S = 10.0  # a client waits this long for the router (it may start after us)
 DEFAULT_READY_TIMEOUT_S = 10.0
 STOP_GRACE_S = 10.0  # stop_recorder: SIGTERM, then SIGKILL after this long
-MAX_SUMMARY_ROWS = 200  # channel / sender rows in the printed summary
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -96,7 +98,7 @@ class RecorderUsageError(ValueError):
 
 @dataclass(frozen=True)
 class RecorderOptions:
-    """What to record and how; see ``python -m recorder.process --help``."""
+    """What to record and how; see ``python -m recorder.cli_process --help``."""
 
     run: str
     out: Path
@@ -133,76 +135,6 @@ class RecorderOptions:
             except tomllib.TOMLDecodeError as exc:
                 raise RecorderUsageError(f"the run config is not valid TOML: {exc}") from None
         return self
-
-
-@dataclass
-class RecorderSummary:
-    """What the recorder did; :meth:`format` is the text printed at the end."""
-
-    run: str
-    path: str
-    started_ns: int
-    stopped_ns: int
-    stop_reason: str
-    log: LogSummary
-    bus: transport.BusStats
-    max_backlog: int = 0  # most messages waiting for the writer at once
-    error: Optional[str] = None
-    compacted: Optional[tuple[int, int]] = None  # file size before and after the compaction at the finish
-
-    @property
-    def duration_s(self) -> float:
-        return max(self.stopped_ns - self.started_ns, 0) / 1e9
-
-    @property
-    def recorder_dropped(self) -> int:
-        """Messages that reached this process but are not in the file (Bus queue full)."""
-        return self.bus.overflow + self.bus.callback_errors
-
-    def to_json(self) -> dict[str, Any]:
-        """Plain-JSON form (for ``--summary-json`` and the summary metadata)."""
-        return {
-            "run": self.run, "path": self.path, "started_ns": self.started_ns, "stopped_ns": self.stopped_ns,
-            "duration_s": self.duration_s, "stop_reason": self.stop_reason, "error": self.error,
-            "messages": self.log.messages, "mirror_messages": self.log.mirror_messages,
-            "undecodable": self.log.undecodable, "bytes": self.log.bytes_written, "chunks": self.log.chunks,
-            "missing_by_seq": self.log.missing, "recorder_dropped": self.recorder_dropped,
-            "bus_overflow": self.bus.overflow, "bus_filtered": self.bus.filtered, "max_backlog": self.max_backlog,
-            "channels": dict(sorted(self.log.channels.items())),
-            "senders": {f"{src} {kind} {inc:016x}": asdict(s)
-                        for (src, kind, inc), s in sorted(self.log.senders.items())},
-            "rejected": self.bus.rejected,
-        }
-
-    def format(self) -> str:
-        """Headline, then messages per channel, then per-sender sequence gaps."""
-        log_ = self.log
-        rate = log_.messages / self.duration_s if self.duration_s > 0 else 0.0
-        lines = [
-            f"recorder: run {self.run} -> {self.path} ({self.stop_reason})",
-            f"  {log_.messages} messages on {len(log_.channels)} channels in {self.duration_s:.1f} s "
-            f"({rate:,.0f} msgs/s), {log_.mirror_messages} mirror messages, {log_.bytes_written:,} bytes, "
-            f"{log_.chunks} chunks" + (f"; compacted at the finish to {self.compacted[1]:,} bytes"
-                                       if self.compacted else ""),
-            f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
-            f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
-        ]
-        if self.error:
-            lines.append(f"  ERROR: {self.error}")
-        if log_.channels:
-            lines.append("  messages per channel:")
-            items = sorted(log_.channels.items())
-            width = max(len(k) for k, _ in items[:MAX_SUMMARY_ROWS])
-            lines += [f"    {k:<{width}}  {n:>9}" for k, n in items[:MAX_SUMMARY_ROWS]]
-            if len(items) > MAX_SUMMARY_ROWS:
-                lines.append(f"    ... {len(items) - MAX_SUMMARY_ROWS} more channels")
-        gappy = sorted((k, s) for k, s in log_.senders.items() if s.missing or s.backwards)
-        lines.append(f"  senders: {len(log_.senders)}, with sequence gaps: {len(gappy)}"
-                     + (" (run `truav log check FILE` for the ranges)" if gappy else ""))
-        for (src, kind, inc), s in gappy[:MAX_SUMMARY_ROWS]:
-            lines.append(f"    {src:<12} {kind:<10} inc {inc:016x} msgs {s.count:>8}  missing {s.missing:>6} "
-                         f"in {s.gaps} gaps" + (f", {s.backwards} out of order/duplicate" if s.backwards else ""))
-        return "\n".join(lines)
 
 
 PULL_IDLE_S = 0.001  # writer sleep when the bus is quiet (bounds added latency, not the flush)
@@ -427,75 +359,9 @@ def _signals_set(stop: threading.Event, reasons: list[str]):
         yield
 
 
-def zenoh_config_from_args(args: argparse.Namespace) -> Any:
-    """Like :func:`transport.config_from_args`, plus a client wait for the router
-    (``--router-wait``), so a supervisor may start us before the router is up."""
-    mode = args.mode if args.mode is not None else (None if args.config else transport.MODE_CLIENT)
-    wait_ms = int(args.router_wait * 1000) if mode == transport.MODE_CLIENT else None
-    return transport.make_config(mode, args.connect or (), args.listen or (), args.config,
-                                 connect_timeout_ms=wait_ms)
-
-
-def options_from_args(args: argparse.Namespace) -> RecorderOptions:
-    toml_text = None
-    if args.config_toml:
-        path = Path(args.config_toml)
-        if not path.is_file():
-            raise RecorderUsageError(f"config file not found: {path}")
-        toml_text = path.read_text(encoding="utf-8")
-    return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, compression=args.compression,
-                           flush_interval_s=args.flush_ms / 1000.0, mirrors=not args.no_mirrors, fsync=args.fsync,
-                           force=args.force, geo_origin=args.geo_origin, compact=not args.no_compact).validate()
-
-
-def _origin_arg(text: str) -> tuple[float, float]:
-    try:
-        return parse_origin(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The recorder's flags (shared by ``python -m recorder.process`` and ``truav-swarm record``)."""
-    parser.add_argument("--run", required=True, help="run name: records every key under truav/<run>/")
-    parser.add_argument("--out", "-o", required=True, metavar="FILE", help="MCAP file to write")
-    parser.add_argument("--config-toml", metavar="FILE",
-                        help="the run's config (as `truav config show` prints) to store as MCAP metadata")
-    parser.add_argument("--compression", choices=sorted(COMPRESSIONS), default=DEFAULT_COMPRESSION,
-                        help=f"chunk compression (default {DEFAULT_COMPRESSION})")
-    parser.add_argument("--flush-ms", type=float, default=DEFAULT_FLUSH_INTERVAL_S * 1000, metavar="MS",
-                        help="hand each chunk to the OS at most this old: a SIGKILL loses about this much "
-                             f"(default {DEFAULT_FLUSH_INTERVAL_S * 1000:g})")
-    parser.add_argument("--fsync", action="store_true", help="also fsync every chunk (survives power loss)")
-    parser.add_argument("--no-mirrors", action="store_true",
-                        help="skip the mirror channels for Foxglove (well-known schemas, JSON metrics)")
-    parser.add_argument("--geo-origin", type=_origin_arg, default=DEFAULT_ORIGIN, metavar="LAT,LON",
-                        help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
-                        % DEFAULT_ORIGIN)
-    parser.add_argument("--no-compact", action="store_true",
-                        help="keep the 50 ms chunks at a clean finish instead of rewriting them into chunks of "
-                             "up to 2 s compressed harder")
-    parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
-    parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug lines: what was recorded, once a second")
-    parser.add_argument("--router-wait", type=float, default=DEFAULT_ROUTER_WAIT_S, metavar="S",
-                        help=f"client mode: wait this long for the router (default {DEFAULT_ROUTER_WAIT_S:g} s)")
-    cli_args.add_transport_args(parser)
-    return parser
-
-
-def cmd_record(args: argparse.Namespace) -> int:
-    """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as documented above."""
-    try:
-        options = options_from_args(args)
-        transport.apply_creds(args, keys.SRC_RECORDER)
-        zconfig = zenoh_config_from_args(args)
-    except (RecorderUsageError, ValueError, OSError) as exc:
-        print(f"recorder: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    if args.verbose:
-        logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-        logging.getLogger("truav").setLevel(logging.DEBUG)
+def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] = None) -> int:
+    """Record until SIGINT/SIGTERM/stop command (or the supervisor is gone); print the summary;
+    exit code as documented above."""
     stop = threading.Event()
     reasons: list[str] = []
     recorder = Recorder(options, zconfig)
@@ -517,11 +383,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     if reasons and recorder.stop_reason == "stopped":
         summary.stop_reason = reasons[0]
     print(summary.format(), flush=True)
-    if args.summary_json:
+    if summary_json:
         try:
-            Path(args.summary_json).write_text(json.dumps(summary.to_json(), indent=1) + "\n")
+            Path(summary_json).write_text(json.dumps(summary.to_json(), indent=1) + "\n")
         except OSError as exc:
-            print(f"recorder: error: cannot write {args.summary_json}: {exc.strerror or exc}", file=sys.stderr)
+            print(f"recorder: error: cannot write {summary_json}: {exc.strerror or exc}", file=sys.stderr)
             return EXIT_FAILED
     return EXIT_FAILED if summary.error else EXIT_OK
 
@@ -529,13 +395,18 @@ def cmd_record(args: argparse.Namespace) -> int:
 # --- for supervisors -----------------------------------------------------------------------
 def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
                   config_toml: str | os.PathLike[str] | None = None, force: bool = False,
-                  extra: Sequence[str] = (), python: str = sys.executable) -> list[str]:
-    """The command line that runs the recorder as a subprocess (see the module docstring)."""
-    argv = [python, "-m", "recorder.process", "--run", run, "--out", os.fspath(out)]
+                  geo_origin: tuple[float, float] | None = None, extra: Sequence[str] = (),
+                  python: str = sys.executable) -> list[str]:
+    """The command line that runs the recorder as a subprocess (see the module docstring): the
+    :class:`RecorderOptions` a supervisor sets, as the flags of :mod:`recorder.cli_process`
+    (``config_toml`` here is the file; ``extra``: more flags, e.g. credentials or ``-v``)."""
+    argv = [python, "-m", ENTRY_MODULE, "--run", run, "--out", os.fspath(out)]
     for endpoint in connect:
         argv += ["--connect", endpoint]
     if config_toml is not None:
         argv += ["--config-toml", os.fspath(config_toml)]
+    if geo_origin is not None:
+        argv += ["--geo-origin", "%r,%r" % geo_origin]
     if force:
         argv.append("--force")
     return argv + list(extra)
@@ -543,15 +414,16 @@ def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] 
 
 def spawn_recorder(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
                    config_toml: str | os.PathLike[str] | None = None, force: bool = False,
-                   extra: Sequence[str] = (), **popen_kwargs: Any) -> subprocess.Popen:
+                   geo_origin: tuple[float, float] | None = None, extra: Sequence[str] = (),
+                   **popen_kwargs: Any) -> subprocess.Popen:
     """Start the recorder subprocess (stdout: its summary; pass ``stdout=PIPE`` to capture it).
 
     The child ignores nothing: stop it with :func:`stop_recorder` (SIGTERM).
     Wait for :func:`wait_until_recording` before publishing what must be recorded.
     """
     popen_kwargs.setdefault("stdin", subprocess.DEVNULL)
-    return subprocess.Popen(recorder_argv(run, out, connect, config_toml=config_toml, force=force, extra=extra),
-                            **popen_kwargs)
+    return subprocess.Popen(recorder_argv(run, out, connect, config_toml=config_toml, force=force,
+                                          geo_origin=geo_origin, extra=extra), **popen_kwargs)
 
 
 def wait_until_recording(bus: transport.Bus, run: str, timeout: float = DEFAULT_READY_TIMEOUT_S) -> bool:
@@ -579,16 +451,7 @@ def stop_recorder(proc: subprocess.Popen, timeout: float = STOP_GRACE_S) -> int:
     return proc.wait()
 
 
-def main(argv: Optional[list[str]] = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m recorder.process",
-        description="Record every message of a TRUAV run (truav/<run>/**) into an MCAP file until "
-                    "SIGINT/SIGTERM or a 'stop' command on truav/<run>/control/recorder; print a summary.")
-    add_record_args(parser)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s", stream=sys.stderr)
-    return cmd_record(args)
+if __name__ == "__main__":  # `python -m recorder.process`, the spelling before recorder.cli_process: the same command
+    import runpy
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    runpy.run_module("recorder.cli_process", run_name="__main__", alter_sys=True)

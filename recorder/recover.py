@@ -3,7 +3,7 @@
 The valid prefix is streamed with mcap's ``StreamReader`` (see
 :mod:`recorder.reader`: framing check, CRC-checked chunks, torn tail
 skipped) and every schema, channel, message, metadata and attachment is
-rewritten, in file order, with :class:`recorder.mcap_log.McapLog` (mcap's
+rewritten, in file order, with :class:`recorder.mcap_writer.McapWriter` (mcap's
 own record classes) into bounded chunks (at most COMPACT_CHUNK_SPAN_NS of log
 time and COMPACT_CHUNK_BYTES each, so a copy cut at any byte still salvages
 every whole chunk before the cut) compressed hard (COMPACT_ZSTD_LEVEL for the
@@ -27,7 +27,7 @@ from typing import Optional
 
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 
-from recorder.mcap_log import (
+from recorder.mcap_writer import (
     COMPACT_CHUNK_BYTES,
     COMPACT_CHUNK_SPAN_NS,
     COMPACT_FAST_ZSTD_LEVEL,
@@ -36,7 +36,7 @@ from recorder.mcap_log import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
     LIBRARY,
-    McapLog,
+    McapWriter,
 )
 from recorder.reader import SalvageStats, iter_salvaged_records, probe
 
@@ -98,10 +98,10 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
         first_record = next(records, None)
         header = first_record if isinstance(first_record, Header) else Header("", "")
         with open(part, "wb") as dst:
-            writer = McapLog(dst, compression=compression, chunk_bytes=chunk_bytes, chunk_span_ns=chunk_span_ns,
-                             flush_interval_s=math.inf,
-                             auto_flush=False, mirrors=False, zstd_level=zstd_level,
-                             library=header.library if compacting else f"{RECOVERED_BY} ({header.library})")
+            writer = McapWriter(dst, compression=compression, chunk_bytes=chunk_bytes, chunk_span_ns=chunk_span_ns,
+                                flush_interval_s=math.inf,
+                                auto_flush=False, zstd_level=zstd_level,
+                                library=header.library if compacting else f"{RECOVERED_BY} ({header.library})")
             schema_ids: dict[int, int] = {}  # input id -> output id
             channel_ids: dict[int, int] = {}
             pending = [] if isinstance(first_record, Header) or first_record is None else [first_record]

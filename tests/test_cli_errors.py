@@ -95,7 +95,7 @@ def nothing_starts(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # default output directories (runs/...) land here, not in the repository
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
-    import recorder.process
+    import recorder.cli_process
     import recorder.replay
     import truav.experiments.fault_sweep
     import truav.experiments.runner
@@ -106,7 +106,7 @@ def nothing_starts(monkeypatch, tmp_path):
     for module, name in ((truav.trainer, "run_parallel"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
                          (truav.experiments.fault_sweep, "run_sweep"), (truav.swarm.cli, "Bus"),
-                         (truav.swarm.cli, "run_router"), (recorder.process, "cmd_record"),
+                         (truav.swarm.cli, "run_router"), (recorder.cli_process, "cmd_record"),
                          (recorder.replay, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)

@@ -65,6 +65,7 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up --record runs/demo.mcap --out runs/swarm-record": SWARM,
     "truav log check runs/demo.mcap": [],
     "truav report runs/demo.mcap": [],
+    "truav log report runs/demo.mcap --out runs/demo-report": [],
     "truav-swarm up --record runs/foxglove.mcap --foxglove --out runs/swarm-foxglove": [*SWARM, "--foxglove", "0"],
     "truav-swarm up --fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-faults": SWARM,
     "truav-swarm chaos --plan deploy/plans/partition-latency.toml": SWARM,
@@ -108,6 +109,9 @@ CHECKED: dict[str, str] = {
     "truav-swarm replay runs/demo.mcap --rate 2 --topics 'truav/*/uav/1/obs' --paused":
         "starts paused, waiting for keys or bus commands; replay is tested in tests/test_replay.py",
     "truav-swarm record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav log play runs/demo.mcap --rate 2 --paused":
+        "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/test_log_group.py)",
+    "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
     "truav-swarm view -e tcp/127.0.0.1:7447 --run demo": OTHER_TERMINAL,
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
     "truav-swarm faults --run demo --plan my.toml -e tcp/127.0.0.1:7447": OTHER_TERMINAL + " (my.toml: the user's plan)",

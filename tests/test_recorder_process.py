@@ -29,12 +29,12 @@ from mcap.reader import make_reader
 from recorder.check import check
 from recorder.mcap_log import MIRROR_PREFIX, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA
+from recorder.cli_process import main
 from recorder.process import (
     CMD_STOP,
     CONTROL_PART,
     EXIT_FAILED,
     EXIT_USAGE,
-    main,
     spawn_recorder,
     stop_recorder,
     wait_until_recording,

@@ -259,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_experiment_parser(sub)  # truav experiment velocity | scale
     from recorder.cli import add_log_commands
-    add_log_commands(sub)  # truav log recover | log check | report
+    add_log_commands(sub)  # truav log record | play | report | check | recover, and truav report (an alias)
     return ap
 
 

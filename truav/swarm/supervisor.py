@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recorder.process import recorder_argv
 from truav.bus import guard, keys, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
@@ -328,10 +329,9 @@ class _Swarm:
         faults_args = ["--fault-plan", str(Path(opts.fault_plan).resolve())] if self.plan else []
         origin = ["--geo-origin", "%r,%r" % opts.geo_origin] if opts.geo_origin else []
         if opts.record:
-            self.children.start("recorder", _python_module(
-                "recorder.process", "--run", opts.run, "--out", opts.record, "--connect", ep,
-                "--config-toml", str(scenario), *origin, *(["--force"] if opts.force else []), *self.creds_args,
-                *(["-v"] if opts.verbose else [])))
+            self.children.start("recorder", recorder_argv(
+                opts.run, opts.record, [ep], config_toml=scenario, force=opts.force, geo_origin=opts.geo_origin,
+                extra=[*self.creds_args, *(["-v"] if opts.verbose else [])]))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
