@@ -23,12 +23,13 @@ from truav.checks import check_endpoint, check_in_file, check_out_file
 from truav.config import Config
 from truav.errors import UserError
 from truav.faults import check_plan_for, load_plan
+from agents.agent_process import AgentOptions
 from agents.state import StateEncoder
 from world.uavs import N_ACTIONS
 
 SCHEMES = ("truav", "central", "patrol")
 """What flies the UAVs: TRUAV's agents, the central controller's commands, the patrol plan."""
-DEFAULT_COMMAND_HOLD_S = 1.0
+DEFAULT_COMMAND_HOLD_S = AgentOptions.command_hold_s
 
 
 def check_transport(args, listen_flag: str = "-l/--listen") -> None:

@@ -6,13 +6,15 @@ import argparse
 import logging
 import sys
 
+from agents.agent_process import AgentOptions
+from agents.central_process import ControllerOptions
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.bus.transport import add_transport_args, apply_creds
 from truav.cli import UsageError, parse_sets
-from truav.cli_args import non_negative_float, non_negative_int, positive_float, run_name, seed_int
+from truav.cli_args import add_options, positive_float, run_name, seed_int
 from truav.config import Config, load_config
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
-from truav.swarm.checks import DEFAULT_COMMAND_HOLD_S, SCHEMES
+from truav.swarm.checks import SCHEMES
 
 log = logging.getLogger("truav.swarm")
 
@@ -79,15 +81,11 @@ def add_scheme_arg(p: argparse.ArgumentParser) -> None:
 
 
 def add_command_hold_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--command-hold", type=non_negative_float, default=DEFAULT_COMMAND_HOLD_S, metavar="S",
-                   help="--scheme central: without a fresh command a UAV keeps its last one this many seconds "
-                        f"(world clock), then hovers (default {DEFAULT_COMMAND_HOLD_S:g})")
+    add_options(p, AgentOptions, ["command_hold_s"])
 
 
 def add_policy_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", metavar="RUN", help="--scheme central: fly this trained controller (`truav train "
-                                                   "--scheme central` output); default: learn online")
-    p.add_argument("--policy-index", type=non_negative_int, default=0, help="which seed's policy of that run (default 0)")
+    add_options(p, ControllerOptions, ["policy", "policy_index"])
 
 
 def add_lockstep_args(p: argparse.ArgumentParser, help_lockstep: str | None = None) -> None:

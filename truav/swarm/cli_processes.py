@@ -15,17 +15,22 @@ import threading
 
 import zenoh
 
+from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
+from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
+from agents.central_process import ControllerNode, ControllerOptions
 from truav.bus import keys
 from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
 from truav.checks import check_out_file
 from truav.cli import UsageError
-from truav.cli_args import non_negative_int, positive_float, positive_int
+from truav.cli_args import add_options, non_negative_int, options_from, positive_float
 from truav.lifecycle import EXIT_ROUTER_LOST, stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_policy, check_qtable, check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, lockstep_wait, part_creds, scenario_from,
                                     setup_logging, zenoh_reason)
+
+from world.world_process import WorldNode, WorldOptions, write_stats
 
 log = logging.getLogger("truav.swarm")
 
@@ -52,7 +57,6 @@ def cmd_router(args) -> int:
 
 
 def cmd_world(args) -> int:
-    from world.world_process import WorldNode, WorldOptions, write_stats  # here: it loads numba
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     check_creds_fit(args, cfg)
@@ -60,10 +64,9 @@ def cmd_world(args) -> int:
         check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
     if args.stats_out:
         check_out_file("--stats-out", args.stats_out)
-    opts = WorldOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
-                        lockstep_wait_s=lockstep_wait(args), rate_hz=args.rate, wait_agents_s=args.wait_agents,
-                        stats_out=args.stats_out,
-                        fault_plan=args.fault_plan, accept_replay=args.accept_replay, scheme=args.scheme)
+    opts = options_from(WorldOptions, args, run=args.run, seed=args.seed, lockstep=args.lockstep,
+                        lockstep_wait_s=lockstep_wait(args), fault_plan=args.fault_plan,
+                        accept_replay=args.accept_replay, scheme=args.scheme)
     part_creds(args, keys.SRC_WORLD)
     with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
         node = WorldNode(cfg, opts, bus)
@@ -86,9 +89,6 @@ def cmd_world(args) -> int:
 def cmd_agent(args) -> int:
     """One agent, or several (``--id`` repeated) hosted in this process: each with its own Zenoh session,
     identity, credentials, checkpoint and statistics, on its own thread (fewer processes for a large swarm)."""
-    # here: the agents' modules load numba (and the central scheme's torch); `--help` need not
-    from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
-    from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     check_creds_fit(args, cfg)
@@ -130,19 +130,16 @@ def cmd_agent(args) -> int:
             args.config = None
 
     def options_for(uav: int) -> AgentOptions:
-        return AgentOptions(run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep, lockstep_wait_s=wait_s,
-                            train=not args.greedy,
-                            checkpoint=path_of(args.checkpoint, uav), checkpoint_every=args.checkpoint_every,
-                            qtable=args.qtable, qtable_index=args.qtable_index, stats_out=path_of(args.stats_out, uav),
-                            tick_period_s=1.0 / args.rate, fault_plan=args.fault_plan, debug_delay_s=delays[uav],
-                            accept_replay=args.accept_replay, scheme=args.scheme, command_hold_s=args.command_hold,
-                            beacon_every=args.beacon_every, beacon_cell_m=args.beacon_cell)
+        return options_from(AgentOptions, args, run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep,
+                            lockstep_wait_s=wait_s, train=not args.greedy, checkpoint=path_of(args.checkpoint, uav),
+                            stats_out=path_of(args.stats_out, uav), tick_period_s=1.0 / args.rate,
+                            fault_plan=args.fault_plan, debug_delay_s=delays[uav], accept_replay=args.accept_replay,
+                            scheme=args.scheme)
 
     return host_agents(cfg, args.run, ids, configs, options_for, args.router_timeout, args.share_beacons)
 
 
 def cmd_controller(args) -> int:
-    from agents.central_process import ControllerNode, ControllerOptions
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     if args.fault_plan:
@@ -152,10 +149,9 @@ def cmd_controller(args) -> int:
     check_central_sizes(cfg)
     if args.stats_out:
         check_out_file("--stats-out", args.stats_out)
-    opts = ControllerOptions(run=args.run, seed=args.seed, lockstep=args.lockstep, lockstep_wait_s=lockstep_wait(args),
-                             policy=args.policy,
-                             policy_index=args.policy_index, tick_period_s=1.0 / args.rate,
-                             stats_out=args.stats_out, fault_plan=args.fault_plan, accept_replay=args.accept_replay)
+    opts = options_from(ControllerOptions, args, run=args.run, seed=args.seed, lockstep=args.lockstep,
+                        lockstep_wait_s=lockstep_wait(args), tick_period_s=1.0 / args.rate,
+                        fault_plan=args.fault_plan, accept_replay=args.accept_replay)
     part_creds(args, keys.SRC_CONTROLLER)
     with Bus(keys.SRC_CONTROLLER, args.run, config_from_args(args)) as bus:
         node = ControllerNode(cfg, opts, bus)
@@ -182,11 +178,9 @@ def add_process_commands(sub) -> None:
 
     wo = sub.add_parser("world", help="run the world process")
     add_scenario_args(wo)
-    wo.add_argument("--episodes", type=positive_int, default=2)
+    add_options(wo, WorldOptions, ["episodes"])
     add_lockstep_args(wo)
-    wo.add_argument("--rate", type=positive_float, default=10.0)
-    wo.add_argument("--wait-agents", type=positive_float, default=30.0, help="seconds to wait for all agents (default 30)")
-    wo.add_argument("--stats-out", metavar="FILE", help="write per-episode metrics and timing as JSON")
+    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out"])
     add_scheme_arg(wo)
     add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)
@@ -196,24 +190,14 @@ def add_process_commands(sub) -> None:
     ag.add_argument("--id", type=non_negative_int, required=True, action="append",
                     help="UAV id in [0, n_uavs); repeat it to host several agents in this process, each with its "
                          "own session and identity ({id} in --checkpoint and --stats-out then names each file)")
-    ag.add_argument("--beacon-every", type=positive_int, default=1, metavar="TICKS",
-                    help="real time: send a beacon every TICKS ticks, offset by id (10 at 10 Hz: 1 Hz, the Remote ID "
-                         "rate; default 1)")
-    ag.add_argument("--beacon-cell", type=positive_float, metavar="M",
-                    help="real time: range-limited beacons under map cells of M metres; hear only cells within range "
-                         "(agents/beacon_cells.py; default: all-to-all)")
+    add_options(ag, AgentOptions, ["beacon_every", "beacon_cell_m"])
     ag.add_argument("--share-beacons", action="store_true",
                     help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
                          "once per process, not once per agent); each agent still checks and counts its own")
     add_lockstep_args(ag)
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
-    ag.add_argument("--checkpoint", metavar="FILE", help="Q-table checkpoint (.npz): resume from it, rewrite it")
-    ag.add_argument("--checkpoint-every", type=positive_int, default=100, help="steps between checkpoints (default 100)")
-    ag.add_argument("--qtable", metavar="RUN", help="start from a trained run's Q-table")
-    ag.add_argument("--qtable-index", type=non_negative_int, default=0,
-                    help="which seed's table of that run (default 0)")
-    ag.add_argument("--stats-out", metavar="FILE", help="write beacon latency statistics as JSON at exit")
+    add_options(ag, AgentOptions, ["checkpoint", "checkpoint_every", "qtable", "qtable_index", "stats_out"])
     add_scheme_arg(ag)
     add_command_hold_arg(ag)
     add_swarm_process_args(ag, "the agent")
@@ -224,6 +208,6 @@ def add_process_commands(sub) -> None:
     add_lockstep_args(co)
     co.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (default 10)")
     add_policy_args(co)
-    co.add_argument("--stats-out", metavar="FILE", help="write the controller's statistics as JSON at exit")
+    add_options(co, ControllerOptions, ["stats_out"])
     add_swarm_process_args(co, "the controller")
     co.set_defaults(func=cmd_controller)

@@ -49,11 +49,14 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.agent_process import AgentOptions
+from agents.central_process import ControllerOptions
 from truav.bus import guard, keys, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
 from truav.lograte import Every
+from truav.options import to_argv
 from truav.faults import load_plan
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, exit_text,
                                   free_loopback_endpoint, stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
@@ -63,6 +66,7 @@ from truav.swarm.healing import (DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, 
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, signals_handled
 from truav.swarm.monitor import Monitor
+from world.world_process import WorldOptions
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, SUMMARY_FILE, OutDirError, check_record_path,
                                 prepare_swarm_dir, write_run_file)
 
@@ -350,24 +354,28 @@ class _Swarm:
                 self.controller = FaultController(bus, opts.run, self.plan, hooks)
             scheme = ["--scheme", opts.scheme]
             if self.central:  # before the world, which waits for it (and the agents) before tick 0
-                policy = ["--policy", str(Path(opts.policy).resolve()), "--policy-index", str(opts.policy_index)] \
-                    if opts.policy else []
+                controller = ControllerOptions(policy=str(Path(opts.policy).resolve()) if opts.policy else None,
+                                               policy_index=opts.policy_index, stats_out=str(out / "controller.json"))
                 self.children.start("controller", _python_module(
                     "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
-                    *policy, "--stats-out", str(out / "controller.json")))
+                    *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
+            world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
+                                 wait_agents_s=opts.wait_agents_s)
             self.children.start("world", _python_module(
-                "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme, "--episodes", str(opts.episodes),
-                "--rate", str(opts.rate_hz), "--stats-out", str(out / "world.json"),
-                "--wait-agents", str(opts.wait_agents_s)))
+                "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
+                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s"])))
             for ids in self.groups:
                 name = "{id}" if len(ids) > 1 else str(ids[0])  # the agent process fills in each UAV's id
-                extra = ["--checkpoint", str(out / f"agent{name}.npz"), "--stats-out", str(out / f"agent{name}.json"),
-                         "--checkpoint-every", str(opts.checkpoint_every), *scheme]
-                extra += ["--qtable", opts.qtable] if opts.qtable else []
+                agent = AgentOptions(checkpoint=str(out / f"agent{name}.npz"), stats_out=str(out / f"agent{name}.json"),
+                                     checkpoint_every=opts.checkpoint_every, qtable=opts.qtable or None,
+                                     command_hold_s=opts.command_hold_s, beacon_every=opts.beacon_every,
+                                     beacon_cell_m=opts.beacon_cell_m)
+                extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every"]), *scheme,
+                         *to_argv(agent, ["qtable"])]
                 extra += ["--greedy"] if opts.greedy else []
-                extra += ["--command-hold", str(opts.command_hold_s)] if self.central else []
-                extra += ["--beacon-every", str(opts.beacon_every)] if opts.beacon_every != 1 else []
-                extra += ["--beacon-cell", repr(opts.beacon_cell_m)] if opts.beacon_cell_m is not None else []
+                extra += to_argv(agent, ["command_hold_s"]) if self.central else []
+                extra += to_argv(agent, ["beacon_every"]) if opts.beacon_every != 1 else []
+                extra += to_argv(agent, ["beacon_cell_m"])
                 extra += ["--share-beacons"] if opts.share_beacons and len(ids) > 1 else []
                 self.children.start(group_name(ids), _python_module(
                     "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
