@@ -21,6 +21,7 @@ import sys
 
 import zenoh
 
+from truav.bus.security import answers_tls
 from truav.cli_args import OneLineParser, UserError, run_main
 from truav.swarm.checks import check_central_sizes, check_policy, check_transport  # noqa: F401 - check_*: truav.experiments.faults
 from truav.swarm.cli_ops import add_ops_commands
@@ -56,7 +57,6 @@ def main(argv: list[str] | None = None) -> int:
             return args.func(args)
         except zenoh.ZError as exc:  # almost always: no router where --connect points
             if not (getattr(args, "creds", None) or getattr(args, "config", None)):
-                from truav.bus.security import answers_tls
                 for ep in getattr(args, "connect", None) or []:
                     if isinstance(ep, str) and answers_tls(ep):  # a --secure swarm's router, asked in plain TCP
                         raise UserError(f"-e/--connect {ep}: the router there speaks TLS (a --secure swarm) and "

@@ -21,7 +21,10 @@ from truav.faults import CONTROL_FAULTS, load_plan
 from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import check_tls_creds
 from truav.swarm.cli_common import add_geo_origin_arg, add_scenario_args, part_creds, scenario_from, setup_logging
+from truav.swarm.children import stop_recorded_pids
 from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
+from truav.swarm.secure_cli import rejections_heard
+from truav.swarm.swarm_options import DOWN_IDENTITY
 
 log = logging.getLogger("truav.swarm")
 
@@ -74,7 +77,6 @@ def cmd_status(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
     _endpoint_from_out(args, Path(args.out) if args.out else None, explicit=args.out is not None)
-    from truav.swarm.secure_cli import rejections_heard
     part_creds(args, "supervisor")
     conf = config_from_args(args)
     pattern = keys.all_alive(args.run) if args.run else "truav/*/alive/**"
@@ -98,7 +100,6 @@ DOWN_LISTENER_WAIT_S = 5.0
 
 
 def cmd_down(args) -> int:
-    from truav.swarm.supervisor import DOWN_IDENTITY, stop_recorded_pids
     if args.out is not None:
         check_out_dir("--out", args.out)
     out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
