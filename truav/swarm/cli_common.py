@@ -9,7 +9,8 @@ import sys
 from agents.agent_process import AgentOptions
 from agents.central_process import ControllerOptions
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
-from truav.bus.transport import add_transport_args, apply_creds
+# the transport's command-line helpers, for every truav-swarm command (one place to import them from)
+from truav.bus.transport import add_transport_args, apply_creds, config_from_args  # noqa: F401
 from truav.cli import UsageError, parse_sets
 from truav.cli_args import add_options, positive_float, run_name, seed_int
 from truav.config import Config, load_config

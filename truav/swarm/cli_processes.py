@@ -19,7 +19,7 @@ from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
 from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
 from agents.central_process import ControllerNode, ControllerOptions
 from truav.bus import keys
-from truav.bus.transport import DEFAULT_ENDPOINT, Bus, add_transport_args, config_from_args, run_router
+from truav.bus.transport import DEFAULT_ENDPOINT, Bus, run_router
 from truav.checks import check_out_file
 from truav.cli import UsageError
 from truav.cli_args import add_options, non_negative_int, options_from, positive_float
@@ -27,9 +27,8 @@ from truav.lifecycle import EXIT_ROUTER_LOST, stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_policy, check_qtable, check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
-                                    add_scheme_arg, add_swarm_process_args, lockstep_wait, part_creds, scenario_from,
-                                    setup_logging, zenoh_reason)
-
+                                    add_scheme_arg, add_swarm_process_args, add_transport_args, config_from_args,
+                                    lockstep_wait, part_creds, scenario_from, setup_logging, zenoh_reason)
 from world.world_process import WorldNode, WorldOptions, write_stats
 
 log = logging.getLogger("truav.swarm")
