@@ -17,19 +17,21 @@ import zenoh
 
 from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
 from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
-from agents.central_process import ControllerNode, ControllerOptions
+from agents.central_process import ControllerOptions
+from agents.controller_host import host_controller
 from truav.bus import keys
-from truav.bus.transport import DEFAULT_ENDPOINT, Bus, run_router
+from truav.bus.transport import DEFAULT_ENDPOINT, run_router
 from truav.checks import check_out_file
 from truav.cli import UsageError
 from truav.cli_args import add_options, non_negative_int, options_from, positive_float
-from truav.lifecycle import EXIT_ROUTER_LOST, stop_on_sigterm_or_orphaned
+from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_policy, check_qtable, check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, add_transport_args, config_from_args,
                                     lockstep_wait, part_creds, scenario_from, setup_logging, zenoh_reason)
-from world.world_process import WorldNode, WorldOptions, write_stats
+from world.world_host import host_world
+from world.world_process import WorldOptions
 
 log = logging.getLogger("truav.swarm")
 
@@ -67,22 +69,7 @@ def cmd_world(args) -> int:
                         lockstep_wait_s=lockstep_wait(args), fault_plan=args.fault_plan,
                         accept_replay=args.accept_replay, scheme=args.scheme)
     part_creds(args, keys.SRC_WORLD)
-    with Bus(keys.SRC_WORLD, args.run, config_from_args(args)) as bus:
-        node = WorldNode(cfg, opts, bus)
-        reasons = stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
-        try:
-            stats = node.run()
-        except KeyboardInterrupt:
-            reasons.because("interrupted")
-            stats = node.stats
-        stats.rejected = bus.rejections.as_dict()
-    if args.stats_out:
-        write_stats(args.stats_out, stats)
-    log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
-             reasons.first or ("finished its episodes" if len(stats.episodes) == opts.episodes
-                               else "a shutdown request, see above"),
-             f"; statistics in {args.stats_out}" if args.stats_out else "")
-    return EXIT_ROUTER_LOST if reasons.router_lost else 0
+    return host_world(cfg, opts, config_from_args(args), args.router_timeout)
 
 
 def cmd_agent(args) -> int:
@@ -152,20 +139,7 @@ def cmd_controller(args) -> int:
                         lockstep_wait_s=lockstep_wait(args), tick_period_s=1.0 / args.rate,
                         fault_plan=args.fault_plan, accept_replay=args.accept_replay)
     part_creds(args, keys.SRC_CONTROLLER)
-    with Bus(keys.SRC_CONTROLLER, args.run, config_from_args(args)) as bus:
-        node = ControllerNode(cfg, opts, bus)
-        reasons = stop_on_sigterm_or_orphaned(node.stop, bus, args.router_timeout)
-        log.info("controller joined run %s (%s)", args.run, f"policy {args.policy}" if args.policy else "learning online")
-        try:
-            node.run()
-        except KeyboardInterrupt:
-            reasons.because("interrupted")
-        node.write_stats()
-    log.info("controller stopped after %d tick(s), %d command(s) (%s)", node.stats["ticks"], node.stats["commands"],
-             reasons.first or "shutdown")
-    return EXIT_ROUTER_LOST if reasons.router_lost else 0
-
-
+    return host_controller(cfg, opts, config_from_args(args), args.router_timeout)
 
 
 def add_process_commands(sub) -> None:
