@@ -56,6 +56,7 @@ from truav.lograte import Every
 from truav.runio import read_qtables
 from truav.fault_filter import attach_plan
 from truav.faults import load_plan
+from truav.options import opt
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.uavs import action_velocity
@@ -108,13 +109,16 @@ class AgentOptions:
     LOCKSTEP_JOIN_GRACE_S) before deciding without it, which the stats count: the run is then not exact."""
     train: bool = True
     """Learn online (epsilon-greedy + updates); False acts greedily and never updates."""
-    checkpoint: str | None = None
+    checkpoint: str | None = opt(None, flag="--checkpoint", metavar="FILE",
+                                 help="Q-table checkpoint (.npz): resume from it, rewrite it")
     """Q-table checkpoint file (.npz): resumed from if it exists, rewritten every checkpoint_every steps."""
-    checkpoint_every: int = 100
+    checkpoint_every: int = opt(100, flag="--checkpoint-every", type="positive_int",
+                                help="steps between checkpoints (default 100)")
     """K: UAV i checkpoints when (steps + i * K // n_uavs) % K == 0, so a swarm's writes are spread out."""
-    qtable: str | None = None
+    qtable: str | None = opt(None, flag="--qtable", metavar="RUN", help="start from a trained run's Q-table")
     """Start from a trained run's qtables.npz (or run dir): the table of `qtable_index`, this UAV."""
-    qtable_index: int = 0
+    qtable_index: int = opt(0, flag="--qtable-index", type="non_negative_int",
+                            help="which seed's table of that run (default 0)")
     beacon_phase: float = 0.3
     """Real time: beacons go out this fraction of the tick period after the
     tick starts, after the burst of observation deliveries and decisions..."""
@@ -127,21 +131,28 @@ class AgentOptions:
     """Fault plan (TOML) whose link faults apply to what this agent receives."""
     accept_replay: bool = False
     """Act on traffic a replay puts into this run (dropped and counted by default)."""
-    stats_out: str | None = None
+    stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
+                                help="write beacon latency statistics as JSON at exit")
     debug_delay_s: float = 0.0
     """Testing only: pause this long per observation between sending the beacon and reading the peers'
     (a deliberately slow agent: lock-step results must not change)."""
     scheme: str = "truav"
-    """truav (this class) | patrol | central (agents.scheme_agents): what flies the UAV."""
-    command_hold_s: float = 1.0
+    """truav (this class) | patrol | central (agents.scheme_process): what flies the UAV."""
+    command_hold_s: float = opt(1.0, flag="--command-hold", type="non_negative_float", metavar="S",
+                                help="--scheme central: without a fresh command a UAV keeps its last one this many "
+                                     "seconds (world clock), then hovers (default 1)")
     """Scheme central: without a fresh command, keep flying the last one for this long (s of the
     world's clock, from the tick it was for), then hover: what an autopilot does when its link stops."""
     command_wait_frac: float = 0.5
     """Scheme central, real time: wait for the tick's command until this fraction of the tick period
     after the world stamped the observation (the world takes actions until deadline_frac, 0.8: the rest is for the action to get there on a busy host)."""
-    beacon_every: int = 1
+    beacon_every: int = opt(1, flag="--beacon-every", type="positive_int", metavar="TICKS",
+                            help="real time: send a beacon every TICKS ticks, offset by id (10 at 10 Hz: 1 Hz, the "
+                                 "Remote ID rate; default 1)")
     """Real time: send a beacon every this many ticks, offset by id (10 at 10 Hz: the Remote ID rate, 1 Hz)."""
-    beacon_cell_m: float | None = None
+    beacon_cell_m: float | None = opt(None, flag="--beacon-cell", type="positive_float", metavar="M",
+                                      help="real time: range-limited beacons under map cells of M metres; hear only "
+                                           "cells within range (agents/beacon_cells.py; default: all-to-all)")
     """Real time: range-limited beacons, under map cells of this side (agents.beacon_cells); None: all-to-all."""
 
     def __post_init__(self) -> None:

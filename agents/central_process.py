@@ -44,8 +44,8 @@ from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav import runio
 from truav.lograte import Every
 from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
+from truav.options import opt
 from world.env import LocalObs
-from agents.agent_process_lockstep import Inexact
 
 log = logging.getLogger("truav.controller")
 
@@ -62,13 +62,17 @@ class ControllerOptions:
     lockstep: bool = False
     lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
     """Lock-step: a live UAV silent this long is decided without (counted: the run is then not exact)."""
-    policy: str | None = None
+    policy: str | None = opt(None, flag="--policy", metavar="RUN",
+                             help="--scheme central: fly this trained controller (`truav train --scheme central` "
+                                  "output); default: learn online")
     """A `truav train --scheme central` run (or its policy.npz) whose actor is flown greedily; None: learn online."""
-    policy_index: int = 0
+    policy_index: int = opt(0, flag="--policy-index", type="non_negative_int",
+                            help="which seed's policy of that run (default 0)")
     tick_period_s: float = 0.1
     collect_frac: float = 0.3
     """Real time: decide a tick this fraction of the period after its first upload, if some are still missing."""
-    stats_out: str | None = None
+    stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
+                                help="write the controller's statistics as JSON at exit")
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what the controller receives (its uplink)."""
     accept_replay: bool = False

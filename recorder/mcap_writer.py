@@ -52,7 +52,7 @@ from mcap.records import (
     Statistics,
 )
 
-from recorder.mcap_chunk import OpenChunk, serialise, summary_section
+from recorder.mcap_chunk import OpenChunk, summary_section
 
 __all__ = ["McapWriter", "Output"]
 

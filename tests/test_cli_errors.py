@@ -100,13 +100,18 @@ def nothing_starts(monkeypatch, tmp_path):
     import truav.experiments.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
-    import truav.swarm.cli
+    import agents.agent_host
+    import agents.controller_host
+    import truav.swarm.cli_ops
+    import truav.swarm.cli_processes
+    import world.world_host
     import truav.swarm.supervisor
     import truav.trainer
     for module, name in ((truav.trainer, "run_parallel"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
-                         (truav.experiments.fault_sweep, "run_sweep"), (truav.swarm.cli, "Bus"),
-                         (truav.swarm.cli, "run_router"), (recorder.cli_process, "cmd_record"),
+                         (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
+                         (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.swarm.cli_ops, "Bus"),
+                         (truav.swarm.cli_processes, "run_router"), (recorder.cli_process, "cmd_record"),
                          (recorder.replay, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)

@@ -20,6 +20,7 @@ from typing import Callable, NoReturn
 
 from truav.checks import (  # noqa: F401  (re-exported: the command lines take their checks from here)
     check_endpoint, check_in_file, check_out_dir, check_out_file, make_dir)
+from truav import options
 from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
 
 MAX_SEED = 2**63 - 1
@@ -137,3 +138,39 @@ def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                             "component's certificate and zenoh config from it (instead of -c)")
     return parser
 
+
+# -- options declared once (truav.options): their flags and their dataclasses --------
+def _option_types() -> dict[str, Callable[[str], object]]:
+    """The argument checks a declaration names in its ``type`` (truav.options.opt)."""
+    return {"positive_int": positive_int, "non_negative_int": non_negative_int, "seed_int": seed_int,
+            "positive_float": positive_float, "non_negative_float": non_negative_float, "share": share,
+            "run_name": run_name, "tcp_port": tcp_port}
+
+
+def add_options(parser: argparse.ArgumentParser, cls, names=None, **defaults) -> None:
+    """Add the flags declared in the dataclass ``cls`` (the fields ``names``, in that order; None:
+    every field declared with a flag), each with its declared help, type, metavar and default
+    (``defaults``: another default for a field, by name, as `up` has for some)."""
+    types = _option_types()
+    for name, flag, default in options.declared(cls, names):
+        kwargs: dict = {"help": flag.help}
+        if flag.action is not None:
+            kwargs["action"] = flag.action
+        else:
+            kwargs["default"] = defaults.get(name, default)
+            if flag.type is not None:
+                kwargs["type"] = types[flag.type]
+            if flag.metavar is not None:
+                kwargs["metavar"] = flag.metavar
+            if flag.choices is not None:
+                kwargs["choices"] = flag.choices
+        parser.add_argument(flag.flag, **kwargs)
+
+
+def options_from(cls, namespace: argparse.Namespace, **overrides):
+    """An instance of the dataclass ``cls``: its flag-declared fields from the parsed ``namespace``
+    (those the parser has), the rest from ``overrides`` (which also win over the namespace)."""
+    values = {name: getattr(namespace, flag.dest) for name, flag, _ in options.declared(cls)
+              if hasattr(namespace, flag.dest)}
+    values.update(overrides)
+    return cls(**values)

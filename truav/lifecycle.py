@@ -11,17 +11,24 @@ variable and is not watched.
 The watch blocks on a Linux pidfd, so it costs no wake-ups; elsewhere it
 polls the parent PID every :data:`POLL_PERIOD_S`.  :func:`signals_handled`
 is the other half: how a process turns SIGTERM and friends into its own stop.
+
+:class:`StopReasons` and :func:`stop_on_sigterm_or_orphaned` are the lifecycle of a
+swarm part (world, controller, view, router): one ``stop()`` on SIGTERM, on a lost
+supervisor and on a lost router, with the first reason logged and kept.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import select
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
+
+log = logging.getLogger("truav.swarm")  # the swarm parts' logger: their stop lines keep its name
 
 SUPERVISOR_PID_ENV = "TRUAV_SUPERVISOR_PID"
 POLL_PERIOD_S = 0.5
@@ -126,3 +133,37 @@ def _watch_router(session, timeout_s: float, on_lost: Callable[[float], None], p
         elif now - lost_since >= timeout_s:
             on_lost(now - lost_since)
             return
+
+
+EXIT_ROUTER_LOST = 1
+"""Exit code of a part that stopped because its router was gone."""
+
+
+class StopReasons:
+    """Why a part stopped: the first reason is logged and kept (the logs say why a process ended)."""
+
+    def __init__(self, stop) -> None:
+        self._stop = stop
+        self.first: str | None = None
+        self.router_lost = False
+
+    def because(self, reason: str) -> None:
+        if self.first is None:
+            self.first = reason
+            log.info("stopping: %s", reason)
+        self._stop()
+
+
+def stop_on_sigterm_or_orphaned(stop, bus=None, router_timeout_s: float | None = None) -> StopReasons:
+    """``stop()`` on SIGTERM, when the `truav-swarm up` that started this process is gone, and
+    (with ``bus``) when the router has been gone for ``router_timeout_s``."""
+    reasons = StopReasons(stop)
+    signal.signal(signal.SIGTERM, lambda *_: reasons.because("SIGTERM"))
+    watch_supervisor(lambda: reasons.because("the truav-swarm up that started this process is gone"))
+    if bus is not None and router_timeout_s is not None:
+        def router_lost(seconds: float) -> None:
+            reasons.router_lost = True
+            log.error("no router for %.1f s (it stopped, or the network to it is down)", seconds)
+            reasons.because(f"router lost for {seconds:.1f} s")
+        watch_router(bus.session, router_timeout_s, router_lost)
+    return reasons

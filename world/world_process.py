@@ -29,6 +29,7 @@ from agents.central import ControlCounters
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.lograte import Every
+from truav.options import opt
 from truav.config import Config
 from truav.fault_filter import attach_plan
 from truav.faults import load_plan
@@ -59,20 +60,22 @@ class WorldOptions:
     """Run name: every key lives under truav/<run>/."""
     seed: int = 0
     """World seed (same stream as the in-process trainer's world for this seed)."""
-    episodes: int = 2
+    episodes: int = opt(2, flag="--episodes", type="positive_int")
     """Episodes to run before publishing shutdown and exiting."""
     lockstep: bool = False
     """Wait for every live agent's action each tick (deterministic) instead of real time."""
     lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
     """Lock-step still never stalls forever: a live agent silent this long is skipped (it hovers, and the
     run is no longer exact: counted in WorldStats.lockstep_missed)."""
-    rate_hz: float = 10.0
+    rate_hz: float = opt(10.0, flag="--rate", type="positive_float")
     """Real-time tick rate."""
     deadline_frac: float = 0.8
     """Real time: actions must arrive within this fraction of the tick period."""
-    wait_agents_s: float = 30.0
+    wait_agents_s: float = opt(30.0, flag="--wait-agents", type="positive_float",
+                               help="seconds to wait for all agents (default 30)")
     """Before the first tick, wait up to this long for all n_uavs agents to be alive."""
-    stats_out: str | None = None
+    stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
+                                help="write per-episode metrics and timing as JSON")
     """Write per-episode metrics and timing statistics as JSON here at exit."""
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this process receives."""

@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from truav.config import Config  # noqa: E402
 from truav.faults import FaultPlan, load_plan  # noqa: E402
+from truav.nemesis import heal_at, random_plan  # noqa: E402
 from truav.swarm import invariants  # noqa: E402
 from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
 from truav.swarm.plots import fault_lanes  # noqa: E402
@@ -186,7 +187,6 @@ NEMESIS_ROUTER_TIMEOUT_S = 30.0
 
 def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float) -> int:
     """A soak: one run under the nemesis's seeded random plan, then the checker (exit 1 on a violation)."""
-    from truav.nemesis import heal_at, random_plan
     out = Path(opts.out or f"runs/chaos-{opts.run}")
     try:
         prepare_chaos_dir(out, resume=False, force=opts.force)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from truav.bus import keys, security
+from truav.config import read_toml
 from truav.errors import UserError
 
 DEFAULT_PORT = 7447
@@ -160,5 +161,4 @@ def from_dict(data: dict, source: str) -> Deployment:
 
 
 def load(path: str | Path, flag: str = "--deployment") -> Deployment:
-    from truav.config import read_toml
     return from_dict(read_toml(path, flag, DeploymentError), f"{flag} {path}")

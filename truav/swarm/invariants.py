@@ -32,10 +32,14 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from recorder.reader import iter_messages
+from recorder.schemas import decode_envelope
 from truav.faults import FaultPlan
+from truav.swarm.children import truav_process
 
 MAX_RSS_GROWTH_MB = 100.0
 """Memory growth allowed per process over a run (the issue's 3-8 min soaks grew by at most 34 MB)."""
@@ -145,8 +149,6 @@ def _outside_parentheses(text: str) -> str:
 
 def _gaps_outside(record: str, outages: list[tuple[int, int]]) -> tuple[int, list[str]]:
     """The seq gaps of every sender's stream, and those not within a router outage (plus reconnect slack)."""
-    from recorder.reader import iter_messages
-    from recorder.schemas import decode_envelope
     windows = [(a - int(1e9), b + int(RECONNECT_SLACK_S * 1e9)) for a, b in outages]
     last: dict[tuple[str, str], tuple[int, int]] = {}  # (src, kind) -> (seq, log_ns)
     gaps, outside = 0, []
@@ -235,7 +237,6 @@ def _quiet_tail(summary: dict, plan: FaultPlan, rate_hz: float) -> Invariant:
 
 def _running(pid: int) -> bool:
     """A process of this run still running (not a zombie, and still a TRUAV command: PIDs get reused)."""
-    from truav.swarm.children import truav_process
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except (OSError, IndexError):
@@ -244,7 +245,6 @@ def _running(pid: int) -> bool:
 
 
 def _left_behind(procs: list[dict]) -> Invariant:
-    import time
     deadline = time.monotonic() + PROCESS_GRACE_S
     while any(_running(p["pid"]) for p in procs) and time.monotonic() < deadline:
         time.sleep(0.2)

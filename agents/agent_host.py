@@ -1,0 +1,138 @@
+"""The agent host: one agent process running one UAV's agent, or several (``--id`` repeated).
+
+Each hosted agent has its own Zenoh session, identity, credentials, checkpoint and statistics,
+and runs on its own thread behind a start barrier; with ``share_beacons`` they share one beacon
+subscription (:class:`SharedBeacons`). SIGTERM, a lost supervisor or a failed agent stop them all;
+a lost router stops the agent that lost it. `truav-swarm agent` checks its flags, then calls
+:func:`host_agents`.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections.abc import Callable
+
+from agents.scheme_process import make_agent_node
+from truav.bus import keys
+from truav.bus.inbox import Inbox
+from truav.bus.transport import Bus
+from truav.config import Config
+from truav.lifecycle import EXIT_ROUTER_LOST, StopReasons, watch_router, watch_supervisor
+
+log = logging.getLogger("truav.swarm")  # the agent process's log lines keep the swarm's logger name
+
+ID_PLACEHOLDER = "{id}"
+"""In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
+
+
+def path_of(template: str | None, uav: int) -> str | None:
+    """A per-UAV file name from a template with :data:`ID_PLACEHOLDER` (None stays None)."""
+    return template.replace(ID_PLACEHOLDER, str(uav)) if template else None
+
+
+class SharedBeacons:
+    """One beacon subscription for every agent a process hosts (``--share-beacons``).
+
+    Each beacon then crosses Zenoh once per process instead of once per agent; every agent still
+    gets it in its own inbox, through its own bus's link filter, schema and guard checks, and
+    counted on its own bus.  The subscription lives on the first agent's session (its grants
+    allow every beacon, as every agent's do); the hosted agents stop together."""
+
+    def __init__(self, run: str) -> None:
+        self.key = keys.all_beacons(run)
+        self.boxes: list = []
+        self._lock = threading.Lock()
+
+    def __call__(self, bus: Bus, **inbox_opts):
+        box = Inbox(bus, **inbox_opts)
+        with self._lock:
+            first = not self.boxes
+            self.boxes = [*self.boxes, box]  # copied: arrivals iterate without the lock
+        if first:
+            bus.feed(self, self.key)
+        return box
+
+    def on_sample(self, sample) -> None:  # zenoh's callback thread: an append per hosted agent
+        for box in self.boxes:
+            box.on_sample(sample)
+
+
+def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_for: Callable[[int], object],
+                router_timeout_s: float | None, share_beacons: bool) -> int:
+    """Run the agents of ``ids`` (``options_for(uav)``: each one's AgentOptions, ``configs[uav]``: its
+    Zenoh config) until they stop; the exit code of the process (EXIT_ROUTER_LOST if one lost its router)."""
+    results: dict[int, tuple[object, StopReasons]] = {}
+    stops: list = []
+    failed: list[BaseException] = []
+    started = threading.Barrier(len(ids) + 1) if len(ids) > 1 else None
+    shared = SharedBeacons(run) if share_beacons and len(ids) > 1 else None
+
+    def host(uav: int) -> None:
+        opts = options_for(uav)
+        with Bus(keys.uav_identity(uav), run, configs[uav]) as bus:
+            node = make_agent_node(cfg, opts, bus, beacon_inbox=shared)
+            reasons = StopReasons(node.stop)
+            if router_timeout_s is not None:
+                def router_lost(seconds: float, reasons=reasons) -> None:
+                    reasons.router_lost = True
+                    log.error("uav %d: no router for %.1f s (it stopped, or the network to it is down)", uav, seconds)
+                    reasons.because(f"router lost for {seconds:.1f} s")
+                watch_router(bus.session, router_timeout_s, router_lost)
+            results[uav] = (node, reasons)
+            stops.append(reasons.because)
+            if stopping:  # SIGTERM (or a lost supervisor) while this agent was starting
+                reasons.because(stopping[0])
+            if started is not None:
+                started.wait()
+            log.info("uav %d joined run %s (%s)", uav, run, opts.scheme if opts.scheme != "truav"
+                     else "greedy" if not opts.train else "learning")
+            try:
+                node.run()
+            except KeyboardInterrupt:
+                reasons.because("interrupted")
+                node.checkpoint()
+            node.write_stats()
+        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", uav, node.steps,
+                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)")
+
+    stopping: list[str] = []
+
+    def stop_all(reason: str) -> None:
+        stopping.append(reason)
+        for because in list(stops):
+            because(reason)
+
+    signal.signal(signal.SIGTERM, lambda *_: stop_all("SIGTERM"))
+    watch_supervisor(lambda: stop_all("the truav-swarm up that started this process is gone"))
+    if started is None:  # one agent: on the main thread, as always
+        host(ids[0])
+    else:
+        def hosted(uav: int) -> None:
+            try:
+                host(uav)
+            except BaseException as exc:  # noqa: BLE001 - reported below, the others stop
+                failed.append(exc)
+                log.exception("uav %d failed", uav)
+                if started.n_waiting:
+                    started.abort()
+                stop_all(f"uav {uav} failed")
+        threads = [threading.Thread(target=hosted, args=(uav,), name=f"uav{uav}") for uav in ids]
+        for t in threads:
+            t.start()
+        try:
+            started.wait()
+        except threading.BrokenBarrierError:
+            pass
+        try:
+            while any(t.is_alive() for t in threads):
+                for t in threads:
+                    t.join(0.2)
+        except KeyboardInterrupt:
+            stop_all("interrupted")
+            for t in threads:
+                t.join()
+        if failed:
+            raise failed[0]
+    return EXIT_ROUTER_LOST if any(r.router_lost for _, r in results.values()) else 0

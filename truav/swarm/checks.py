@@ -1,0 +1,170 @@
+"""Checks of a swarm's flags and files, run before anything starts: each raises a one-line UserError.
+
+Fault plans, trained Q-tables and controllers, agent checkpoints, beacon cells, the flags that belong
+to one scheme, the central scheme's message sizes, transport endpoints and credentials. The command
+line (truav/swarm/cli*.py) calls them; nothing here parses arguments.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from truav import runio
+from truav.bus import schema, security
+from truav.checks import check_endpoint, check_in_file, check_out_file
+from truav.config import Config
+from truav.errors import UserError
+from truav.faults import check_plan_for, load_plan
+from agents.agent_process import AgentOptions
+from agents.state import StateEncoder
+from world.uavs import N_ACTIONS
+
+SCHEMES = ("truav", "central", "patrol")
+"""What flies the UAVs: TRUAV's agents, the central controller's commands, the patrol plan."""
+DEFAULT_COMMAND_HOLD_S = AgentOptions.command_hold_s
+
+
+def check_transport(args, listen_flag: str = "-l/--listen") -> None:
+    """The zenoh-example flags: endpoints well formed, a -c file Zenoh can read."""
+    connect = getattr(args, "connect", None) or []
+    for ep in [connect] if isinstance(connect, str) else connect:  # `certs -e` takes one endpoint
+        check_endpoint("-e/--connect", ep)
+    for ep in getattr(args, "listen", None) or []:
+        check_endpoint(listen_flag, ep)
+    if not isinstance(connect, str):
+        check_tls_creds(args)
+    if getattr(args, "config", None) is not None:
+        check_in_file("-c/--config", args.config)
+        try:
+            zenoh.Config.from_file(args.config)
+        except zenoh.ZError as exc:
+            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({_one_line(exc)})") from None
+
+
+def check_tls_creds(args, flag: str = "-e/--connect") -> None:
+    """A tls/ endpoint is a --secure swarm's router: without this component's certificate (--creds or
+    -c) Zenoh only says it cannot connect, so say what is missing, before connecting."""
+    if getattr(args, "creds", None) or getattr(args, "config", None):
+        return
+    for ep in getattr(args, "connect", None) or []:
+        if isinstance(ep, str) and ep.startswith("tls/"):
+            raise UserError(f"{flag} {ep}: a TLS router (a --secure swarm) admits only clients with its "
+                            f"credentials: pass --creds DIR (the run's <out>/creds)")
+
+
+def _one_line(exc: Exception) -> str:
+    """A Zenoh config error on one line: json5's multi-line caret diagram becomes "line L:C: what"."""
+    text = str(exc).split(" at /")[0].strip()
+    where = re.search(r"-->\s*(\d+:\d+)", text)
+    what = re.findall(r"^\s*=\s*(.+?)\)?\s*$", text, flags=re.M)
+    if where and what:
+        return f"line {where.group(1)}: {what[-1]}"
+    return " ".join(text.split())
+
+
+def check_plan(flag: str, path: str, n_uavs: int, scheme: str | None = None):
+    """A fault plan file that is valid and names only UAVs (and a controller) this swarm has."""
+    check_in_file(flag, path)
+    return check_plan_for(load_plan(path), n_uavs, path, scheme)
+
+
+def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, full: bool = True) -> None:
+    """A trained run (or its qtables.npz) whose tables fit this scenario; ``full``: read every
+    entry (once, in `up`), else only the array headers (each agent process, just before it loads them)."""
+    try:
+        if full:
+            seeds, q = runio.read_qtables(run)
+            n_seeds, shape = len(seeds), q.shape
+        else:
+            n_seeds, shape = runio.qtable_shapes(run)
+        runio.check_qtables(run, shape, cfg, exact_uavs=False)
+    except runio.RunDirError as exc:
+        raise UserError(f"{flag}: {exc}") from None
+    if index is not None and index >= n_seeds:
+        raise UserError(f"--qtable-index {index}: {run} holds {n_seeds} table(s) (indices 0-{n_seeds - 1})")
+
+
+def check_beacon_cell(cell_m: float | None, cfg: Config) -> None:
+    """--beacon-cell only where a far neighbour cannot change the state (agents/beacon_cells.py)."""
+    if cell_m is not None and cfg.learner.neighbour_sectors > 0:
+        raise UserError(f"--beacon-cell {cell_m:g}: learner.neighbour_sectors = {cfg.learner.neighbour_sectors} puts "
+                         f"the nearest neighbour's direction in the state, at any distance; range-limited beacons "
+                         f"would change it")
+
+
+def check_scheme_flags(args) -> None:
+    """Flags that belong to one scheme only, given with another (one line, before anything starts)."""
+    scheme = args.scheme
+    if scheme != "truav":
+        for flag, given in (("--qtable", args.qtable), ("--greedy", args.greedy)):
+            if given:
+                raise UserError(f"{flag}: only --scheme truav flies Q-tables (this is --scheme {scheme})")
+    if scheme != "central":
+        if getattr(args, "policy", None) is not None:
+            raise UserError(f"--policy: only --scheme central flies a trained controller (this is --scheme {scheme})")
+        if getattr(args, "command_hold", None) != DEFAULT_COMMAND_HOLD_S:
+            raise UserError(f"--command-hold: only --scheme central has commands (this is --scheme {scheme})")
+
+
+def check_policy(flag: str, run: str, cfg: Config, index: int) -> None:
+    """A trained central controller (`truav train --scheme central`) that fits this scenario."""
+    try:
+        runio.read_policy(run, index, cfg)
+    except runio.RunDirError as exc:
+        raise UserError(f"{flag}: {exc}") from None
+
+
+def check_central_sizes(cfg: Config) -> None:
+    """The central scheme's messages are padded to the model's sizes: they must fit one bus message,
+    and the controller needs torch."""
+    limit = schema.MAX_SMALL_PAYLOAD_BYTES
+    for key in ("upload_bytes", "download_bytes"):
+        value = getattr(cfg.central, key)
+        if value > limit:
+            raise UserError(f"central.{key} = {value}: a message on the bus holds at most {limit} bytes")
+    if importlib.util.find_spec("torch") is None:
+        raise UserError("--scheme central: the controller needs PyTorch: pip install -e '.[central]'")
+
+
+def check_checkpoint(path: str, cfg: Config) -> None:
+    """An agent checkpoint: resumed from if it exists (then it must be one), else creatable."""
+    p = Path(path)
+    if not p.exists():
+        check_out_file("--checkpoint", path)
+        return
+    check_in_file("--checkpoint", path)
+    try:
+        with np.load(p, allow_pickle=False) as ck:
+            shape, _, _ = ck["q"].shape, int(ck["steps"]), json.loads(str(ck["rng_state"]))
+    except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, zlib.error) as exc:
+        raise UserError(f"--checkpoint {path}: not an agent checkpoint (.npz with q, steps, rng_state): "
+                         f"{type(exc).__name__}") from None
+    want = (StateEncoder(cfg).n_states, N_ACTIONS)
+    if shape != want:
+        raise UserError(f"--checkpoint {path}: its Q-table is {shape}, this scenario needs {want}")
+
+
+
+def check_creds_fit(args, cfg: Config) -> None:
+    """``--creds`` made for another number of agents than the scenario flies: one line, before anything starts."""
+    if not getattr(args, "creds", None):
+        return
+    try:
+        creds = security.load(args.creds, args.run)
+    except security.CredentialsError as exc:
+        raise UserError(str(exc)) from None
+    if creds.n_uavs != cfg.scenario.n_uavs:
+        raise UserError(f"--creds {args.creds} was made for {creds.n_uavs} agents, the scenario has "
+                        f"{cfg.scenario.n_uavs} (scenario.n_uavs): pass --set scenario.n_uavs={creds.n_uavs}")
+
+
+def load_plan_for(path: str):
+    return load_plan(path)

@@ -1,0 +1,118 @@
+"""What the `truav-swarm` subcommands share: scenario, scheme, lock-step and process flags, logging, credentials."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from agents.agent_process import AgentOptions
+from agents.central_process import ControllerOptions
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+# the transport's command-line helpers, for every truav-swarm command (one place to import them from)
+from truav.bus.transport import apply_creds, config_from_args  # noqa: F401
+from truav.cli_args import add_transport_args  # noqa: F401
+from truav.cli_config import UsageError, parse_sets
+from truav.cli_args import add_options, positive_float, run_name, seed_int
+from truav.config import Config, load_config
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.swarm.checks import SCHEMES
+
+log = logging.getLogger("truav.swarm")
+
+
+def add_scenario_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run", type=run_name, default="demo", help="run name: keys live under truav/<run>/ (default demo)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the run (default 0)")
+    p.add_argument("--scenario", metavar="FILE", help="scenario TOML (as `truav config show` prints)")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one scenario value (repeatable)")
+
+
+def scenario_from(args) -> Config:
+    return load_config(args.scenario, parse_sets(args.set))
+
+
+GIL_SWITCH_INTERVAL_S = 0.0005
+"""Bus callbacks run on Zenoh's threads and need the GIL: with Python's default
+5 ms switch interval a message can wait that long behind the main thread."""
+
+
+def setup_logging(verbose: bool) -> None:
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    # INFO by default: a part's log says what it did (joins, losses, checkpoints, why it stopped);
+    # -v adds TRUAV's own debug lines (not the libraries').
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if verbose:
+        logging.getLogger("truav").setLevel(logging.DEBUG)
+
+
+def zenoh_reason(exc: Exception) -> str:
+    """The useful part of a Zenoh error ("Address already in use (os error 98)"), without source paths."""
+    text = str(exc).split(" at /")[0].strip()
+    return text.rsplit(": ", 1)[-1] if ": " in text else text
+
+
+def part_creds(args, identity: str) -> None:
+    """``--creds DIR``: this part's zenoh config from DIR (one line naming the flag if DIR is wrong)."""
+    try:
+        apply_creds(args, identity)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _origin(text: str):
+    from recorder.foxglove import parse_origin
+    try:
+        return parse_origin(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
+    from recorder.foxglove import DEFAULT_ORIGIN
+    p.add_argument("--geo-origin", type=_origin, default=DEFAULT_ORIGIN, metavar="LAT,LON",
+                   help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
+                   % DEFAULT_ORIGIN)
+
+
+def add_scheme_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheme", choices=SCHEMES, default="truav",
+                   help="what flies the UAVs: truav (independent Q-learning agents, default), central (a controller "
+                        "process commands every UAV each tick), patrol (the pre-planned patrol)")
+
+
+def add_command_hold_arg(p: argparse.ArgumentParser) -> None:
+    add_options(p, AgentOptions, ["command_hold_s"])
+
+
+def add_policy_args(p: argparse.ArgumentParser) -> None:
+    add_options(p, ControllerOptions, ["policy", "policy_index"])
+
+
+def add_lockstep_args(p: argparse.ArgumentParser, help_lockstep: str | None = None) -> None:
+    p.add_argument("--lockstep", action="store_true", help=help_lockstep)
+    p.add_argument("--lockstep-wait", type=positive_float, metavar="S",
+                   help="lock-step: wait this long for a live agent's action or beacon (a paused process) before "
+                        "going on without it; the run is then not exact and fails (default "
+                        f"{DEFAULT_LOCKSTEP_WAIT_S:g})")
+
+
+def lockstep_wait(args) -> float:
+    """--lockstep-wait, or its default; given without --lockstep it is a mistake (one line, exit 2)."""
+    if args.lockstep_wait is not None and not args.lockstep:
+        raise UsageError(f"--lockstep-wait {args.lockstep_wait:g}: only lock-step waits; add --lockstep or drop it")
+    return DEFAULT_LOCKSTEP_WAIT_S if args.lockstep_wait is None else args.lockstep_wait
+
+
+def add_swarm_process_args(p: argparse.ArgumentParser, who: str) -> None:
+    """Flags the world and an agent process share: faults, router loss, replay, logging, transport."""
+    p.add_argument("--fault-plan", metavar="FILE", help=f"apply this plan's link faults to what {who} receives")
+    p.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                   help=f"stop this long after losing the router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    p.add_argument("--accept-replay", action="store_true",
+                   help="act on traffic a replay puts into this run (dropped and counted by default)")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug lines in the log")
+    add_transport_args(p)
+
+

@@ -1,0 +1,186 @@
+"""`truav-swarm router|world|agent|controller`: the swarm's parts, one process each.
+
+Each command checks its flags and files (one line, exit 2, before anything starts), builds its
+process's options and runs it: the runtime lives with the process (world.world_process,
+agents.agent_host, agents.central_process), the stop on SIGTERM / lost supervisor / lost router
+in truav.lifecycle.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+
+import zenoh
+
+from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
+from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
+from agents.central_process import ControllerOptions
+from agents.controller_host import host_controller
+from truav.bus import keys
+from truav.bus.transport import DEFAULT_ENDPOINT, run_router
+from truav.checks import check_out_file
+from truav.cli_config import UsageError
+from truav.cli_args import add_options, non_negative_int, options_from, positive_float
+from truav.lifecycle import stop_on_sigterm_or_orphaned
+from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
+                                check_policy, check_qtable, check_scheme_flags)
+from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
+                                    add_scheme_arg, add_swarm_process_args, add_transport_args, config_from_args,
+                                    lockstep_wait, part_creds, scenario_from, setup_logging, zenoh_reason)
+from world.world_host import host_world
+from world.world_process import WorldOptions
+
+log = logging.getLogger("truav.swarm")
+
+
+def cmd_router(args) -> int:
+    setup_logging(args.verbose)
+    stop = threading.Event()
+    stop_on_sigterm_or_orphaned(stop.set)
+    part_creds(args, "router")
+    listen = args.listen or ([] if args.config else [DEFAULT_ENDPOINT])  # a config file keeps its own
+    try:
+        # "router listening" is printed once the endpoints are open: `truav-swarm up` waits for that line.
+        run_router(listen, connect=args.connect, config_file=args.config, stop=stop,
+                   on_ready=lambda: print(f"router listening on {', '.join(listen) or 'the endpoints of ' + args.config}",
+                                          flush=True))
+    except KeyboardInterrupt:
+        pass
+    except zenoh.ZError as exc:
+        print(f"truav-swarm router: error: cannot listen on {', '.join(listen)}: {zenoh_reason(exc)}",
+              file=sys.stderr, flush=True)
+        return 1
+    log.info("router stopped")
+    return 0
+
+
+def cmd_world(args) -> int:
+    setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    check_creds_fit(args, cfg)
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
+    if args.stats_out:
+        check_out_file("--stats-out", args.stats_out)
+    opts = options_from(WorldOptions, args, run=args.run, seed=args.seed, lockstep=args.lockstep,
+                        lockstep_wait_s=lockstep_wait(args), fault_plan=args.fault_plan,
+                        accept_replay=args.accept_replay, scheme=args.scheme)
+    part_creds(args, keys.SRC_WORLD)
+    return host_world(cfg, opts, config_from_args(args), args.router_timeout)
+
+
+def cmd_agent(args) -> int:
+    """One agent, or several (``--id`` repeated) hosted in this process: each with its own Zenoh session,
+    identity, credentials, checkpoint and statistics, on its own thread (fewer processes for a large swarm)."""
+    setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    check_creds_fit(args, cfg)
+    ids = args.id
+    if len(set(ids)) != len(ids):
+        raise UsageError(f"--id: UAV id(s) {sorted({i for i in ids if ids.count(i) > 1})} given twice")
+    for uav in ids:
+        if not 0 <= uav < cfg.scenario.n_uavs:
+            raise UsageError(f"--id {uav} is outside [0, {cfg.scenario.n_uavs}) (scenario.n_uavs)")
+    if len(ids) > 1:
+        for flag, value in (("--checkpoint", args.checkpoint), ("--stats-out", args.stats_out)):
+            if value and ID_PLACEHOLDER not in value:
+                raise UsageError(f"{flag} {value}: with several --id, put {ID_PLACEHOLDER} in it (one file per UAV)")
+    check_beacon_cell(args.beacon_cell, cfg)
+    if args.lockstep and (args.beacon_every != 1 or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-every' if args.beacon_every != 1 else '--beacon-cell'}: lock-step waits for "
+                         f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
+    wait_s = lockstep_wait(args)
+    try:
+        delays = {uav: debug_delay_s(os.environ.get(DELAY_ENV, ""), uav) for uav in ids}
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
+    check_scheme_flags(args)
+    if args.qtable:
+        check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
+
+    for uav in ids:
+        if args.checkpoint:
+            check_checkpoint(path_of(args.checkpoint, uav), cfg)
+        if args.stats_out:
+            check_out_file("--stats-out", path_of(args.stats_out, uav))
+    configs = {}
+    for uav in ids:  # each agent its own identity and, with --creds, its own certificate
+        part_creds(args, keys.uav_identity(uav))
+        configs[uav] = config_from_args(args)
+        if args.creds:
+            args.config = None
+
+    def options_for(uav: int) -> AgentOptions:
+        return options_from(AgentOptions, args, run=args.run, uav=uav, seed=args.seed, lockstep=args.lockstep,
+                            lockstep_wait_s=wait_s, train=not args.greedy, checkpoint=path_of(args.checkpoint, uav),
+                            stats_out=path_of(args.stats_out, uav), tick_period_s=1.0 / args.rate,
+                            fault_plan=args.fault_plan, debug_delay_s=delays[uav], accept_replay=args.accept_replay,
+                            scheme=args.scheme)
+
+    return host_agents(cfg, args.run, ids, configs, options_for, args.router_timeout, args.share_beacons)
+
+
+def cmd_controller(args) -> int:
+    setup_logging(args.verbose)
+    cfg = scenario_from(args)
+    if args.fault_plan:
+        check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, "central")
+    if args.policy is not None:
+        check_policy("--policy", args.policy, cfg, args.policy_index)
+    check_central_sizes(cfg)
+    if args.stats_out:
+        check_out_file("--stats-out", args.stats_out)
+    opts = options_from(ControllerOptions, args, run=args.run, seed=args.seed, lockstep=args.lockstep,
+                        lockstep_wait_s=lockstep_wait(args), tick_period_s=1.0 / args.rate,
+                        fault_plan=args.fault_plan, accept_replay=args.accept_replay)
+    part_creds(args, keys.SRC_CONTROLLER)
+    return host_controller(cfg, opts, config_from_args(args), args.router_timeout)
+
+
+def add_process_commands(sub) -> None:
+    """The `router`, `world`, `agent` and `controller` subcommands (in that order: `--help` lists them so)."""
+    ro = sub.add_parser("router", help="run a Zenoh router")
+    add_transport_args(ro)
+    ro.add_argument("-v", "--verbose", action="store_true")
+    ro.set_defaults(func=cmd_router)
+
+    wo = sub.add_parser("world", help="run the world process")
+    add_scenario_args(wo)
+    add_options(wo, WorldOptions, ["episodes"])
+    add_lockstep_args(wo)
+    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out"])
+    add_scheme_arg(wo)
+    add_swarm_process_args(wo, "the world")
+    wo.set_defaults(func=cmd_world)
+
+    ag = sub.add_parser("agent", help="run one UAV agent process")
+    add_scenario_args(ag)
+    ag.add_argument("--id", type=non_negative_int, required=True, action="append",
+                    help="UAV id in [0, n_uavs); repeat it to host several agents in this process, each with its "
+                         "own session and identity ({id} in --checkpoint and --stats-out then names each file)")
+    add_options(ag, AgentOptions, ["beacon_every", "beacon_cell_m"])
+    ag.add_argument("--share-beacons", action="store_true",
+                    help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
+                         "once per process, not once per agent); each agent still checks and counts its own")
+    add_lockstep_args(ag)
+    ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
+    ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
+    add_options(ag, AgentOptions, ["checkpoint", "checkpoint_every", "qtable", "qtable_index", "stats_out"])
+    add_scheme_arg(ag)
+    add_command_hold_arg(ag)
+    add_swarm_process_args(ag, "the agent")
+    ag.set_defaults(func=cmd_agent)
+
+    co = sub.add_parser("controller", help="run the central scheme's controller process")
+    add_scenario_args(co)
+    add_lockstep_args(co)
+    co.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (default 10)")
+    add_policy_args(co)
+    add_options(co, ControllerOptions, ["stats_out"])
+    add_swarm_process_args(co, "the controller")
+    co.set_defaults(func=cmd_controller)

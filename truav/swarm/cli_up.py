@@ -1,0 +1,231 @@
+"""`truav-swarm up|chaos`: start a whole swarm (router, world, agents, recorder) under a supervisor.
+
+Every flag and file is checked here, before anything starts (:func:`swarm_options`); then
+truav.swarm.supervisor runs the swarm (up) or truav.swarm.chaos runs it twice / under a nemesis.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+
+from truav.bus.transport import DEFAULT_ENDPOINT
+from truav.checks import check_endpoint, check_out_dir, check_out_file
+from truav.cli_config import UsageError, parse_sets
+from truav.cli_args import non_negative_int, positive_float, positive_int, share, tcp_port
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.nemesis import NEMESES
+from truav.swarm import supervisor
+from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
+                                check_scheme_flags, load_plan_for)
+from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
+                                    add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
+from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
+from truav.swarm.supervisor import SwarmOptions
+
+MAX_AGENTS = 50
+"""Agent processes `up` and `chaos` start without --force-agents. On the 2-core reference
+machine 20 agents at 10 Hz keep every deadline with a wide margin, and 50 already miss 2.4%
+of their actions (each agent is its own Python process); past 50 the swarm is no longer
+real time there, and hundreds of processes can load the machine before anything is printed."""
+
+
+def swarm_options(args):
+    """The scenario and options of `up`/`chaos`, every flag and file checked: nothing has started yet."""
+    sets = parse_sets(args.set).get("scenario", {})
+    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps)):
+        if value is not None and key in sets and sets[key] != value:
+            raise UsageError(f"{flag} {value} contradicts --set scenario.{key}={sets[key]}; give one of them")
+    cfg = scenario_from(args)
+    if args.agents is not None:
+        cfg = cfg.replace(scenario={"n_uavs": args.agents})
+    if args.steps is not None:
+        cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
+    n = cfg.scenario.n_uavs
+    if n > MAX_AGENTS and not args.force_agents:
+        raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
+                         + f": more than {MAX_AGENTS} agent processes is past what the reference machine runs in "
+                         f"real time (see MAX_AGENTS in truav/swarm/cli.py); add --force-agents to start them anyway")
+    if len(args.listen) > 1:
+        raise UsageError(f"-l/--listen: the swarm's router listens on one endpoint, got {len(args.listen)}")
+    for ep in args.listen:
+        check_endpoint("-l/--listen", ep, tcp_only=True)  # the supervisor waits for the router's TCP port
+    if args.out is not None:
+        check_out_dir("--out", args.out)
+    if args.record is not None:
+        check_out_file("--record", args.record)
+    check_scheme_flags(args)
+    if args.qtable is not None:
+        check_qtable("--qtable", args.qtable, cfg)
+    if args.policy is not None:
+        check_policy("--policy", args.policy, cfg, args.policy_index)
+    if args.scheme == "central":
+        check_central_sizes(cfg)
+    if args.fault_plan is not None:
+        check_plan("--fault-plan", args.fault_plan, n, args.scheme)
+    beacon_every = 1
+    if args.beacon_hz is not None:
+        ticks = args.rate / args.beacon_hz
+        if abs(ticks - round(ticks)) > 1e-6 or round(ticks) < 1:
+            raise UsageError(f"--beacon-hz {args.beacon_hz:g}: must divide --rate {args.rate:g} into a whole number "
+                             f"of ticks (e.g. 1 at 10 Hz: every 10th tick)")
+        beacon_every = int(round(ticks))
+    check_beacon_cell(args.beacon_cell, cfg)
+    if args.scheme != "truav" and (args.beacon_hz is not None or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: only --scheme truav "
+                         f"sends a beacon every tick (this is --scheme {args.scheme})")
+    if args.lockstep and (args.beacon_hz is not None or args.beacon_cell is not None):
+        raise UsageError(f"{'--beacon-hz' if args.beacon_hz is not None else '--beacon-cell'}: lock-step waits for "
+                         f"every live peer's beacon of each tick; beacon rate and cells are for real time only")
+    if args.share_beacons and args.agents_per_process == 1:
+        raise UsageError("--share-beacons: shares one beacon subscription among the agents of a process; "
+                         "give --agents-per-process K > 1 too")
+    if args.agents_per_process > 1 and args.fault_plan is not None:
+        kinds = {f.kind for f in load_plan_for(args.fault_plan).faults} & {"crash", "freeze"}
+        if kinds:
+            raise UsageError(f"--agents-per-process {args.agents_per_process}: the fault plan {args.fault_plan} "
+                             f"{' and '.join(sorted(kinds))}es single agent processes; use 1 agent per process")
+    opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
+                        lockstep_wait_s=lockstep_wait(args), rate_hz=args.rate, record=args.record, qtable=args.qtable,
+                        greedy=args.greedy,
+                        out=args.out, listen=args.listen[0] if args.listen else None,
+                        plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
+                        fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
+                        geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
+                        max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
+                        secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
+                        command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
+                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
+                        restart=args.restart, restart_limit=args.restart_limit)
+    return cfg, opts
+
+
+
+
+def duration_s(text: str) -> float:
+    """A run's length: seconds, or a number with s, m or h (90, 90s, 10m, 1h)."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?)\s*([smh]?)\s*", text)
+    if not m or float(m.group(1)) <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive duration such as 90s, 10m or 1h, got {text!r}")
+    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
+
+
+def cmd_chaos(args) -> int:
+    from truav.swarm import chaos  # here: it loads matplotlib
+    if args.fault_plan is not None:  # one plan per chaos run: the faulted half flies --plan
+        raise UsageError("--fault-plan: chaos takes its plan from --plan (the baseline run has none); "
+                         "drop --fault-plan")
+    if (args.plan is None) == (args.nemesis is None):
+        raise UsageError("--plan FILE or --nemesis random: give one of them")
+    if args.nemesis is None:
+        for flag, value in (("--duration", args.duration),):
+            if value is not None:
+                raise UsageError(f"{flag}: only with --nemesis (a --plan run lasts --episodes)")
+        args.episodes = 2 if args.episodes is None else args.episodes
+    else:
+        if args.duration is None:
+            raise UsageError("--nemesis: give --duration (e.g. 10m): the schedule is drawn for the run's length")
+        if args.episodes is not None:
+            raise UsageError("--episodes: --nemesis sets it from --duration; give one of them")
+        if args.lockstep:
+            raise UsageError("--lockstep: the nemesis schedules faults in seconds of real time; lock-step ticks "
+                             "are not paced (use --plan with a plan of your own)")
+        if args.agents_per_process != 1:
+            raise UsageError(f"--agents-per-process {args.agents_per_process}: the nemesis crashes and pauses single "
+                             f"agent processes; use 1 agent per process")
+        if args.resume:
+            raise UsageError("--resume: a nemesis run starts afresh (re-run its plan with --plan instead)")
+        args.episodes = 1  # replaced below, once the episode length is known
+    cfg, opts = swarm_options(args)
+    if args.nemesis is not None:
+        opts.episodes = max(1, math.ceil(args.duration * opts.rate_hz / cfg.scenario.steps_per_episode))
+        return chaos.run_nemesis(cfg, opts, args.nemesis, args.duration)
+    check_plan("--plan", args.plan, cfg.scenario.n_uavs, args.scheme)
+    return chaos.run_chaos(cfg, opts, args.plan)
+
+
+def cmd_up(args) -> int:
+    cfg, opts = swarm_options(args)
+    return supervisor.run_swarm(cfg, opts)
+
+
+def add_up_args(up: argparse.ArgumentParser) -> None:
+    add_scenario_args(up)
+    add_scheme_arg(up)
+    add_policy_args(up)
+    add_command_hold_arg(up)
+    up.add_argument("--agents", type=positive_int,
+                    help=f"number of UAV agents (default scenario.n_uavs, 5; at most {MAX_AGENTS} without --force-agents)")
+    up.add_argument("--force-agents", action="store_true",
+                    help=f"start more than {MAX_AGENTS} agent processes (not real time on a 2-core machine)")
+    up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
+    up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
+    add_lockstep_args(up, "the world waits for every live agent each tick")
+    up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
+    up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
+    up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
+    up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
+    up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
+    up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                    help=f"router endpoint (default {DEFAULT_ENDPOINT} if that port is free, else a free loopback port)")
+    up.add_argument("--resume", action="store_true",
+                    help="continue the run in --out (agents resume from its checkpoints; same scenario only)")
+    up.add_argument("--force", action="store_true",
+                    help="delete an earlier run's files in --out (and overwrite --record) instead of refusing")
+    up.add_argument("--max-missed", type=share, default=0.5, metavar="SHARE",
+                    help="fail the run when more than this share of actions is missing (default 0.5)")
+    up.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
+                    help=f"world and agents stop this long after losing their router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
+    up.add_argument("-v", "--verbose", action="store_true",
+                    help="debug lines in every process's log, and each process's start (PID, log file) on the console")
+    up.add_argument("--wait-agents", type=positive_float, default=60.0,
+                    help="seconds the world waits for all agents to join before the first tick (default 60)")
+    up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
+    up.add_argument("--secure", action="store_true",
+                    help="lock the bus: a fresh CA and one certificate per component in <out>/creds, mutual TLS, "
+                         "and the router's access control (see `truav-swarm acl explain`)")
+    up.add_argument("--beacon-hz", type=positive_float, metavar="HZ",
+                    help="real time: beacons at this rate instead of every tick (1: the Remote ID rate; must divide "
+                         "--rate), offset by id")
+    up.add_argument("--beacon-cell", type=positive_float, metavar="M",
+                    help="real time: range-limited beacons under map cells of M metres; each agent hears only the "
+                         "cells within range of it, and decides as with all beacons (agents/beacon_cells.py)")
+    up.add_argument("--agents-per-process", type=positive_int, default=1, metavar="K",
+                    help="host K agents per OS process, each with its own session, identity and files (default 1)")
+    up.add_argument("--share-beacons", action="store_true",
+                    help="with --agents-per-process K > 1: each agent process subscribes to beacons once for its K "
+                         "agents (each still checks, filters and counts its own)")
+    up.add_argument("--restart", choices=RESTART_POLICIES, default=DEFAULT_RESTART_POLICY,
+                    help="on-failure (default): restart an agent or the controller that dies on its own, from its "
+                         "checkpoint, after a backoff, and a dead router on its endpoint; never: leave them down "
+                         "(truav/swarm/healing.py; in lock-step a restart makes the run inexact, and the summary says so)")
+    up.add_argument("--restart-limit", type=non_negative_int, default=DEFAULT_RESTART_LIMIT, metavar="N",
+                    help=f"restarts of one process before it is left down and the run fails (default "
+                         f"{DEFAULT_RESTART_LIMIT})")
+    up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
+    up.add_argument("--quiet", action="store_true", help="no live status table")
+    up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
+                    help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")
+    add_geo_origin_arg(up)
+
+
+
+
+def add_up_commands(sub) -> None:
+    """The `up` and `chaos` subcommands."""
+    up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
+    add_up_args(up)
+    up.set_defaults(func=cmd_up)
+
+    ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "
+                                      "or soak under a random nemesis; then check the invariants")
+    add_up_args(ch)
+    ch.add_argument("--plan", metavar="FILE", help="fault plan TOML (examples in deploy/plans/)")
+    ch.add_argument("--nemesis", choices=NEMESES,
+                    help="instead of --plan: a seeded random plan (--seed) of crashes, pauses, router kills and link "
+                         "faults, healed before the end, written to <out>/nemesis-plan.toml; one recorded run, no "
+                         "baseline")
+    ch.add_argument("--duration", type=duration_s, metavar="T",
+                    help="--nemesis: how long the run lasts (e.g. 90s, 10m; sets --episodes)")
+    ch.set_defaults(func=cmd_chaos, episodes=None)

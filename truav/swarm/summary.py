@@ -1,0 +1,287 @@
+"""The end of a swarm run: stop every process in an order that loses nothing, judge the run, write
+summary.json and print the summary (truav.swarm.supervisor runs it)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from truav.bus import keys
+from truav.config import Config
+from truav.swarm.children import exit_text
+from truav.swarm.outdir import SUMMARY_FILE
+from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
+                                       ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
+                                       process_of)
+
+CENTRAL_STATE_VALUES = 50
+"""The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
+CENTRAL_VALUE_BYTES = 4
+
+
+class SwarmEnd:
+    """The end part of the supervisor's _Swarm (its state lives in _Swarm.__init__)."""
+
+    def _shutdown(self, normal_end: bool) -> None:
+        """Stop every process started, in an order that loses nothing (see the module docstring)."""
+        children = self.children
+        if self.controller is not None:
+            self.controller.stop()
+        pausable = [*self.fleet, "world", "recorder"]  # what a fault plan may freeze
+        children.thaw(pausable)  # a frozen process must run to stop; SIGTERM alone would wait for ever
+        if normal_end:
+            children.wait_exit(self.fleet, AGENT_EXIT_GRACE_S)
+        killed = children.stop(["world"], timeout=WORLD_STOP_TIMEOUT_S)
+        children.thaw(pausable)  # the plan's last thaw may have been cancelled
+        killed += children.stop(self.fleet, timeout=AGENT_STOP_TIMEOUT_S)
+        for name in killed:
+            self.outcome.fail(f"{name} did not stop within {AGENT_STOP_TIMEOUT_S:.0f} s of SIGTERM and was killed: "
+                              f"its final checkpoint and statistics may be missing")
+        if "recorder" in children.procs:
+            if children.stop(["recorder"], sig=signal.SIGINT, timeout=RECORDER_STOP_TIMEOUT_S):
+                self.outcome.fail(f"the recorder did not finish {self.opts.record} within "
+                                  f"{RECORDER_STOP_TIMEOUT_S:.0f} s and was killed (try `truav log recover`)")
+            elif children.procs["recorder"].returncode and not any("recorder" in f for f in self.outcome.failures):
+                self.outcome.fail(f"the recorder failed to finish {self.opts.record} "
+                                  f"({exit_text(children.procs['recorder'].returncode)}): "
+                                  f"{children.last_line('recorder')}")
+        others = [n for n in children.procs if n not in ("world", "recorder", "router", *self.fleet)]  # the viewer
+        children.stop(others, timeout=WORLD_STOP_TIMEOUT_S)
+        if "router" in children.procs:
+            children.stop(["router"], timeout=ROUTER_STOP_TIMEOUT_S)
+        children.close_logs()
+
+    def _judge(self) -> None:
+        """What ended the run, from what was seen; failures the watch could not see on its own."""
+        o, opts = self.outcome, self.opts
+        with self.monitor.lock:
+            o.shutdowns = [(round(t - self.t0, 2), src) for t, src in self.monitor.shutdowns]
+        foreign = [src for _, src in o.shutdowns if src != keys.SRC_WORLD]
+        for src in dict.fromkeys(foreign):
+            if src not in SHUTDOWN_SENDERS:
+                o.fail(f"a shutdown came from an unknown sender {src!r}")
+        world = _read_json(self.out / "world.json")
+        done = len((world or {}).get("episodes") or [])
+        if not o.ended_by:
+            if foreign:
+                first = foreign[0]
+                o.ended_by = f"a shutdown from {first!r} ({SHUTDOWN_SENDERS.get(first, 'unknown sender')})"
+                if first == DOWN_IDENTITY and done < opts.episodes:
+                    o.interrupted_by = SHUTDOWN_SENDERS[first]
+            elif done == opts.episodes:
+                o.ended_by = f"the world finished its {done} episode(s) (shutdown from 'world')"
+            else:
+                o.fail(f"the world stopped after {done} of {opts.episodes} episode(s)")
+        if world and o.ticked:
+            acting = world.get("ticks", 0) - done
+            expected = acting * self.n
+            if expected > 0:
+                missed = 1.0 - world.get("actions_received", 0) / expected
+                if missed > opts.max_missed_share:
+                    o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
+                           f"{opts.max_missed_share:g})")
+        killed_for_good = {process_of(f.params.get("target", f.params.get("uav")))
+                           for f in (self.plan.faults if self.plan else ())
+                           if f.kind == "crash" and "restart_after" not in f.params}
+        logs = {f"agent{i}": name for ids, name in zip(self.groups, self.agents) for i in ids}  # uav -> its process
+        for name in [*logs, *(["controller"] if self.central else [])]:
+            if o.ticked and not (self.out / f"{name}.json").is_file() and name not in killed_for_good:
+                o.warnings.append(f"{name} wrote no statistics (see {self.children.log_dir}/{logs.get(name, name)}.log)")
+        if opts.lockstep and o.ticked:
+            o.exactness = lockstep_exactness(world, [_read_json(self.out / f"{name}.json") for name in logs],
+                                             _read_json(self.out / "controller.json") if self.central else None)
+            if not o.exactness["exact"]:
+                o.fail(inexact_text(o.exactness, opts.lockstep_wait_s))
+        if opts.lockstep and o.restarts:
+            o.warnings.append(f"{len(o.restarts)} restart(s) in a lock-step run: a restarted process resumed from its "
+                              f"checkpoint while the world went on without it, so this run is not exactly a clean "
+                              f"run of seed {opts.seed}")
+        lost = ((world or {}).get("controller_losses") or []) if self.central else []
+        if lost:
+            o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
+                              f"UAVs held their last command for {opts.command_hold_s:g} s, then hovered "
+                              f"(the world ran on)")
+
+    def _summary(self, elapsed: float) -> None:
+        cfg, opts, out, monitor, o = self.cfg, self.opts, self.out, self.monitor, self.outcome
+        world = _read_json(out / "world.json")
+        agents = [_read_json(out / f"agent{i}.json") for i in range(self.n)]
+        controller = _read_json(out / "controller.json") if self.central else None
+        cp = monitor.control_plane()
+        events = self.controller.events if self.controller is not None else []
+        with monitor.lock:
+            timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
+                   "lockstep": o.exactness, "restarts": o.restarts,
+                   "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
+        (out / SUMMARY_FILE).write_text(json.dumps({
+            "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
+            "control_plane": cp, "elapsed_s": elapsed,
+            "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
+            "fault_events": events, "timeline": timeline,
+            "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
+            "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
+            "router_outages_wall_ns": self.router_outages}, indent=1))
+        if o.ticked:
+            _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            if self.central:
+                _print_central(cfg, opts, world, agents, controller, cp, self.children.starts.get("controller", 1))
+            if opts.plot and monitor.tracks:
+                from truav.swarm.plots import swarm_figure
+                picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
+                                       episodes_done=len((world or {}).get("episodes") or []) if world else None)
+                print(f"picture: {picture}")
+            if opts.record:
+                print(f"recording: {opts.record}")
+        for r in o.restarts:
+            print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
+                  f"{r['cause']}; restart {r['number']})")
+        for note in o.warnings:
+            print(f"warning: {note}")
+        print(f"ended by: {o.ended_by}")
+        if o.failures:
+            print(f"result: FAILED ({'; '.join(o.failures)})", flush=True)
+            print(f"truav-swarm: error: {o.failures[0]}", file=sys.stderr, flush=True)
+        else:
+            print(f"result: {o.result}", flush=True)
+
+
+def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
+    print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
+    for e, m in enumerate((world or {}).get("episodes") or []):
+        print(f"episode {e}: coverage {m.get('coverage_pct', float('nan')):5.1f}%  PDR {m.get('pdr', float('nan')):.3f}  "
+              f"delay {m.get('delay_ms', float('nan')):6.1f} ms  energy/UAV {m.get('energy_j', float('nan')) / 1e3:6.2f} kJ")
+    if world:
+        lat = world.get("tick_lateness_ms")
+        if lat:
+            print(f"tick lateness p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms over {lat['n']} ticks")
+        late, stale = world.get("late_actions", 0), world.get("stale_actions", 0)
+        print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
+              f"missed (hovered) {world['deadline_misses']}"
+              + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
+              + f", agent losses seen {len(world['losses'])}")
+    ex = o.exactness
+    if ex is not None:
+        print("lock-step: exact (every live process was waited for)" if ex["exact"] else
+              f"lock-step: NOT exact from tick {ex['inexact_from_tick']}: {ex['decisions_without_peer']} decision(s) "
+              f"without a live peer's message, {ex['world_went_on_without']} answer(s) the world went on without")
+    rejected = rejection_summary(world, agents)
+    if rejected:
+        print(rejected)
+    lat = [a["beacon_latency_ms"] for a in agents if a and a.get("beacon_latency_ms", {}).get("n")]
+    if lat:
+        print(f"beacon one-way latency: p50 {np.median([x['p50'] for x in lat]):.2f} ms, "
+              f"p99 {np.max([x['p99'] for x in lat]):.2f} ms (worst agent)")
+    if cp["beacons"]:
+        n = cfg.scenario.n_uavs
+        central = n * CENTRAL_STATE_VALUES * opts.rate_hz
+        print(f"control plane: {cp['bytes_per_beacon']:.0f} B/beacon, {cp['beacons_per_s_per_uav']:.1f} beacons/s per UAV, "
+              f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s in total; a centralized critic would upload "
+              f"{n} x {CENTRAL_STATE_VALUES} values x {opts.rate_hz:g} Hz = {central:,.0f} values/s "
+              f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
+    for t, kind, phase in events:
+        print(f"fault {kind} {phase} at {t:.1f} s")
+
+
+def lockstep_exactness(world, agents, controller) -> dict:
+    """Lock-step: whether every process waited for every live peer (the run is then exact), else how many
+    decisions were taken without a live process's message, and from which tick (the earliest)."""
+    world_missed = int((world or {}).get("lockstep_missed", 0))
+    ticks = [(world or {}).get("lockstep_missed_from_tick")]
+    per_agent: dict[str, int] = {}
+    for stats in agents:
+        ls = (stats or {}).get("lockstep") or {}
+        if ls.get("decisions_without_peer"):
+            per_agent[f"agent{stats.get('uav')}"] = int(ls["decisions_without_peer"])
+            ticks.append(ls.get("inexact_from_tick"))
+    ctl = ((controller or {}).get("lockstep") or {})
+    ctl_missed = int(ctl.get("decisions_without_peer", 0))
+    ticks.append(ctl.get("inexact_from_tick"))
+    ticks = [t for t in ticks if t is not None]
+    decisions = sum(per_agent.values()) + ctl_missed
+    return {"exact": not (world_missed or decisions), "decisions_without_peer": decisions,
+            "by_agent": per_agent, "controller_decisions_without_peer": ctl_missed,
+            "world_went_on_without": world_missed, "inexact_from_tick": min(ticks) if ticks else None}
+
+
+def inexact_text(ex: dict, wait_s: float) -> str:
+    parts = []
+    if ex["decisions_without_peer"]:
+        who = [f"{a} {n}" for a, n in ex["by_agent"].items()]
+        who += [f"controller {ex['controller_decisions_without_peer']}"] if ex["controller_decisions_without_peer"] else []
+        parts.append(f"{ex['decisions_without_peer']} decision(s) taken without a live peer's message ({', '.join(who)})")
+    if ex["world_went_on_without"]:
+        parts.append(f"the world went on without {ex['world_went_on_without']} live agent answer(s)")
+    return (f"lock-step is no longer exact from tick {ex['inexact_from_tick']} (a live process did not answer within "
+            f"--lockstep-wait {wait_s:g} s; a longer one waits out longer pauses): {'; '.join(parts)}")
+
+
+def central_model_bytes_per_s(cfg: Config, rate_hz: float) -> float:
+    """What the in-process control-plane model sends per second of real time: every UAV's upload and
+    command each round (agents.central.ControlPlaneModel.messages), rate_hz / update_period rounds."""
+    c = cfg.central
+    up_m, up_b, down_m, down_b = cfg.scenario.n_uavs, cfg.scenario.n_uavs * c.upload_bytes, \
+        cfg.scenario.n_uavs, cfg.scenario.n_uavs * c.download_bytes
+    return (up_b + down_b) * rate_hz / c.update_period_steps
+
+
+def _print_central(cfg, opts, world, agents, controller, cp, incarnations: int = 1) -> None:
+    c = cfg.central
+    model = central_model_bytes_per_s(cfg, opts.rate_hz)
+    ctl = controller or {}
+    policy = ctl.get('policy', opts.policy or 'learning online')
+    own = (f"{ctl.get('ticks', 0)} tick(s) decided, {ctl.get('commands', 0)} command(s) sent, "
+           f"{ctl.get('stale_states', 0)} missing upload(s) filled from the last one"
+           + (f", decision p99 {ctl['decide_ms']['p99']:.1f} ms" if ctl.get("decide_ms") else ""))
+    if incarnations > 1:  # a crashed incarnation writes no statistics: the bus counts every one's commands
+        print(f"controller ({policy}), {incarnations} incarnations: commands for {cp.get('command_ticks', 0)} tick(s), "
+              f"{cp.get('commands', 0)} command(s) heard on the bus; the last incarnation: {own}")
+    else:
+        print(f"controller ({policy}): {own}")
+    counts = {"fresh": 0, "held": 0, "hovered": 0}
+    for a in agents:
+        for k, v in ((a or {}).get("commands") or {}).items():
+            counts[k] = counts.get(k, 0) + v
+    print(f"UAVs flew a fresh command {counts['fresh']} time(s), held the last one {counts['held']}, hovered without "
+          f"one {counts['hovered']} (hold {opts.command_hold_s:g} s)")
+    if cp.get("states") or cp.get("commands"):
+        if opts.lockstep:
+            rate = "lock-step: per second of wall time, not of the world's"
+        else:
+            rate = f"model at {opts.rate_hz:g} Hz: {model / 1e3:.1f} kB/s"
+        print(f"control plane measured on the bus: {cp['states']} uploads x {cp['bytes_per_state']:.0f} B + "
+              f"{cp['commands']} commands x {cp['bytes_per_command']:.0f} B = "
+              f"{cp['central_bytes_per_s'] / 1e3:.1f} kB/s; the in-process model: {cfg.scenario.n_uavs} x "
+              f"({c.upload_bytes} + {c.download_bytes}) B per round = "
+              f"{cfg.scenario.n_uavs * (c.upload_bytes + c.download_bytes):,} B ({rate})")
+    eps = (world or {}).get("episodes") or []
+    if eps and "ctrl_delay_ms" in eps[0]:
+        print(f"modelled radio effects applied by the world: action delay {np.mean([e['ctrl_delay_ms'] for e in eps]):.1f}"
+              f" ms, control airtime {np.mean([e['ctrl_airtime_s'] for e in eps]):.2f} s/UAV/episode "
+              f"({np.mean([e['ctrl_energy_j'] for e in eps]):.1f} J)")
+
+
+
+
+def rejection_summary(world, agents) -> str:
+    """One line: how many messages the world and the agents refused, by reason (truav.bus.guard)."""
+    by_reason: dict[str, int] = {}
+    for stats in [(world or {}).get("rejected") or {}] + [((a or {}).get("bus") or {}).get("rejected") or {}
+                                                          for a in agents]:
+        for reason, senders in stats.items():
+            by_reason[reason] = by_reason.get(reason, 0) + sum(senders.values())
+    if not by_reason:
+        return ""
+    return (f"rejected messages (world + agents): {sum(by_reason.values())} ("
+            + ", ".join(f"{r} {n}" for r, n in sorted(by_reason.items())) + "); see world.json / agent<i>.json")
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None

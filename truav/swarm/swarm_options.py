@@ -1,0 +1,140 @@
+"""What a swarm run is given (:class:`SwarmOptions`) and how it ended (:class:`Outcome`), with the
+supervisor's timing constants and the names of its agent processes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from agents.agent_process import AgentOptions
+from agents.central_process import ControllerOptions
+from truav.bus import keys
+from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
+from world.world_process import WorldOptions
+
+DOWN_IDENTITY = "supervisor"
+"""The sender of `truav-swarm down`'s shutdown request."""
+SHUTDOWN_SENDERS = {keys.SRC_WORLD: "the world, after its last episode", DOWN_IDENTITY: "`truav-swarm down`"}
+"""Senders whose shutdown is expected; one from anyone else fails the run (and names the sender)."""
+
+STATUS_PERIOD_S = 1.0
+ROUTER_START_TIMEOUT_S = 15.0
+RECORDER_START_TIMEOUT_S = 30.0
+AGENT_EXIT_GRACE_S = 5.0
+"""Normal end: agents leave by themselves on the world's shutdown; SIGTERM after this long."""
+AGENT_STOP_TIMEOUT_S = 30.0
+"""After SIGTERM an agent writes its final checkpoint and statistics (an fsync each); SIGKILL after this long."""
+WORLD_STOP_TIMEOUT_S = 15.0
+RECORDER_STOP_TIMEOUT_S = 90.0
+"""The recorder writes its backlog and footer (its writer alone may take 60 s), then rewrites the
+file into big chunks (seconds per 10 MB); SIGKILL after this long."""
+ROUTER_STOP_TIMEOUT_S = 5.0
+ROUTER_RECONNECT_WAIT_S = 10.0
+"""After restarting the router: how long the supervisor waits for its own session to reconnect."""
+RSS_PERIOD_S = 5.0
+"""How often the supervisor samples its children's memory (summary.json "processes")."""
+
+
+@dataclass
+class SwarmOptions:
+    """How `truav-swarm up` runs a swarm; what it passes down to a process defaults as that process's
+    options declare (WorldOptions, AgentOptions, ControllerOptions)."""
+
+    run: str = "demo"
+    seed: int = 0
+    episodes: int = WorldOptions.episodes
+    lockstep: bool = False
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    """Lock-step: how long world and agents wait for a live process before the run gives up exactness."""
+    rate_hz: float = WorldOptions.rate_hz
+    record: str | None = None
+    qtable: str | None = None
+    greedy: bool = False
+    out: str | None = None
+    listen: str | None = None
+    plot: bool = True
+    quiet: bool = False
+    wait_agents_s: float = 60.0
+    checkpoint_every: int = 50
+    """Agents checkpoint their Q-table every this many steps."""
+    verbose: bool = False
+    """Children log at DEBUG level too; each process's start is printed."""
+    fault_plan: str | None = None
+    """Fault plan TOML (truav.faults): link faults applied by every process,
+    crashes and freezes sent by this supervisor."""
+    resume: bool = False
+    """Continue the run already in ``out`` (agents resume from its checkpoints); else ``out`` must be empty."""
+    force: bool = False
+    """Delete an earlier run's files in ``out`` first, and overwrite ``record``."""
+    max_missed_share: float = 0.5
+    """The run fails when more than this share of the actions the world waited for did not come."""
+    router_timeout_s: float = DEFAULT_ROUTER_TIMEOUT_S
+    """World and agents stop by themselves this long after losing their router."""
+    foxglove_port: int | None = None
+    """Serve the run to the Foxglove app on ws://127.0.0.1:<port> (`truav-swarm view`)."""
+    geo_origin: tuple[float, float] | None = None
+    """(lat, lon) of the area's centre on Foxglove's map (recorder and view); None: Paris."""
+    secure: bool = False
+    """Mutual TLS and the router's access control, with fresh credentials in <out>/creds (truav.bus.security)."""
+    scheme: str = "truav"
+    """truav (Q-learning agents) | central (a controller process commands every UAV) | patrol (the plan)."""
+    policy: str | None = None
+    """Scheme central: the trained controller to fly (`truav train --scheme central` run); None: learn online."""
+    policy_index: int = ControllerOptions.policy_index
+    command_hold_s: float = AgentOptions.command_hold_s
+    """Scheme central: how long a UAV keeps its last command once commands stop, then hovers."""
+    beacon_every: int = AgentOptions.beacon_every
+    """Real time: agents beacon every this many ticks (10 at 10 Hz: 1 Hz, the Remote ID rate)."""
+    beacon_cell_m: float | None = AgentOptions.beacon_cell_m
+    """Real time: range-limited beacons under map cells of this side (agents/beacon_cells.py); None: all-to-all."""
+    agents_per_process: int = 1
+    """Agents hosted by one OS process, each with its own session, identity and files (fewer processes:
+    less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
+    share_beacons: bool = False
+    """With agents_per_process > 1: one beacon subscription per process, fanned out to its agents' inboxes."""
+    restart: str = DEFAULT_RESTART_POLICY
+    """on-failure: restart an agent, the controller or the router that dies on its own (truav.swarm.healing); never."""
+    restart_limit: int = DEFAULT_RESTART_LIMIT
+    """Restarts of one process before it is left down and the run fails."""
+
+
+def agent_groups(n: int, per_process: int) -> list[list[int]]:
+    """UAV ids 0..n-1 in consecutive groups of ``per_process``, one process each."""
+    return [list(range(a, min(a + per_process, n))) for a in range(0, n, per_process)]
+
+
+def group_name(ids: list[int]) -> str:
+    """The process name (log file, pids.json) of a group: ``agent3`` alone, ``agents0-9`` for several."""
+    return f"agent{ids[0]}" if len(ids) == 1 else f"agents{ids[0]}-{ids[-1]}"
+
+
+@dataclass
+class Outcome:
+    """How a run ended: what ended it, what went wrong, what the user should know."""
+
+    ended_by: str = ""
+    interrupted_by: str | None = None  # Ctrl-C, SIGTERM, SIGHUP or `truav-swarm down`
+    failures: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    shutdowns: list[tuple[float, str]] = field(default_factory=list)  # (s since start, sender)
+    ticked: bool = False
+    exactness: dict | None = None  # lock-step only: see lockstep_exactness
+    restarts: list[dict] = field(default_factory=list)  # truav.swarm.healing.Restart.as_dict(), in order
+
+    def fail(self, reason: str) -> None:
+        if reason not in self.failures:
+            self.failures.append(reason)
+        self.ended_by = self.ended_by or reason
+
+    @property
+    def result(self) -> str:
+        return "failed" if self.failures else "interrupted" if self.interrupted_by else "ok"
+
+    def exit_code(self) -> int:
+        return 1 if self.failures else 130 if self.interrupted_by else 0
+
+
+def process_of(who) -> str:
+    """The supervisor's name of a fault plan's process: agent<i> for a UAV id, else the target's name."""
+    return who if isinstance(who, str) else f"agent{who}"

@@ -1,0 +1,37 @@
+"""The world process's run: its bus session, its node, its stop (truav.lifecycle) and its statistics.
+
+`truav-swarm world` checks its flags, builds WorldOptions and calls :func:`host_world`.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from truav.bus import keys
+from truav.bus.transport import Bus
+from truav.config import Config
+from truav.lifecycle import EXIT_ROUTER_LOST, stop_on_sigterm_or_orphaned
+from world.world_process import WorldNode, WorldOptions, write_stats
+
+log = logging.getLogger("truav.swarm")  # the world process's log lines keep the swarm's logger name
+
+
+def host_world(cfg: Config, opts: WorldOptions, conf, router_timeout_s: float | None) -> int:
+    """Run the world on a session with Zenoh config ``conf`` until its episodes end or it is stopped
+    (SIGTERM, a lost supervisor, a router lost for ``router_timeout_s``); the process's exit code."""
+    with Bus(keys.SRC_WORLD, opts.run, conf) as bus:
+        node = WorldNode(cfg, opts, bus)
+        reasons = stop_on_sigterm_or_orphaned(node.stop, bus, router_timeout_s)
+        try:
+            stats = node.run()
+        except KeyboardInterrupt:
+            reasons.because("interrupted")
+            stats = node.stats
+        stats.rejected = bus.rejections.as_dict()
+    if opts.stats_out:
+        write_stats(opts.stats_out, stats)
+    log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
+             reasons.first or ("finished its episodes" if len(stats.episodes) == opts.episodes
+                               else "a shutdown request, see above"),
+             f"; statistics in {opts.stats_out}" if opts.stats_out else "")
+    return EXIT_ROUTER_LOST if reasons.router_lost else 0
