@@ -31,7 +31,6 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-from truav.checks import check_endpoint, check_in_file
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -321,14 +320,10 @@ def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
 
 
 def _check_endpoints(args: argparse.Namespace) -> None:
-    """What ``truav-swarm``'s main checks before any command: the -e/-l endpoints are Zenoh
-    locators, a -c file exists (``truav log record|play`` run under ``truav``'s main)."""
-    for ep in args.connect or []:
-        check_endpoint("-e/--connect", ep)
-    for ep in args.listen or []:
-        check_endpoint("-l/--listen", ep)
-    if args.config is not None:
-        check_in_file("-c/--config", args.config)
+    """What ``truav-swarm``'s main checks before any command (``truav log record|play`` run under
+    ``truav``'s main): the same check, so the same mistakes get the same one line."""
+    from truav.swarm.checks import check_transport  # deferred: it loads zenoh, which `truav --help` does not need
+    check_transport(args)
 
 
 def cmd_log_record(args: argparse.Namespace) -> int:

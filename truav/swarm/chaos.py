@@ -60,10 +60,11 @@ def degradation_table(base: dict, faulted: dict) -> str:
     return "\n".join(lines)
 
 
-def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path: Path) -> Path:
+def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path: Path,
+                 plan: FaultPlan | None = None) -> Path:
     """Coverage and missed actions with and without the plan; the plan's faults on their own lanes
     above (a bar per window, a cross for a crash), so overlapping windows never blend."""
-    plan = load_plan(plan_path)
+    plan = plan if plan is not None else load_plan(plan_path)
     n = len(plan.faults)
     fig, axes = plt.subplots(3, 1, figsize=(11, 6.5 + 0.22 * n), sharex=True,
                              gridspec_kw={"height_ratios": [0.5 + 0.28 * max(n, 1), 3, 1.6]})
@@ -135,8 +136,9 @@ def baseline_warning(base: dict, n_uavs: int, rate_hz: float) -> str | None:
             "loaded, and the changes below mix its load with the plan's faults; rerun on a quieter machine")
 
 
-def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
-    load_plan(plan_path)  # fail early on a bad plan
+def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str, plan: FaultPlan | None = None) -> int:
+    """The same seed without and with the plan at ``plan_path`` (``plan``: that file already parsed)."""
+    parsed = plan if plan is not None else load_plan(plan_path)  # fails early on a bad plan
     out = Path(opts.out or f"runs/chaos-{opts.run}")
     try:
         prepare_chaos_dir(out, resume=opts.resume, force=opts.force)
@@ -145,16 +147,16 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
         return 2
     results = {}
     rc_faulted = 0
-    for name, plan in (("baseline", None), ("faulted", plan_path)):
+    for name, path in (("baseline", None), ("faulted", plan_path)):
         print(f"== {name} run ==", flush=True)
         sub = out / name
-        run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=plan, plot=False,
+        run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=path, plan=parsed if path else None, plot=False,
                                        record=str(out / f"{name}.mcap") if opts.record else None,
                                        resume=opts.resume and sub.is_dir() and any(sub.iterdir()))
         rc = run_swarm(cfg, run_opts)
         if name == "faulted":  # the checker judges it, however it ended
             rc_faulted = rc
-            held = _check(out, sub, rc, load_plan(plan_path), opts, run_opts.record)
+            held = _check(out, sub, rc, parsed, opts, run_opts.record)
             if rc or not held:
                 return rc or 1
         elif rc:
@@ -166,7 +168,7 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str) -> int:
     if warning:
         print(f"warning: {warning}", flush=True)
     (out / "degradation.txt").write_text(table + "\n" + (f"\nwarning: {warning}\n" if warning else ""))
-    path = chaos_figure(results["baseline"], results["faulted"], plan_path, opts.rate_hz, out / "chaos.png")
+    path = chaos_figure(results["baseline"], results["faulted"], plan_path, opts.rate_hz, out / "chaos.png", parsed)
     print(f"figure: {path}")
     return rc_faulted
 
@@ -215,7 +217,7 @@ def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float
         timeout = NEMESIS_ROUTER_TIMEOUT_S
         print(f"nemesis: --router-timeout {opts.router_timeout_s:g} raised to {timeout:g} s for its router kills "
               f"(a loaded host took 7 s to start a router, and clients reconnect with a backoff)", flush=True)
-    run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=str(plan_path), plot=False, record=record,
+    run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=str(plan_path), plan=plan, plot=False, record=record,
                                    resume=False, router_timeout_s=timeout)
     rc = run_swarm(cfg, run_opts)
     held = _check(out, sub, rc, plan, opts, record)

@@ -165,6 +165,3 @@ def check_creds_fit(args, cfg: Config) -> None:
         raise UserError(f"--creds {args.creds} was made for {creds.n_uavs} agents, the scenario has "
                         f"{cfg.scenario.n_uavs} (scenario.n_uavs): pass --set scenario.n_uavs={creds.n_uavs}")
 
-
-def load_plan_for(path: str):
-    return load_plan(path)

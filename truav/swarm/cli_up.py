@@ -18,7 +18,7 @@ from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
-                                check_scheme_flags, load_plan_for)
+                                check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
@@ -62,8 +62,7 @@ def swarm_options(args):
         check_policy("--policy", args.policy, cfg, args.policy_index)
     if args.scheme == "central":
         check_central_sizes(cfg)
-    if args.fault_plan is not None:
-        check_plan("--fault-plan", args.fault_plan, n, args.scheme)
+    plan = check_plan("--fault-plan", args.fault_plan, n, args.scheme) if args.fault_plan is not None else None
     beacon_every = 1
     if args.beacon_hz is not None:
         ticks = args.rate / args.beacon_hz
@@ -81,8 +80,8 @@ def swarm_options(args):
     if args.share_beacons and args.agents_per_process == 1:
         raise UsageError("--share-beacons: shares one beacon subscription among the agents of a process; "
                          "give --agents-per-process K > 1 too")
-    if args.agents_per_process > 1 and args.fault_plan is not None:
-        kinds = {f.kind for f in load_plan_for(args.fault_plan).faults} & {"crash", "freeze"}
+    if args.agents_per_process > 1 and plan is not None:
+        kinds = {f.kind for f in plan.faults} & {"crash", "freeze"}
         if kinds:
             raise UsageError(f"--agents-per-process {args.agents_per_process}: the fault plan {args.fault_plan} "
                              f"{' and '.join(sorted(kinds))}es single agent processes; use 1 agent per process")
@@ -91,7 +90,7 @@ def swarm_options(args):
                         greedy=args.greedy,
                         out=args.out, listen=args.listen[0] if args.listen else None,
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
-                        fault_plan=args.fault_plan, foxglove_port=getattr(args, "foxglove", None),
+                        fault_plan=args.fault_plan, plan=plan, foxglove_port=getattr(args, "foxglove", None),
                         geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
@@ -141,8 +140,8 @@ def cmd_chaos(args) -> int:
     if args.nemesis is not None:
         opts.episodes = max(1, math.ceil(args.duration * opts.rate_hz / cfg.scenario.steps_per_episode))
         return chaos.run_nemesis(cfg, opts, args.nemesis, args.duration)
-    check_plan("--plan", args.plan, cfg.scenario.n_uavs, args.scheme)
-    return chaos.run_chaos(cfg, opts, args.plan)
+    plan = check_plan("--plan", args.plan, cfg.scenario.n_uavs, args.scheme)
+    return chaos.run_chaos(cfg, opts, args.plan, plan)
 
 
 def cmd_up(args) -> int:

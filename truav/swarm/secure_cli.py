@@ -19,6 +19,7 @@ import json
 from pathlib import Path
 
 from truav.bus import keys, security
+from truav.bus.rejections import REJECTED_METRIC  # the world's step-metrics key, read back here
 from truav.cli_config import UsageError
 from truav.cli_args import positive_int
 
@@ -151,17 +152,6 @@ def add_security_commands(sub) -> None:
     ex.add_argument("--key", metavar="KEY", help="for one concrete key: who may put / subscribe / watch it")
     ex.add_argument("--json", action="store_true", help="print the router's access_control section instead")
     ex.set_defaults(func=cmd_acl)
-
-
-REJECTED_METRIC = "rejected"
-"""Step-metrics value: messages the world refused so far; ``rejected.<reason>`` per reason."""
-
-
-def rejection_metrics(rejections) -> dict[str, float]:
-    """The world's step-metrics values for its :class:`~truav.bus.guard.Rejections` (bounded: one per reason)."""
-    by_reason = rejections.by_reason()
-    return {REJECTED_METRIC: float(sum(by_reason.values())),
-            **{f"{REJECTED_METRIC}.{reason}": float(n) for reason, n in by_reason.items()}}
 
 
 MAX_HEALTH_SHOWN = 1024

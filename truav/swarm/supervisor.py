@@ -105,7 +105,7 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
             check_record_path(opts.record, opts.force)
         if opts.listen:
             check_listen(opts.listen)
-        plan = load_plan(opts.fault_plan) if opts.fault_plan else None
+        plan = opts.plan if opts.plan is not None else load_plan(opts.fault_plan) if opts.fault_plan else None
         prepare_swarm_dir(out, to_toml(cfg), resume=opts.resume, force=opts.force)
         if opts.record:
             Path(opts.record).absolute().parent.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,7 @@ from agents.agent_process import AgentOptions
 from agents.central_process import ControllerOptions
 from truav.bus import keys
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
 from world.world_process import WorldOptions
@@ -63,6 +64,9 @@ class SwarmOptions:
     fault_plan: str | None = None
     """Fault plan TOML (truav.faults): link faults applied by every process,
     crashes and freezes sent by this supervisor."""
+    plan: FaultPlan | None = None
+    """``fault_plan`` already parsed (by the command line's check): the run uses it instead of reading
+    the file again, so a plan is parsed once per process."""
     resume: bool = False
     """Continue the run already in ``out`` (agents resume from its checkpoints); else ``out`` must be empty."""
     force: bool = False
