@@ -46,7 +46,7 @@ def swarm_options(args):
     if n > MAX_AGENTS and not args.force_agents:
         raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
                          + f": more than {MAX_AGENTS} agent processes is past what the reference machine runs in "
-                         f"real time (see MAX_AGENTS in truav/swarm/cli.py); add --force-agents to start them anyway")
+                         f"real time (see MAX_AGENTS in truav/swarm/cli_up.py); add --force-agents to start them anyway")
     if len(args.listen) > 1:
         raise UsageError(f"-l/--listen: the swarm's router listens on one endpoint, got {len(args.listen)}")
     for ep in args.listen:
