@@ -14,7 +14,7 @@ import numpy as np
 
 from truav.config import Config
 from truav.driver import run_episodes
-from truav.experiments.runner import Cell, _evaluate, run_cell
+from truav.experiments.cells import Cell, _evaluate, run_cell
 from truav.trainer import make_controller
 from world.env import World
 
