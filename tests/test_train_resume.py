@@ -18,6 +18,15 @@ ARGS = ["--seeds", "2", "--episodes", "30", "--quiet", "--set", "scenario.n_vehi
         "--set", "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10"]
 
 
+@pytest.fixture(autouse=True)
+def _sigint_raises():
+    """Ctrl-C as in a terminal, however pytest was started: a shell starts background jobs (`cmd &`
+    in a script, nohup) with SIGINT ignored, and `truav train` then rightly leaves it ignored."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 class _SigintAfter:
     """A progress bar that sends this process SIGINT (Ctrl-C) once ``n`` env-episodes have finished."""
 
