@@ -20,8 +20,9 @@ agent resumes from its checkpoint.
 Threads: observations and control messages come through bus callbacks;
 neighbour beacons collect in an :class:`~truav.bus.inbox.Inbox` that the main
 loop drains once per decision (cheap arrival keeps the fan-out of 20+
-agents' beacons off the CPU); in real time one thread sends this agent's
-beacon in its slot of the tick (:mod:`agents.beacon_schedule`).
+agents' beacons off the CPU); in real time the main loop also sends this
+agent's beacon in its slot of the tick while it waits for the next
+observation (:mod:`agents.beacon_schedule`); a health thread reports.
 
 :class:`AgentNode` is made of parts, one module each: what only lock-step
 uses (agents.agent_process_lockstep), what only real time uses (agents.agent_process_realtime)
@@ -123,9 +124,12 @@ class AgentOptions:
     """Real time: beacons go out this fraction of the tick period after the
     tick starts, after the burst of observation deliveries and decisions..."""
     beacon_spread: float = 0.6
-    """...spread over this fraction of the period by UAV id: synchronized sends
-    from 20+ processes on a few cores multiply the latency tail (20 agents at
-    10 Hz: one beacon every 3 ms, each reaching its 19 receivers in ~2 ms)."""
+    """...in ``beacon_slots`` slots spread over this fraction of the period (agents.beacon_schedule)."""
+    beacon_slots: int = opt(1, flag="--beacon-slots", type="positive_int", metavar="N",
+                            help="real time: the swarm's beacons go out in N slots of the tick, UAV i in slot "
+                                 "i %% N (default 1: together, so each receiver wakes once for them all)")
+    """Real time: distinct beacon send times per tick (agents.beacon_schedule): 1 sends every beacon of a tick
+    together, which Zenoh batches and a receiver takes in one wake-up; the number of UAVs gives each its own."""
     tick_period_s: float = 0.1
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this agent receives."""
@@ -219,8 +223,6 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \
             else beacon_inbox(bus, **inbox_opts)
-        # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
-        self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run), **inbox_opts)
         # Only the shutdown concerns an agent (its fault plan, if any, listens on its own key): junk on the
         # other control keys then never costs it anything.
         bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
@@ -304,19 +306,22 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._stopped_ns = time.time_ns()
         self._stop.set()
         self._obs.put(None)
-        self._wake_beacon_thread()
 
     # -- main loop --
     def run(self) -> None:
-        senders = [threading.Thread(target=self._health_loop, name="health", daemon=True)]
-        if not self.opts.lockstep:
-            senders.append(threading.Thread(target=self._beacon_loop, name="beacons", daemon=True))
-        for thread in senders:
-            thread.start()
+        health = threading.Thread(target=self._health_loop, name="health", daemon=True)
+        health.start()
         while not self._stop.is_set():
-            msg = self._obs.get()
-            if msg is not None and not self.opts.lockstep:
-                msg = self._newest_obs(msg)
+            if self.opts.lockstep:
+                msg = self._obs.get()
+            else:  # real time: the beacon goes out in its slot while this waits for the next observation
+                try:
+                    msg = self._obs.get(timeout=self._beacon_wait_s())
+                except queue.Empty:
+                    self._send_due_beacon()
+                    continue
+                if msg is not None:
+                    msg = self._newest_obs(msg)
             if msg is None:
                 break
             if msg.tick <= self._last_tick:  # overtaken: its transition is already past (and learned)
@@ -326,8 +331,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
                 continue
             self._last_tick = msg.tick
             self.handle(msg)
-        for thread in senders:  # both end on the stop within ~50 ms: then the sent counts are final
-            thread.join(SENDER_JOIN_S)
+        health.join(SENDER_JOIN_S)  # it ends on the stop within ~50 ms: then the sent counts are final
         self.checkpoint()
 
     def handle(self, obs: schema.Obs) -> None:

@@ -1,5 +1,5 @@
 """What only a real-time agent does: answer the newest observation, send its beacon in its slot of the
-tick from a thread of its own (agents.beacon_schedule), keep each peer's freshest beacon, and, with
+tick (agents.beacon_schedule; the main loop sends it while it waits for the next observation), keep each peer's freshest beacon, and, with
 range-limited beacons (``beacon_cell_m``), follow the map cells within range (agents.beacon_cells).
 
 :class:`RealtimeBeacons` is a part of agents.agent_process.AgentNode (which also holds the lock-step
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import queue
-import threading
 import time
 
 from agents.beacon_cells import BeaconCells, CellFollower, subscription_radius_m
@@ -36,11 +35,10 @@ class RealtimeBeacons:
         cfg, opts = self.cfg, self.opts
         self.stale_obs_skipped = 0
         """Real time: observations skipped because a newer one was already waiting (:meth:`_newest_obs`)."""
-        self._beacon_due = threading.Condition()  # wakes the real-time beacon thread, not every beacon heard
         self._beacons: dict[int, schema.Beacon] = {}  # real time: each peer's freshest beacon
         self._pending_beacon = None
         self._schedule = BeaconSchedule(opts.tick_period_s, opts.beacon_phase, opts.beacon_spread, opts.uav,
-                                        self.n_uavs)
+                                        self.n_uavs, slots=opts.beacon_slots)
         self._cells = None if opts.beacon_cell_m is None else BeaconCells(
             opts.beacon_cell_m, cfg.scenario.area_m, subscription_radius_m(cfg, opts.beacon_every,
                                                                            opts.beacon_max_age_ticks))
@@ -88,36 +86,32 @@ class RealtimeBeacons:
         return key
 
     def _schedule_beacon(self, obs: schema.Obs, key: str, beacon: schema.Beacon) -> None:
-        """Hand the beacon to the beacon thread, due in this agent's slot of the tick (if it sends one)."""
+        """Make the beacon due in this agent's slot of the tick (if it sends one): the main loop sends it then."""
         o = self.opts
-        for r in self._tick_inbox.drain():
-            self._schedule.observe(r.msg.tick, r.msg.t / 1e9)
-        self._schedule.observe(obs.tick, obs.t / 1e9)  # later than its tick's start: never lowers the estimate wrongly
+        # The world stamps every observation right after its tick starts: the minimum over recent ticks is the
+        # tick start (agents.beacon_schedule). (A tick subscription of its own cost a thread wake-up per tick.)
+        self._schedule.observe(obs.tick, obs.t / 1e9)
         if obs.done or not sends_beacon(obs.tick, o.uav, o.beacon_every):  # done: no one acts on this tick
             return
+        self._send_due_beacon()  # a beacon still waiting (this agent fell behind) goes out before it is replaced
         due = time.monotonic() + self._schedule.due(obs.tick) - time.time()  # world clock -> this host's monotonic
-        with self._beacon_due:
-            self._pending_beacon = (due, key, beacon)
-            self._beacon_due.notify()
+        self._pending_beacon = (due, key, beacon)
 
-    def _beacon_loop(self) -> None:
-        """Real time: one thread sends the latest pending beacon at its due time."""
-        while not self._stop.is_set():
-            with self._beacon_due:
-                pending = self._pending_beacon
-                if pending is None or pending[0] > time.monotonic():
-                    wait = 0.05 if pending is None else min(pending[0] - time.monotonic(), 0.05)
-                    self._beacon_due.wait(max(wait, 0.0))
-                    continue
-                self._pending_beacon = None
-            try:
-                self.bus.publish(pending[1], pending[2])
-            except RuntimeError:  # bus closed at shutdown
-                return
+    def _beacon_wait_s(self) -> float | None:
+        """Real time: how long the main loop may wait for an observation before the pending beacon is due."""
+        pending = self._pending_beacon
+        return None if pending is None else max(pending[0] - time.monotonic(), 0.0)
 
-    def _wake_beacon_thread(self) -> None:
-        with self._beacon_due:
-            self._beacon_due.notify()
+    def _send_due_beacon(self) -> None:
+        """Send the pending beacon if it is due (main loop; one thread fewer to wake per tick than a sender's)."""
+        pending = self._pending_beacon
+        if pending is None or pending[0] > time.monotonic():
+            return
+        self._pending_beacon = None
+        try:
+            self.bus.publish(pending[1], pending[2])
+        except RuntimeError:  # bus closed at shutdown
+            pass
 
     def _keep_freshest_beacon(self, b: schema.Beacon) -> None:
         """A peer's beacon heard (under the node's lock): kept if it is its newest."""

@@ -1,8 +1,13 @@
 """When a real-time agent sends its beacon: a fixed slot in the world's tick, by UAV id.
 
-Beacons are spread over the tick so that 20+ processes on a few cores never
-send at once, and they go out after the burst of observation deliveries at
-the start of each tick, not into it.  The slot is anchored to the *start of
+The UAVs share a few send slots per tick (``slots``; UAV ``i`` sends in slot
+``i % slots``), after the burst of observation deliveries at the start of each
+tick, not into it.  Few slots is what makes beacons cheap to receive: the
+beacons of one slot reach each receiver together, so Zenoh carries them in a
+few batches and the receiver wakes once for many of them, where one slot per
+UAV woke every receiver once per beacon (measured with ``bench/bench_swarm.py``
+and ``bench/bench_beacon_rx.py``: 50 agents, 2 cores, see docs/architecture.md
+"Scale").  The slot is anchored to the *start of
 the tick* rather than to when this agent got round to its observation: with
 20 agents the observations reach the last agent 5-30 ms after the first, and
 anchoring to that pushes late slots into the next tick's burst (measured with
@@ -32,16 +37,19 @@ DEFAULT_WINDOW = 50
 
 @dataclass
 class BeaconSchedule:
-    """The beacon slot of UAV ``uav`` of ``n_uavs``: ``phase + spread * uav / n_uavs`` of the period after tick start."""
+    """The beacon slot of UAV ``uav`` of ``n_uavs``: ``phase + spread * (uav % slots) / slots`` of the period
+    after tick start."""
 
     period_s: float
     """The world's tick period."""
     phase: float
     """Fraction of the period after tick start at which UAV 0 sends."""
     spread: float
-    """Fraction of the period the slots of all UAVs are spread over, by id."""
+    """Fraction of the period the slots are spread over."""
     uav: int
     n_uavs: int
+    slots: int = 1
+    """Distinct send times per tick; UAV ``i`` sends in slot ``i % slots`` (``n_uavs``: one slot per UAV)."""
     window: int = DEFAULT_WINDOW
     _origins: deque = field(default_factory=deque, init=False, repr=False)
 
@@ -52,6 +60,8 @@ class BeaconSchedule:
             raise ValueError(f"need 0 <= phase, 0 <= spread and phase + spread <= 1, got {self.phase}, {self.spread}")
         if not 0 <= self.uav < max(self.n_uavs, 1):
             raise ValueError(f"uav {self.uav} not in [0, {self.n_uavs})")
+        if self.slots < 1:
+            raise ValueError(f"slots must be >= 1, got {self.slots}")
         if self.window < 1:
             raise ValueError(f"window must be >= 1, got {self.window}")
         self._origins = deque(maxlen=self.window)
@@ -59,7 +69,8 @@ class BeaconSchedule:
     @property
     def offset_s(self) -> float:
         """This UAV's slot, in seconds after tick start."""
-        return (self.phase + self.spread * self.uav / max(self.n_uavs, 1)) * self.period_s
+        slots = min(self.slots, max(self.n_uavs, 1))
+        return (self.phase + self.spread * (self.uav % slots) / slots) * self.period_s
 
     def observe(self, tick: int, stamp_s: float) -> None:
         """Record a world message of ``tick`` sent at ``stamp_s`` (world clock, seconds), in any order."""

@@ -6,6 +6,9 @@
     python bench/bench_swarm.py --secure         # plain and --secure (mutual TLS + ACL) in turn: the cost of TLS
     python bench/bench_swarm.py --sweep 5,10,20,50,100 --modes realtime,lockstep --variants base,hz1,cells,k10
                                                  # the scale table: every N x mode x variant, CSV + JSON + plot
+    python bench/bench_swarm.py --sweep 20,50 --modes realtime --compare ../old-checkout --repeat 2 --max-load 1
+                                                 # this code against another checkout's, runs alternated, each
+                                                 # after the load average fell below 1; ratios printed at the end
 
 A sweep writes runs/bench-swarm/sweep.csv, sweep.json and sweep.png (``--sweep-out``), one row per
 run: tick lateness, beacon latency (all receptions, first and last receiver of each beacon),
@@ -14,8 +17,14 @@ over the ticking window), lock-step ticks/s and real-time factor (ticks/s over -
 load average before and after (the reference machine is shared: read the numbers beside it).
 Variants (joined with '+'): base (all-to-all, every tick, one process per agent), hz1 (beacons at
 1 Hz, the Remote ID rate), cells (range-limited beacons, 500 m cells), k<K> (K agents per
-process), shared (with k<K>: one beacon subscription per process).  Real-time-only options are
-skipped in lock-step.
+process), shared (with k<K>: one beacon subscription per process), batch (with k<K>: one beacon
+message per process and tick), slots<N> (beacons in N send slots per tick).  Real-time-only options
+are skipped in lock-step.
+
+With ``--compare DIR[,DIR...]`` every run goes through bench/swarm_runs.py: ``truav-swarm up`` of
+this checkout and of each DIR (another checkout, e.g. a ``git worktree`` of an older commit) in
+turn, measured the same way from outside; rows carry the code's commit and the end prints, per
+configuration, the median of each figure per code and the ratio of this code's to the other's.
 
 Prints world tick lateness p50/p99 (target p99 < 20 ms), one-way beacon
 latency p50/p99 over every beacon every agent heard (target p99 < 5 ms),
@@ -42,6 +51,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from truav.config import Config  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
+import swarm_runs  # noqa: E402
 
 
 def _cpu_s() -> float:
@@ -129,18 +139,37 @@ def variant_options(variant: str, rate: float, lockstep: bool) -> dict:
             opts["beacon_cell_m"] = float(part[5:] or CELL_M)
         elif part == "shared":
             opts["share_beacons"] = True
+        elif part == "batch":
+            opts["batch_beacons"] = True
+        elif part.startswith("slots") and part[5:].isdigit():
+            opts["beacon_slots"] = int(part[5:])
         elif part[:1] == "k" and part[1:].isdigit():
             opts["agents_per_process"] = int(part[1:])
         else:
-            raise SystemExit(f"bench_swarm: error: --variants: unknown part {part!r} (base, hz1, cells[M], k<K>, shared)")
+            raise SystemExit(f"bench_swarm: error: --variants: unknown part {part!r} (base, hz1, cells[M], k<K>, shared, "
+                             f"batch, slots<N>)")
     if lockstep:
-        opts.pop("beacon_every", None)
-        opts.pop("beacon_cell_m", None)
+        for real_time_only in ("beacon_every", "beacon_cell_m", "beacon_slots"):
+            opts.pop(real_time_only, None)
     return opts
 
 
+UP_FLAGS = {"beacon_every": "--beacon-every", "beacon_cell_m": "--beacon-cell", "share_beacons": "--share-beacons",
+            "batch_beacons": "--batch-beacons", "agents_per_process": "--agents-per-process",
+            "beacon_slots": "--beacon-slots"}
+
+
+def up_flags(opts: dict) -> list[str]:
+    """The `truav-swarm up` flags of a variant's options (for --compare, which runs the command line)."""
+    out: list[str] = []
+    for name, value in opts.items():
+        out += [UP_FLAGS[name]] if value is True else [UP_FLAGS[name], f"{value:g}" if isinstance(value, float)
+                                                       else str(value)]
+    return out
+
+
 def realtime_only(variant: str) -> bool:
-    return any(p == "hz1" or p.startswith("cells") for p in variant.split("+"))
+    return any(p == "hz1" or p.startswith("cells") or p.startswith("slots") for p in variant.split("+"))
 
 
 def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, started_wall_s: float) -> dict:
@@ -167,6 +196,7 @@ def window_figures(out: Path, world: dict, agents: int, sampler: ProcSampler, st
             "cpu_cores_total": total if rates else float("nan"),
             "cpu_cores": {n: round(v, 4) for n, v in rates.items()},
             "cpu_us_per_msg": 1e6 * total / msgs if rates and msgs > 0 else float("nan"),
+            "agent_cpu_us_per_msg": 1e6 * agent_cpu / msgs if rates and msgs > 0 else float("nan"),
             "rss_mb_per_agent": sum(sampler.rss_kb[n] for n in agent_names) / 1024 / agents,
             "pss_mb_per_agent": sum(sampler.pss_kb.get(n, 0) for n in agent_names) / 1024 / agents}
 
@@ -235,7 +265,8 @@ def run_once(agents: int, rate: float, ticks: int, secure: bool = False, lockste
     print(f"ticking {result['ticking_s']:.1f} s: {result['ticks_per_s']:.1f} ticks/s (x{result['realtime_factor']:.2f}"
           f" of {rate:g} Hz); {result['msgs_per_s']:,.0f} messages/s delivered; per agent "
           f"{result['cpu_pct_per_agent']:.1f}% CPU, {result['rss_mb_per_agent']:.0f} MB; all processes "
-          f"{result['cpu_cores_total']:.2f} cores, {result['cpu_us_per_msg']:.0f} us CPU per delivered message")
+          f"{result['cpu_cores_total']:.2f} cores, {result['cpu_us_per_msg']:.0f} us CPU per delivered message "
+          f"({result['agent_cpu_us_per_msg']:.0f} us in the agent processes)")
     print(f"control plane: {cp['bytes_per_beacon']:.0f} B/beacon, {cp['beacons_per_s_per_uav']:.1f} beacons/s/UAV, "
           f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s total")
     if keep:
@@ -245,12 +276,12 @@ def run_once(agents: int, rate: float, ticks: int, secure: bool = False, lockste
     return result
 
 
-SWEEP_FIELDS = ["agents", "mode", "variant", "rate_hz", "ticks", "exit_code", "load_before", "load_after",
+SWEEP_FIELDS = ["code", "agents", "mode", "variant", "rate_hz", "ticks", "exit_code", "load_before", "load_after",
                 "wall_s", "startup_s", "ticking_s", "ticks_per_s", "realtime_factor", "tick_p50", "tick_p99",
                 "beacon_p50", "beacon_p99", "first_receiver_p50", "first_receiver_p99", "last_receiver_p50",
                 "last_receiver_p99", "missed", "missed_pct", "beacons_per_s_per_uav", "msgs_per_s",
-                "agent_processes", "cpu_pct_per_agent", "cpu_cores_total", "cpu_us_per_msg", "rss_mb_per_agent",
-                "pss_mb_per_agent"]
+                "agent_processes", "cpu_pct_per_agent", "cpu_cores_total", "cpu_us_per_msg", "agent_cpu_us_per_msg",
+                "rss_mb_per_agent", "pss_mb_per_agent"]
 MEM_PER_AGENT_PROCESS_MB = 120
 """Refuse a run whose agent processes would not fit in the memory available (with this much each)."""
 
@@ -265,6 +296,8 @@ def sweep(args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "sweep.json"
     rows = json.loads(rows_path.read_text()) if args.append and rows_path.exists() else []
+    codes = [Path(__file__).resolve().parent.parent] + [Path(d).resolve() for d in args.compare.split(",")] \
+        if args.compare else []
     for _ in range(args.repeat):
         for n in sizes:
             for mode in modes:
@@ -278,17 +311,70 @@ def sweep(args) -> None:
                         print(f"skip {n} agents {mode} {variant}: ~{need:.0f} MB needed, {avail:.0f} MB available")
                         continue
                     ticks = args.lockstep_ticks if mode == "lockstep" and args.lockstep_ticks else args.ticks
-                    r = run_once(n, args.rate, ticks, lockstep=mode == "lockstep", variant=variant,
-                                 keep=args.keep_runs)
-                    rows.append(r)
-                    rows_path.write_text(json.dumps(rows, indent=1))
-                    write_csv(out / "sweep.csv", rows)
+                    for code in codes or [None]:
+                        load = swarm_runs.wait_for_quiet(args.max_load, args.load_wait) if args.max_load else None
+                        if code is None:
+                            r = run_once(n, args.rate, ticks, lockstep=mode == "lockstep", variant=variant,
+                                         keep=args.keep_runs)
+                        else:
+                            r = compared_run(code, n, args.rate, ticks, mode, variant)
+                            if r is None:
+                                continue
+                        if load is not None:
+                            r["load_before"] = load
+                        rows.append(r)
+                        rows_path.write_text(json.dumps(rows, indent=1))
+                        write_csv(out / "sweep.csv", rows)
     print(f"\n{len(rows)} runs in {out}/sweep.csv and sweep.json")
     print(table(rows))
+    if codes:
+        print(ratios(rows, swarm_runs.label(codes[0])))
     fit = cost_fit(rows)
     if fit:
         print(fit)
     print(f"plot: {plot(rows, out / 'sweep.png')}")
+
+
+def compared_run(code: Path, n: int, rate: float, ticks: int, mode: str, variant: str) -> dict | None:
+    """One run of checkout ``code`` through the command line (bench/swarm_runs.py); None if it failed."""
+    try:
+        r = swarm_runs.run_checkout(code, n, rate, ticks, mode == "lockstep",
+                                    up_flags(variant_options(variant, rate, mode == "lockstep")))
+    except RuntimeError as exc:
+        print(f"skip: {n} agents {mode} {variant} with {code}: {exc}")
+        return None
+    r["variant"] = variant
+    print(f"{r['code']:>9s} {n:4d} agents {mode:8s} {variant:12s} load {r['load_before']:.2f}: missed "
+          f"{r['missed_pct']:.2f}%, beacon p99 {r['beacon_p99']:.1f} ms, {r['msgs_per_s']:,.0f} msgs/s, "
+          f"{r['cpu_cores_total']:.2f} cores, {r['cpu_us_per_msg']:.1f} us/msg (agents {r['agent_cpu_us_per_msg']:.1f}), "
+          f"x{r['realtime_factor']:.2f} real time, exit {r['exit_code']}", flush=True)
+    return r
+
+
+RATIO_FIELDS = (("missed_pct", "missed %"), ("beacon_p99", "beacon p99 ms"), ("cpu_us_per_msg", "us CPU/msg"),
+                ("agent_cpu_us_per_msg", "agent us/msg"), ("cpu_cores_total", "cores"),
+                ("realtime_factor", "x real time"))
+
+
+def ratios(rows: list[dict], this: str) -> str:
+    """Per configuration: the median of each figure per code, and this code's over each other's."""
+    lines = ["| N | mode | variant | code | runs | " + " | ".join(t for _, t in RATIO_FIELDS) + " |",
+             "|" + "---|" * (5 + len(RATIO_FIELDS))]
+    configs = sorted({(r["agents"], r["mode"], r["variant"]) for r in rows if "code" in r})
+    for cfg in configs:
+        by_code: dict[str, list[dict]] = {}
+        for r in rows:
+            if "code" in r and (r["agents"], r["mode"], r["variant"]) == cfg:
+                by_code.setdefault(r["code"], []).append(r)
+        med = {c: {k: float(np.median([r[k] for r in rs])) for k, _ in RATIO_FIELDS} for c, rs in by_code.items()}
+        for c, rs in by_code.items():
+            lines.append(f"| {cfg[0]} | {cfg[1]} | {cfg[2]} | {c} | {len(rs)} | "
+                         + " | ".join(_f(med[c][k], 2) for k, _ in RATIO_FIELDS) + " |")
+        for c in by_code:
+            if c != this and this in med:
+                lines.append(f"| {cfg[0]} | {cfg[1]} | {cfg[2]} | {this} / {c} | | " + " | ".join(
+                    f"x{med[this][k] / med[c][k]:.2f}" if med[c][k] else "-" for k, _ in RATIO_FIELDS) + " |")
+    return "\n".join(lines)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
@@ -397,6 +483,12 @@ def main() -> None:
     ap.add_argument("--lockstep-ticks", type=int, help="with --sweep: ticks of the lock-step runs (default --ticks)")
     ap.add_argument("--keep-runs", action="store_true", help="with --sweep: keep each run's directory (logs, checkpoints)")
     ap.add_argument("--append", action="store_true", help="with --sweep: add to the runs already in sweep.json")
+    ap.add_argument("--compare", metavar="DIR[,DIR]", help="with --sweep: also run each configuration with these "
+                    "checkouts' code, alternated with this one's, all through `truav-swarm up` (bench/swarm_runs.py)")
+    ap.add_argument("--max-load", type=float, metavar="L", help="with --sweep: before each run wait until the "
+                    "1-minute load average is below L (a figure taken beside other jobs is noise)")
+    ap.add_argument("--load-wait", type=float, default=600.0, metavar="S",
+                    help="with --max-load: wait at most this long per run (default 600)")
     args = ap.parse_args()
     if args.sweep:
         sweep(args)

@@ -15,14 +15,30 @@ def schedule(uav: int = 0, n: int = 20, **kw) -> BeaconSchedule:
     return BeaconSchedule(PERIOD, phase=0.3, spread=0.6, uav=uav, n_uavs=n, **kw)
 
 
-def test_slots_are_evenly_spread_by_uav_id_within_the_tick() -> None:
+def test_one_slot_per_uav_spreads_them_evenly_by_id_within_the_tick() -> None:
     slots = []
     for uav in range(20):
-        s = schedule(uav)
+        s = schedule(uav, slots=20)
         s.observe(7, ORIGIN + 7 * PERIOD)
         slots.append(s.due(7) - (ORIGIN + 7 * PERIOD))
     np.testing.assert_allclose(np.diff(slots), 0.6 * PERIOD / 20)
     assert slots[0] == pytest.approx(0.3 * PERIOD) and slots[-1] < PERIOD
+
+
+@pytest.mark.parametrize("n_slots", [1, 3, 4])
+def test_uavs_share_a_few_slots_by_id_modulo(n_slots) -> None:
+    offsets = []
+    for uav in range(20):
+        s = schedule(uav, slots=n_slots)
+        s.observe(7, ORIGIN + 7 * PERIOD)
+        offsets.append(round(s.due(7) - (ORIGIN + 7 * PERIOD), 9))
+    assert len(set(offsets)) == n_slots  # the beacons of a slot go out together: a receiver wakes once for them
+    assert offsets[:n_slots] == sorted(offsets[:n_slots]) and offsets[n_slots:] == offsets[:20 - n_slots]
+    assert min(offsets) == pytest.approx(0.3 * PERIOD) and max(offsets) < 0.9 * PERIOD + 1e-9
+
+
+def test_the_default_is_one_slot_for_every_uav() -> None:
+    assert len({schedule(uav).offset_s for uav in range(20)}) == 1
 
 
 def test_late_stamps_do_not_move_the_slot() -> None:
@@ -63,7 +79,7 @@ def test_the_window_forgets_old_stamps() -> None:
 
 
 @pytest.mark.parametrize("kw", [dict(phase=0.6, spread=0.5), dict(phase=-0.1, spread=0.5), dict(uav=20),
-                                dict(window=0)])
+                                dict(window=0), dict(slots=0)])
 def test_bad_settings_are_rejected(kw) -> None:
     args = dict(period_s=PERIOD, phase=0.3, spread=0.6, uav=0, n_uavs=20) | kw
     with pytest.raises(ValueError):

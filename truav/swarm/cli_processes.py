@@ -163,7 +163,7 @@ def add_process_commands(sub) -> None:
     ag.add_argument("--id", type=non_negative_int, required=True, action="append",
                     help="UAV id in [0, n_uavs); repeat it to host several agents in this process, each with its "
                          "own session and identity ({id} in --checkpoint and --stats-out then names each file)")
-    add_options(ag, AgentOptions, ["beacon_every", "beacon_cell_m"])
+    add_options(ag, AgentOptions, ["beacon_every", "beacon_cell_m", "beacon_slots"])
     ag.add_argument("--share-beacons", action="store_true",
                     help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
                          "once per process, not once per agent); each agent still checks and counts its own")

@@ -13,7 +13,8 @@ import re
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_out_dir, check_out_file
 from truav.cli_config import UsageError, parse_sets
-from truav.cli_args import non_negative_int, positive_float, positive_int, share, tcp_port
+from agents.agent_process import AgentOptions
+from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, share, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
@@ -95,7 +96,7 @@ def swarm_options(args):
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
-                        agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
+                        beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
                         restart=args.restart, restart_limit=args.restart_limit)
     return cfg, opts
 
@@ -190,6 +191,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--beacon-cell", type=positive_float, metavar="M",
                     help="real time: range-limited beacons under map cells of M metres; each agent hears only the "
                          "cells within range of it, and decides as with all beacons (agents/beacon_cells.py)")
+    add_options(up, AgentOptions, ["beacon_slots"])
     up.add_argument("--agents-per-process", type=positive_int, default=1, metavar="K",
                     help="host K agents per OS process, each with its own session, identity and files (default 1)")
     up.add_argument("--share-beacons", action="store_true",

@@ -246,13 +246,14 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 agent = AgentOptions(checkpoint=str(out / f"agent{name}.npz"), stats_out=str(out / f"agent{name}.json"),
                                      checkpoint_every=opts.checkpoint_every, qtable=opts.qtable or None,
                                      command_hold_s=opts.command_hold_s, beacon_every=opts.beacon_every,
-                                     beacon_cell_m=opts.beacon_cell_m)
+                                     beacon_cell_m=opts.beacon_cell_m, beacon_slots=opts.beacon_slots)
                 extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every"]), *scheme,
                          *to_argv(agent, ["qtable"])]
                 extra += ["--greedy"] if opts.greedy else []
                 extra += to_argv(agent, ["command_hold_s"]) if self.central else []
                 extra += to_argv(agent, ["beacon_every"]) if opts.beacon_every != 1 else []
                 extra += to_argv(agent, ["beacon_cell_m"])
+                extra += to_argv(agent, ["beacon_slots"]) if opts.beacon_slots != AgentOptions.beacon_slots else []
                 extra += ["--share-beacons"] if opts.share_beacons and len(ids) > 1 else []
                 self.children.start(group_name(ids), _python_module(
                     "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,

@@ -92,6 +92,8 @@ class SwarmOptions:
     """Real time: agents beacon every this many ticks (10 at 10 Hz: 1 Hz, the Remote ID rate)."""
     beacon_cell_m: float | None = AgentOptions.beacon_cell_m
     """Real time: range-limited beacons under map cells of this side (agents/beacon_cells.py); None: all-to-all."""
+    beacon_slots: int = AgentOptions.beacon_slots
+    """Real time: the swarm's beacons go out in this many send slots per tick (agents/beacon_schedule.py)."""
     agents_per_process: int = 1
     """Agents hosted by one OS process, each with its own session, identity and files (fewer processes:
     less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
