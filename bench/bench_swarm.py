@@ -391,14 +391,16 @@ def table(rows: list[dict]) -> str:
     head = ("| N | mode | variant | load | tick p99 ms | beacon p99 ms | first / last rcv p50 ms | missed % "
             "| msgs/s | CPU %/agent | MB/agent (PSS) | ticks/s | x real time |")
     lines = [head, "|" + "---|" * head.count("|")[:-1] if False else "|" + "---|" * (head.count("|") - 1)]
+    nan = float("nan")
     for r in rows:
         rt = r["mode"] == "realtime"
+        g = lambda k: r.get(k, nan)  # noqa: E731  (rows of --compare runs lack the in-process figures)
         lines.append(
-            f"| {r['agents']} | {'real time' if rt else 'lock-step'} | {r['variant']} | {r['load_before']:.1f} "
-            f"| {_f(r['tick_p99'], 1) if rt else '-'} | {_f(r['beacon_p99'], 1)} "
-            f"| {_f(r['first_receiver_p50'], 1)} / {_f(r['last_receiver_p50'], 1)} "
-            f"| {_f(r['missed_pct'], 1) if rt else '-'} | {_f(r['msgs_per_s'], 0)} | {_f(r['cpu_pct_per_agent'], 1)} "
-            f"| {_f(r['pss_mb_per_agent'], 0)} | {_f(r['ticks_per_s'], 1)} | {_f(r['realtime_factor'], 2)} |")
+            f"| {r['agents']} | {'real time' if rt else 'lock-step'} | {r['variant']}{' @' + r['code'] if 'code' in r else ''} "
+            f"| {r['load_before']:.1f} | {_f(g('tick_p99'), 1) if rt else '-'} | {_f(g('beacon_p99'), 1)} "
+            f"| {_f(g('first_receiver_p50'), 1)} / {_f(g('last_receiver_p50'), 1)} "
+            f"| {_f(g('missed_pct'), 1) if rt else '-'} | {_f(g('msgs_per_s'), 0)} | {_f(g('cpu_pct_per_agent'), 1)} "
+            f"| {_f(g('pss_mb_per_agent'), 0)} | {_f(g('ticks_per_s'), 1)} | {_f(g('realtime_factor'), 2)} |")
     return "\n".join(lines)
 
 

@@ -34,6 +34,12 @@ def cli_module(code: Path) -> str:
     return "truav.swarm.cli" if (code / "truav" / "swarm" / "cli.py").exists() else "truav.swarm_cli"
 
 
+def accepts_force_agents(code: Path) -> bool:
+    """Whether checkout ``code``'s `up` has --force-agents (older ones had no limit to lift)."""
+    sources = [*(code / "truav" / "swarm").glob("cli*.py"), code / "truav" / "swarm_cli.py"]
+    return any(p.exists() and "--force-agents" in p.read_text() for p in sources)
+
+
 def label(code: Path) -> str:
     """A checkout's short commit (with ``+`` if its tree has changes)."""
     try:
@@ -118,6 +124,8 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
                  timeout_s: float = 1800.0) -> dict:
     """``truav-swarm up`` of checkout ``code`` once; its figures (see the module docstring)."""
     out = Path(tempfile.mkdtemp(prefix="truav-bench-cmp-"))
+    if agents > 50 and accepts_force_agents(code):
+        extra = [*extra, "--force-agents"]  # a benchmark may go past the interactive limit
     cmd = [sys.executable, "-c", f"import sys; from {cli_module(code)} import main; sys.exit(main())", "up",
            "--agents", str(agents), "--episodes", "1", "--steps", str(ticks), "--rate", f"{rate:g}",
            "--out", str(out / "run"), "--quiet", "--no-plot", *(["--lockstep"] if lockstep else []), *extra]
@@ -149,20 +157,27 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
         t1 = max(sampler.world_alive)
         t0 = t1 - n_ticks / rate
     ticking = (t1 - t0) if t0 and t1 else float("nan")
-    lat, received = [], 0
+    lat, received, by_beacon = [], 0, {}
     for i in range(agents):
         try:
             stats = json.loads((run / f"agent{i}.json").read_text())
         except (OSError, ValueError):
             continue
-        lat += stats.get("beacon_latency_samples_ms", [])
+        samples = stats.get("beacon_latency_samples_ms", [])
+        lat += samples
+        for sender_tick, ms in zip(stats.get("beacon_latency_from", []), samples):
+            by_beacon.setdefault(tuple(sender_tick), []).append(ms)
         received += stats.get("bus", {}).get("received", 0)
+    first = np.array([min(v) for v in by_beacon.values()] or [np.nan])
+    last = np.array([max(v) for v in by_beacon.values()] or [np.nan])
     cores = sampler.cores(t0, t1) if t0 and t1 else {}
     msgs_per_s = received / ticking if ticking > 0 else float("nan")
     total = sum(cores.values()) if cores else float("nan")
     agent_cores = cores.get("agent", float("nan"))
     lat_a = np.array(lat) if lat else np.array([np.nan])
     tl = world.get("tick_lateness_ms") or {}
+    if isinstance(tl, list):  # older worlds wrote the samples
+        tl = {"p99": float(np.percentile(tl, 99))} if tl else {}
     misses = int(world.get("deadline_misses", 0))
     shutil.rmtree(out, ignore_errors=True)
     return {
@@ -174,6 +189,8 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
         "missed": misses, "missed_pct": 100 * misses / max(agents * ticks, 1),
         "tick_p99": tl.get("p99", float("nan")) if isinstance(tl, dict) else float("nan"),
         "beacon_p50": float(np.nanpercentile(lat_a, 50)), "beacon_p99": float(np.nanpercentile(lat_a, 99)),
+        "first_receiver_p50": float(np.nanpercentile(first, 50)), "first_receiver_p99": float(np.nanpercentile(first, 99)),
+        "last_receiver_p50": float(np.nanpercentile(last, 50)), "last_receiver_p99": float(np.nanpercentile(last, 99)),
         "msgs_per_s": msgs_per_s, "cpu_cores_total": total, "cpu_cores": cores,
         "agent_processes": len(sampler.agent_pids),
         "cpu_pct_per_agent": 100 * agent_cores / agents,

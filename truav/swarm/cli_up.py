@@ -44,10 +44,13 @@ def swarm_options(args):
     if args.steps is not None:
         cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
     n = cfg.scenario.n_uavs
-    if n > MAX_AGENTS and not args.force_agents:
+    processes = -(-n // args.agents_per_process)
+    if processes > MAX_AGENTS and not args.force_agents:
         raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
+                         + (f" at --agents-per-process {args.agents_per_process}" if args.agents_per_process > 1 else "")
                          + f": more than {MAX_AGENTS} agent processes is past what the reference machine runs in "
-                         f"real time (see MAX_AGENTS in truav/swarm/cli_up.py); add --force-agents to start them anyway")
+                         f"real time (see MAX_AGENTS in truav/swarm/cli_up.py); host more agents per process "
+                         f"(--agents-per-process), or add --force-agents to start them anyway")
     if len(args.listen) > 1:
         raise UsageError(f"-l/--listen: the swarm's router listens on one endpoint, got {len(args.listen)}")
     for ep in args.listen:
