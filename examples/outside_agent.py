@@ -88,12 +88,13 @@ def main() -> int:
             if obs.get("kind") != "obs" or obs.get("uav") != me or obs["tick"] <= last_tick:
                 continue
             tick, last_tick = obs["tick"], obs["tick"]
-            # Every observation, `done` included, gets a beacon: lock-step peers wait for it.
+            if obs["done"] and not args.lockstep:
+                continue  # real time: neither beacon nor answer for `done` (an answer would count as late)
+            # Lock-step: every observation, `done` included, gets a beacon (the peers wait for it), then an action.
             out.send(f"{base}/uav/{me}/beacon", "beacon", uav=me, tick=tick, pos=obs["pos"], vel=vel)
-            if obs["done"]:
-                if args.lockstep:  # the acknowledgement the world waits for; its action is ignored
-                    out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=0)
-                continue  # real time: never answer `done` (the answer would count as late)
+            if obs["done"]:  # the acknowledgement the world waits for; its action is ignored
+                out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=0)
+                continue
             action = rng.randrange(N_ACTIONS)
             out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=action)
             vel, answered = velocity(action, obs["speed_max"]), answered + 1
