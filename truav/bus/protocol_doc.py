@@ -52,6 +52,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "state": ("uav/i", "central controller (scheme central)"),
     "command": ("controller", "agent i (scheme central)"),
     "health": ("uav/i", "supervisor, status, recorder"),
+    "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
@@ -60,6 +61,7 @@ KEY_TAILS: Mapping[str, str] = {
     keys.FAULT_ROOT: "<fault>",
     keys.CONTROL_ROOT: "<part>[/<part>...]",
     keys.CONTROLLER: f"{keys.COMMAND}/<i>",
+    "group": "<first>-<last>/beacons",  # --batch-beacons: one process's UAVs first..last
 }
 """The key chunks after a one-chunk ``PLACE`` (the rest of the key names the instance)."""
 
@@ -167,6 +169,10 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "rejected": ("", "messages it refused so far, by reason (the table of reasons)"),
         "senders": ("", "messages it refused so far, by sender: only the most refused"),
     },
+    "beacons": {
+        "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
+                              "beacon's meaning and bounds; only the UAVs first..last of the key, each once"),
+    },
 }
 
 REASON_NOTES: Mapping[str, str] = {
@@ -245,6 +251,9 @@ def describe(check: Any) -> tuple[str, str]:
         return "map (JSON-like: nil, bool, int, float64, str, array, map)", (
             f"nesting <= {schema_names.MAX_ARGS_DEPTH}, <= {schema_names.MAX_ARGS_NODES} values, strings <= "
             f"{schema_names.MAX_ARGS_STR_LEN} characters, map keys str <= {schema_names.MAX_NAME_LEN}")
+    if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)
+        return "array of [int, int, [x, y], [vx, vy]]", (f"1..{keys.MAX_UAVS} entries: uav [0, {keys.MAX_UAVS - 1}], "
+                                                          f"tick [0, 2^63-1], finite float64 pairs")
     raise ValueError(f"protocol_doc.describe: cannot read the check {name or check!r}; teach it this check")
 
 
