@@ -12,6 +12,10 @@ and the parts, for other hosts or terminals (zenoh-example style flags):
     truav-swarm world --run demo -e tcp/HOST:7447
     truav-swarm agent --id 3 --run demo -e tcp/HOST:7447
     truav-swarm controller --run demo -e tcp/HOST:7447 --policy RUN   # --scheme central's controller
+
+and the wire protocol, for an agent of your own (docs/protocol.md, examples/outside_agent.py):
+
+    truav-swarm schema --out schemas        # the JSON Schemas of every message kind
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from truav.cli_args import OneLineParser, UserError, run_main
 from truav.swarm.checks import check_central_sizes, check_policy, check_transport  # noqa: F401 - check_*: truav.experiments.faults
 from truav.swarm.cli_ops import add_ops_commands
 from truav.swarm.cli_processes import add_process_commands
+from truav.swarm.cli_schema import add_schema_commands
 from truav.swarm.cli_up import add_up_commands
 from truav.swarm.secure_cli import add_security_commands
 
@@ -37,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_ops_commands(sub)
     add_process_commands(sub)
     add_security_commands(sub)
+    add_schema_commands(sub)
 
     try:
         from recorder.cli import add_swarm_commands

@@ -1,0 +1,420 @@
+"""The tables of docs/protocol.md that come from the schema, generated (pure: text in, text out).
+
+Each table is built from the schema itself: the message kinds from the registry
+(:data:`truav.bus.messages.MESSAGE_CLASSES`, so a kind added there appears here), each field's wire type
+and range from its check (:mod:`truav.bus.field_checks`, read from the check's closure), keys from each
+kind's ``PLACE``, limits from :mod:`truav.bus.schema_names` and the codec's msgpack limits, the refusal
+reasons from the ``R_*`` constants, the action numbering from the world's own velocity table
+(``world.uavs.ACTION_UNIT_VELOCITY``). What cannot be read from code (a field's unit and meaning, who
+sends a kind) is kept here by hand, next to the tables, in :data:`FIELD_NOTES` and friends; a field or
+reason without a note is rendered with :data:`NO_NOTE`, which tests/test_protocol_doc.py refuses.
+
+The document keeps its prose by hand and holds each table between two markers::
+
+    <!-- generated: NAME -->
+    ...
+    <!-- end generated: NAME -->
+
+:func:`render_into` replaces what is between them; ``truav-swarm schema --doc docs/protocol.md``
+rewrites the file (``--check``: only says whether it is up to date).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from truav.actions import HOVER, N_ACTIONS
+from truav.bus import guard, keys, schema_names
+from truav.bus.codec import unpack_limits
+from truav.bus.field_checks import _name
+from truav.bus.messages import (DEFAULT_LOCKSTEP_WAIT_S, HEALTH_PERIOD_S, LOCKSTEP_JOIN_GRACE_S, MESSAGE_CLASSES,
+                                size_limit)
+from truav.bus.schema_names import _ENVELOPE_KEYS, SCHEMA_VERSION
+from world.uavs import ACTION_UNIT_VELOCITY
+
+NO_NOTE = "(no note: add one to truav/bus/protocol_doc.py)"
+KEY_MISMATCH = "key_mismatch"
+"""truav.bus.placement.R_KEY_MISMATCH (a bus-layer module, not imported here; the test checks they agree)."""
+
+# --- what cannot be read from the code: who sends what, units, meanings ------------------------------
+SENDERS: Mapping[str, tuple[str, str]] = {
+    "tick": ("world", "all"),
+    "obs": ("world", "agent i"),
+    "beacon": ("uav/i", "all agents (and recorder, supervisor)"),
+    "action": ("uav/i", "world"),
+    "metrics": ("world", "recorder, supervisor, status"),
+    "fault": ("supervisor", "all"),
+    "control": ("supervisor (world: `shutdown`)", "all"),
+    "positions": ("world", "recorder"),
+    "state": ("uav/i", "central controller (scheme central)"),
+    "command": ("controller", "agent i (scheme central)"),
+    "health": ("uav/i", "supervisor, status, recorder"),
+    "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
+}
+"""Per kind: (the only ``src`` the guard accepts, who listens)."""
+
+KEY_TAILS: Mapping[str, str] = {
+    keys.METRICS_ROOT: "<scope>",
+    keys.FAULT_ROOT: "<fault>",
+    keys.CONTROL_ROOT: "<part>[/<part>...]",
+    keys.CONTROLLER: f"{keys.COMMAND}/<i>",
+    "group": "<first>-<last>/beacons",  # --batch-beacons: one process's UAVs first..last
+}
+"""The key chunks after a one-chunk ``PLACE`` (the rest of the key names the instance)."""
+
+_C = {  # values the notes quote
+    "area": f"[-{guard.AREA_MARGIN_M:g}, area_m + {guard.AREA_MARGIN_M:g}]",
+    "speed": f"scenario.uav_speed_mps x {guard.SPEED_MARGIN:g}",
+    "window": f"+-{guard.TICK_WINDOW}",
+}
+_TICK = f"tick; guard: within {_C['window']} of the receiver's current tick"
+_UAV_NOTE = "the UAV's id, the `<i>` of the key and of `src` `uav/<i>`; guard: < the scenario's n_uavs"
+_COUNT = "guard: <= scenario.n_vehicles"
+_PACKETS = "guard: <= scenario.n_vehicles x traffic.queue_limit"
+_ENERGY = "guard: <= 1e5 x scenario.step_s"
+_POS = f"[x, y] in the square area [0, area_m]; guard: both in {_C['area']}"
+
+ENVELOPE_NOTES: Mapping[str, tuple[str, str]] = {
+    "v": ("", "schema version"),
+    "kind": ("", "message kind: which table below the rest of the map follows"),
+    "src": ("", "sender identity: `world`, `uav/<i>`, `controller`, `supervisor`, `recorder`, `fault`, `replay`; "
+                "must match the key and the kind (see Keys)"),
+    "seq": ("", "per sender, per kind: 0, 1, 2, ... (a gap means messages were lost; a restart begins at 0 "
+                "with a new `inc`)"),
+    "t": ("ns", "sender's wall clock when sent, nanoseconds since the Unix epoch (e.g. `time.time_ns()`)"),
+    "inc": ("", "incarnation: a random 63-bit id drawn once per process start, not 0; 0 means unknown"),
+}
+
+FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
+    "tick": {
+        "tick": ("", "tick number, from 0, +1 per round over the whole run (episodes do not restart it)"),
+        "episode": ("", "episode index, from 0"),
+        "sim_time": ("s", "simulated time: tick x scenario.step_s"),
+        "deadline_ms": ("ms", "real time: the answer's deadline, deadline_frac (0.8) of the tick period after "
+                              "the tick's scheduled start; lock-step: how long the world waits for a live agent "
+                              "(--lockstep-wait)"),
+        "n_uavs": ("", "UAVs of the scenario; guard: equal to the receiver's"),
+    },
+    "obs": {
+        "tick": ("", "the round this observation opens: answer it with this tick"),
+        "episode": ("", "episode index; a new value starts an episode (no reward for its first observation)"),
+        "uav": ("", _UAV_NOTE),
+        "pos": ("m", f"the UAV's position, {_POS}"),
+        "vehicles_in_range": ("vehicles", f"vehicles within scenario.comm_range_m; {_COUNT}"),
+        "queued_packets": ("packets", f"packets queued at the vehicles this UAV serves; {_PACKETS}"),
+        "relayed": ("packets", f"packets this UAV relayed to the roadside units in the last step; {_PACKETS}"),
+        "covered": ("vehicles", f"vehicles this UAV served (nearest UAV in range) in the last step; {_COUNT}"),
+        "energy_j": ("J", f"energy the UAV spent in the last step (flight and transmission); {_ENERGY}"),
+        "speed_max": ("m/s", f"the UAV's full speed: an action flies half or all of it; guard: <= {_C['speed']}"),
+        "done": ("", "true on an episode's last observation: learn from it, do not act (see the rules)"),
+        "densest_sector": ("", "with sensing on (learner.sense_range_m > 0): 1 + the direction sector holding "
+                               "the most vehicles beyond comm range and within the sensing radius (see "
+                               "densest_sector); 0: none sensed, or sensing off"),
+    },
+    "beacon": {
+        "uav": ("", _UAV_NOTE),
+        "tick": ("", f"the tick of the observation it answers; {_TICK}"),
+        "pos": ("m", f"the position that observation gave, {_POS}"),
+        "vel": ("m/s", f"[vx, vy], the velocity of the UAV's last action (0, 0 before any); guard: norm <= "
+                       f"{_C['speed']}"),
+    },
+    "action": {
+        "uav": ("", _UAV_NOTE),
+        "tick": ("", f"the tick of the observation it answers; {_TICK}; one action per UAV per tick"),
+        "action": ("", f"see Action numbering; {HOVER}: hover"),
+    },
+    "metrics": {
+        "scope": ("", "`step` (each tick) or `episode` (each episode's end), also the key's last chunk"),
+        "tick": ("", "the tick they describe"),
+        "episode": ("", "the episode they describe"),
+        "values": ("", "named finite numbers: step: covered, generated, delivered, dropped, delay_sum_s, "
+                       "energy_j, hovering_uavs, coverage_pct, rejected, rejected.<reason>; episode: its summary"),
+    },
+    "fault": {
+        "fault": ("", "fault kind (loss, latency, partition, crash, freeze), also the key's last chunk"),
+        "phase": ("", "the fault starts or ends"),
+        "target": ("", "what it applies to, as the fault plan names it (truav/faults.py)"),
+        "params": ("", "the fault's parameters by name (truav/faults.py)"),
+    },
+    "control": {
+        "command": ("", "what to do: `shutdown` (on control/shutdown: the run is over, exit), a fault plan, ..."),
+        "args": ("", "its arguments (`{}` for shutdown)"),
+    },
+    "positions": {
+        "tick": ("", "the tick they were taken at (every few ticks)"),
+        "uavs": ("m", "every UAV's [x, y], in id order; guard: exactly n_uavs"),
+        "vehicles": ("m", f"vehicles' [x, y], rounded to a grid; {_COUNT}"),
+    },
+    "state": {
+        "uav": ("", _UAV_NOTE), "tick": ("", _TICK), "episode": ("", "episode index"),
+        "step": ("", "step within the episode"), "pos": ("m", _POS),
+        "vehicles_in_range": ("vehicles", _COUNT), "queued_packets": ("packets", _PACKETS),
+        "relayed": ("packets", _PACKETS), "covered": ("vehicles", _COUNT), "energy_j": ("J", _ENERGY),
+        "done": ("", "the episode's last observation"),
+        "pad": ("bytes", "padding to central.upload_bytes (the modelled report size); content ignored"),
+    },
+    "command": {
+        "uav": ("", _UAV_NOTE), "tick": ("", f"the first tick to fly it; {_TICK}"),
+        "action": ("", "see Action numbering (no hover)"),
+        "pad": ("bytes", "padding to central.download_bytes; content ignored"),
+    },
+    "health": {
+        "uav": ("", _UAV_NOTE),
+        "last_tick": ("", "the last observation's tick it answered (-1: none yet)"),
+        "steps": ("", "learning steps so far"),
+        "stale_obs_skipped": ("", "real time: observations skipped because a newer one was waiting"),
+        "rejected": ("", "messages it refused so far, by reason (the table of reasons)"),
+        "senders": ("", "messages it refused so far, by sender: only the most refused"),
+    },
+    "beacons": {
+        "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
+                              "beacon's meaning and bounds; only the UAVs first..last of the key, each once"),
+    },
+}
+
+REASON_NOTES: Mapping[str, str] = {
+    "not_bytes": "the payload is not bytes",
+    "too_large": "larger than the kind's size limit, or a msgpack length above the kind's limits",
+    "not_msgpack": "not one complete msgpack value (trailing bytes included)",
+    "not_map": "the top level is not a map",
+    "bad_version": "`v` missing or not the schema version",
+    "unknown_kind": "`kind` is not one of the kinds",
+    "missing_field": "a field of the kind (envelope included) is missing",
+    "extra_field": "a key the kind does not have",
+    "bad_type": "a field of the wrong type (an int for a bool, a float for an int, ...)",
+    "out_of_range": "a value outside its range (the tables above), a string too long or with other characters",
+    "unstamped": "`src` is empty",
+    KEY_MISMATCH: "the message does not belong on its key: another kind, another UAV's id, a `uav/<j>` sender "
+                  "on another UAV's key, a metrics scope or fault kind other than the key's last chunk",
+    "forbidden_sender": "`src` may not send that kind (Keys: sender), e.g. a beacon of uav 2 from `uav/1`",
+    "implausible": "a value the scenario cannot produce (the guard's bounds in the field tables)",
+    "tick_out_of_window": f"a tick more than {guard.TICK_WINDOW} from the receiver's current tick",
+    "duplicate_action": "a second action of one UAV for one tick",
+    "replayed": "traffic a replay put into a live run (refused unless the receiver accepts replays)",
+}
+
+
+# --- reading a field check ---------------------------------------------------------------------------
+def _big(n: int) -> str:
+    for bits in (63, 64):
+        if n == (1 << bits) - 1:
+            return f"2^{bits}-1"
+        if n == -(1 << bits):
+            return f"-2^{bits}"
+    return str(n)
+
+
+def _closure(check: Any) -> dict[str, Any]:
+    names = check.__code__.co_freevars
+    return dict(zip(names, (cell.cell_contents for cell in check.__closure__ or ())))
+
+
+def describe(check: Any) -> tuple[str, str]:
+    """(msgpack type, accepted values) of a field check; ValueError for a check it cannot read, so
+    a new kind of check is described deliberately."""
+    name = getattr(check, "__qualname__", "")
+    v = _closure(check) if getattr(check, "__closure__", None) else {}
+    if name == "_int.<locals>.check":
+        return "int", f"[{_big(v['lo'])}, {_big(v['hi'])}]"
+    if name == "_real.<locals>.check":
+        lo = v["lo"]
+        bound = "" if lo is None else (f" > {lo:g}" if v["lo_open"] else f" >= {lo:g}")
+        return "float64 (an int is accepted)", f"finite{bound}"
+    if name == "_bool":
+        return "bool", "true, false"
+    if name == "_text.<locals>.check":
+        pattern = v["pattern"]
+        chars = f" of `{pattern.pattern}`" if pattern is not None else ""
+        return "str", f"{0 if v['allow_empty'] else 1}..{v['max_len']} characters{chars}"
+    if name == "_choice.<locals>.check":
+        return "str", "one of " + ", ".join(f"`{o}`" for o in v["options"])
+    if name == "_vec2":
+        return "array of 2 float64", "[x, y], finite"
+    if name == "_points.<locals>.check":
+        return "array of [x, y] (2 float64 each)", f"at most {v['max_n']} points, finite"
+    if name == "_str_map.<locals>.check":
+        vt, vr = describe(v["value_check"])
+        kt, kr = describe(_name)
+        return f"map {kt} -> {vt}", f"at most {v['max_entries']} entries; keys {kr}; values {vr}"
+    if name == "_count_map.<locals>.check":
+        kt, kr = describe(v["key_check"])
+        return f"map {kt} -> int", f"at most {v['max_entries']} entries; keys {kr}; counts [0, 2^63-1]"
+    if name == "_pad":
+        return "bin", f"at most {schema_names.MAX_SMALL_PAYLOAD_BYTES} bytes"
+    if name == "_param_value":
+        return "int, float64 or str", (f"int64, finite float, or a str of 0..{schema_names.MAX_PARAM_STR_LEN} "
+                                       f"characters")
+    if name == "_json_like":
+        return "map (JSON-like: nil, bool, int, float64, str, array, map)", (
+            f"nesting <= {schema_names.MAX_ARGS_DEPTH}, <= {schema_names.MAX_ARGS_NODES} values, strings <= "
+            f"{schema_names.MAX_ARGS_STR_LEN} characters, map keys str <= {schema_names.MAX_NAME_LEN}")
+    if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)
+        return "array of [int, int, [x, y], [vx, vy]]", (f"1..{keys.MAX_UAVS} entries: uav [0, {keys.MAX_UAVS - 1}], "
+                                                          f"tick [0, 2^63-1], finite float64 pairs")
+    raise ValueError(f"protocol_doc.describe: cannot read the check {name or check!r}; teach it this check")
+
+
+# --- the tables ----------------------------------------------------------------------------------------
+def _row(*cells: str) -> str:
+    return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+
+def _table(head: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
+    return "\n".join([_row(*head), _row(*("---",) * len(head)), *(_row(*r) for r in rows)])
+
+
+def _envelope_plan() -> list[tuple[str, Any]]:
+    """(field, check) of the stamped envelope fields, as every kind's plan begins."""
+    cls = next(iter(MESSAGE_CLASSES.values()))
+    env = set(_ENVELOPE_KEYS)
+    return [(name, check) for name, _, check in cls._PLAN if name in env]
+
+
+def envelope_table() -> str:
+    kinds = ", ".join(f"`{k}`" for k in MESSAGE_CLASSES)
+    rows = [("`v`", "int", f"{SCHEMA_VERSION}", "", ENVELOPE_NOTES["v"][1]),
+            ("`kind`", "str", f"one of {kinds}", "", ENVELOPE_NOTES["kind"][1])]
+    for name, check in _envelope_plan():
+        unit, note = ENVELOPE_NOTES.get(name, ("", NO_NOTE))
+        rows.append((f"`{name}`", *describe(check), unit, note))
+    assert [r[0].strip("`") for r in rows] == list(_ENVELOPE_KEYS), "the envelope keys changed"
+    return _table(("key", "type", "values", "unit", "meaning"), rows)
+
+
+def key_of(kind: str) -> str:
+    """The key a kind is published on, after ``truav/<run>/``."""
+    place = MESSAGE_CLASSES[kind].PLACE
+    if place[0] == keys.UAV:
+        return f"{keys.UAV}/<i>/{'/'.join(place[1:])}"
+    if len(place) == 1:
+        return f"{place[0]}/{KEY_TAILS.get(place[0], '...')}"
+    return "/".join(place)
+
+
+def keys_table() -> str:
+    rows = []
+    for kind in MESSAGE_CLASSES:
+        sender, to = SENDERS.get(kind, (NO_NOTE, ""))
+        rows.append((f"`{key_of(kind)}`", f"`{kind}`", sender, to))
+        if kind == schema_names.KIND_BEACON:
+            rows.append((f"`{key_of(kind)}/<cx>_<cy>`", f"`{kind}`", sender,
+                         f"agents near map cell (cx, cy), each in [0, {keys.MAX_CELLS}) (range-limited beacons)"))
+    rows += [("`alive/world`", "liveliness token", "world", ""),
+             ("`alive/uav/<i>`", "liveliness token", "uav/i", "world, agents, supervisor"),
+             ("`alive/recorder`", "liveliness token", "recorder", ""),
+             ("`alive/controller`", "liveliness token", "controller", "world (scheme central)")]
+    return _table(("key after truav/<run>/", "payload", "sender (src)", "listeners"), rows)
+
+
+def messages_tables() -> str:
+    parts = []
+    for kind, cls in MESSAGE_CLASSES.items():
+        notes = FIELD_NOTES.get(kind, {})
+        doc = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split()).replace("``", "`")
+        rows = []
+        for name, check in cls.CHECKS.items():
+            unit, note = notes.get(name, ("", NO_NOTE))
+            rows.append((f"`{name}`", *describe(check), unit, note))
+        parts.append(f"#### `{kind}` on `{key_of(kind)}`\n\n{doc}\n\n"
+                     + _table(("field", "type", "values", "unit", "meaning"), rows))
+    return "\n\n".join(parts)
+
+
+def limits_table() -> str:
+    rows = []
+    for kind in MESSAGE_CLASSES:
+        lim = unpack_limits(kind)
+        rows.append((f"`{kind}`", str(size_limit(kind)), str(lim["max_map_len"]), str(lim["max_array_len"]),
+                     str(lim["max_str_len"]), str(lim["max_bin_len"]), str(lim["max_ext_len"])))
+    return _table(("kind", "max bytes", "max map len", "max array len", "max str len", "max bin len",
+                   "max ext len"), rows)
+
+
+def reason_codes() -> list[str]:
+    """Every reason a refused message is counted under: the schema's, the key check's, the guard's."""
+    found = [getattr(schema_names, n) for n in vars(schema_names) if n.startswith("R_")]
+    found.append(KEY_MISMATCH)
+    found += [getattr(guard, n) for n in vars(guard) if n.startswith("R_")]
+    return list(dict.fromkeys(found))
+
+
+def reasons_table() -> str:
+    return _table(("reason", "meaning"), [(f"`{r}`", REASON_NOTES.get(r, NO_NOTE)) for r in reason_codes()])
+
+
+def actions_table() -> str:
+    rows = []
+    for a in [*range(N_ACTIONS), HOVER]:
+        vx, vy = (round(float(x), 4) + 0.0 for x in ACTION_UNIT_VELOCITY[a])  # + 0.0: no -0
+        frac = math.hypot(vx, vy)
+        heading = "-" if frac == 0 else f"{math.degrees(math.atan2(vy, vx)) % 360:g}"
+        rows.append((str(a), heading, f"{frac:g}", f"({vx:+.4f}, {vy:+.4f})"))
+    return _table(("action", "heading (deg, counterclockwise from east = +x)", "speed (x speed_max)",
+                   "velocity / speed_max (vx, vy)"), rows)
+
+
+def constants_table() -> str:
+    rows = [
+        ("MAX_UAVS", str(keys.MAX_UAVS), "UAV ids are in [0, MAX_UAVS)"),
+        ("MAX_SRC_LEN", str(schema_names.MAX_SRC_LEN), "characters of `src`"),
+        ("MAX_NAME_LEN", str(schema_names.MAX_NAME_LEN), "characters of a metric, parameter, fault or command name"),
+        ("BEACON_MAX_BYTES", str(schema_names.BEACON_MAX_BYTES), "the largest stamped beacon (bytes)"),
+        ("TICK_WINDOW", str(guard.TICK_WINDOW), "a message's tick must be this close to the receiver's"),
+        ("TICK_RESYNC_S", f"{guard.TICK_RESYNC_S:g}", "after this long without a tick, a world tick ahead of the "
+                                                      "window moves it"),
+        ("AREA_MARGIN_M", f"{guard.AREA_MARGIN_M:g}", "positions may lie this far outside the area (m)"),
+        ("SPEED_MARGIN", f"{guard.SPEED_MARGIN:g}", "speeds may exceed the UAV's by this factor"),
+        ("HEALTH_PERIOD_S", f"{HEALTH_PERIOD_S:g}", "an agent's health report period (s)"),
+        ("DEFAULT_LOCKSTEP_WAIT_S", f"{DEFAULT_LOCKSTEP_WAIT_S:g}", "lock-step: how long the world waits for a "
+                                                                    "live agent's answer, an agent for a peer's beacon (s)"),
+        ("LOCKSTEP_JOIN_GRACE_S", f"{LOCKSTEP_JOIN_GRACE_S:g}", "lock-step: how long an agent waits for a peer "
+                                                                "not heard from since it joined (s)"),
+    ]
+    return _table(("name", "value", "meaning"), rows)
+
+
+SECTIONS = {
+    "envelope": envelope_table,
+    "keys": keys_table,
+    "messages": messages_tables,
+    "limits": limits_table,
+    "reasons": reasons_table,
+    "actions": actions_table,
+    "constants": constants_table,
+}
+
+
+def sections() -> dict[str, str]:
+    """Every generated table by its marker name."""
+    return {name: build() for name, build in SECTIONS.items()}
+
+
+def _marker_re(name: str) -> re.Pattern[str]:
+    return re.compile(rf"(<!-- generated: {re.escape(name)} -->\n)(.*?)(<!-- end generated: {re.escape(name)} -->)",
+                      re.S)
+
+
+def generated_parts(doc: str) -> dict[str, str | None]:
+    """What ``doc`` holds between each section's markers (None: the markers are missing)."""
+    out: dict[str, str | None] = {}
+    for name in SECTIONS:
+        m = _marker_re(name).search(doc)
+        out[name] = None if m is None else m.group(2).strip("\n")
+    return out
+
+
+def render_into(doc: str) -> str:
+    """``doc`` with every generated section replaced by the current tables; ValueError if markers are missing."""
+    for name, text in sections().items():
+        pattern = _marker_re(name)
+        if pattern.search(doc) is None:
+            raise ValueError(f"no '<!-- generated: {name} -->' ... '<!-- end generated: {name} -->' markers")
+        doc = pattern.sub(lambda m: f"{m.group(1)}\n{text}\n\n{m.group(3)}", doc, count=1)
+    return doc
+
+
+__all__ = ["FIELD_NOTES", "NO_NOTE", "SECTIONS", "describe", "generated_parts", "key_of",
+           "reason_codes", "render_into", "sections"]
