@@ -219,6 +219,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \
             else beacon_inbox(bus, **inbox_opts)
+        self._publish_beacon = bus.publish
+        """Lock-step: how this agent's beacon goes out (its host may batch a process's: agents.shared_beacons)."""
         # Real time: the world's tick stamps anchor the beacon slot (agents.beacon_schedule).
         self._tick_inbox = None if opts.lockstep else bus.inbox(keys.world_tick(run), **inbox_opts)
         # Only the shutdown concerns an agent (its fault plan, if any, listens on its own key): junk on the
@@ -377,7 +379,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
         key = self._beacon_key(obs)
         if o.lockstep:  # every agent waits for it, the last observation's included
-            self.bus.publish(key, beacon)
+            self._publish_beacon(key, beacon)
             return
         self._schedule_beacon(obs, key, beacon)
 
