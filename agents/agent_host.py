@@ -23,6 +23,8 @@ from truav.lifecycle import EXIT_ROUTER_LOST, StopReasons, watch_router, watch_s
 
 log = logging.getLogger("truav.swarm")  # the agent process's log lines keep the swarm's logger name
 
+MAX_OPENING_SESSIONS = 4
+"""Hosted agents that open their Zenoh session at the same time (the others wait their turn)."""
 ID_PLACEHOLDER = "{id}"
 """In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
 
@@ -45,9 +47,15 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
     shared = SharedBeacons(run, batched=batch_beacons) if (share_beacons and several) or batch_beacons else None
     batcher = BeaconBatcher(run, ids) if batch_beacons and several else None
 
+    opening = threading.Semaphore(MAX_OPENING_SESSIONS)
+
+    def open_bus(uav: int) -> Bus:
+        with opening:  # a hundred hosted agents connecting at once time out on a busy router
+            return Bus(keys.uav_identity(uav), run, configs[uav])
+
     def host(uav: int) -> None:
         opts = options_for(uav)
-        with Bus(keys.uav_identity(uav), run, configs[uav]) as bus:
+        with open_bus(uav) as bus:
             if batcher is not None:
                 batcher.attach(uav, bus)
             node = make_agent_node(cfg, opts, bus, beacon_inbox=shared)
