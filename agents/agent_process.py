@@ -48,6 +48,7 @@ from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, Realtim
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
+from agents.shared_beacons import SampleLog
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
@@ -192,8 +193,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._gone: set[int] = set()  # peers whose liveliness token vanished
-        self._latency_ms: list[float] = []
-        self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
+        self._latency_ms = SampleLog()  # a list of floats, kept in numpy chunks (1,000 agents hear 10^6 a tick)
+        self._latency_from = SampleLog(width=2)  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
         self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
@@ -385,6 +386,9 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
 
     def _take_beacons(self) -> None:
         """Move the beacons heard since the last call from the inbox into the neighbour tables."""
+        if self.opts.lockstep and hasattr(self._beacon_inbox, "drain_columns"):  # shared: in columns
+            self._take_lockstep_columns(self._beacon_inbox.drain_columns())
+            return
         heard = self._beacon_inbox.drain()
         with self._lock:
             for r in heard:
