@@ -24,6 +24,7 @@ same decoded messages by reference (no per-agent copy while no link filter appli
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 import threading
@@ -51,12 +52,19 @@ def split_batch(key: str, batch: "schema.Beacons", run: str) -> list[tuple[str, 
     batch's envelope and its own UAV as sender (the batch's sender rule is checked by the caller)."""
     out = []
     new, cls = object.__new__, schema.Beacon
+    names = _names(run)
     for uav, tick, pos, vel in batch.entries:
         b = new(cls)
-        b.__dict__.update(src=keys.uav_identity(uav), seq=batch.seq, t=batch.t, inc=batch.inc, uav=uav, tick=tick,
-                          pos=pos, vel=vel)
-        out.append((keys.uav_beacon(run, uav), b))
+        key, src = names[uav]
+        b.__dict__.update(src=src, seq=batch.seq, t=batch.t, inc=batch.inc, uav=uav, tick=tick, pos=pos, vel=vel)
+        out.append((key, b))
     return out
+
+
+@functools.lru_cache(maxsize=16)
+def _names(run: str) -> tuple[tuple[str, str], ...]:
+    """(beacon key, sender id) of every UAV id of a run, made once."""
+    return tuple((keys.uav_beacon(run, i), keys.uav_identity(i)) for i in range(keys.MAX_UAVS))
 
 
 def batch_sender_verdict(key: str, batch: "schema.Beacons") -> tuple[str, str] | None:
