@@ -15,14 +15,16 @@ import threading
 from collections.abc import Callable
 
 from agents.scheme_process import make_agent_node
+from agents.shared_beacons import BeaconBatcher, SharedBeacons  # noqa: F401 - SharedBeacons: its old home
 from truav.bus import keys
-from truav.bus.inbox import Inbox
 from truav.bus.transport import Bus
 from truav.config import Config
 from truav.lifecycle import EXIT_ROUTER_LOST, StopReasons, watch_router, watch_supervisor
 
 log = logging.getLogger("truav.swarm")  # the agent process's log lines keep the swarm's logger name
 
+MAX_OPENING_SESSIONS = 4
+"""Hosted agents that open their Zenoh session at the same time (the others wait their turn)."""
 ID_PLACEHOLDER = "{id}"
 """In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
 
@@ -32,47 +34,33 @@ def path_of(template: str | None, uav: int) -> str | None:
     return template.replace(ID_PLACEHOLDER, str(uav)) if template else None
 
 
-class SharedBeacons:
-    """One beacon subscription for every agent a process hosts (``--share-beacons``).
-
-    Each beacon then crosses Zenoh once per process instead of once per agent; every agent still
-    gets it in its own inbox, through its own bus's link filter, schema and guard checks, and
-    counted on its own bus.  The subscription lives on the first agent's session (its grants
-    allow every beacon, as every agent's do); the hosted agents stop together."""
-
-    def __init__(self, run: str) -> None:
-        self.key = keys.all_beacons(run)
-        self.boxes: list = []
-        self._lock = threading.Lock()
-
-    def __call__(self, bus: Bus, **inbox_opts):
-        box = Inbox(bus, **inbox_opts)
-        with self._lock:
-            first = not self.boxes
-            self.boxes = [*self.boxes, box]  # copied: arrivals iterate without the lock
-        if first:
-            bus.feed(self, self.key)
-        return box
-
-    def on_sample(self, sample) -> None:  # zenoh's callback thread: an append per hosted agent
-        for box in self.boxes:
-            box.on_sample(sample)
-
-
 def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_for: Callable[[int], object],
-                router_timeout_s: float | None, share_beacons: bool) -> int:
+                router_timeout_s: float | None, share_beacons: bool, batch_beacons: bool = False) -> int:
     """Run the agents of ``ids`` (``options_for(uav)``: each one's AgentOptions, ``configs[uav]``: its
     Zenoh config) until they stop; the exit code of the process (EXIT_ROUTER_LOST if one lost its router)."""
     results: dict[int, tuple[object, StopReasons]] = {}
     stops: list = []
     failed: list[BaseException] = []
     started = threading.Barrier(len(ids) + 1) if len(ids) > 1 else None
-    shared = SharedBeacons(run) if share_beacons and len(ids) > 1 else None
+    several = len(ids) > 1
+    # With batches every process subscribes to them through a shared feed, a process of one agent too.
+    shared = SharedBeacons(run, batched=batch_beacons) if (share_beacons and several) or batch_beacons else None
+    batcher = BeaconBatcher(run, ids) if batch_beacons and several else None
+
+    opening = threading.Semaphore(MAX_OPENING_SESSIONS)
+
+    def open_bus(uav: int) -> Bus:
+        with opening:  # a hundred hosted agents connecting at once time out on a busy router
+            return Bus(keys.uav_identity(uav), run, configs[uav])
 
     def host(uav: int) -> None:
         opts = options_for(uav)
-        with Bus(keys.uav_identity(uav), run, configs[uav]) as bus:
+        with open_bus(uav) as bus:
+            if batcher is not None:
+                batcher.attach(uav, bus)
             node = make_agent_node(cfg, opts, bus, beacon_inbox=shared)
+            if batcher is not None:
+                node._publish_beacon = batcher.sender(uav)
             reasons = StopReasons(node.stop)
             if router_timeout_s is not None:
                 def router_lost(seconds: float, reasons=reasons) -> None:
@@ -93,6 +81,9 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
             except KeyboardInterrupt:
                 reasons.because("interrupted")
                 node.checkpoint()
+            finally:
+                if batcher is not None:
+                    batcher.stopped(uav)
             node.write_stats()
         log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", uav, node.steps,
                  reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)")

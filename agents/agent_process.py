@@ -49,6 +49,7 @@ from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, Realtim
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
+from agents.shared_beacons import SampleLog
 from agents.state import StateEncoder, neighbour_features
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
@@ -196,8 +197,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._obs: queue.Queue = queue.Queue()
         self._lock = threading.Lock()  # guards beacons, peers gone and latency samples
         self._gone: set[int] = set()  # peers whose liveliness token vanished
-        self._latency_ms: list[float] = []
-        self._latency_from: list[tuple[int, int]] = []  # (sender uav, tick) of each latency sample
+        self._latency_ms = SampleLog()  # a list of floats, kept in numpy chunks (1,000 agents hear 10^6 a tick)
+        self._latency_from = SampleLog(width=2)  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
         self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
@@ -223,6 +224,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \
             else beacon_inbox(bus, **inbox_opts)
+        self._publish_beacon = bus.publish
+        """Lock-step: how this agent's beacon goes out (its host may batch a process's: agents.shared_beacons)."""
         # Only the shutdown concerns an agent (its fault plan, if any, listens on its own key): junk on the
         # other control keys then never costs it anything.
         bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
@@ -381,12 +384,15 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
         key = self._beacon_key(obs)
         if o.lockstep:  # every agent waits for it, the last observation's included
-            self.bus.publish(key, beacon)
+            self._publish_beacon(key, beacon)
             return
         self._schedule_beacon(obs, key, beacon)
 
     def _take_beacons(self) -> None:
         """Move the beacons heard since the last call from the inbox into the neighbour tables."""
+        if self.opts.lockstep and hasattr(self._beacon_inbox, "drain_columns"):  # shared: in columns
+            self._take_lockstep_columns(self._beacon_inbox.drain_columns())
+            return
         heard = self._beacon_inbox.drain()
         with self._lock:
             for r in heard:

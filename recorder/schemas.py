@@ -19,7 +19,8 @@ import msgpack
 
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
-KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health")
+KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
+         "beacons")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -103,6 +104,9 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
     },
     "beacon": {"uav": _INT, "tick": _INT, "pos": _XY, "vel": {**_XY, "description": "[vx, vy] m/s"}},
     "action": {"uav": _INT, "tick": _INT, "action": _INT},
+    "beacons": {"entries": {"type": "array", "description": "--batch-beacons: one process's beacons of a tick, "
+                            "each [uav, tick, [x, y], [vx, vy]]",
+                            "items": {"type": "array", "minItems": 4, "maxItems": 4}}},
     "metrics": {
         "scope": {"enum": ["step", "episode"]}, "tick": _INT, "episode": _INT,
         "values": {"type": "object", "additionalProperties": _NUM},

@@ -70,6 +70,7 @@ LAYERS: list[tuple[str, int]] = [
     ("agents.agent_process",            PROCESS),
     ("agents.agent_process_*",          PROCESS),
     ("agents.agent_host",               PROCESS),
+    ("agents.shared_beacons",           PROCESS),
     ("agents.scheme_process",           PROCESS),
     ("agents.central_process",          PROCESS),
     ("recorder.process",                PROCESS),

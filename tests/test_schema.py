@@ -59,6 +59,7 @@ def samples() -> list[schema.Message]:
         schema.Command(uav=3, tick=7, action=5, pad=bytes(8)),
         schema.Health(uav=3, last_tick=7, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
+        schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
     ]
 
 

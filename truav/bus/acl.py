@@ -53,8 +53,20 @@ def replay_run(run: str) -> str:
     return keys.validate_run(run + REPLAY_RUN_SUFFIX)
 
 
-def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
-    """Who may put / subscribe where in run ``run`` with ``n_uavs`` agents (docs/security.md)."""
+def batch_groups(n_uavs: int, group_size: int) -> list[tuple[int, int]]:
+    """(first, last) of each process's UAVs when ``group_size`` agents share a process (the layout of
+    truav.swarm.swarm_options.agent_groups): consecutive ids; a group of one sends no batches."""
+    if group_size <= 1:
+        return []
+    groups = [(a, min(a + group_size, n_uavs) - 1) for a in range(0, n_uavs, group_size)]
+    return [(a, b) for a, b in groups if b > a]
+
+
+def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...]:
+    """Who may put / subscribe where in run ``run`` with ``n_uavs`` agents (docs/security.md).
+
+    ``batch_group_size`` > 1 (``--batch-beacons`` with that many agents per process): the first UAV of each
+    process's group may put that group's batch of beacons (``group/<first>-<last>/beacons``), and only it."""
     p = keys.prefix(run)
     r = keys.prefix(replay_run(run))
     table = [
@@ -73,6 +85,7 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
         Grant(SUPERVISOR,
               put=(keys.all_control(run), keys.all_faults(run)),
               subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_beacons_in_cells(run),
+                         *([keys.all_beacon_batches(run)] if batch_group_size > 1 else []),
                          keys.all_control(run), keys.all_states(run), keys.all_commands(run),  # traffic measured for the summary
                          keys.all_health(run)),  # the agents' health reports, for `status`
               watch=(keys.all_alive(run),)),
@@ -80,13 +93,15 @@ def grants(run: str, n_uavs: int) -> tuple[Grant, ...]:
         Grant(REPLAY, put=(f"{r}/**",), subscribe=(keys.control(replay_run(run), "replay"),),
               tokens=(), watch=()),
     ]
+    batches = {first: keys.group_beacons(run, first, last) for first, last in batch_groups(n_uavs, batch_group_size)}
     for i in range(n_uavs):
         table.append(Grant(
             keys.uav_identity(i),
             put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
-                 keys.uav_health(run, i)),
+                 keys.uav_health(run, i), *([batches[i]] if i in batches else [])),
             subscribe=(keys.uav_obs(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
-                       keys.all_control(run), keys.controller_cmd(run, i)),
+                       keys.all_control(run), keys.controller_cmd(run, i),
+                       *([keys.all_beacon_batches(run)] if batches else [])),
             tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))
     return tuple(table)
 

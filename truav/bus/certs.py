@@ -94,10 +94,11 @@ def write_pair(directory: Path, stem: str, key, cert) -> tuple[Path, Path]:
 
 def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: str | None = None, *,
           hosts: Sequence[str] = DEFAULT_HOSTS, days: int = DEFAULT_VALID_DAYS, sites: Sequence[Site] = (),
-          caps: Sequence[tuple[str, float]] = ()) -> Path:
+          caps: Sequence[tuple[str, float]] = (), batch_group_size: int = 1) -> Path:
     """Create the CA, one key + certificate per component and every zenoh config, in ``directory``.
 
     ``caps`` (:func:`rate_caps`, for one router's ``endpoint``) go into its config's ``downsampling``.
+    ``batch_group_size``: see :func:`truav.bus.acl.grants` (``--batch-beacons``).
 
     ``endpoint`` is where the router listens and clients connect (made ``tls/``);
     ``hosts`` (names or IPs) go into the router certificate's SANs, so clients
@@ -111,7 +112,7 @@ def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: st
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     os.chmod(d, 0o700)
-    table = grants(run, n_uavs)
+    table = grants(run, n_uavs, batch_group_size)
     ca_key, ca_cert = make_ca(days=days)
     write_pair(d, "ca", ca_key, ca_cert)
     os.replace(d / "ca.key", d / CA_KEY)
@@ -132,7 +133,7 @@ def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: st
         _write_json(d / f"{file_stem(g.identity)}.json5", client_config(d, g.identity, [ep]))
     _write_json(d / ROUTER_CONFIG, router_config(d, [ep], table, caps=caps))
     _write_json(d / MANIFEST, {"run": run, "n_uavs": n_uavs, "endpoint": ep, "hosts": list(all_hosts),
-                               "identities": [g.identity for g in table]})
+                               "identities": [g.identity for g in table], "batch_group_size": batch_group_size})
     return d
 
 
@@ -160,6 +161,8 @@ class Credentials:
     """The components with a key here (a host's bundle holds only its own)."""
     peer_routers: tuple[str, ...] = ()
     """The other routers of a multi-host deployment (empty for one host)."""
+    batch_group_size: int = 1
+    """Agents per process whose beacons go out batched (``--batch-beacons``); 1: none."""
 
     def config_file(self, identity: str) -> Path:
         """The zenoh client config of ``identity`` (``router`` for the router's)."""
@@ -172,7 +175,7 @@ class Credentials:
         return path
 
     def table(self) -> tuple[Grant, ...]:
-        return grants(self.run, self.n_uavs)
+        return grants(self.run, self.n_uavs, self.batch_group_size)
 
 
 def load(directory: str | os.PathLike[str], run: str | None = None) -> Credentials:
@@ -181,7 +184,8 @@ def load(directory: str | os.PathLike[str], run: str | None = None) -> Credentia
     try:
         data = json.loads((d / MANIFEST).read_text())
         creds = Credentials(d, str(data["run"]), int(data["n_uavs"]), str(data["endpoint"]),
-                            tuple(map(str, data.get("identities", ()))), tuple(map(str, data.get("peer_routers", ()))))
+                            tuple(map(str, data.get("identities", ()))), tuple(map(str, data.get("peer_routers", ()))),
+                            int(data.get("batch_group_size", 1)))
     except FileNotFoundError:
         raise CredentialsError(f"--creds {d}: no {MANIFEST}; create it with `truav-swarm certs --out {d}`") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:

@@ -13,6 +13,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``uav/<i>/action``              agent i -> world    ``action``
 ``uav/<i>/state``               agent i -> ctrl     ``state`` (scheme central: the state upload)
 ``controller/cmd/<i>``          ctrl -> agent i     ``command`` (scheme central)
+``group/<a>-<b>/beacons``       agents a..b -> all  ``beacons`` (``--batch-beacons``: one process's UAVs a..b)
 ``metrics/step``                world -> recorder   ``metrics`` (scope "step")
 ``metrics/episode``             world -> recorder   ``metrics`` (scope "episode")
 ``fault/<kind>``                faults -> all       ``fault``
@@ -44,6 +45,7 @@ _CHUNK_RE = re.compile(r"[A-Za-z0-9_-]+")
 _UAV_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/(?:alive/)?uav/(0|[1-9][0-9]*)(?:/.*)?")
 _UAV_IDENTITY_RE = re.compile(r"uav/(0|[1-9][0-9]*)")
 _RUN_KEY_RE = re.compile(r"truav/([A-Za-z0-9_-]+)(?:/.*)?")
+_GROUP_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/group/(0|[1-9][0-9]*)-(0|[1-9][0-9]*)/beacons")
 
 # Sender identities (``src``) of the non-UAV processes.
 SRC_WORLD = "world"
@@ -60,6 +62,7 @@ UAV = "uav"
 METRICS_ROOT = "metrics"  # metrics(run, scope) builds its keys
 FAULT_ROOT = "fault"
 CONTROL_ROOT = "control"
+GROUP = "group"  # group/<first>-<last>/beacons: the beacons of one process's UAVs first..last, batched
 
 # Last chunks of the per-UAV keys.
 OBS = "obs"
@@ -67,6 +70,7 @@ BEACON = "beacon"
 ACTION = "action"
 STATE = "state"
 HEALTH = "health"
+BEACONS = "beacons"  # last chunk of a group's batch key
 CONTROLLER = "controller"
 COMMAND = "cmd"
 
@@ -192,6 +196,28 @@ def cell_chunk(cell: tuple[int, int]) -> str:
             or not (0 <= cx < MAX_CELLS and 0 <= cy < MAX_CELLS):
         raise ValueError(f"map cell must be two ints in [0, {MAX_CELLS}), got {cell!r}")
     return f"{cx}_{cy}"
+
+
+def group_beacons(run: str, first: int, last: int) -> str:
+    """``truav/<run>/group/<first>-<last>/beacons``: the batched beacons of UAVs ``first..last``, which one
+    process hosts (``--batch-beacons``); only ``uav/<first>`` sends on it."""
+    if validate_uav_id(last) < validate_uav_id(first):
+        raise ValueError(f"group {first}-{last}: the last UAV id comes before the first")
+    return f"{prefix(run)}/{GROUP}/{first}-{last}/{BEACONS}"
+
+
+def all_beacon_batches(run: str) -> str:
+    """``truav/<run>/group/*/beacons``: every group's batched beacons."""
+    return f"{prefix(run)}/{GROUP}/*/{BEACONS}"
+
+
+def parse_group(key: str) -> tuple[int, int] | None:
+    """(first, last) of ``truav/<run>/group/<first>-<last>/beacons`` (valid ids, first <= last); else None."""
+    m = _GROUP_KEY_RE.fullmatch(key) if isinstance(key, str) else None
+    if m is None:
+        return None
+    first, last = int(m.group(1)), int(m.group(2))
+    return (first, last) if first <= last < MAX_UAVS else None
 
 
 def all_actions(run: str) -> str:

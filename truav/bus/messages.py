@@ -18,7 +18,8 @@ from truav.bus.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
     KIND_OBS, KIND_POSITIONS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
-    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, SCOPES)
+    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, SCOPES,
+    SchemaError)
 
 # --- message classes ------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
@@ -287,7 +288,42 @@ class Health(Envelope):
     senders: dict[str, int]
 
 
-Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health]
+KIND_BEACONS = "beacons"
+MAX_BATCH_ENTRIES = MAX_UAVS
+"""Beacons one batch may carry: at most every UAV of the swarm (the group of its key bounds it further)."""
+MAX_BATCH_PAYLOAD_BYTES = 64 << 10
+"""A batch's encoded size limit: MAX_BATCH_ENTRIES beacons of about 50 bytes each, and the envelope."""
+
+
+def _beacon_entries(name: str, v: Any) -> tuple[tuple[int, int, tuple[float, float], tuple[float, float]], ...]:
+    """Each entry ``[uav, tick, [x, y], [vx, vy]]``, checked as a beacon's fields are; 1 to MAX_BATCH_ENTRIES."""
+    if not isinstance(v, (list, tuple)) or not 1 <= len(v) <= MAX_BATCH_ENTRIES:
+        raise SchemaError(R_BAD_TYPE, f"{name} must be a list of 1 to {MAX_BATCH_ENTRIES} beacons")
+    out = []
+    for k, e in enumerate(v):
+        if not isinstance(e, (list, tuple)) or len(e) != 4:
+                raise SchemaError(R_BAD_TYPE, f"{name}[{k}] must be [uav, tick, [x, y], [vx, vy]]")
+        out.append((_uav_id(f"{name}[{k}].uav", e[0]), _uint63(f"{name}[{k}].tick", e[1]),
+                    _vec2(f"{name}[{k}].pos", e[2]), _vec2(f"{name}[{k}].vel", e[3])))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Beacons(Envelope):
+    """An agent process -> all (``--batch-beacons``): the beacons of the UAVs it hosts, one message per tick.
+
+    Sent on ``group/<first>-<last>/beacons`` by ``uav/<first>``; it may carry only the UAVs its key names
+    (:func:`truav.bus.placement.check_placement`). Receivers split it into beacons, each then checked,
+    filtered per link and counted as if its UAV had sent it alone (agents.shared_beacons)."""
+
+    KIND: ClassVar[str] = KIND_BEACONS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.GROUP,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({"entries": _beacon_entries})
+    entries: tuple[tuple[int, int, tuple[float, float], tuple[float, float]], ...]
+    """(uav, tick, pos, vel) per beacon."""
+
+
+Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -295,7 +331,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
-    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health):
+    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -319,6 +355,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
     {
         kind: MAX_PAYLOAD_BYTES
         if kind == KIND_POSITIONS
+        else MAX_BATCH_PAYLOAD_BYTES
+        if kind == KIND_BEACONS
         else MAX_CONTROL_PAYLOAD_BYTES
         if kind == KIND_CONTROL
         else MAX_SMALL_PAYLOAD_BYTES
@@ -343,6 +381,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 18), "max_array_len": 0},
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
+    KIND_BEACONS: {**_SMALL_LIMITS, "max_array_len": MAX_BATCH_ENTRIES},
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
     {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})

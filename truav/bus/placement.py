@@ -46,6 +46,8 @@ def expected_kind(key: str) -> str | None:
         return KIND_BY_KEY.get((keys.UAV, rest[2])) if len(rest) == 3 else None
     if rest[0] == keys.WORLD:
         return KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None
+    if rest[0] == keys.GROUP:  # group/<first>-<last>/beacons, nothing else under group/
+        return schema.KIND_BEACONS if keys.parse_group(key) is not None else None
     return KIND_BY_KEY.get((rest[0],)) if len(rest) >= 2 else None
 
 
@@ -59,6 +61,9 @@ def check_placement(key: str, msg: Message) -> None:
     kind, key_uav = key_facts(key)
     if kind is not None and kind != msg.KIND:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} message on {key} (expects {kind})", src=msg.src)
+    if kind == schema.KIND_BEACONS and isinstance(msg, schema.Beacons):
+        _check_batch(key, msg)
+        return
     body_uav = getattr(msg, "uav", None)
     if key_uav is not None and body_uav is not None and body_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
@@ -72,6 +77,20 @@ def check_placement(key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
     if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+
+
+def _check_batch(key: str, msg: "schema.Beacons") -> None:
+    """A batch carries only UAVs its group key names, each once, and a UAV sender only its group's first."""
+    first, last = keys.parse_group(key)
+    src_uav = uav_of_src(msg.src)
+    if src_uav is not None and src_uav != first:
+        raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
+    uavs = [e[0] for e in msg.entries]
+    foreign = [u for u in uavs if not first <= u <= last]
+    if foreign:
+        raise SchemaError(R_KEY_MISMATCH, f"beacons of uav {foreign[:5]} on {key}", src=msg.src)
+    if len(set(uavs)) != len(uavs):
+        raise SchemaError(R_KEY_MISMATCH, f"a uav twice in one batch on {key}", src=msg.src)
 
 
 # A process sees the same few keys and senders over and over: parse each once (bounded caches,

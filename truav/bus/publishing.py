@@ -26,7 +26,7 @@ class Publishing:
         """Return ``key`` if this identity may publish (or declare a token) on it.
 
         ValueError for a non-concrete key; PermissionError outside this run or,
-        for ``uav/<i>``, outside ``uav/<i>/`` and ``alive/uav/<i>``.
+        for ``uav/<i>``, outside ``uav/<i>/``, ``alive/uav/<i>`` and the batch keys ``group/<i>-<j>/beacons``.
         """
         if not isinstance(key, str) or not key or _WILDCARD_CHARS.intersection(key) or "//" in key:
             raise ValueError(f"cannot publish on {key!r}: need a concrete key without wildcards")
@@ -34,7 +34,9 @@ class Publishing:
             raise PermissionError(f"{self._identity} may not publish on {key!r}: outside {self._prefix}")
         if self._uav is not None:
             own = keys.uav_prefix(self._run, self._uav) + "/"
-            if not key.startswith(own) and key != keys.alive_uav(self._run, self._uav):
+            group = keys.parse_group(key)  # a batch of beacons: only its group's first UAV sends it
+            if not key.startswith(own) and key != keys.alive_uav(self._run, self._uav) \
+                    and not (group is not None and group[0] == self._uav):
                 raise PermissionError(
                     f"{self._identity} may only publish under {own} and {keys.alive_uav(self._run, self._uav)}, "
                     f"not on {key!r}"

@@ -45,6 +45,17 @@ def router_size_filters() -> list[dict]:
             for limit, exprs in sorted(by_limit.items())]
 
 
+ROUTER_SESSION_LIMITS = {
+    "transport/unicast/max_sessions": 4 * keys.MAX_UAVS + 64,  # every agent its own session, and the rest
+    "transport/unicast/accept_pending": 1024,  # a thousand agents connect within seconds of each other
+    "transport/unicast/accept_timeout": 60_000,
+}
+"""What a router accepts: Zenoh's defaults (1,000 sessions, 100 pending, 10 s) refuse the sessions of a
+1,000-UAV swarm starting at once on a busy 2-core machine. A config file's own values are kept."""
+ZENOH_DEFAULT_LIMITS = {"transport/unicast/max_sessions": 1000, "transport/unicast/accept_pending": 100,
+                        "transport/unicast/accept_timeout": 10_000}
+
+
 def open_router(
     listen: Sequence[str] = (DEFAULT_ENDPOINT,),
     connect: Sequence[str] = (),
@@ -57,6 +68,9 @@ def open_router(
     conf = make_config(MODE_ROUTER, connect, listen, config_file)
     if json.loads(conf.get_json("low_pass_filter") or "[]") == []:
         conf.insert_json5("low_pass_filter", json.dumps(router_size_filters()))
+    for path, value in ROUTER_SESSION_LIMITS.items():  # Zenoh's defaults stop a swarm short of 1,000 UAVs
+        if json.loads(conf.get_json(path) or "null") == ZENOH_DEFAULT_LIMITS[path]:
+            conf.insert_json5(path, json.dumps(value))
     return open_session(conf)
 
 

@@ -63,7 +63,8 @@ from truav.bus.field_checks import (  # noqa: F401
     Check)
 from truav.bus.messages import (  # noqa: F401
     DEFAULT_LOCKSTEP_WAIT_S, HEALTH_PERIOD_S, KINDS, LOCKSTEP_JOIN_GRACE_S, M, MESSAGE_CLASSES, Action, Beacon,
-    Command, Control, Envelope, Fault, Health, Message, Metrics, Obs, Positions, State, Tick, size_limit)
+    Command, Control, Envelope, Fault, Health, Message, Metrics, Obs, Positions, State, Tick, size_limit,
+    KIND_BEACONS, MAX_BATCH_ENTRIES, Beacons)
 from truav.bus.codec import (  # noqa: F401
     Sequencer, decode, encode, new_incarnation, padded, peek_src, unpack_limits)
 from truav.actions import HOVER, N_ACTIONS  # noqa: F401  (an action is an int in [0, N_ACTIONS), or HOVER, an

@@ -62,6 +62,7 @@ def secure_setup(out: Path, opts, n_uavs: int, endpoint: str):
     # Real time: each key capped at the rate it needs (with a margin); lock-step ticks as fast as the
     # processes answer, so no rate is known and nothing is capped.
     caps = () if opts.lockstep else rate_caps(opts.run, n_uavs, opts.rate_hz, opts.beacon_every)
-    creds = load(issue(d, opts.run, n_uavs, endpoint, caps=caps), opts.run)
+    batch = opts.agents_per_process if getattr(opts, "batch_beacons", False) else 1
+    creds = load(issue(d, opts.run, n_uavs, endpoint, caps=caps, batch_group_size=batch), opts.run)
     sup = make_config(None, [creds.endpoint], config_file=creds.config_file(SUPERVISOR), connect_timeout_ms=5000)
     return ["--creds", str(d)], ["--creds", str(d)], sup

@@ -73,7 +73,16 @@ def make_config(
     if connect_timeout_ms is not None:
         conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if config_file is None or json.loads(conf.get_json("transport/shared_memory/enabled")) is True:
+        conf.insert_json5("transport/shared_memory/enabled", "false")  # see SHARED_MEMORY_NOTE
     return conf
+
+
+SHARED_MEMORY_NOTE = """Zenoh's shared memory is off in every TRUAV session: TRUAV's messages go through a
+router over TCP, never through shared memory, and with it on (Zenoh's default, "lazy") each session locks
+24 KiB of memory, charged to its user: under the usual 8 MiB RLIMIT_MEMLOCK the machine's ~350th session
+(of every process of that user) is refused by the router ("close message (reason GENERIC) in response to
+an OpenSyn"), so a swarm stopped short of 350 agents."""
 
 
 def _files_next_to(conf: zenoh.Config, directory: str) -> None:

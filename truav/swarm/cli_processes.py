@@ -122,7 +122,8 @@ def cmd_agent(args) -> int:
                             fault_plan=args.fault_plan, debug_delay_s=delays[uav], accept_replay=args.accept_replay,
                             scheme=args.scheme)
 
-    return host_agents(cfg, args.run, ids, configs, options_for, args.router_timeout, args.share_beacons)
+    return host_agents(cfg, args.run, ids, configs, options_for, args.router_timeout, args.share_beacons,
+                       args.batch_beacons)
 
 
 def cmd_controller(args) -> int:
@@ -167,6 +168,9 @@ def add_process_commands(sub) -> None:
     ag.add_argument("--share-beacons", action="store_true",
                     help="with several --id: one beacon subscription for all of them (each beacon crosses Zenoh "
                          "once per process, not once per agent); each agent still checks and counts its own")
+    ag.add_argument("--batch-beacons", action="store_true",
+                    help="lock-step: send the beacons of this process's agents of a tick as one message on "
+                         "group/<first>-<last>/beacons, and hear other processes' batches")
     add_lockstep_args(ag)
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")

@@ -84,6 +84,9 @@ def swarm_options(args):
     if args.share_beacons and args.agents_per_process == 1:
         raise UsageError("--share-beacons: shares one beacon subscription among the agents of a process; "
                          "give --agents-per-process K > 1 too")
+    if args.batch_beacons and (args.agents_per_process == 1 or not args.lockstep or args.scheme != "truav"):
+        raise UsageError("--batch-beacons: sends the beacons of a process's agents of a tick as one message; "
+                         "only with --lockstep, --scheme truav and --agents-per-process K > 1")
     if args.agents_per_process > 1 and plan is not None:
         kinds = {f.kind for f in plan.faults} & {"crash", "freeze"}
         if kinds:
@@ -99,7 +102,8 @@ def swarm_options(args):
                         max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
-                        beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process, share_beacons=args.share_beacons,
+                        beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process,
+                        share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
                         restart=args.restart, restart_limit=args.restart_limit)
     return cfg, opts
 
@@ -200,6 +204,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--share-beacons", action="store_true",
                     help="with --agents-per-process K > 1: each agent process subscribes to beacons once for its K "
                          "agents (each still checks, filters and counts its own)")
+    up.add_argument("--batch-beacons", action="store_true",
+                    help="lock-step, with --agents-per-process K > 1: each agent process sends its K agents' beacons "
+                         "of a tick as one message (each beacon still filtered per link and checked as if sent alone)")
     up.add_argument("--restart", choices=RESTART_POLICIES, default=DEFAULT_RESTART_POLICY,
                     help="on-failure (default): restart an agent or the controller that dies on its own, from its "
                          "checkpoint, after a backoff, and a dead router on its endpoint; never: leave them down "

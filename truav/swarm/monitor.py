@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agents.shared_beacons import batch_sender_verdict, split_batch
 from truav.bus import keys, schema
 from truav.bus.inbox import Inbox
 from truav.bus.transport import Bus
@@ -51,6 +52,7 @@ class Monitor:
         """central: also measure the state uploads and commands; tracks_from_world: UAV tracks from the
         world's positions (schemes whose agents send no beacons), else from the beacons heard."""
         self.tracks_from_world = tracks_from_world
+        self.run = run
         bus.subscribe(keys.metrics_step(run), self._on_step)
         bus.subscribe(keys.metrics_episode(run), self._on_episode)
         # Beacons are the bulk of the traffic: an inbox drained by poll() keeps this
@@ -58,6 +60,7 @@ class Monitor:
         # On a bus with receive rings (real time) a full inbox evicts instead of decoding a flood to compact.
         self.beacon_inbox = bus.inbox(keys.all_beacons(run), compact=bus.receive_ring is None)
         bus.feed(self.beacon_inbox, keys.all_beacons_in_cells(run))  # range-limited beacons (--beacon-cell)
+        bus.feed(self.beacon_inbox, keys.all_beacon_batches(run))  # a process's beacons in one (--batch-beacons)
         if central:  # the control plane's real messages, measured as they cross the bus
             self.control_inboxes = [bus.inbox(key, compact=bus.receive_ring is None)
                                     for key in (keys.all_states(run), keys.all_commands(run))]
@@ -109,11 +112,18 @@ class Monitor:
                 self.control_span = [min(self.control_span[0], t), max(self.control_span[1], t)] \
                     if self.control_span else [t, t]
             for r in heard:
-                msg: schema.Beacon = r.msg
-                self.beacon_count[msg.uav] += 1
-                self.beacon_bytes[msg.uav] += len(r.raw)
-                if not getattr(self, "tracks_from_world", False):
-                    self.tracks[msg.uav].append(msg.pos)
+                if isinstance(r.msg, schema.Beacons):  # each beacon of a batch as if sent alone
+                    if batch_sender_verdict(r.key, r.msg) is not None:
+                        continue
+                    beacons = [b for _, b in split_batch(r.key, r.msg, self.run)]
+                    size = len(r.raw) / len(beacons)
+                else:
+                    beacons, size = [r.msg], len(r.raw)
+                for msg in beacons:
+                    self.beacon_count[msg.uav] += 1
+                    self.beacon_bytes[msg.uav] += size
+                    if not getattr(self, "tracks_from_world", False):
+                        self.tracks[msg.uav].append(msg.pos)
                 self.first_beacon = self.first_beacon or r.recv_ns / 1e9
                 self.last_beacon = r.recv_ns / 1e9
 

@@ -255,6 +255,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 extra += to_argv(agent, ["beacon_cell_m"])
                 extra += to_argv(agent, ["beacon_slots"]) if opts.beacon_slots != AgentOptions.beacon_slots else []
                 extra += ["--share-beacons"] if opts.share_beacons and len(ids) > 1 else []
+                extra += ["--batch-beacons"] if opts.batch_beacons else []
                 self.children.start(group_name(ids), _python_module(
                     "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
                     *faults_args, "--rate", str(opts.rate_hz), *extra))

@@ -98,7 +98,9 @@ class SwarmOptions:
     """Agents hosted by one OS process, each with its own session, identity and files (fewer processes:
     less memory and start-up for a large swarm). Fault plans that kill or freeze agents need 1."""
     share_beacons: bool = False
-    """With agents_per_process > 1: one beacon subscription per process, fanned out to its agents' inboxes."""
+    """With agents_per_process > 1: one beacon subscription per process, decoded once for its agents."""
+    batch_beacons: bool = False
+    """Lock-step, agents_per_process > 1: each process sends its agents' beacons of a tick as one message."""
     restart: str = DEFAULT_RESTART_POLICY
     """on-failure: restart an agent, the controller or the router that dies on its own (truav.swarm.healing); never."""
     restart_limit: int = DEFAULT_RESTART_LIMIT
