@@ -12,7 +12,7 @@ from typing import Any
 
 import msgpack
 
-from truav.bus.field_checks import _src, _uint63
+from truav.bus.field_checks import Check, _src, _uint63
 from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _SIZE_LIMIT, _UNPACK_LIMITS,
                                 _WIRE_KEYS, MESSAGE_CLASSES, M, Message)
 from truav.bus.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
@@ -51,12 +51,63 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
     ``expect`` is the kind the key carries (see ``placement.expected_kind``):
     the payload is then held to that kind's size and msgpack limits *before*
     parsing (a 1 MB "observation" with 124k extra keys costs a length check,
-    not a parse).  Without it, the loosest limits of any kind apply."""
+    not a parse).  Without it, the loosest limits of any kind apply.
+
+    This is the hot path of every receiver (an agent decodes its neighbours' beacons each tick): one
+    ``msgpack.unpackb`` with the kind's limits, then :func:`_from_map`'s checks inline and the kind's
+    compiled field checks (:func:`_compile_builder`).  Bytes that ``unpackb`` refuses are parsed again
+    as they always were (:func:`_unpack_reference`): a refusal says exactly what it said before, at the
+    cost of a second parse of junk only."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise SchemaError(R_NOT_BYTES, f"expected bytes, got {type(data).__name__}")
-    limit = _SIZE_LIMIT.get(expect, MAX_PAYLOAD_BYTES) if expect is not None else MAX_PAYLOAD_BYTES
-    if len(data) > limit:
-        raise SchemaError(R_TOO_LARGE, f"{len(data)} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
+    limit, limits = _EXPECT.get(expect, _LOOSE_EXPECT)
+    size = len(data)
+    if size > limit:
+        raise SchemaError(R_TOO_LARGE, f"{size} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
+    try:
+        if limits is None:  # limits unpackb cannot take as they are: the reference parse only
+            raise ValueError
+        obj = _unpackb(data, raw=False, strict_map_key=True, use_list=True, max_map_len=limits[0],
+                       max_array_len=limits[1], max_str_len=limits[2], max_bin_len=limits[3], max_ext_len=limits[4])
+    except Exception:  # not msgpack, or above a limit: the reference parse raises the SchemaError it always did
+        obj = _unpack_reference(data, expect, limit)
+    if not isinstance(obj, dict):
+        raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
+    try:
+        # _from_map, inline
+        if "v" not in obj:
+            raise SchemaError(R_VERSION, "missing schema version 'v'")
+        v = obj["v"]
+        if type(v) is not int or v != SCHEMA_VERSION:
+            raise SchemaError(R_VERSION, f"version {v!r:.20}, expected {SCHEMA_VERSION}")
+        kind = obj.get("kind")
+        if not isinstance(kind, str) or (plan := _KIND_PLAN.get(kind)) is None:
+            raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
+        if size > plan[0]:
+            raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {plan[0]}")
+        if obj.keys() != plan[1]:
+            obj = _wire_keys_differ(obj, kind)
+        if obj["src"] == "":
+            raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
+        return plan[2](obj)
+    except SchemaError as exc:
+        exc.src = _readable_src(obj)
+        raise
+    except Exception as exc:  # defensive: validators should only raise SchemaError
+        raise SchemaError(R_BAD_TYPE, f"{type(exc).__name__}: {str(exc)[:80]}", src=_readable_src(obj)) from None
+
+
+def _readable_src(obj: dict[Any, Any]) -> str | None:
+    """The sender a refused map names, for the counts and the log (None if it names none a log can show)."""
+    src = obj.get("src")
+    return src if isinstance(src, str) and len(src) <= MAX_SRC_LEN else None
+
+
+def _unpack_reference(data: bytes | bytearray | memoryview, expect: str | None, limit: int) -> Any:
+    """The msgpack object in ``data`` as a streaming ``Unpacker`` with the limits of ``expect`` reads it,
+    or the SchemaError its failure means (R_TOO_LARGE for a msgpack limit, R_NOT_MSGPACK otherwise).
+
+    (``decode`` parsed this way until ``unpackb`` took over; it still says why bytes are refused.)"""
     try:
         unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, use_list=True,
                                     max_buffer_size=max(limit, 1), **unpack_limits(expect))
@@ -70,17 +121,7 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
         raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
     except Exception as exc:  # msgpack raises many types (OutOfData, ExtraData, StackError, ...)
         raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
-    if not isinstance(obj, dict):
-        raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
-    src = obj.get("src")
-    src = src if isinstance(src, str) and len(src) <= MAX_SRC_LEN else None
-    try:
-        return _from_map(obj, len(data))
-    except SchemaError as exc:
-        exc.src = src
-        raise
-    except Exception as exc:  # defensive: validators should only raise SchemaError
-        raise SchemaError(R_BAD_TYPE, f"{type(exc).__name__}: {str(exc)[:80]}", src=src) from None
+    return obj
 
 
 def peek_src(data: bytes | bytearray | memoryview) -> str | None:
@@ -103,6 +144,7 @@ def peek_src(data: bytes | bytearray | memoryview) -> str | None:
 
 
 def _from_map(obj: dict[Any, Any], size: int) -> Message:
+    """The message a decoded wire map holds (the checks ``decode`` makes inline), or SchemaError."""
     if "v" not in obj:
         raise SchemaError(R_VERSION, "missing schema version 'v'")
     v = obj["v"]
@@ -114,23 +156,96 @@ def _from_map(obj: dict[Any, Any], size: int) -> Message:
     if size > _SIZE_LIMIT[kind]:
         raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
     if obj.keys() != _WIRE_KEYS[kind]:
-        if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
-            obj = {**obj, "inc": 0}
-        else:
-            expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
-            missing = [k for k in expected if k not in obj]
-            if missing:
-                raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
-            extra = [k for k in obj if k not in expected]
-            raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
+        obj = _wire_keys_differ(obj, kind)
     if obj["src"] == "":
         raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
-    cls = MESSAGE_CLASSES[kind]
-    # The checks the constructor would run, without its keyword plumbing (decode is the hot path:
-    # every agent decodes its 19 neighbours' beacons each tick).
-    msg = object.__new__(cls)
-    msg.__dict__.update({name: check(path, obj[name]) for name, path, check in cls._PLAN})
-    return msg  # type: ignore[return-value]
+    return _KIND_PLAN[kind][2](obj)
+
+
+def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
+    """A wire map of ``kind`` whose keys are not the kind's: an older sender's (without ``inc``, taken as
+    0), else SchemaError (a missing field first, else the extra ones)."""
+    if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
+        return {**obj, "inc": 0}
+    expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
+    missing = [k for k in expected if k not in obj]
+    if missing:
+        raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
+    extra = [k for k in obj if k not in expected]
+    raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
+
+
+MAX_REMEMBERED_TEXTS = 4096
+"""Strings a text check accepted that the decoder remembers (per check; forgotten all at once when full, so
+a flood of distinct sender names costs a check each and no memory beyond this)."""
+
+
+def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
+    """The message of class ``cls`` a wire map with exactly its fields holds, or the first field check's
+    SchemaError, in ``cls._PLAN``'s order: the checks the constructor would run, without its keyword
+    plumbing nor a call per field for the common case (a check's ``FAST``, see
+    :mod:`truav.bus.field_checks`), which is inlined; a value off it goes through the check itself."""
+    env: dict[str, Any] = {"_new": object.__new__, "_cls": cls, "_MAX_TEXTS": MAX_REMEMBERED_TEXTS}
+    body: list[str] = []
+    fields: list[str] = []
+    for i, (name, path, check) in enumerate(cls._PLAN):
+        v, call = f"v{i}", f"v{i} = _c{i}(_p{i}, v{i})"
+        env[f"_c{i}"], env[f"_p{i}"] = check, path
+        body.append(f"{v} = obj[{name!r}]")
+        fast = getattr(check, "FAST", None)
+        tag = fast[0] if isinstance(fast, tuple) and fast else None
+        if tag == "int" and type(fast[1]) is int and type(fast[2]) is int:
+            body += [f"if not (type({v}) is int and {fast[1]!r} <= {v} <= {fast[2]!r}):", f"    {call}"]
+        elif tag == "real":  # finite: -inf < v < inf (NaN compares False); 1e999 is the literal inf
+            env[f"_lo{i}"] = lo = fast[1]
+            cond = f"-1e999 < {v} < 1e999" if lo is None else f"_lo{i} {'<' if fast[2] else '<='} {v} < 1e999"
+            body += [f"if not (type({v}) is float and {cond}):", f"    {call}"]
+        elif tag == "bool":
+            body += [f"if type({v}) is not bool:", f"    {call}"]
+        elif tag == "choice":
+            env[f"_o{i}"] = tuple(fast[1])
+            body += [f"if not (type({v}) is str and {v} in _o{i}):", f"    {call}"]
+        elif tag == "text":
+            env[f"_k{i}"] = _REMEMBERED.setdefault(id(check), (check, set()))[1]
+            body += [f"if not (type({v}) is str and {v} in _k{i}):", f"    {call}",
+                     f"    if type({v}) is str:",
+                     f"        if len(_k{i}) >= _MAX_TEXTS:", f"            _k{i}.clear()",
+                     f"        _k{i}.add({v})"]
+        elif tag == "vec2":
+            body += [f"if (type({v}) is list or type({v}) is tuple) and len({v}) == 2 and type({v}[0]) is float "
+                     f"and type({v}[1]) is float and -1e999 < {v}[0] < 1e999 and -1e999 < {v}[1] < 1e999:",
+                     f"    {v} = ({v}[0], {v}[1])", "else:", f"    {call}"]
+        else:
+            body.append(call)
+        fields.append(f"d[{name!r}] = {v}")
+    body += ["m = _new(_cls)", "d = m.__dict__", *fields, "return m"]  # in _PLAN's order, as the constructor
+    src = "def build(obj):\n" + "".join(f"    {line}\n" for line in body)
+    exec(compile(src, f"<truav.bus.codec decoder of {cls.KIND}>", "exec"), env)
+    return env["build"]
+
+
+_REMEMBERED: dict[int, tuple[Check, set[str]]] = {}  # id(text check) -> (the check, kept alive; what it accepted)
+_KIND_PLAN: dict[str, tuple[int, frozenset[str], Callable[[dict[str, Any]], Message]]] = {
+    kind: (_SIZE_LIMIT[kind], _WIRE_KEYS[kind], _compile_builder(cls))  # type: ignore[arg-type]
+    for kind, cls in MESSAGE_CLASSES.items()}
+"""kind -> (its size limit, its wire keys, its builder): what ``decode`` needs of a kind, in one look-up."""
+
+_LIMIT_NAMES = ("max_map_len", "max_array_len", "max_str_len", "max_bin_len", "max_ext_len")
+
+
+def _unpackb_limits(limits: Mapping[str, int]) -> tuple[int, ...] | None:
+    """``limits`` in the order ``decode`` hands them to ``unpackb``; None unless they are exactly those five
+    (another set would leave unpackb and the reference Unpacker each a default of its own)."""
+    return tuple(limits[name] for name in _LIMIT_NAMES) if set(limits) == set(_LIMIT_NAMES) else None
+
+
+_LOOSE_EXPECT = (MAX_PAYLOAD_BYTES, _unpackb_limits(_LOOSE_LIMITS))
+_EXPECT: dict[str | None, tuple[int, tuple[int, ...] | None]] = {
+    None: _LOOSE_EXPECT,
+    **{kind: (_SIZE_LIMIT.get(kind, MAX_PAYLOAD_BYTES), _unpackb_limits(unpack_limits(kind)))
+       for kind in (*_SIZE_LIMIT, *_UNPACK_LIMITS)}}
+"""expect -> (size limit, msgpack limits) as ``decode`` applied them (any other expect: the loosest)."""
+_unpackb = msgpack.unpackb
 
 
 def padded(msg: M, size: int) -> M:
