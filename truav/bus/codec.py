@@ -54,13 +54,13 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
     not a parse).  Without it, the loosest limits of any kind apply.
 
     This is the hot path of every receiver (an agent decodes its neighbours' beacons each tick): one
-    ``msgpack.unpackb`` with the kind's limits, then :func:`_from_map`'s checks inline and the kind's
-    compiled field checks (:func:`_compile_builder`).  Bytes that ``unpackb`` refuses are parsed again
+    ``msgpack.unpackb`` with the kind's limits, then the checks of the map and the kind's compiled
+    field checks (:func:`_compile_builder`).  Bytes that ``unpackb`` refuses are parsed again
     as they always were (:func:`_unpack_reference`): a refusal says exactly what it said before, at the
     cost of a second parse of junk only."""
-    if not isinstance(data, (bytes, bytearray, memoryview)):
+    if type(data) is not bytes and not isinstance(data, (bytes, bytearray, memoryview)):
         raise SchemaError(R_NOT_BYTES, f"expected bytes, got {type(data).__name__}")
-    limit, limits = _EXPECT.get(expect, _LOOSE_EXPECT)
+    limit, limits = _EXPECT.get(expect, _LOOSE_EXPECT)  # type: ignore[misc]
     size = len(data)
     if size > limit:
         raise SchemaError(R_TOO_LARGE, f"{size} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
@@ -73,8 +73,7 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
         obj = _unpack_reference(data, expect, limit)
     if not isinstance(obj, dict):
         raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
-    try:
-        # _from_map, inline
+    try:  # the checks of the map itself, in the order they always had
         if "v" not in obj:
             raise SchemaError(R_VERSION, "missing schema version 'v'")
         v = obj["v"]
@@ -85,10 +84,8 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
             raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
         if size > plan[0]:
             raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {plan[0]}")
-        if obj.keys() != plan[1]:
+        if len(obj) != plan[1]:  # not the kind's keys (same count: the builder finds out)
             obj = _wire_keys_differ(obj, kind)
-        if obj["src"] == "":
-            raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
         return plan[2](obj)
     except SchemaError as exc:
         exc.src = _readable_src(obj)
@@ -143,28 +140,10 @@ def peek_src(data: bytes | bytearray | memoryview) -> str | None:
     return None
 
 
-def _from_map(obj: dict[Any, Any], size: int) -> Message:
-    """The message a decoded wire map holds (the checks ``decode`` makes inline), or SchemaError."""
-    if "v" not in obj:
-        raise SchemaError(R_VERSION, "missing schema version 'v'")
-    v = obj["v"]
-    if type(v) is not int or v != SCHEMA_VERSION:
-        raise SchemaError(R_VERSION, f"version {v!r:.20}, expected {SCHEMA_VERSION}")
-    kind = obj.get("kind")
-    if not isinstance(kind, str) or kind not in MESSAGE_CLASSES:
-        raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
-    if size > _SIZE_LIMIT[kind]:
-        raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
-    if obj.keys() != _WIRE_KEYS[kind]:
-        obj = _wire_keys_differ(obj, kind)
-    if obj["src"] == "":
-        raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
-    return _KIND_PLAN[kind][2](obj)
-
-
 def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
     """A wire map of ``kind`` whose keys are not the kind's: an older sender's (without ``inc``, taken as
-    0), else SchemaError (a missing field first, else the extra ones)."""
+    0), else SchemaError (a missing field first, else the extra ones). (The checks on the keys of
+    ``decode`` as it was: ``obj.keys() != _WIRE_KEYS[kind]`` led here.)"""
     if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
         return {**obj, "inc": 0}
     expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
@@ -181,17 +160,25 @@ a flood of distinct sender names costs a check each and no memory beyond this)."
 
 
 def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
-    """The message of class ``cls`` a wire map with exactly its fields holds, or the first field check's
-    SchemaError, in ``cls._PLAN``'s order: the checks the constructor would run, without its keyword
-    plumbing nor a call per field for the common case (a check's ``FAST``, see
-    :mod:`truav.bus.field_checks`), which is inlined; a value off it goes through the check itself."""
-    env: dict[str, Any] = {"_new": object.__new__, "_cls": cls, "_MAX_TEXTS": MAX_REMEMBERED_TEXTS}
-    body: list[str] = []
+    """The message of class ``cls`` a wire map of as many keys as the kind's holds, or SchemaError.
+
+    The checks :func:`decode` made before a field's, then the field checks in ``cls._PLAN``'s order (the
+    constructor's), without its keyword plumbing nor a call per field for the common case (a check's
+    ``FAST``, see :mod:`truav.bus.field_checks`), which is inlined; a value off it goes through the check
+    itself. Every field is looked up first: with the key count right, all found means the keys are the
+    kind's (else the missing ones are named, as a set comparison of the keys would have found)."""
+    env: dict[str, Any] = {"_new": object.__new__, "_cls": cls, "_MAX_TEXTS": MAX_REMEMBERED_TEXTS,
+                           "_keys_differ": _wire_keys_differ, "_kind": cls.KIND, "SchemaError": SchemaError,
+                           "R_UNSTAMPED": R_UNSTAMPED}
+    plan = cls._PLAN
+    src_var = next(f"v{i}" for i, (name, _, _) in enumerate(plan) if name == "src")
+    body: list[str] = ["try:", *(f"    v{i} = obj[{name!r}]" for i, (name, _, _) in enumerate(plan)),
+                       "except KeyError:", "    _keys_differ(obj, _kind)", "    raise",
+                       f"if {src_var} == '':", f"    raise SchemaError(R_UNSTAMPED, {cls.KIND + ' has an empty src'!r})"]
     fields: list[str] = []
-    for i, (name, path, check) in enumerate(cls._PLAN):
+    for i, (name, path, check) in enumerate(plan):
         v, call = f"v{i}", f"v{i} = _c{i}(_p{i}, v{i})"
         env[f"_c{i}"], env[f"_p{i}"] = check, path
-        body.append(f"{v} = obj[{name!r}]")
         fast = getattr(check, "FAST", None)
         tag = fast[0] if isinstance(fast, tuple) and fast else None
         if tag == "int" and type(fast[1]) is int and type(fast[2]) is int:
@@ -225,10 +212,10 @@ def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
 
 
 _REMEMBERED: dict[int, tuple[Check, set[str]]] = {}  # id(text check) -> (the check, kept alive; what it accepted)
-_KIND_PLAN: dict[str, tuple[int, frozenset[str], Callable[[dict[str, Any]], Message]]] = {
-    kind: (_SIZE_LIMIT[kind], _WIRE_KEYS[kind], _compile_builder(cls))  # type: ignore[arg-type]
+_KIND_PLAN: dict[str, tuple[int, int, Callable[[dict[str, Any]], Message]]] = {
+    kind: (_SIZE_LIMIT[kind], len(_WIRE_KEYS[kind]), _compile_builder(cls))  # type: ignore[arg-type]
     for kind, cls in MESSAGE_CLASSES.items()}
-"""kind -> (its size limit, its wire keys, its builder): what ``decode`` needs of a kind, in one look-up."""
+"""kind -> (its size limit, its number of wire keys, its builder): what ``decode`` needs of a kind."""
 
 _LIMIT_NAMES = ("max_map_len", "max_array_len", "max_str_len", "max_bin_len", "max_ext_len")
 

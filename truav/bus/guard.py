@@ -254,9 +254,10 @@ class Guard:
             return None
         return R_TICK, f"tick {tick}, current {self._tick}"
 
-    def _check_beacon(self, msg: schema.Beacon) -> tuple[str, str] | None:
+    def _check_beacon(self, msg: schema.Beacon) -> tuple[str, str] | None:  # the most frequent: all inline
         src, uav, b = msg.src, msg.uav, self.bounds
-        if src != _uav_src(uav):
+        own = _UAV_SRCS.get(uav) if type(uav) is int else None
+        if src != (own if own is not None else f"uav/{uav}"):
             return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
@@ -265,8 +266,14 @@ class Guard:
             cur = self._tick
             if not (cur is None or cur - TICK_WINDOW <= tick <= cur + TICK_WINDOW):
                 return R_TICK, f"tick {tick}, current {self._tick}"
+        pos = msg.pos
+        if type(b) is Bounds:  # Bounds.in_area, inline
+            hi = b.area_m + AREA_MARGIN_M
+            inside = -AREA_MARGIN_M <= pos[0] <= hi and -AREA_MARGIN_M <= pos[1] <= hi
+        else:
+            inside = b.in_area(pos)
         vx, vy = msg.vel
-        if not b.in_area(msg.pos) or (vx * vx + vy * vy) ** 0.5 > b.max_speed * SPEED_MARGIN:
+        if not inside or (vx * vx + vy * vy) ** 0.5 > b.max_speed * SPEED_MARGIN:
             return R_IMPLAUSIBLE, f"beacon pos {msg.pos} vel {msg.vel}"
         return None
 

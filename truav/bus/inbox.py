@@ -59,12 +59,7 @@ class Received(NamedTuple):
     """Arrival time on the bus clock (for a delayed message: when its delay ended)."""
 
 
-def _received(fields: tuple) -> Received:
-    """``Received(*fields)`` without NamedTuple's keyword-parsing ``__new__``."""
-    return _tuple_new(Received, fields)
-
-
-_tuple_new = tuple.__new__
+_tuple_new = tuple.__new__  # _tuple_new(Received, fields) is Received(*fields) without NamedTuple's __new__
 _PUT = zenoh.SampleKind.PUT
 _MAX_PAYLOAD_BYTES = schema.MAX_PAYLOAD_BYTES
 
@@ -200,6 +195,7 @@ class Inbox:
         bus = self._bus
         decode = bus._decode
         known = _FACTS.get
+        new, received = _tuple_new, Received
         for entry in entries:  # the hot loop (an agent drains its neighbours' beacons each tick): all inline
             if len(entry) == 2:
                 recv_ns, sample = entry
@@ -219,13 +215,13 @@ class Inbox:
                     if raw is None:
                         continue
             elif len(entry) == 4:  # validated when the inbox was full
-                keep(_received((entry[1], entry[3], entry[2], entry[0])))
+                keep(new(received, (entry[1], entry[3], entry[2], entry[0])))
                 continue
             else:
                 recv_ns, key, raw = entry
             msg = decode(key, raw)
             if msg is not None:
-                keep(_received((key, msg, raw, recv_ns)))
+                keep(new(received, (key, msg, raw, recv_ns)))
         if entries:
             self._bus._count_received(unfiltered, delivered=len(out))
         if len(entries) > arrived:  # delayed ones interleave by when they were due

@@ -75,12 +75,15 @@ def check_placed(facts: KeyFacts, key: str, msg: Message) -> None:
         src_uav = _learn_src(src)
     if src_uav is not None and src_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
-    if kind == schema.KIND_METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
+    if kind == _METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.scope} metrics on {key}", src=msg.src)
-    if kind == schema.KIND_FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
+    if kind == _FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
-    if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
+    if kind == _COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+
+
+_METRICS, _FAULT, _COMMAND = schema.KIND_METRICS, schema.KIND_FAULT, schema.KIND_COMMAND
 
 
 # A process sees the same few keys and senders over and over: parse each once. The caches are bounded,
