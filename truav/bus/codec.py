@@ -55,9 +55,10 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
 
     This is the hot path of every receiver (an agent decodes its neighbours' beacons each tick): one
     ``msgpack.unpackb`` with the kind's limits, then the checks of the map and the kind's compiled
-    field checks (:func:`_compile_builder`).  Bytes that ``unpackb`` refuses are parsed again
-    as they always were (:func:`_unpack_reference`): a refusal says exactly what it said before, at the
-    cost of a second parse of junk only."""
+    field checks (:func:`_compile_builder`).  A refusal says exactly what it said when a streaming
+    ``Unpacker`` parsed (:func:`_unpack_reference`): trailing bytes, bytes that are no msgpack, nesting
+    too deep, an incomplete object and a msgpack limit are told as it tells them; any other bytes
+    ``unpackb`` refuses are parsed again by it."""
     if type(data) is not bytes and not isinstance(data, (bytes, bytearray, memoryview)):
         raise SchemaError(R_NOT_BYTES, f"expected bytes, got {type(data).__name__}")
     limit, limits = _EXPECT.get(expect, _LOOSE_EXPECT)  # type: ignore[misc]
@@ -69,7 +70,16 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
             raise ValueError
         obj = _unpackb(data, raw=False, strict_map_key=True, use_list=True, max_map_len=limits[0],
                        max_array_len=limits[1], max_str_len=limits[2], max_bin_len=limits[3], max_ext_len=limits[4])
-    except Exception:  # not msgpack, or above a limit: the reference parse raises the SchemaError it always did
+    except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:  # the reference's exceptions
+        raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
+    except ValueError as exc:
+        text = str(exc)
+        if "exceeds max" in text:  # msgpack's own limits (the same check and text in unpackb and Unpacker)
+            raise SchemaError(R_TOO_LARGE, text[:80]) from None
+        if text == _UNPACKB_INCOMPLETE:  # where the reference Unpacker runs out of data
+            raise SchemaError(R_NOT_MSGPACK, _INCOMPLETE_DETAIL) from None
+        obj = _unpack_reference(data, expect, limit)  # anything else: the reference parse says why
+    except Exception:
         obj = _unpack_reference(data, expect, limit)
     if not isinstance(obj, dict):
         raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
@@ -233,6 +243,24 @@ _EXPECT: dict[str | None, tuple[int, tuple[int, ...] | None]] = {
        for kind in (*_SIZE_LIMIT, *_UNPACK_LIMITS)}}
 """expect -> (size limit, msgpack limits) as ``decode`` applied them (any other expect: the loosest)."""
 _unpackb = msgpack.unpackb
+
+
+def _incomplete_texts() -> tuple[str, str]:
+    """What ``unpackb`` says of an incomplete object, and the detail the reference parse gives it."""
+    try:
+        _unpackb(b"\x91")
+    except ValueError as exc:
+        said = str(exc)
+    else:  # pragma: no cover - msgpack changed: every incomplete input goes to the reference parse
+        said = "\0"
+    try:
+        _unpack_reference(b"\x91", None, MAX_PAYLOAD_BYTES)
+    except SchemaError as exc:
+        return said, exc.detail
+    raise AssertionError("an incomplete msgpack object decoded")  # pragma: no cover
+
+
+_UNPACKB_INCOMPLETE, _INCOMPLETE_DETAIL = _incomplete_texts()
 
 
 def padded(msg: M, size: int) -> M:
