@@ -12,7 +12,7 @@ from typing import Any
 
 import msgpack
 
-from truav.bus.field_checks import _src, _uint63
+from truav.bus.field_checks import Check, _src, _uint63
 from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _SIZE_LIMIT, _UNPACK_LIMITS,
                                 _WIRE_KEYS, MESSAGE_CLASSES, M, Message)
 from truav.bus.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
@@ -51,12 +51,70 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
     ``expect`` is the kind the key carries (see ``placement.expected_kind``):
     the payload is then held to that kind's size and msgpack limits *before*
     parsing (a 1 MB "observation" with 124k extra keys costs a length check,
-    not a parse).  Without it, the loosest limits of any kind apply."""
-    if not isinstance(data, (bytes, bytearray, memoryview)):
+    not a parse).  Without it, the loosest limits of any kind apply.
+
+    This is the hot path of every receiver (an agent decodes its neighbours' beacons each tick): one
+    ``msgpack.unpackb`` with the kind's limits, then the checks of the map and the kind's compiled
+    field checks (:func:`_compile_builder`).  A refusal says exactly what it said when a streaming
+    ``Unpacker`` parsed (:func:`_unpack_reference`): trailing bytes, bytes that are no msgpack, nesting
+    too deep, an incomplete object and a msgpack limit are told as it tells them; any other bytes
+    ``unpackb`` refuses are parsed again by it."""
+    if type(data) is not bytes and not isinstance(data, (bytes, bytearray, memoryview)):
         raise SchemaError(R_NOT_BYTES, f"expected bytes, got {type(data).__name__}")
-    limit = _SIZE_LIMIT.get(expect, MAX_PAYLOAD_BYTES) if expect is not None else MAX_PAYLOAD_BYTES
-    if len(data) > limit:
-        raise SchemaError(R_TOO_LARGE, f"{len(data)} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
+    limit, limits = _EXPECT.get(expect, _LOOSE_EXPECT)  # type: ignore[misc]
+    size = len(data)
+    if size > limit:
+        raise SchemaError(R_TOO_LARGE, f"{size} bytes, limit {limit}" + (f" for {expect}" if expect else ""))
+    try:
+        if limits is None:  # limits unpackb cannot take as they are: the reference parse only
+            raise ValueError
+        obj = _unpackb(data, raw=False, strict_map_key=True, use_list=True, max_map_len=limits[0],
+                       max_array_len=limits[1], max_str_len=limits[2], max_bin_len=limits[3], max_ext_len=limits[4])
+    except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:  # the reference's exceptions
+        raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
+    except ValueError as exc:
+        text = str(exc)
+        if "exceeds max" in text:  # msgpack's own limits (the same check and text in unpackb and Unpacker)
+            raise SchemaError(R_TOO_LARGE, text[:80]) from None
+        if text == _UNPACKB_INCOMPLETE:  # where the reference Unpacker runs out of data
+            raise SchemaError(R_NOT_MSGPACK, _INCOMPLETE_DETAIL) from None
+        obj = _unpack_reference(data, expect, limit)  # anything else: the reference parse says why
+    except Exception:
+        obj = _unpack_reference(data, expect, limit)
+    if not isinstance(obj, dict):
+        raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
+    try:  # the checks of the map itself, in the order they always had
+        if "v" not in obj:
+            raise SchemaError(R_VERSION, "missing schema version 'v'")
+        v = obj["v"]
+        if type(v) is not int or v != SCHEMA_VERSION:
+            raise SchemaError(R_VERSION, f"version {v!r:.20}, expected {SCHEMA_VERSION}")
+        kind = obj.get("kind")
+        if not isinstance(kind, str) or (plan := _KIND_PLAN.get(kind)) is None:
+            raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
+        if size > plan[0]:
+            raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {plan[0]}")
+        if len(obj) != plan[1]:  # not the kind's keys (same count: the builder finds out)
+            obj = _wire_keys_differ(obj, kind)
+        return plan[2](obj)
+    except SchemaError as exc:
+        exc.src = _readable_src(obj)
+        raise
+    except Exception as exc:  # defensive: validators should only raise SchemaError
+        raise SchemaError(R_BAD_TYPE, f"{type(exc).__name__}: {str(exc)[:80]}", src=_readable_src(obj)) from None
+
+
+def _readable_src(obj: dict[Any, Any]) -> str | None:
+    """The sender a refused map names, for the counts and the log (None if it names none a log can show)."""
+    src = obj.get("src")
+    return src if isinstance(src, str) and len(src) <= MAX_SRC_LEN else None
+
+
+def _unpack_reference(data: bytes | bytearray | memoryview, expect: str | None, limit: int) -> Any:
+    """The msgpack object in ``data`` as a streaming ``Unpacker`` with the limits of ``expect`` reads it,
+    or the SchemaError its failure means (R_TOO_LARGE for a msgpack limit, R_NOT_MSGPACK otherwise).
+
+    (``decode`` parsed this way until ``unpackb`` took over; it still says why bytes are refused.)"""
     try:
         unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, use_list=True,
                                     max_buffer_size=max(limit, 1), **unpack_limits(expect))
@@ -70,17 +128,7 @@ def decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> M
         raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
     except Exception as exc:  # msgpack raises many types (OutOfData, ExtraData, StackError, ...)
         raise SchemaError(R_NOT_MSGPACK, f"{type(exc).__name__}: {str(exc)[:80] or 'invalid msgpack'}") from None
-    if not isinstance(obj, dict):
-        raise SchemaError(R_NOT_MAP, f"top level is {type(obj).__name__}")
-    src = obj.get("src")
-    src = src if isinstance(src, str) and len(src) <= MAX_SRC_LEN else None
-    try:
-        return _from_map(obj, len(data))
-    except SchemaError as exc:
-        exc.src = src
-        raise
-    except Exception as exc:  # defensive: validators should only raise SchemaError
-        raise SchemaError(R_BAD_TYPE, f"{type(exc).__name__}: {str(exc)[:80]}", src=src) from None
+    return obj
 
 
 def peek_src(data: bytes | bytearray | memoryview) -> str | None:
@@ -102,35 +150,117 @@ def peek_src(data: bytes | bytearray | memoryview) -> str | None:
     return None
 
 
-def _from_map(obj: dict[Any, Any], size: int) -> Message:
-    if "v" not in obj:
-        raise SchemaError(R_VERSION, "missing schema version 'v'")
-    v = obj["v"]
-    if type(v) is not int or v != SCHEMA_VERSION:
-        raise SchemaError(R_VERSION, f"version {v!r:.20}, expected {SCHEMA_VERSION}")
-    kind = obj.get("kind")
-    if not isinstance(kind, str) or kind not in MESSAGE_CLASSES:
-        raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
-    if size > _SIZE_LIMIT[kind]:
-        raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
-    if obj.keys() != _WIRE_KEYS[kind]:
-        if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
-            obj = {**obj, "inc": 0}
+def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
+    """A wire map of ``kind`` whose keys are not the kind's: an older sender's (without ``inc``, taken as
+    0), else SchemaError (a missing field first, else the extra ones). (The checks on the keys of
+    ``decode`` as it was: ``obj.keys() != _WIRE_KEYS[kind]`` led here.)"""
+    if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
+        return {**obj, "inc": 0}
+    expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
+    missing = [k for k in expected if k not in obj]
+    if missing:
+        raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
+    extra = [k for k in obj if k not in expected]
+    raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
+
+
+MAX_REMEMBERED_TEXTS = 4096
+"""Strings a text check accepted that the decoder remembers (per check; forgotten all at once when full, so
+a flood of distinct sender names costs a check each and no memory beyond this)."""
+
+
+def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
+    """The message of class ``cls`` a wire map of as many keys as the kind's holds, or SchemaError.
+
+    The checks :func:`decode` made before a field's, then the field checks in ``cls._PLAN``'s order (the
+    constructor's), without its keyword plumbing nor a call per field for the common case (a check's
+    ``FAST``, see :mod:`truav.bus.field_checks`), which is inlined; a value off it goes through the check
+    itself. Every field is looked up first: with the key count right, all found means the keys are the
+    kind's (else the missing ones are named, as a set comparison of the keys would have found)."""
+    env: dict[str, Any] = {"_new": object.__new__, "_cls": cls, "_MAX_TEXTS": MAX_REMEMBERED_TEXTS,
+                           "_keys_differ": _wire_keys_differ, "_kind": cls.KIND, "SchemaError": SchemaError,
+                           "R_UNSTAMPED": R_UNSTAMPED}
+    plan = cls._PLAN
+    src_var = next(f"v{i}" for i, (name, _, _) in enumerate(plan) if name == "src")
+    body: list[str] = ["try:", *(f"    v{i} = obj[{name!r}]" for i, (name, _, _) in enumerate(plan)),
+                       "except KeyError:", "    _keys_differ(obj, _kind)", "    raise",
+                       f"if {src_var} == '':", f"    raise SchemaError(R_UNSTAMPED, {cls.KIND + ' has an empty src'!r})"]
+    fields: list[str] = []
+    for i, (name, path, check) in enumerate(plan):
+        v, call = f"v{i}", f"v{i} = _c{i}(_p{i}, v{i})"
+        env[f"_c{i}"], env[f"_p{i}"] = check, path
+        fast = getattr(check, "FAST", None)
+        tag = fast[0] if isinstance(fast, tuple) and fast else None
+        if tag == "int" and type(fast[1]) is int and type(fast[2]) is int:
+            body += [f"if not (type({v}) is int and {fast[1]!r} <= {v} <= {fast[2]!r}):", f"    {call}"]
+        elif tag == "real":  # finite: -inf < v < inf (NaN compares False); 1e999 is the literal inf
+            env[f"_lo{i}"] = lo = fast[1]
+            cond = f"-1e999 < {v} < 1e999" if lo is None else f"_lo{i} {'<' if fast[2] else '<='} {v} < 1e999"
+            body += [f"if not (type({v}) is float and {cond}):", f"    {call}"]
+        elif tag == "bool":
+            body += [f"if type({v}) is not bool:", f"    {call}"]
+        elif tag == "choice":
+            env[f"_o{i}"] = tuple(fast[1])
+            body += [f"if not (type({v}) is str and {v} in _o{i}):", f"    {call}"]
+        elif tag == "text":
+            env[f"_k{i}"] = _REMEMBERED.setdefault(id(check), (check, set()))[1]
+            body += [f"if not (type({v}) is str and {v} in _k{i}):", f"    {call}",
+                     f"    if type({v}) is str:",
+                     f"        if len(_k{i}) >= _MAX_TEXTS:", f"            _k{i}.clear()",
+                     f"        _k{i}.add({v})"]
+        elif tag == "vec2":
+            body += [f"if (type({v}) is list or type({v}) is tuple) and len({v}) == 2 and type({v}[0]) is float "
+                     f"and type({v}[1]) is float and -1e999 < {v}[0] < 1e999 and -1e999 < {v}[1] < 1e999:",
+                     f"    {v} = ({v}[0], {v}[1])", "else:", f"    {call}"]
         else:
-            expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
-            missing = [k for k in expected if k not in obj]
-            if missing:
-                raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
-            extra = [k for k in obj if k not in expected]
-            raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
-    if obj["src"] == "":
-        raise SchemaError(R_UNSTAMPED, f"{kind} has an empty src")
-    cls = MESSAGE_CLASSES[kind]
-    # The checks the constructor would run, without its keyword plumbing (decode is the hot path:
-    # every agent decodes its 19 neighbours' beacons each tick).
-    msg = object.__new__(cls)
-    msg.__dict__.update({name: check(path, obj[name]) for name, path, check in cls._PLAN})
-    return msg  # type: ignore[return-value]
+            body.append(call)
+        fields.append(f"d[{name!r}] = {v}")
+    body += ["m = _new(_cls)", "d = m.__dict__", *fields, "return m"]  # in _PLAN's order, as the constructor
+    src = "def build(obj):\n" + "".join(f"    {line}\n" for line in body)
+    exec(compile(src, f"<truav.bus.codec decoder of {cls.KIND}>", "exec"), env)
+    return env["build"]
+
+
+_REMEMBERED: dict[int, tuple[Check, set[str]]] = {}  # id(text check) -> (the check, kept alive; what it accepted)
+_KIND_PLAN: dict[str, tuple[int, int, Callable[[dict[str, Any]], Message]]] = {
+    kind: (_SIZE_LIMIT[kind], len(_WIRE_KEYS[kind]), _compile_builder(cls))  # type: ignore[arg-type]
+    for kind, cls in MESSAGE_CLASSES.items()}
+"""kind -> (its size limit, its number of wire keys, its builder): what ``decode`` needs of a kind."""
+
+_LIMIT_NAMES = ("max_map_len", "max_array_len", "max_str_len", "max_bin_len", "max_ext_len")
+
+
+def _unpackb_limits(limits: Mapping[str, int]) -> tuple[int, ...] | None:
+    """``limits`` in the order ``decode`` hands them to ``unpackb``; None unless they are exactly those five
+    (another set would leave unpackb and the reference Unpacker each a default of its own)."""
+    return tuple(limits[name] for name in _LIMIT_NAMES) if set(limits) == set(_LIMIT_NAMES) else None
+
+
+_LOOSE_EXPECT = (MAX_PAYLOAD_BYTES, _unpackb_limits(_LOOSE_LIMITS))
+_EXPECT: dict[str | None, tuple[int, tuple[int, ...] | None]] = {
+    None: _LOOSE_EXPECT,
+    **{kind: (_SIZE_LIMIT.get(kind, MAX_PAYLOAD_BYTES), _unpackb_limits(unpack_limits(kind)))
+       for kind in (*_SIZE_LIMIT, *_UNPACK_LIMITS)}}
+"""expect -> (size limit, msgpack limits) as ``decode`` applied them (any other expect: the loosest)."""
+_unpackb = msgpack.unpackb
+
+
+def _incomplete_texts() -> tuple[str, str]:
+    """What ``unpackb`` says of an incomplete object, and the detail the reference parse gives it."""
+    try:
+        _unpackb(b"\x91")
+    except ValueError as exc:
+        said = str(exc)
+    else:  # pragma: no cover - msgpack changed: every incomplete input goes to the reference parse
+        said = "\0"
+    try:
+        _unpack_reference(b"\x91", None, MAX_PAYLOAD_BYTES)
+    except SchemaError as exc:
+        return said, exc.detail
+    raise AssertionError("an incomplete msgpack object decoded")  # pragma: no cover
+
+
+_UNPACKB_INCOMPLETE, _INCOMPLETE_DETAIL = _incomplete_texts()
 
 
 def padded(msg: M, size: int) -> M:

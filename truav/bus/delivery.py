@@ -10,7 +10,8 @@ from collections.abc import Callable
 
 from truav.bus import schema
 from truav.bus.bus_types import BUS_LOGGER, UNKNOWN_SRC
-from truav.bus.placement import check_placement, key_facts
+from truav.bus.codec import decode
+from truav.bus.placement import _FACTS, check_placed, facts_of
 from truav.bus.schema import Message, SchemaError
 
 log = logging.getLogger(BUS_LOGGER)
@@ -30,9 +31,12 @@ class Delivery:
 
     def _decode(self, key: str, raw: bytes) -> Message | None:
         """The valid message ``raw`` carries on ``key``, or None (dropped, counted, logged once per reason)."""
+        facts = _FACTS.get(key)
+        if facts is None:
+            facts = facts_of(key)
         try:
-            msg = schema.decode(raw, key_facts(key)[0])
-            check_placement(key, msg)
+            msg = decode(raw, facts[0])
+            check_placed(facts, key, msg)
             guard = self.guard
             verdict = guard.check(key, msg) if guard is not None else None
             if verdict is not None:

@@ -21,6 +21,13 @@ from truav.actions import HOVER, N_ACTIONS
 # --- field checks: (field path, value) -> normalised value, or SchemaError --------
 Check = Callable[[str, Any], Any]
 
+# A check may carry ``FAST``: a description of its common case, which the decoder (truav.bus.codec) inlines
+# and on which the check returns its value unchanged: ("int", lo, hi) a plain int in [lo, hi]; ("real", lo,
+# lo_open) a finite plain float in range; ("bool",) a plain bool; ("text",) a str the check accepted before
+# (remembered, bounded); ("choice", options) a str among options; ("vec2",) a list or tuple of two finite
+# plain floats (returned as a tuple). Anything else, and any value off the common case, goes through the check
+# itself, which then says what is wrong exactly as it always did.
+
 _INT_TYPES = (int, np.integer)
 _REAL_TYPES = (int, float, np.integer, np.floating)
 _BOOL_TYPES = (bool, np.bool_)
@@ -39,6 +46,7 @@ def _int(lo: int, hi: int) -> Check:
             raise SchemaError(R_OUT_OF_RANGE, f"{name}={v} outside [{lo}, {hi}]")
         return v
 
+    check.FAST = ("int", lo, hi)  # type: ignore[attr-defined]
     return check
 
 
@@ -57,6 +65,7 @@ def _real(lo: float | None = None, *, lo_open: bool = False) -> Check:
             raise SchemaError(R_OUT_OF_RANGE, f"{name}={v} must be {'>' if lo_open else '>='} {lo}")
         return v
 
+    check.FAST = ("real", lo, lo_open)  # type: ignore[attr-defined]
     return check
 
 
@@ -64,6 +73,9 @@ def _bool(name: str, v: Any) -> bool:
     if not isinstance(v, _BOOL_TYPES):
         raise SchemaError(R_BAD_TYPE, f"{name} must be a bool, got {type(v).__name__}")
     return bool(v)
+
+
+_bool.FAST = ("bool",)  # type: ignore[attr-defined]
 
 
 def _text(max_len: int, pattern: re.Pattern[str] | None = None, *, allow_empty: bool = False) -> Check:
@@ -76,6 +88,7 @@ def _text(max_len: int, pattern: re.Pattern[str] | None = None, *, allow_empty: 
             raise SchemaError(R_OUT_OF_RANGE, f"{name}={v[:max_len]!r} has invalid characters")
         return v
 
+    check.FAST = ("text",)  # type: ignore[attr-defined]
     return check
 
 
@@ -87,6 +100,7 @@ def _choice(options: tuple[str, ...]) -> Check:
             raise SchemaError(R_OUT_OF_RANGE, f"{name}={v[:32]!r} not one of {options}")
         return v
 
+    check.FAST = ("choice", options)  # type: ignore[attr-defined]
     return check
 
 
@@ -124,6 +138,9 @@ def _vec2(name: str, v: Any) -> tuple[float, float]:
     if not isinstance(v, (list, tuple)) or len(v) != 2:
         raise SchemaError(R_BAD_TYPE, f"{name} must be a pair of numbers")
     return (_finite(f"{name}[0]", v[0]), _finite(f"{name}[1]", v[1]))
+
+
+_vec2.FAST = ("vec2",)  # type: ignore[attr-defined]
 
 
 def _points(max_n: int) -> Check:

@@ -182,6 +182,15 @@ class Guard:
         return cur is None or cur - TICK_WINDOW <= tick <= cur + TICK_WINDOW
 
     def check(self, key: str, msg: schema.Message) -> tuple[str, str] | None:
+        """None to accept ``msg`` (on ``key``), else ``(reason, detail)``.
+
+        The kinds that arrive most (beacons, actions, observations, ticks, state uploads, commands, health)
+        go to a check of their own (one lookup by type, no chain of isinstance); every other message
+        to :meth:`_check_any`.  Both say the same of every message, in the same order of checks."""
+        own = _BY_TYPE.get(type(msg))
+        return own(self, msg) if own is not None else self._check_any(key, msg)
+
+    def _check_any(self, key: str, msg: schema.Message) -> tuple[str, str] | None:
         b, src = self.bounds, msg.src
         if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
             if src != keys.SRC_WORLD:
@@ -237,6 +246,133 @@ class Guard:
             if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
                 return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"
         return None
+
+    # -- one check per kind that arrives often: _check_any's steps for that type, in its order --
+    def _tick_window(self, tick: int) -> tuple[str, str] | None:
+        cur = self._tick
+        if cur is None or cur - TICK_WINDOW <= tick <= cur + TICK_WINDOW:
+            return None
+        return R_TICK, f"tick {tick}, current {self._tick}"
+
+    def _check_beacon(self, msg: schema.Beacon) -> tuple[str, str] | None:  # the most frequent: all inline
+        src, uav, b = msg.src, msg.uav, self.bounds
+        own = _UAV_SRCS.get(uav) if type(uav) is int else None
+        if src != (own if own is not None else f"uav/{uav}"):
+            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = msg.tick
+        if tick is not None:
+            cur = self._tick
+            if not (cur is None or cur - TICK_WINDOW <= tick <= cur + TICK_WINDOW):
+                return R_TICK, f"tick {tick}, current {self._tick}"
+        pos = msg.pos
+        if type(b) is Bounds:  # Bounds.in_area, inline
+            hi = b.area_m + AREA_MARGIN_M
+            inside = -AREA_MARGIN_M <= pos[0] <= hi and -AREA_MARGIN_M <= pos[1] <= hi
+        else:
+            inside = b.in_area(pos)
+        vx, vy = msg.vel
+        if not inside or (vx * vx + vy * vy) ** 0.5 > b.max_speed * SPEED_MARGIN:
+            return R_IMPLAUSIBLE, f"beacon pos {msg.pos} vel {msg.vel}"
+        return None
+
+    def _check_action(self, msg: schema.Action) -> tuple[str, str] | None:
+        src, uav, b = msg.src, msg.uav, self.bounds
+        if src != _uav_src(uav):
+            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = msg.tick
+        if tick is not None:
+            refused = self._tick_window(tick)
+            if refused is not None:
+                return refused
+        with self._lock:
+            if msg.tick == self._last_action[msg.uav]:
+                return R_DUPLICATE, f"second action of uav {msg.uav} for tick {msg.tick}"
+            self._last_action[msg.uav] = max(self._last_action[msg.uav], msg.tick)
+        return None
+
+    def _check_state(self, msg: schema.State) -> tuple[str, str] | None:
+        src, uav, b = msg.src, msg.uav, self.bounds
+        if src != _uav_src(uav):
+            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = msg.tick
+        if tick is not None:
+            refused = self._tick_window(tick)
+            if refused is not None:
+                return refused
+        if not b.in_area(msg.pos) or max(msg.vehicles_in_range, msg.covered) > b.max_count \
+                or max(msg.queued_packets, msg.relayed) > b.max_packets or msg.energy_j > b.max_energy_j:
+            return R_IMPLAUSIBLE, f"state of uav {msg.uav}: values the world cannot produce"
+        return None
+
+    def _check_health(self, msg: schema.Health) -> tuple[str, str] | None:
+        src, uav, b = msg.src, msg.uav, self.bounds
+        if src != _uav_src(uav):
+            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        return None
+
+    def _check_command(self, msg: schema.Command) -> tuple[str, str] | None:
+        src, uav, b = msg.src, msg.uav, self.bounds
+        if src != keys.SRC_CONTROLLER:
+            return R_SENDER, f"command from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = msg.tick
+        if tick is not None:
+            return self._tick_window(tick)
+        return None
+
+    def _check_obs(self, msg: schema.Obs) -> tuple[str, str] | None:
+        src, uav, b = msg.src, msg.uav, self.bounds
+        if src != keys.SRC_WORLD:
+            return R_SENDER, f"{msg.KIND} from {src}"
+        if uav is not None and uav >= b.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
+        tick = msg.tick
+        if tick is not None and not self._near(tick) and not self._resync(tick):
+            return R_TICK, f"tick {tick}, current {self._tick}"
+        if not b.in_area(msg.pos):
+            return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
+        if max(msg.vehicles_in_range, msg.covered) > b.max_count \
+                or max(msg.queued_packets, msg.relayed) > b.max_packets:
+            return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
+        if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:
+            return R_IMPLAUSIBLE, f"energy {msg.energy_j} J or speed {msg.speed_max} m/s"
+        self._advance(msg.tick)
+        return None
+
+    def _check_tick(self, msg: schema.Tick) -> tuple[str, str] | None:
+        src, b = msg.src, self.bounds
+        if src != keys.SRC_WORLD:
+            return R_SENDER, f"{msg.KIND} from {src}"
+        tick = msg.tick
+        if tick is not None and not self._near(tick) and not self._resync(tick):
+            return R_TICK, f"tick {tick}, current {self._tick}"
+        if msg.n_uavs != b.n_uavs:
+            return R_IMPLAUSIBLE, f"tick for {msg.n_uavs} UAVs, scenario has {b.n_uavs}"
+        self._advance(msg.tick)
+        return None
+
+
+_UAV_SRCS = {i: f"uav/{i}" for i in range(keys.MAX_UAVS)}
+
+
+def _uav_src(uav: int) -> str:
+    """``f"uav/{uav}"``, made once per valid UAV id."""
+    src = _UAV_SRCS.get(uav) if type(uav) is int else None
+    return src if src is not None else f"uav/{uav}"
+
+
+_BY_TYPE = {schema.Beacon: Guard._check_beacon, schema.Action: Guard._check_action, schema.State: Guard._check_state,
+            schema.Health: Guard._check_health, schema.Command: Guard._check_command, schema.Obs: Guard._check_obs,
+            schema.Tick: Guard._check_tick}
 
 
 def for_config(cfg) -> Guard:

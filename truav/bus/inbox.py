@@ -29,6 +29,7 @@ from typing import NamedTuple, Protocol
 import zenoh
 
 from truav.bus import schema
+from truav.bus.placement import _FACTS
 from truav.bus.schema import Message
 
 DEFAULT_INBOX_CAPACITY = 4096
@@ -58,6 +59,11 @@ class Received(NamedTuple):
     """Arrival time on the bus clock (for a delayed message: when its delay ended)."""
 
 
+_tuple_new = tuple.__new__  # _tuple_new(Received, fields) is Received(*fields) without NamedTuple's __new__
+_PUT = zenoh.SampleKind.PUT
+_MAX_PAYLOAD_BYTES = schema.MAX_PAYLOAD_BYTES
+
+
 class Inbox:
     """Valid messages on one key expression, decoded by :meth:`drain` on the reader's thread."""
 
@@ -71,6 +77,7 @@ class Inbox:
         self._compacts = compact
         # Entries: (recv_ns, zenoh.Sample) unfiltered, or (recv_ns, key, raw) after the link filter.
         self._ready: deque[tuple] = deque(maxlen=capacity)
+        self._capacity = capacity
         self._delayed: list[tuple[int, int, int, str, bytes]] = []  # (due mono ns, seq, recv_ns, key, raw)
         self._seq = itertools.count()
         self._cond = threading.Condition(threading.Lock())
@@ -79,9 +86,14 @@ class Inbox:
 
     # -- arrival: the Bus's pump thread for the subscription, kept to a clock read and an append --
     def on_sample(self, sample: zenoh.Sample) -> None:
-        recv_ns = self._bus._clock()
-        if self._bus._filters_nothing():
-            self._push((recv_ns, sample))
+        bus = self._bus
+        recv_ns = bus._clock()
+        if bus._filters_nothing():
+            ready = self._ready
+            if len(ready) < self._capacity:  # not full: what _push does then, without its call
+                ready.append((recv_ns, sample))
+            else:
+                self._push((recv_ns, sample))
         else:
             self._filtered_arrival(sample, recv_ns)
         # Read after the append: a waiter that set them already sees the entry or gets woken.
@@ -163,10 +175,11 @@ class Inbox:
         """Every valid message that has arrived (and whose delay, if any, is over), oldest first.
 
         Malformed messages are dropped and counted by the bus, as for ``Bus.subscribe``."""
-        entries = []
-        while self._ready:
+        entries: list[tuple] = []
+        ready, take = self._ready, entries.append
+        while ready:
             try:
-                entries.append(self._ready.popleft())
+                take(ready.popleft())
             except IndexError:  # a full inbox compacting itself on the arrival thread took it
                 break
         arrived = len(entries)
@@ -177,27 +190,38 @@ class Inbox:
                     _, _, recv_ns, key, raw = heapq.heappop(self._delayed)
                     entries.append((recv_ns, key, raw))
         out: list[Received] = []
+        keep = out.append
         unfiltered = 0
-        for entry in entries:
-            if len(entry) == 4:  # validated when the inbox was full
-                out.append(Received(entry[1], entry[3], entry[2], entry[0]))
-                continue
+        bus = self._bus
+        decode = bus._decode
+        known = _FACTS.get
+        new, received = _tuple_new, Received
+        for entry in entries:  # the hot loop (an agent drains its neighbours' beacons each tick): all inline
             if len(entry) == 2:
                 recv_ns, sample = entry
-                if sample.kind != zenoh.SampleKind.PUT:
+                if sample.kind != _PUT:
                     continue
                 unfiltered += 1
                 key = str(sample.key_expr)
-                if self._bus._refuse_replayed(key, sample):
+                if sample.attachment is not None and bus._refuse_replayed(key, sample):
                     continue
-                raw = self._bus._payload(key, sample, schema.MAX_PAYLOAD_BYTES)
-                if raw is None:
-                    continue
+                payload = sample.payload
+                facts = known(key)
+                size = len(payload)
+                if facts is not None and size <= facts[3] and size <= _MAX_PAYLOAD_BYTES:
+                    raw = payload.to_bytes()
+                else:  # a key not seen yet, or too large for it: the bus's own check (and count)
+                    raw = bus._payload(key, sample, _MAX_PAYLOAD_BYTES)
+                    if raw is None:
+                        continue
+            elif len(entry) == 4:  # validated when the inbox was full
+                keep(new(received, (entry[1], entry[3], entry[2], entry[0])))
+                continue
             else:
                 recv_ns, key, raw = entry
-            msg = self._bus._decode(key, raw)
+            msg = decode(key, raw)
             if msg is not None:
-                out.append(Received(key, msg, raw, recv_ns))
+                keep(new(received, (key, msg, raw, recv_ns)))
         if entries:
             self._bus._count_received(unfiltered, delivered=len(out))
         if len(entries) > arrived:  # delayed ones interleave by when they were due

@@ -7,6 +7,7 @@ The key-to-kind table is derived from the schema: each message class names the k
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import zenoh
 
@@ -58,7 +59,13 @@ def check_placement(key: str, msg: Message) -> None:
     UAV id, a ``uav/<j>`` sender only on keys of UAV ``j``, the metrics scope
     and the fault kind against the last key chunk.
     """
-    kind, key_uav = key_facts(key)
+    facts = _FACTS.get(key)
+    check_placed(facts if facts is not None else facts_of(key), key, msg)
+
+
+def check_placed(facts: KeyFacts, key: str, msg: Message) -> None:
+    """:func:`check_placement` with the key's facts at hand (``facts_of(key)``)."""
+    kind, key_uav, last = facts[0], facts[1], facts[2]
     if kind is not None and kind != msg.KIND:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} message on {key} (expects {kind})", src=msg.src)
     if kind == schema.KIND_BEACONS and isinstance(msg, schema.Beacons):
@@ -67,15 +74,17 @@ def check_placement(key: str, msg: Message) -> None:
     body_uav = getattr(msg, "uav", None)
     if key_uav is not None and body_uav is not None and body_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.KIND} for uav {body_uav} on {key}", src=msg.src)
-    src_uav = uav_of_src(msg.src)
+    src = msg.src
+    src_uav = _SRC_UAV.get(src, _UNSEEN)
+    if src_uav is _UNSEEN:
+        src_uav = _learn_src(src)
     if src_uav is not None and src_uav != key_uav:
         raise SchemaError(R_KEY_MISMATCH, f"sender {msg.src} may not appear on {key}", src=msg.src)
-    last = key.rsplit("/", 1)[-1]
-    if kind == schema.KIND_METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
+    if kind == _METRICS and isinstance(msg, schema.Metrics) and msg.scope != last:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.scope} metrics on {key}", src=msg.src)
-    if kind == schema.KIND_FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
+    if kind == _FAULT and isinstance(msg, schema.Fault) and msg.fault != last:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
-    if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
+    if kind == _COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
 
 
@@ -93,18 +102,62 @@ def _check_batch(key: str, msg: "schema.Beacons") -> None:
         raise SchemaError(R_KEY_MISMATCH, f"a uav twice in one batch on {key}", src=msg.src)
 
 
-# A process sees the same few keys and senders over and over: parse each once (bounded caches,
-# so a flood of distinct keys from a misbehaving peer cannot grow memory).
-@functools.lru_cache(maxsize=4096)
+_METRICS, _FAULT, _COMMAND = schema.KIND_METRICS, schema.KIND_FAULT, schema.KIND_COMMAND
+
+
+# A process sees the same few keys and senders over and over: parse each once. The caches are bounded,
+# so a flood of distinct keys or senders from a misbehaving peer cannot grow memory: a full one is
+# forgotten at once (and filled again by what keeps coming).
+MAX_REMEMBERED_KEYS = 4096
+
+
+class KeyFacts(NamedTuple):
+    """What a key says of the messages on it."""
+
+    kind: str | None
+    """:func:`expected_kind`"""
+    uav: int | None
+    """The UAV id in the key (``keys.parse_uav_id``)"""
+    last: str
+    """Its last chunk (a metrics scope, a fault kind, a command's UAV id)"""
+    size_limit: int
+    """The largest payload it may carry (:func:`size_limit_of_key`)"""
+
+
+_FACTS: dict[str, KeyFacts] = {}
+_SRC_UAV: dict[str, int | None] = {}
+_UNSEEN = object()
+
+
+def facts_of(key: str) -> KeyFacts:
+    """The :class:`KeyFacts` of ``key`` (parsed once, remembered)."""
+    facts = _FACTS.get(key)
+    if facts is None:
+        kind = expected_kind(key)
+        facts = KeyFacts(kind, keys.parse_uav_id(key), key.rsplit("/", 1)[-1],
+                         schema.size_limit(kind) if kind is not None else schema.MAX_PAYLOAD_BYTES)
+        if len(_FACTS) >= MAX_REMEMBERED_KEYS:
+            _FACTS.clear()
+        _FACTS[key] = facts
+    return facts
+
+
+def _learn_src(src: str) -> int | None:
+    uav = keys.parse_uav_identity(src)
+    if len(_SRC_UAV) >= MAX_REMEMBERED_KEYS:
+        _SRC_UAV.clear()
+    _SRC_UAV[src] = uav
+    return uav
+
+
 def key_facts(key: str) -> tuple[str | None, int | None]:
     """(expected_kind, UAV id) of a key."""
-    return expected_kind(key), keys.parse_uav_id(key)
+    facts = facts_of(key)
+    return facts.kind, facts.uav
 
 
-@functools.lru_cache(maxsize=4096)
 def size_limit_of_key(key: str) -> int:
-    kind = expected_kind(key)
-    return schema.size_limit(kind) if kind is not None else schema.MAX_PAYLOAD_BYTES
+    return facts_of(key).size_limit
 
 
 @functools.lru_cache(maxsize=4096)

@@ -54,13 +54,14 @@ class RawReceiver:
             key = str(sample.key_expr)
             # Not even a recorder keeps a payload too large for its key's kind: checked before copying.
             limit = size_limit_of_key(key)
-            if len(sample.payload) > limit:
+            payload = sample.payload
+            if len(payload) > limit:
                 self._bus._count_received(1, delivered=0)
-                self._bus._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{len(sample.payload)} bytes, "
+                self._bus._count_malformed(key, SchemaError(schema.R_TOO_LARGE, f"{len(payload)} bytes, "
                                                             f"limit {limit}", src=None))
                 continue
             self._bus._count_received(1)
-            return key, sample.payload.to_bytes(), self._bus._clock()
+            return key, payload.to_bytes(), self._bus._clock()
 
     def recv(self, timeout: float) -> tuple[str, bytes, int] | None:
         """The next sample, waiting up to ``timeout`` seconds (polling at 1 ms)."""
