@@ -196,7 +196,7 @@ class ReferenceGuard(Guard):
 # --- a corpus -------------------------------------------------------------------------------------------
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
-             schema.KIND_COMMAND: keys.SRC_CONTROLLER}
+             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3"}
 
 
 def samples() -> list[Message]:
@@ -219,6 +219,7 @@ def samples() -> list[Message]:
         schema.Command(uav=3, tick=7, action=5, pad=bytes(8)),
         schema.Health(uav=3, last_tick=-1, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
+        schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
     ]
 
 
