@@ -42,8 +42,9 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up --scheme central --policy runs/train-central --out runs/swarm-central-trained": SWARM,
     "truav-swarm up -v --force": SWARM,
     # 100 and 50 agents: the same options at 20 agents (2 processes of 10), a CI machine's share
-    "truav-swarm up --agents 100 --force-agents --agents-per-process 10 --share-beacons --lockstep "
-    "--out runs/swarm-100": [*SWARM, "--agents", "20"],
+    "truav-swarm up --agents 100 --agents-per-process 10 --share-beacons --out runs/swarm-100": [*SWARM, "--agents", "20"],
+    "truav-swarm up --agents 100 --agents-per-process 20 --share-beacons --batch-beacons --lockstep "
+    "--out runs/swarm-100-lockstep": [*SWARM, "--agents", "20", "--agents-per-process", "10"],
     "truav-swarm up --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
         [*SWARM, "--agents", "20"],
     "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": SWARM,
@@ -123,7 +124,8 @@ CHECKED: dict[str, str] = {
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
         "python bench/bench_swarm.py --secure", "python bench/bench_flood.py",
-        "python bench/bench_swarm.py --sweep 5,10,20,50,100 --variants base,hz1,cells,k10+shared")},
+        "python bench/bench_swarm.py --sweep 5,10,20,50,100 --variants base,hz1,cells,k10+shared",
+        "python bench/bench_swarm.py --sweep 20,50 --modes realtime --compare ../old --max-load 1")},
 }
 """Not run here, and why."""
 
