@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections import deque
 
 import pytest
 
@@ -28,14 +29,18 @@ def test_realtime_patrol_agents_refuse_none_of_their_own_repeated_deployment_bea
     cfg = Config().replace(scenario={"n_uavs": 2, "n_vehicles": 60, "steps_per_episode": steps})
     nodes = [PatrolAgentNode(cfg, AgentOptions(run=RUN, uav=u, scheme="patrol", tick_period_s=0.01),
                              bus_factory(f"uav/{u}")) for u in range(2)]
-    arrived = [[0, 0], [0, 0]]  # [receiver][sender]: what reached each inbox (the pump calls its _push per sample)
-    for i, node in enumerate(nodes):
-        push = node._beacon_inbox._push
+    arrived = [[0, 0], [0, 0]]  # [receiver][sender]: what reached each inbox (each arrival appends to its queue)
 
-        def counted(entry, i=i, push=push):
-            arrived[i][int(str(entry[1].key_expr).split("/uav/")[1].split("/")[0])] += 1
-            push(entry)
-        node._beacon_inbox._push = counted
+    class Counted(deque):
+        def __init__(self, i, old):
+            super().__init__(old, maxlen=old.maxlen)
+            self.i = i
+
+        def append(self, entry):
+            arrived[self.i][int(str(entry[1].key_expr).split("/uav/")[1].split("/")[0])] += 1
+            super().append(entry)
+    for i, node in enumerate(nodes):
+        node._beacon_inbox._ready = Counted(i, node._beacon_inbox._ready)
     # Subscriptions reach the router asynchronously: first make sure each agent hears the other.
     assert wait_until(lambda: [n.bus.publish(keys.uav_beacon(RUN, n.opts.uav), schema.Beacon(
         uav=n.opts.uav, tick=0, pos=(300.0, 400.0), vel=(0.0, 0.0))) for n in nodes] and
