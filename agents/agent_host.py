@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import logging
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
+
+import zenoh
 
 from agents.agent_process import CONTROL_SHUTDOWN
 from agents.agent_process_reports import HEALTH_PERIOD_S
 from agents.scheme_process import make_agent_node
 from agents.shared_beacons import BeaconBatcher, SharedBeacons  # noqa: F401 - SharedBeacons: its old home
+
 from truav.bus import keys
 from truav.bus.transport import Bus
 from truav.config import Config
@@ -30,6 +34,12 @@ log = logging.getLogger("truav.swarm")  # the agent process's log lines keep the
 
 MAX_OPENING_SESSIONS = 4
 """Hosted agents that open their Zenoh session at the same time (the others wait their turn)."""
+LIVELINESS_FIFO = 1 << 16
+"""Joins and leaves a process's shared peer watch queues (a thousand peers' history at start, each restart twice)."""
+LOCKSTEP_SWITCH_INTERVAL_S = 0.02
+"""Lock-step, several agents per process: the interpreter's thread switch interval (default 5 ms). A hundred
+agent threads waiting for the GIL then wake 4x less often to ask for it (each a futex wake-up; the kernel's
+time was most of such a process's); lock-step decisions do not depend on timing."""
 ID_PLACEHOLDER = "{id}"
 """In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
 
@@ -61,6 +71,7 @@ class _SharedParts:
         self._exited = threading.Condition()
         self._n_exited = 0
         self._stop = threading.Event()
+        self._handles: list = []  # what it declared on the Zenoh session itself (the peer watch)
 
     def node_switches(self) -> dict:
         return {"watch_peers": False, "health_thread": False, "listen_shutdown": False, "shared_plan": self.plan}
@@ -94,8 +105,26 @@ class _SharedParts:
         """Every hosted node exists (its token declared): the watch, the shutdown and the health thread."""
         bus = self._bus
         bus.subscribe(keys.control(self.run, CONTROL_SHUTDOWN), self._on_control)
-        bus.watch_liveliness(keys.all_alive_uavs(self.run), self._on_join, self._on_leave)
+        # The joins and leaves come through a channel read by a thread of this process, not as a Python callback
+        # on Zenoh's receive thread: that thread, one for all of the process's sessions, then never waits for
+        # the GIL (behind a hundred agents' threads) while their leases need renewing.
+        watch = bus.session.liveliness().declare_subscriber(
+            keys.all_alive_uavs(self.run), zenoh.handlers.FifoChannel(LIVELINESS_FIFO), history=True)
+        self._handles.append(watch)
+        threading.Thread(target=self._watch_loop, args=(watch.handler,), name="peers", daemon=True).start()
         threading.Thread(target=self._health_loop, name="health", daemon=True).start()
+
+    def _watch_loop(self, handler) -> None:
+        while True:
+            try:
+                sample = handler.recv()
+            except zenoh.ZError:  # undeclared, or the session closed
+                return
+            key = str(sample.key_expr)
+            try:
+                (self._on_join if sample.kind == zenoh.SampleKind.PUT else self._on_leave)(key)
+            except Exception:  # noqa: BLE001 - a last resort: the watch goes on
+                log.exception("peer watch failed on %s", key)
 
     def _on_control(self, key, msg, raw, recv_ns) -> None:
         for node in list(self.nodes):
@@ -136,6 +165,11 @@ class _SharedParts:
             while self._n_exited < len(self.ids) - 1:
                 self._exited.wait()
         self._stop.set()
+        for handle in self._handles:
+            try:
+                handle.undeclare()
+            except zenoh.ZError:
+                pass
 
 
 def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_for: Callable[[int], object],
@@ -209,6 +243,8 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
         for because in list(stops):
             because(reason)
 
+    if several and options_for(ids[0]).lockstep:
+        sys.setswitchinterval(LOCKSTEP_SWITCH_INTERVAL_S)
     signal.signal(signal.SIGTERM, lambda *_: stop_all("SIGTERM"))
     watch_supervisor(lambda: stop_all("the truav-swarm up that started this process is gone"))
     if started is None:  # one agent: on the main thread, as always
