@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from conftest import run_to_end, wait_until
-from tests.test_swarm_outcomes import up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
+from tests.test_swarm_outcomes import Up
 from truav.config import Config, to_toml
 from truav.trainer import run_chunk
 
@@ -61,18 +61,21 @@ def test_agents_hosted_three_per_process_with_shared_parts_learn_what_the_traine
         assert log.count("shutdown from world") == 3, log[-3000:]  # one subscription, every hosted agent stops
 
 
-def test_a_peer_killed_is_seen_lost_by_the_agents_hosted_together(up, tmp_path):  # noqa: F811 - the fixture
+def test_a_peer_killed_is_seen_lost_by_the_agents_hosted_together(tmp_path):
     """7 agents in processes of 3, 3 and 1: agent 6 (alone in its process) SIGKILLed mid-run is seen as
     lost through the hosted processes' one shared watch, and the run still ends (the supervisor restarts it)."""
-    u = up("partslost", "--agents", "7", "--steps", "100", "--episodes", "12", "--rate", "20",
+    u = Up(tmp_path, "partslost", "--agents", "7", "--steps", "100", "--episodes", "12", "--rate", "20",
            "--agents-per-process", "3", "--share-beacons", "--max-missed", "1")
-    u.wait_ticking()
-    assert wait_until(lambda: (u.out / "agent6.npz").is_file(), 90.0, 0.1), u.output()
-    os.kill(u.pids["agent6"], signal.SIGKILL)
-    logs = [u.out / "logs" / "agents0-2.log", u.out / "logs" / "agents3-5.log"]
-    assert wait_until(lambda: all("peer uav 6 lost" in p.read_text() for p in logs), 60.0, 0.2), u.output()
-    rc = u.wait(timeout=240)
-    out = u.output()
-    assert rc == 0, out
-    assert "restarted agent6" in out, out
-    assert not u.left_running(), out
+    try:
+        u.wait_ticking()
+        assert wait_until(lambda: (u.out / "agent6.npz").is_file(), 90.0, 0.1), u.output()
+        os.kill(u.pids["agent6"], signal.SIGKILL)
+        logs = [u.out / "logs" / "agents0-2.log", u.out / "logs" / "agents3-5.log"]
+        assert wait_until(lambda: all("peer uav 6 lost" in p.read_text() for p in logs), 60.0, 0.2), u.output()
+        rc = u.wait(timeout=240)
+        out = u.output()
+        assert rc == 0, out
+        assert "restarted agent6" in out, out
+        assert not u.left_running(), out
+    finally:
+        u.close()
