@@ -2,8 +2,11 @@
 
 Each hosted agent has its own Zenoh session, identity, credentials, checkpoint and statistics,
 and runs on its own thread behind a start barrier; with ``share_beacons`` they share one beacon
-subscription (:class:`SharedBeacons`). SIGTERM, a lost supervisor or a failed agent stop them all;
-a lost router stops the agent that lost it. `truav-swarm agent` checks its flags, then calls
+subscription (:class:`SharedBeacons`). What need not be per agent is per process when it hosts several
+(:class:`_SharedParts`: one peer watch, health thread, shutdown subscription, fault-plan listener and
+router watchdog; about 9 threads per agent became 3, and a thousand peers' joins one Zenoh callback
+each instead of one per hosted agent). SIGTERM, a lost supervisor or a failed agent stop them all;
+a lost router stops the agent that lost it (several hosted agents: all of them). `truav-swarm agent` checks its flags, then calls
 :func:`host_agents`.
 """
 
