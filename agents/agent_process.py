@@ -178,9 +178,17 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
     and the reports are its parts (agents.agent_process_lockstep, agents.agent_process_realtime,
     agents.agent_process_reports)."""
 
-    def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None):
+    def __init__(self, cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None, *, watch_peers: bool = True,
+                 health_thread: bool = True, listen_shutdown: bool = True, shared_plan=None):
         """``beacon_inbox(bus)``, if given, returns this agent's beacon inbox (fed by a subscription its
-        process shares among the agents it hosts); by default the agent subscribes on its own bus."""
+        process shares among the agents it hosts); by default the agent subscribes on its own bus.
+
+        A process hosting several agents shares what need not be per agent (agents.agent_host): with
+        ``watch_peers`` False the node declares no liveliness watch (its host calls :meth:`_peer_joined` /
+        :meth:`_peer_left` from one), with ``health_thread`` False run() starts no health thread (its host
+        calls :meth:`publish_health`), with ``listen_shutdown`` False it does not subscribe to
+        control/shutdown (its host calls :meth:`_on_control`), and with ``shared_plan`` (a
+        truav.fault_filter.SharedPlan) its bus's link filter is that plan's, whose listener is shared."""
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         self.n_uavs = cfg.scenario.n_uavs
@@ -200,6 +208,9 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._latency_ms = SampleLog()  # a list of floats, kept in numpy chunks (1,000 agents hear 10^6 a tick)
         self._latency_from = SampleLog(width=2)  # (sender uav, tick) of each latency sample
         self._stop = threading.Event()
+        self._health_thread = health_thread
+        self._health_lock = threading.Lock()  # a shared health thread's publish vs the end of run()
+        self._health_done = False  # run() ended: no more health reports (its stats file counts what was sent)
         self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
         self._t = 0
@@ -217,8 +228,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         # observation and beacons matter); lock-step loses nothing and waits.
         bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
         inbox_opts = {} if opts.lockstep else {"capacity": realtime_inbox_capacity(self.n_uavs), "compact": False}
-        self.faults = attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None,
-                                  opts.tick_period_s)
+        self.faults = shared_plan.attach(bus) if shared_plan is not None else \
+            attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None, opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
         # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
         # follows this UAV's cells from its first observation on.
@@ -228,8 +239,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         """Lock-step: how this agent's beacon goes out (its host may batch a process's: agents.shared_beacons)."""
         # Only the shutdown concerns an agent (its fault plan, if any, listens on its own key): junk on the
         # other control keys then never costs it anything.
-        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
-        bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
+        if listen_shutdown:
+            bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)
+        if watch_peers:
+            bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me),
                     keys.uav_health(run, me))
         self._setup_scheme(bus)
@@ -290,20 +303,32 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
 
     def _on_join(self, key: str) -> None:
         uav = keys.parse_uav_id(key)
-        if uav is not None and uav != self.opts.uav:
-            with self._lock:
-                self._gone.discard(uav)
-                self._lockstep_peer_joined(uav)  # a restarted peer: not waited for long before its first beacon
+        if self._peer_joined(uav):
             log.info("uav %d: peer uav %d joined", self.opts.uav, uav)
 
     def _on_leave(self, key: str) -> None:
         uav = keys.parse_uav_id(key)
-        if uav is not None and uav != self.opts.uav:
-            with self._lock:
-                self._gone.add(uav)
-                self._realtime_peer_lost(uav)
-                self._lockstep_peer_lost(uav)
+        if self._peer_left(uav):
             log.info("uav %d: peer uav %d lost", self.opts.uav, uav)
+
+    def _peer_joined(self, uav: int | None) -> bool:
+        """Peer ``uav``'s liveliness token appeared (False, nothing done: not a peer, or this UAV's own)."""
+        if uav is None or uav == self.opts.uav:
+            return False
+        with self._lock:
+            self._gone.discard(uav)
+            self._lockstep_peer_joined(uav)  # a restarted peer: not waited for long before its first beacon
+        return True
+
+    def _peer_left(self, uav: int | None) -> bool:
+        """Peer ``uav``'s liveliness token vanished (False, nothing done: not a peer, or this UAV's own)."""
+        if uav is None or uav == self.opts.uav:
+            return False
+        with self._lock:
+            self._gone.add(uav)
+            self._realtime_peer_lost(uav)
+            self._lockstep_peer_lost(uav)
+        return True
 
     def stop(self) -> None:
         self._stopped_ns = time.time_ns()
@@ -312,8 +337,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
 
     # -- main loop --
     def run(self) -> None:
-        health = threading.Thread(target=self._health_loop, name="health", daemon=True)
-        health.start()
+        health = threading.Thread(target=self._health_loop, name="health", daemon=True) \
+            if self._health_thread else None
+        if health is not None:
+            health.start()
         while not self._stop.is_set():
             if self.opts.lockstep:
                 msg = self._obs.get()
@@ -334,7 +361,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
                 continue
             self._last_tick = msg.tick
             self.handle(msg)
-        health.join(SENDER_JOIN_S)  # it ends on the stop within ~50 ms: then the sent counts are final
+        if health is not None:
+            health.join(SENDER_JOIN_S)  # it ends on the stop within ~50 ms: then the sent counts are final
+        with self._health_lock:  # a shared health thread publishes no more for this node: the counts are final
+            self._health_done = True
         self.checkpoint()
 
     def handle(self, obs: schema.Obs) -> None:

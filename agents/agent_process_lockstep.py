@@ -2,7 +2,7 @@
 
 A decision uses exactly its own tick's beacons, so a peer already on the next tick cannot change it.
 A live peer heard since it joined is waited for up to ``lockstep_wait_s``; one not heard yet for
-LOCKSTEP_JOIN_GRACE_S. A decision taken without a live process's message is counted (:class:`Inexact`):
+LOCKSTEP_JOIN_GRACE_S (per hundred UAVs of the swarm: :func:`join_grace_s`). A decision taken without a live process's message is counted (:class:`Inexact`):
 the run is then no longer exactly reproducible.
 
 :class:`LockstepBeacons` is a part of agents.agent_process.AgentNode (which also holds the real-time
@@ -20,6 +20,17 @@ from truav.bus import schema
 from truav.bus.schema import LOCKSTEP_JOIN_GRACE_S
 
 log = logging.getLogger("truav.agent")
+
+
+JOIN_GRACE_UAVS = 100
+"""A peer not heard since it joined is waited for LOCKSTEP_JOIN_GRACE_S per this many UAVs of the swarm (at least
+LOCKSTEP_JOIN_GRACE_S): at the first tick no peer has been heard yet, and a round of a thousand UAVs on a few
+cores takes seconds, so a fixed grace made every large run inexact from tick 0."""
+
+
+def join_grace_s(n_uavs: int) -> float:
+    """How long a lock-step agent waits for a live peer not heard since it joined, in a swarm of ``n_uavs``."""
+    return LOCKSTEP_JOIN_GRACE_S * max(1.0, n_uavs / JOIN_GRACE_UAVS)
 
 
 class Inexact:
@@ -45,6 +56,7 @@ class LockstepBeacons:
         self._used_tick = -1  # lock-step: beacons of this tick or earlier come too late to be used
         self._heard: set[int] = set()  # lock-step: peers whose beacon came since they (last) joined
         self._peer_ids = frozenset(range(self.n_uavs)) - {self.opts.uav}
+        self._join_grace_s = join_grace_s(self.n_uavs)
         self.inexact = Inexact()
         """Lock-step: the decisions taken without a live peer's (or, central, the controller's) message."""
 
@@ -107,7 +119,7 @@ class LockstepBeacons:
                 # Every peer not known gone, so a slow starter is not skipped (set operations: 1,000 peers).
                 missing = sorted(self._peer_ids.difference(self._gone, got))
                 waited = time.monotonic() - start
-                waiting = [j for j in missing if waited < (wait_s if j in self._heard else LOCKSTEP_JOIN_GRACE_S)]
+                waiting = [j for j in missing if waited < (wait_s if j in self._heard else self._join_grace_s)]
             if not waiting or self._stop.is_set():
                 break
             # Woken once enough beacons came for all the missing ones, not for each; a peer's loss shows within 50 ms.

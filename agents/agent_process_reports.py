@@ -37,6 +37,18 @@ class AgentReports:
                              stale_obs_skipped=self.stale_obs_skipped,
                              rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top))
 
+    def publish_health(self) -> bool:
+        """Publish one health report unless this node has stopped (a host's shared health thread calls it
+        for each of its agents); False if it has, or its bus is closed."""
+        with self._health_lock:
+            if self._health_done or self._stop.is_set():
+                return False
+            try:
+                self.bus.publish(keys.uav_health(self.opts.run, self.opts.uav), self.health())
+            except RuntimeError:  # bus closed at shutdown
+                return False
+            return True
+
     def _health_loop(self) -> None:
         """About once a second (and at once, so `truav-swarm status` sees a fresh agent): the health report."""
         while True:

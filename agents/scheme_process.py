@@ -257,10 +257,10 @@ class CentralAgentNode(_NoLearner):
                              "hovered": self.commands_hovered}}
 
 
-def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None) -> AgentNode:
-    """The agent process's node for ``opts.scheme`` (``beacon_inbox``: see AgentNode)."""
+def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None, **shared) -> AgentNode:
+    """The agent process's node for ``opts.scheme`` (``beacon_inbox`` and ``shared``'s switches: see AgentNode)."""
     cls = {"truav": AgentNode, "patrol": PatrolAgentNode, "central": CentralAgentNode}[opts.scheme]
-    return cls(cfg, opts, bus, beacon_inbox=beacon_inbox)
+    return cls(cfg, opts, bus, beacon_inbox=beacon_inbox, **shared)
 
 
 __all__ = ["SCHEMES", "PatrolAgentNode", "CentralAgentNode", "make_agent_node"]

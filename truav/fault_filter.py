@@ -169,3 +169,63 @@ def attach_plan(bus, run: str, plan: FaultPlan | None, tick_period_s: float) -> 
     ticks.append(bus.subscribe(keys.world_tick(run), on_tick))
     bus.subscribe(keys.control(run, CONTROL_FAULTS), on_control)
     return flt
+
+
+class SharedPlan:
+    """What :func:`attach_plan` does, for the several agents one process hosts: each hosted Bus still
+    gets its own PlanFilter (its own per-link counters and state bounds, so every fault applies per UAV
+    link exactly as with one process per agent), but the process listens once, on one of its buses, for
+    the world's first tick (the time origin) and for ``control/faults`` (a new plan), and hands both to
+    every filter: two subscriptions (and their receive threads) per process instead of per agent."""
+
+    def __init__(self, run: str, plan: FaultPlan | None, tick_period_s: float) -> None:
+        self._run, self._period = run, tick_period_s
+        self._plan = plan or FaultPlan()
+        self._t0_ns: int | None = None
+        self._lock = threading.Lock()
+        self._filters: list[PlanFilter] = []
+        self._ticks: list = []
+        self._listening = False
+
+    def attach(self, bus) -> PlanFilter:
+        """A PlanFilter for ``bus`` (installed as its link filter), with the plan and origin known so far."""
+        with self._lock:
+            flt = PlanFilter(self._plan, self._run, self._t0_ns)
+            self._filters.append(flt)
+        bus.link_filter = flt
+        return flt
+
+    def listen(self, bus) -> None:
+        """Subscribe (once per process: later calls do nothing) on ``bus`` to the tick and to control/faults."""
+        from truav.bus import keys
+
+        with self._lock:
+            if self._listening:
+                return
+            self._listening = True
+        self._ticks.append(bus.subscribe(keys.world_tick(self._run), self._on_tick))
+        bus.subscribe(keys.control(self._run, CONTROL_FAULTS), self._on_control)
+
+    def _on_tick(self, key, msg, raw, recv_ns) -> None:
+        with self._lock:
+            if self._t0_ns is None:
+                self._t0_ns = msg.t - int(msg.tick * self._period * 1e9)
+                for flt in self._filters:
+                    flt.start(self._t0_ns)
+            ticks, self._ticks = self._ticks, []
+        for sub in ticks:
+            sub.close()
+
+    def _on_control(self, key, msg, raw, recv_ns) -> None:
+        if msg.command != CONTROL_FAULTS:
+            return
+        try:
+            plan = plan_from_dict(dict(msg.args))
+        except PlanError as exc:
+            import logging
+            logging.getLogger("truav.faults").warning("ignoring bad fault plan from %s: %s", msg.src, exc)
+            return
+        with self._lock:
+            self._plan = plan
+            for flt in self._filters:
+                flt.set_plan(plan)
