@@ -371,8 +371,8 @@ def constants_table() -> str:
         ("DEFAULT_LOCKSTEP_WAIT_S", f"{DEFAULT_LOCKSTEP_WAIT_S:g}", "lock-step: how long the world waits for a "
                                                                     "live agent's answer, an agent for a peer's beacon (s)"),
         ("LOCKSTEP_JOIN_GRACE_S", f"{LOCKSTEP_JOIN_GRACE_S:g}", "lock-step: how long an agent waits for a peer "
-                                                                "not heard from since it joined (s), per hundred "
-                                                                "UAVs of the swarm beyond the first hundred"),
+                                                                "not heard from since it joined (s); past 100 UAVs "
+                                                                "times n_uavs / 100 (a round of 1,000 takes seconds)"),
     ]
     return _table(("name", "value", "meaning"), rows)
 
