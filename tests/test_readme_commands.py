@@ -123,6 +123,7 @@ CHECKED: dict[str, str] = {
         "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
+        "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",
         "python bench/bench_swarm.py --secure", "python bench/bench_flood.py",
         "python bench/bench_swarm.py --sweep 5,10,20,50,100 --variants base,hz1,cells,k10+shared",
         "python bench/bench_swarm.py --sweep 20,50 --modes realtime --compare ../old --max-load 1")},

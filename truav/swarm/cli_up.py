@@ -26,10 +26,11 @@ from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, R
 from truav.swarm.supervisor import SwarmOptions
 
 MAX_AGENTS = 50
-"""Agent processes `up` and `chaos` start without --force-agents. On the 2-core reference
-machine 20 agents at 10 Hz keep every deadline with a wide margin, and 50 already miss 2.4%
-of their actions (each agent is its own Python process); past 50 the swarm is no longer
-real time there, and hundreds of processes can load the machine before anything is printed."""
+"""Agent processes `up` and `chaos` start without --force-agents (--agents-per-process K hosts K agents in
+one). On the 2-core reference machine, quiet, all-to-all at 10 Hz with one process per agent, 20 agents
+missed no action and 50 missed 0.85% (docs/architecture.md, "Scale"); past 50 processes the swarm is no
+longer real time there, and hundreds of processes can load the machine before anything is printed. 100
+agents keep up hosted 10 per process with --share-beacons."""
 
 
 def swarm_options(args):
