@@ -86,3 +86,19 @@ def small_cfg() -> Config:
         roads={"warmup_steps": 20},
         learner={"episodes": 3},
     )
+
+
+def up_to_end(tmp: Path, name: str, cfg: Config, *args: str, timeout_s: float = 300.0) -> Path:
+    """`truav-swarm up` of scenario ``cfg`` (written to ``tmp/<name>.toml``) with ``args``, run to its end;
+    asserts exit 0 (the log in the message otherwise) and returns its --out directory."""
+    import sys
+
+    from truav.config import to_toml
+    scenario = tmp / f"{name}.toml"
+    scenario.write_text(to_toml(cfg))
+    out = tmp / name
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
+           "--out", str(out), "--quiet", "--no-plot", *args]
+    rc = run_to_end(cmd, tmp / f"{name}.log", timeout_s, term_wait_s=60)
+    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
+    return out

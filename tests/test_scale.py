@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import run_to_end
+from conftest import up_to_end
 from agents.beacon_cells import BeaconCells, CellFollower, feature_range_m, subscription_radius_m
 from agents.beacon_schedule import sends_beacon
 from agents.state import StateEncoder, neighbour_features
 from truav.bus import keys, schema, transport
-from truav.config import Config, to_toml
+from truav.config import Config
 from truav.trainer import run_chunk
 
 RUN = "scale"
@@ -154,14 +154,7 @@ def test_scale_option_mistakes_are_one_line_usage_errors(argv, fragment, tmp_pat
 
 # -- whole swarms -------------------------------------------------------------------------------
 def _up(tmp: Path, name: str, cfg: Config, *args: str) -> Path:
-    scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(cfg))
-    out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
-           "--out", str(out), "--quiet", "--no-plot", *args]
-    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, term_wait_s=60)
-    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
-    return out
+    return up_to_end(tmp, name, cfg, *args, timeout_s=SWARM_TIMEOUT_S)
 
 
 def test_agents_sharing_processes_keep_their_identities_and_learn_what_the_trainer_learns(tmp_path):

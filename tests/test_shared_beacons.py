@@ -9,7 +9,6 @@ starts and reaps its own children, stopped by the test only if it overruns.
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -17,10 +16,10 @@ import numpy as np
 import pytest
 
 from agents.shared_beacons import SharedBeacons, split_batch
-from conftest import run_to_end
+from conftest import up_to_end
 from truav.bus import acl, guard, keys, schema
 from truav.bus.placement import R_KEY_MISMATCH, check_placement
-from truav.config import Config, to_toml
+from truav.config import Config
 from truav.fault_filter import PlanFilter
 from truav.faults import plan_from_dict
 from truav.swarm.swarm_options import agent_groups
@@ -162,14 +161,7 @@ def test_shared_decoding_refuses_what_each_agents_own_inbox_refused_with_the_sam
 
 # -- whole swarms -------------------------------------------------------------------------------
 def _up(tmp: Path, name: str, cfg: Config, *args: str) -> Path:
-    scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(cfg))
-    out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
-           "--out", str(out), "--quiet", "--no-plot", *args]
-    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, term_wait_s=60)
-    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
-    return out
+    return up_to_end(tmp, name, cfg, *args, timeout_s=SWARM_TIMEOUT_S)
 
 
 @pytest.mark.parametrize("batch", [False, True], ids=["shared", "batched-secure"])

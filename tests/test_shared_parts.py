@@ -11,28 +11,20 @@ from __future__ import annotations
 import json
 import os
 import signal
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from conftest import run_to_end, wait_until
+from conftest import up_to_end, wait_until
 from tests.test_swarm_outcomes import Up
-from truav.config import Config, to_toml
+from truav.config import Config
 from truav.trainer import run_chunk
 
 SWARM_TIMEOUT_S = 300.0
 
 
 def _up(tmp: Path, name: str, cfg: Config, *args: str) -> Path:
-    scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(cfg))
-    out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
-           "--out", str(out), "--quiet", "--no-plot", *args]
-    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, term_wait_s=60)
-    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
-    return out
+    return up_to_end(tmp, name, cfg, *args, timeout_s=SWARM_TIMEOUT_S)
 
 
 def test_agents_hosted_three_per_process_with_shared_parts_learn_what_the_trainer_learns(tmp_path):
