@@ -277,17 +277,26 @@ class Guard:
             return R_IMPLAUSIBLE, f"beacon pos {msg.pos} vel {msg.vel}"
         return None
 
-    def _check_action(self, msg: schema.Action) -> tuple[str, str] | None:
-        src, uav, b = msg.src, msg.uav, self.bounds
+    def _uav_sender_and_id(self, msg) -> tuple[str, str] | None:
+        """A UAV's message: sent by that UAV, about a UAV of the scenario (_check_any's first steps)."""
+        src, uav = msg.src, msg.uav
         if src != _uav_src(uav):
             return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
-        if uav is not None and uav >= b.n_uavs:
-            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
-        tick = msg.tick
-        if tick is not None:
-            refused = self._tick_window(tick)
-            if refused is not None:
-                return refused
+        if uav is not None and uav >= self.bounds.n_uavs:
+            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {self.bounds.n_uavs}"
+        return None
+
+    def _uav_message(self, msg) -> tuple[str, str] | None:
+        """:meth:`_uav_sender_and_id`, then its tick in the window."""
+        refused = self._uav_sender_and_id(msg)
+        if refused is None and msg.tick is not None:
+            refused = self._tick_window(msg.tick)
+        return refused
+
+    def _check_action(self, msg: schema.Action) -> tuple[str, str] | None:
+        refused = self._uav_message(msg)
+        if refused is not None:
+            return refused
         with self._lock:
             if msg.tick == self._last_action[msg.uav]:
                 return R_DUPLICATE, f"second action of uav {msg.uav} for tick {msg.tick}"
@@ -295,28 +304,17 @@ class Guard:
         return None
 
     def _check_state(self, msg: schema.State) -> tuple[str, str] | None:
-        src, uav, b = msg.src, msg.uav, self.bounds
-        if src != _uav_src(uav):
-            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
-        if uav is not None and uav >= b.n_uavs:
-            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
-        tick = msg.tick
-        if tick is not None:
-            refused = self._tick_window(tick)
-            if refused is not None:
-                return refused
+        refused = self._uav_message(msg)
+        if refused is not None:
+            return refused
+        b = self.bounds
         if not b.in_area(msg.pos) or max(msg.vehicles_in_range, msg.covered) > b.max_count \
                 or max(msg.queued_packets, msg.relayed) > b.max_packets or msg.energy_j > b.max_energy_j:
             return R_IMPLAUSIBLE, f"state of uav {msg.uav}: values the world cannot produce"
         return None
 
     def _check_health(self, msg: schema.Health) -> tuple[str, str] | None:
-        src, uav, b = msg.src, msg.uav, self.bounds
-        if src != _uav_src(uav):
-            return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
-        if uav is not None and uav >= b.n_uavs:
-            return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
-        return None
+        return self._uav_sender_and_id(msg)
 
     def _check_command(self, msg: schema.Command) -> tuple[str, str] | None:
         src, uav, b = msg.src, msg.uav, self.bounds
