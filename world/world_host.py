@@ -12,6 +12,11 @@ from truav.bus.transport import Bus
 from truav.config import Config
 from truav.lifecycle import EXIT_ROUTER_LOST, stop_on_sigterm_or_orphaned
 from world.world_process import WorldNode, WorldOptions, write_stats
+from world.world_stats import missed_share
+
+EXIT_TOO_MANY_MISSED = 1
+"""Exit code of a world whose run missed more than --max-missed of its actions: 1, as `truav-swarm up`
+exits on a failed run (and as a world that lost its router)."""
 
 log = logging.getLogger("truav.swarm")  # the world process's log lines keep the swarm's logger name
 
@@ -28,10 +33,22 @@ def host_world(cfg: Config, opts: WorldOptions, conf, router_timeout_s: float | 
             reasons.because("interrupted")
             stats = node.stats
         stats.rejected = bus.rejections.as_dict()
+        stats.per_uav = node.accounts.per_uav(stats.rejected)
+        stats.silent_at_end = sorted(node.silent())
     if opts.stats_out:
         write_stats(opts.stats_out, stats)
     log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
              reasons.first or ("finished its episodes" if len(stats.episodes) == opts.episodes
                                else "a shutdown request, see above"),
              f"; statistics in {opts.stats_out}" if opts.stats_out else "")
-    return EXIT_ROUTER_LOST if reasons.router_lost else 0
+    if reasons.router_lost:
+        return EXIT_ROUTER_LOST
+    share = missed_share({"ticks": stats.ticks, "episodes": stats.episodes,
+                          "actions_received": stats.actions_received}, cfg.scenario.n_uavs)
+    if share is not None and share > opts.max_missed_share:
+        worst = sorted(stats.per_uav, key=lambda u: (-u["missed"], u["uav"]))[:5]
+        log.error("%.0f%% of the actions were missing (more than --max-missed %g): exit %d; most missed: %s",
+                  100 * share, opts.max_missed_share, EXIT_TOO_MANY_MISSED,
+                  ", ".join(f"uav {u['uav']} {u['missed']}" for u in worst if u["missed"]))
+        return EXIT_TOO_MANY_MISSED
+    return 0

@@ -38,10 +38,16 @@ from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.bus.rejections import rejection_metrics
 from world.env import World
-from world.world_stats import WorldStats, action_digest, write_stats
+from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 from world.uavs import HOVER
 
 log = logging.getLogger("truav.world")
+
+MISS_LOG_PERIOD_S = 10.0
+"""A UAV's first missed tick is logged at once (naming it); after that at most one line this often sums up
+the UAVs that missed since the last one (100 missing UAVs at 10 Hz do not flood the log)."""
+MISS_LOG_MAX_NAMED = 10
+"""A missed-actions line names at most this many UAVs (the worst), and says how many more."""
 
 CONTROL_SHUTDOWN = "shutdown"
 POSITIONS_EVERY_TICKS = 1
@@ -67,7 +73,9 @@ class WorldOptions:
     """Wait for every live agent's action each tick (deterministic) instead of real time."""
     lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
     """Lock-step still never stalls forever: a live agent silent this long is skipped (it hovers, and the
-    run is no longer exact: counted in WorldStats.lockstep_missed)."""
+    run is no longer exact: counted in WorldStats.lockstep_missed), and marked silent: later rounds do not
+    wait for it until an action or acknowledgement of it (for any tick) comes again. So a live agent that
+    answers nothing costs one such wait, not one per tick."""
     rate_hz: float = opt(10.0, flag="--rate", type="positive_float")
     """Real-time tick rate."""
     deadline_frac: float = 0.8
@@ -78,6 +86,11 @@ class WorldOptions:
     stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
                                 help="write per-episode metrics and timing as JSON")
     """Write per-episode metrics and timing statistics as JSON here at exit."""
+    max_missed_share: float = opt(0.5, flag="--max-missed", type="share", metavar="SHARE",
+                                  help="fail (exit 1) when more than this share of the actions is missing: no "
+                                       "action applied in time, the UAV hovered (default 0.5)")
+    """More than this share of the actions missing (world_stats.missed_share) fails the run: `truav-swarm up`
+    says so in its result, a world exits world_host.EXIT_TOO_MANY_MISSED."""
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this process receives."""
     accept_replay: bool = False
@@ -146,6 +159,13 @@ class WorldNode:
         self.stats = WorldStats()
         self._debug = Every(log)
         self._missing: list[int] = []  # the last acting tick's UAVs without an answer (debug lines)
+        self.accounts = UavAccounts(self.n_uavs)  # per-UAV counts (under self._cond)
+        self._silent: set[int] = set()  # lock-step: live UAVs not waited for (they missed a round) until they answer
+        self._miss_logged: set[int] = set()  # UAVs whose first miss was logged
+        self._miss_since: dict[int, int] = {}  # UAVs that missed since the last summary line: {uav: ticks}
+        self._miss_line = Every(None, MISS_LOG_PERIOD_S, clock)
+        self._uav_metrics: dict[str, float] = {}  # the step metrics' worst-UAV values (recomputed when counts move)
+        self._uav_metrics_key = None
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
@@ -186,19 +206,29 @@ class WorldNode:
         with self._cond:
             if msg.tick > self._round:
                 return  # a tick not published yet (forged): ignored
+            back = msg.uav in self._silent
+            if back:  # it answers again: waited for from the next round on
+                self._silent.discard(msg.uav)
             newest = self._answered[msg.uav]
             self._answered[msg.uav] = max(newest, msg.tick)
             if msg.tick == self._tick:
                 if msg.uav not in self._actions:
                     self._actions[msg.uav] = msg.action
                     self._cond.notify_all()
-                return
-            stale = msg.tick < newest  # an older answer overtaken by a newer one of the same agent
-            if stale:
-                self.stats.stale_actions += 1
+                first = None
             else:
-                self.stats.late_actions += 1
-            first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+                stale = msg.tick < newest  # an older answer overtaken by a newer one of the same agent
+                if stale:
+                    self.stats.stale_actions += 1
+                    self.accounts.stale[msg.uav] += 1
+                else:
+                    self.stats.late_actions += 1
+                    self.accounts.late[msg.uav] += 1
+                first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+        if back:
+            log.info("uav %d answered again (tick %d): the world waits for it again", msg.uav, msg.tick)
+        if first is None:
+            return
         (log.info if first else log.debug)(
             "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
             "after a newer one of it (out of order)" if stale else "after its round closed",
@@ -214,6 +244,7 @@ class WorldNode:
         with self._cond:
             if uav is not None:
                 self._alive.add(uav)
+                self._silent.discard(uav)  # a (re)started agent is waited for again
                 self.stats.joins.append(key)
                 self._cond.notify_all()
         log.info("agent joined: %s", key)
@@ -234,6 +265,11 @@ class WorldNode:
                 self.stats.controller_losses.append(round(self.clock() - self._t0, 2))
             self._cond.notify_all()
         (log.info if up else log.warning)("controller %s", "joined" if up else "lost: UAVs fly on without commands")
+
+    def silent(self) -> set[int]:
+        """Lock-step: the live UAVs marked silent (not waited for until they answer again)."""
+        with self._cond:
+            return set(self._silent)
 
     def stop(self) -> None:
         self._stop.set()
@@ -339,7 +375,9 @@ class WorldNode:
             self._tick = tick if lockstep or not done else -1
             self._round = tick
             self._actions = {}
-            expected = set(self._alive)  # one who joins later never saw this tick's observation
+            # One who joins later never saw this tick's observation; one marked silent is not waited for.
+            expected = set(self._alive) - self._silent
+            alive = set(self._alive)
         publish_round(self.bus, self.cfg, self.opts, self.world, tick, episode, obs, done)
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
         if done and not lockstep:
@@ -356,23 +394,75 @@ class WorldNode:
                 self._cond.wait(min(left, 0.05))
             answered = dict(self._actions)
             self._tick = -1
-        if lockstep and waiting and not self._stop.is_set():  # the run is no longer exactly reproducible: say so
+            stopped = self._stop.is_set()
+            silenced = sorted(waiting) if lockstep and waiting and not stopped else []
+            self._silent.update(silenced)
+            acc = self.accounts
+            if done:
+                if lockstep and not stopped:
+                    unacked = alive - set(answered)  # not waited for (silent) or given up on: missed all the same
+                    self.stats.acks_missed += len(unacked)
+                    for uav in unacked:
+                        acc.missed[uav] += 1
+            else:
+                for uav in answered:
+                    acc.applied[uav] += 1
+                missing = [uav for uav in range(self.n_uavs) if uav not in answered]
+                for uav in missing:
+                    acc.missed[uav] += 1
+        if silenced:  # the run is no longer exactly reproducible: say so
             st = self.stats
-            st.lockstep_missed += len(waiting)
+            st.lockstep_missed += len(silenced)
+            st.silent_marked += len(silenced)
             if st.lockstep_missed_from_tick is None:
                 st.lockstep_missed_from_tick = tick
             log.warning("tick %d: no %s from live agent(s) %s within %.1f s; going on without them (the run is no "
-                        "longer exact)", tick, "acknowledgement" if done else "action", sorted(waiting),
-                        self.opts.lockstep_wait_s)
+                        "longer exact); marked silent: later ticks do not wait for them until they answer again",
+                        tick, "acknowledgement" if done else "action", _uav_list(silenced), self.opts.lockstep_wait_s)
         if done:
             return actions
         for uav, a in answered.items():
             actions[0, uav] = a
         self.stats.hover_answers += sum(1 for a in answered.values() if a == HOVER)
         self.stats.actions_received += len(answered)
-        self.stats.deadline_misses += self.n_uavs - len(answered)  # no answer: hovers
-        self._missing = sorted(set(range(self.n_uavs)) - set(answered))
+        self.stats.deadline_misses += len(missing)  # no answer: hovers
+        self._missing = missing
+        if missing and not stopped:
+            self._log_missed(tick, missing)
         return actions
+
+    def _log_missed(self, tick: int, missing: list[int]) -> None:
+        """A UAV's first missed tick at once, naming it; then a summary line at most every MISS_LOG_PERIOD_S."""
+        first = [uav for uav in missing if uav not in self._miss_logged]
+        self._miss_logged.update(first)
+        for uav in missing:
+            self._miss_since[uav] = self._miss_since.get(uav, 0) + 1
+        if first:
+            log.warning("tick %d: no action in time from uav %s (they hover)%s", tick, _uav_list(first),
+                        "; each UAV's first miss is logged, then a summary at most every %gs" % MISS_LOG_PERIOD_S
+                        if len(self._miss_logged) == len(first) else "")
+            self._miss_line.due()  # the summary's period starts now
+        elif self._miss_line.due() and self._miss_since:
+            since = sorted(self._miss_since.items(), key=lambda kv: (-kv[1], kv[0]))
+            with self._cond:
+                totals = {uav: self.accounts.missed[uav] for uav, _ in since[:MISS_LOG_MAX_NAMED]}
+            named = ", ".join(f"uav {uav} {totals[uav]}" for uav, _ in since[:MISS_LOG_MAX_NAMED])
+            more = len(since) - MISS_LOG_MAX_NAMED
+            log.warning("tick %d: %d UAV(s) missed actions since the last such line (they hover); missed so far: "
+                        "%s%s", tick, len(since), named, f" and {more} more" if more > 0 else "")
+            self._miss_since = {}
+
+    def uav_metrics(self) -> dict[str, float]:
+        """The step metrics' ``uav.<i>.<count>`` values for the worst UAVs (UavAccounts.worst_metrics), recomputed
+        only when a count moved."""
+        acc = self.accounts
+        with self._cond:
+            mark = (self.stats.deadline_misses, self.stats.acks_missed, self.stats.late_actions,
+                    self.stats.stale_actions, self.bus.rejections.total())
+            if mark != self._uav_metrics_key:
+                self._uav_metrics_key = mark
+                self._uav_metrics = acc.worst_metrics(self.bus.rejections.as_dict() if mark[-1] else {})
+            return self._uav_metrics
 
     def _publish_step(self, tick, episode, m, actions) -> None:
         values = {"covered": float(m.covered[0]), "generated": float(m.generated[0]),
@@ -380,7 +470,7 @@ class WorldNode:
                   "delay_sum_s": float(m.delay_sum_s[0]), "energy_j": float(m.energy_j[0].mean()),
                   "hovering_uavs": float(np.sum(actions[0] == HOVER)),
                   "coverage_pct": 100.0 * float(m.covered[0]) / self.cfg.scenario.n_vehicles,
-                  **rejection_metrics(self.bus.rejections)}
+                  **rejection_metrics(self.bus.rejections), **self.uav_metrics()}
         self.bus.publish(keys.metrics_step(self.opts.run), schema.Metrics(
             scope=schema.SCOPE_STEP, tick=tick, episode=episode, values=values))
         if self._debug.due():
@@ -389,6 +479,12 @@ class WorldNode:
                       "(missing: %s, they hover); stepped: coverage %.1f%%, packets %d generated %d delivered",
                       tick, episode, late, self.n_uavs, actions[0].tolist(), self._missing or "none",
                       values["coverage_pct"], values["generated"], values["delivered"])
+
+
+def _uav_list(uavs: list[int]) -> str:
+    """"3, 7, 12" (at most MISS_LOG_MAX_NAMED, then "and N more")."""
+    shown = ", ".join(map(str, uavs[:MISS_LOG_MAX_NAMED]))
+    return shown + (f" and {len(uavs) - MISS_LOG_MAX_NAMED} more" if len(uavs) > MISS_LOG_MAX_NAMED else "")
 
 
 __all__ = ["WorldNode", "WorldOptions", "WorldStats", "action_digest", "publish_round", "warm_up_kernels",

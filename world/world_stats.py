@@ -46,6 +46,91 @@ class WorldStats:
     (bench/bench_swarm.py's ticks/s and CPU rates exclude start-up and shutdown)."""
     last_tick_wall_s: float | None = None
     """Wall clock when the last tick's round ended."""
+    acks_missed: int = 0
+    """Lock-step: `done` acknowledgements that did not come before the world went on (each also in
+    its UAV's ``missed``): sum of per_uav missed = deadline_misses + acks_missed."""
+    silent_marked: int = 0
+    """Lock-step: times a live UAV was marked silent (it missed a round; not waited for until it answers again)."""
+    silent_at_end: list[int] = field(default_factory=list)
+    """Lock-step: the UAVs still marked silent when the run ended."""
+    per_uav: list[dict] = field(default_factory=list)
+    """Per UAV id 0..n_uavs-1: {"uav", "received", "applied", "late", "stale", "missed", "rejected": {reason: n}}
+    (UavAccounts.per_uav); received = applied + late + stale, missed = acting ticks it hovered without an
+    applied action + lock-step `done` acknowledgements the world went on without."""
+
+
+UAV_METRIC_PREFIX = "uav."
+"""Step-metrics values ``uav.<i>.<count>`` (missed, late, stale, rejected): the worst UAVs only."""
+MAX_UAV_METRICS = 20
+"""At most this many UAVs' counts in one step-metrics message (4 values each: within MAX_METRIC_VALUES)."""
+UAV_METRIC_COUNTS = ("missed", "late", "stale", "rejected")
+
+
+class UavAccounts:
+    """Per-UAV counts of the world's actions (pure: the world node updates it under its lock)."""
+
+    def __init__(self, n_uavs: int):
+        self.n = n_uavs
+        self.applied = [0] * n_uavs
+        self.late = [0] * n_uavs
+        self.stale = [0] * n_uavs
+        self.missed = [0] * n_uavs
+
+    def rejected_by_uav(self, rejected: dict[str, dict[str, int]]) -> list[dict[str, int]]:
+        """Per UAV id, {reason: count} of the bus guard's refusals whose sender is ``uav/<i>``."""
+        out: list[dict[str, int]] = [{} for _ in range(self.n)]
+        for reason, senders in rejected.items():
+            for sender, count in senders.items():
+                uav = uav_of_sender(sender)
+                if uav is not None and uav < self.n:
+                    out[uav][reason] = out[uav].get(reason, 0) + count
+        return out
+
+    def per_uav(self, rejected: dict[str, dict[str, int]]) -> list[dict]:
+        """WorldStats.per_uav: one entry per UAV id, in order."""
+        refused = self.rejected_by_uav(rejected)
+        return [{"uav": i, "received": self.applied[i] + self.late[i] + self.stale[i], "applied": self.applied[i],
+                 "late": self.late[i], "stale": self.stale[i], "missed": self.missed[i], "rejected": refused[i]}
+                for i in range(self.n)]
+
+    def worst_metrics(self, rejected: dict[str, dict[str, int]], limit: int = MAX_UAV_METRICS) -> dict[str, float]:
+        """Step-metrics values ``uav.<i>.<count>`` for at most ``limit`` UAVs with anything non-zero in missed,
+        late, stale or rejected, the worst first (most of those four summed); zero counts left out."""
+        refused = [sum(r.values()) for r in self.rejected_by_uav(rejected)] if rejected else [0] * self.n
+        rows = [(self.missed[i] + self.late[i] + self.stale[i] + refused[i], i) for i in range(self.n)]
+        worst = sorted((r for r in rows if r[0]), key=lambda r: (-r[0], r[1]))[:limit]
+        out: dict[str, float] = {}
+        for _, i in worst:
+            for name, n in zip(UAV_METRIC_COUNTS, (self.missed[i], self.late[i], self.stale[i], refused[i])):
+                if n:
+                    out[f"{UAV_METRIC_PREFIX}{i}.{name}"] = float(n)
+        return out
+
+
+def missed_share(world: dict, n_uavs: int) -> float | None:
+    """The share of the actions a world's run expected (every UAV, every acting tick: its ticks less one
+    `done` round per episode) that were not applied, from world.json's values; None before any acting tick.
+    `truav-swarm up` and a hand-started world fail past --max-missed on it."""
+    acting = int(world.get("ticks", 0)) - len(world.get("episodes") or [])
+    expected = acting * n_uavs
+    return 1.0 - int(world.get("actions_received", 0)) / expected if expected > 0 else None
+
+
+def uav_of_sender(sender: str) -> int | None:
+    """The UAV id of a sender identity ``uav/<i>``, else None."""
+    head, _, tail = sender.partition("/")
+    return int(tail) if head == "uav" and tail.isdigit() else None
+
+
+def uav_metrics(values: dict[str, float]) -> dict[int, dict[str, int]]:
+    """The ``uav.<i>.<count>`` values of a step-metrics message, as {uav: {count: n}} (truav-swarm status)."""
+    out: dict[int, dict[str, int]] = {}
+    for k, v in values.items():
+        if k.startswith(UAV_METRIC_PREFIX):
+            uav, _, name = k[len(UAV_METRIC_PREFIX):].partition(".")
+            if uav.isdigit() and name in UAV_METRIC_COUNTS:
+                out.setdefault(int(uav), {})[name] = int(v)
+    return out
 
 
 def action_digest():

@@ -94,7 +94,8 @@ def add_lockstep_args(p: argparse.ArgumentParser, help_lockstep: str | None = No
     p.add_argument("--lockstep", action="store_true", help=help_lockstep)
     p.add_argument("--lockstep-wait", type=positive_float, metavar="S",
                    help="lock-step: wait this long for a live agent's action or beacon (a paused process) before "
-                        "going on without it; the run is then not exact and fails (default "
+                        "going on without it; the run is then not exact and fails. The world waits so once: a live agent "
+                        "that missed a round is marked silent and not waited for until it answers again (default "
                         f"{DEFAULT_LOCKSTEP_WAIT_S:g})")
 
 

@@ -154,7 +154,7 @@ def add_process_commands(sub) -> None:
     add_scenario_args(wo)
     add_options(wo, WorldOptions, ["episodes"])
     add_lockstep_args(wo)
-    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out"])
+    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out", "max_missed_share"])
     add_scheme_arg(wo)
     add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)

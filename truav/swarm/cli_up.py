@@ -14,7 +14,7 @@ from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_out_dir, check_out_file
 from truav.cli_config import UsageError, parse_sets
 from agents.agent_process import AgentOptions
-from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, share, tcp_port
+from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
@@ -24,6 +24,7 @@ from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, ad
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.supervisor import SwarmOptions
+from world.world_process import WorldOptions
 
 MAX_AGENTS = 50
 """Agent processes `up` and `chaos` start without --force-agents (--agents-per-process K hosts K agents in
@@ -181,8 +182,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help="continue the run in --out (agents resume from its checkpoints; same scenario only)")
     up.add_argument("--force", action="store_true",
                     help="delete an earlier run's files in --out (and overwrite --record) instead of refusing")
-    up.add_argument("--max-missed", type=share, default=0.5, metavar="SHARE",
-                    help="fail the run when more than this share of actions is missing (default 0.5)")
+    add_options(up, WorldOptions, ["max_missed_share"])
     up.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
                     help=f"world and agents stop this long after losing their router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
     up.add_argument("-v", "--verbose", action="store_true",

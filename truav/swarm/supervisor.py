@@ -237,10 +237,10 @@ class _Swarm(SwarmWatch, SwarmEnd):
                     "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
                     *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
             world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
-                                 wait_agents_s=opts.wait_agents_s)
+                                 wait_agents_s=opts.wait_agents_s, max_missed_share=opts.max_missed_share)
             self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
-                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s"])))
+                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share"])))
             for ids in self.groups:
                 name = "{id}" if len(ids) > 1 else str(ids[0])  # the agent process fills in each UAV's id
                 agent = AgentOptions(checkpoint=str(out / f"agent{name}.npz"), stats_out=str(out / f"agent{name}.json"),
