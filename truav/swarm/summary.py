@@ -164,6 +164,9 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
               f"missed (hovered) {world['deadline_misses']}"
               + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
               + f", agent losses seen {len(world['losses'])}")
+    line = per_uav_line((world or {}).get("per_uav") or [])
+    if line:
+        print(line)
     ex = o.exactness
     if ex is not None:
         print("lock-step: exact (every live process was waited for)" if ex["exact"] else
@@ -265,6 +268,28 @@ def _print_central(cfg, opts, world, agents, controller, cp, incarnations: int =
               f"({np.mean([e['ctrl_energy_j'] for e in eps]):.1f} J)")
 
 
+
+
+PER_UAV_SHOWN = 10
+"""The summary names at most this many UAVs (the worst) that missed or were refused anything."""
+
+
+def per_uav_line(per_uav: list[dict]) -> str:
+    """One line: the UAVs with anything missed, late, stale or rejected, worst first (at most PER_UAV_SHOWN),
+    as "uav <i> missed <m>[, late ..][, rejected <reason> <n>]"; "" when every UAV is clean."""
+    def bad(u):
+        return u.get("missed", 0) + u.get("late", 0) + u.get("stale", 0) + sum((u.get("rejected") or {}).values())
+    worst = sorted((u for u in per_uav if bad(u)), key=lambda u: (-bad(u), u["uav"]))
+    if not worst:
+        return ""
+    parts = []
+    for u in worst[:PER_UAV_SHOWN]:
+        counts = [f"{k} {u[k]}" for k in ("missed", "late", "stale") if u.get(k)]
+        counts += [f"rejected {r} {n}" for r, n in sorted((u.get("rejected") or {}).items())]
+        parts.append(f"uav {u['uav']} " + " ".join(counts))
+    more = len(worst) - PER_UAV_SHOWN
+    return (f"per UAV ({len(worst)} of {len(per_uav)} with misses or refusals, worst first): " + "; ".join(parts)
+            + (f"; and {more} more (world.json per_uav)" if more > 0 else ""))
 
 
 def rejection_summary(world, agents) -> str:
