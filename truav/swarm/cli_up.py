@@ -22,6 +22,7 @@ from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_pl
                                 check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
+from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.supervisor import SwarmOptions
 from world.world_process import WorldOptions
@@ -46,6 +47,7 @@ def swarm_options(args):
     if args.steps is not None:
         cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
     n = cfg.scenario.n_uavs
+    external = tuple(getattr(args, "external", None) or ())  # `up` only: chaos runs the swarm twice
     processes = -(-n // args.agents_per_process)
     if processes > MAX_AGENTS and not args.force_agents:
         raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
@@ -89,6 +91,11 @@ def swarm_options(args):
     if args.batch_beacons and (args.agents_per_process == 1 or not args.lockstep or args.scheme != "truav"):
         raise UsageError("--batch-beacons: sends the beacons of a process's agents of a tick as one message; "
                          "only with --lockstep, --scheme truav and --agents-per-process K > 1")
+    check_external(external, n, args, plan)
+    external_wait = getattr(args, "external_wait", None)
+    if external_wait is not None and not external:
+        raise UsageError(f"--external-wait {external_wait:g}: only --external UAVs are waited for; add --external "
+                         f"IDS or drop it")
     if args.agents_per_process > 1 and plan is not None:
         kinds = {f.kind for f in plan.faults} & {"crash", "freeze"}
         if kinds:
@@ -106,10 +113,25 @@ def swarm_options(args):
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
                         beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process,
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
-                        restart=args.restart, restart_limit=args.restart_limit)
+                        restart=args.restart, restart_limit=args.restart_limit, external=external,
+                        external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
     return cfg, opts
 
 
+
+
+def uav_ids(text: str) -> tuple[int, ...]:
+    """--external: ``2`` or ``2,5``, UAV ids, each once (the range is checked once the scenario is known)."""
+    ids = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part.isdigit():
+            raise argparse.ArgumentTypeError(f"expected UAV ids such as 2 or 2,5, got {text!r}")
+        ids.append(int(part))
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"UAV id(s) {', '.join(map(str, twice))} given twice in {text!r}")
+    return tuple(ids)
 
 
 def duration_s(text: str) -> float:
@@ -228,6 +250,14 @@ def add_up_commands(sub) -> None:
     """The `up` and `chaos` subcommands."""
     up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
     add_up_args(up)
+    up.add_argument("--external", type=uav_ids, metavar="IDS",
+                    help="leave these UAVs (e.g. 2 or 2,5) to your own agent: up starts everything else, prints the "
+                         "command that flies each with examples/outside_agent.py (endpoint, credentials under "
+                         "--secure) and waits for its liveliness token before tick 0 (--scheme truav; "
+                         "truav/swarm/external.py)")
+    up.add_argument("--external-wait", type=positive_float, metavar="S",
+                    help=f"seconds to wait for the --external UAVs to join before the run fails "
+                         f"(default {DEFAULT_EXTERNAL_WAIT_S:g})")
     up.set_defaults(func=cmd_up)
 
     ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "

@@ -12,6 +12,7 @@ import numpy as np
 
 from truav.bus import keys
 from truav.config import Config
+from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
@@ -100,6 +101,13 @@ class SwarmEnd:
             o.warnings.append(f"{len(o.restarts)} restart(s) in a lock-step run: a restarted process resumed from its "
                               f"checkpoint while the world went on without it, so this run is not exactly a clean "
                               f"run of seed {opts.seed}")
+        if opts.external:  # no process and no statistics of their own: the world's accounting of them
+            o.external = [external.report(world, i, self.external_joined.get(i)) for i in opts.external]
+            for entry in o.external:
+                failures, warnings = external.verdicts(entry, world if o.ticked else None, opts.max_missed_share)
+                for reason in failures:
+                    o.fail(reason)
+                o.warnings.extend(warnings)
         lost = ((world or {}).get("controller_losses") or []) if self.central else []
         if lost:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
@@ -116,7 +124,7 @@ class SwarmEnd:
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
-                   "lockstep": o.exactness, "restarts": o.restarts,
+                   "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         (out / SUMMARY_FILE).write_text(json.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
@@ -128,6 +136,8 @@ class SwarmEnd:
             "router_outages_wall_ns": self.router_outages}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            for entry in o.external:
+                print(external.summary_line(entry))
             if self.central:
                 _print_central(cfg, opts, world, agents, controller, cp, self.children.starts.get("controller", 1))
             if opts.plot and monitor.tracks:

@@ -56,6 +56,7 @@ from truav.lifecycle import signals_handled
 from truav.options import to_argv
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
                                   stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
+from truav.swarm.external import instructions
 from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import Healer
 from truav.swarm.monitor import Monitor
@@ -123,7 +124,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
     def __init__(self, cfg: Config, opts: SwarmOptions, out: Path, plan, interrupts: _Interrupts):
         self.cfg, self.opts, self.out, self.plan, self.interrupts = cfg, opts, out, plan, interrupts
         self.n = cfg.scenario.n_uavs
-        self.groups = agent_groups(self.n, opts.agents_per_process)
+        self.groups = agent_groups(self.n, opts.agents_per_process, opts.external)  # external UAVs: no process
         self.agents = [group_name(g) for g in self.groups]  # the agent processes' names
         self.central = opts.scheme == "central"
         self.fleet = self.agents + (["controller"] if self.central else [])
@@ -138,6 +139,10 @@ class _Swarm(SwarmWatch, SwarmEnd):
         self.router_down_ns: int | None = None  # wall clock of the router's death, until it is back
         self.router_outages: list[tuple[int, int]] = []  # (died, listening again), wall-clock ns
         self.endpoint = opts.listen
+        self.external_since: float | None = None  # monotonic time the external UAVs' commands were printed
+        self.external_joined: dict[int, float] = {}  # external UAV -> s since start its token was first seen
+        self.external_left: dict[int, float] = {}  # external UAV -> s since start its token went, mid-run
+        self.external_progress = 0.0  # s waited for them at the last progress line
         self.t0 = time.monotonic()
         self.t0_wall_ns = time.time_ns()  # the same instant on the wall clock (recordings' log times)
 
@@ -200,7 +205,13 @@ class _Swarm(SwarmWatch, SwarmEnd):
         # Asked before any child starts to fill the cache: a cold one costs the first start most of a minute.
         self.cold_note = kernel_cache.cold_start_note(kernel_cache.SWARM_KERNELS
                                                       + (["agents/sac_kernels.py"] if self.central else []))
-        write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n})
+        write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n,
+                             **({"external": list(opts.external)} if opts.external else {})})
+        if opts.external:  # first, so the user can start them while the rest comes up
+            for line in instructions(opts.external, opts.run, ep, out, lockstep=opts.lockstep, secure=opts.secure,
+                                     wait_s=opts.external_wait_s):
+                print(line, flush=True)
+            self.external_since = time.monotonic()
         scenario = out / SCENARIO_FILE
         scenario_args = ["--run", opts.run, "--seed", str(opts.seed), "--scenario", str(scenario), "-e", ep,
                          *self.creds_args]
@@ -236,8 +247,10 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 self.children.start("controller", _python_module(
                     "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
                     *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
+            # The supervisor's bounded wait for external UAVs decides (with its progress lines); the world's is longer.
             world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
-                                 wait_agents_s=opts.wait_agents_s, max_missed_share=opts.max_missed_share)
+                                 wait_agents_s=opts.wait_agents_s + (opts.external_wait_s if opts.external else 0.0),
+                                 max_missed_share=opts.max_missed_share)
             self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
                 *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share"])))
@@ -270,7 +283,9 @@ class _Swarm(SwarmWatch, SwarmEnd):
         opts, ep = self.opts, self.endpoint
         default_out = Path(f"runs/swarm-{opts.run}")
         where = "" if self.out == default_out else f" --out {self.out}"
-        print(f"swarm '{opts.run}' ({opts.scheme}): router {ep}, world + {self.n} agents"
+        external = ", ".join(f"uav/{i}" for i in opts.external)
+        print(f"swarm '{opts.run}' ({opts.scheme}): router {ep}, world + {self.n - len(opts.external)} agents"
+              f"{' + external ' + external + ' (yours)' if external else ''}"
               f"{' + controller (' + (opts.policy or 'learning online') + ')' if self.central else ''}"
               f"{' + recorder -> ' + opts.record if opts.record else ''}; "
               f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {self.out}/logs\n"

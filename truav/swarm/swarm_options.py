@@ -11,6 +11,7 @@ from truav.bus import keys
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
 from world.world_process import WorldOptions
 
@@ -105,16 +106,25 @@ class SwarmOptions:
     """on-failure: restart an agent, the controller or the router that dies on its own (truav.swarm.healing); never."""
     restart_limit: int = DEFAULT_RESTART_LIMIT
     """Restarts of one process before it is left down and the run fails."""
+    external: tuple[int, ...] = ()
+    """UAVs flown by the user's own agent, not started here (truav.swarm.external)."""
+    external_wait_s: float = DEFAULT_EXTERNAL_WAIT_S
+    """How long to wait for the external UAVs' liveliness tokens before tick 0; past it the run fails."""
 
 
-def agent_groups(n: int, per_process: int) -> list[list[int]]:
-    """UAV ids 0..n-1 in consecutive groups of ``per_process``, one process each."""
-    return [list(range(a, min(a + per_process, n))) for a in range(0, n, per_process)]
+def agent_groups(n: int, per_process: int, external: tuple[int, ...] = ()) -> list[list[int]]:
+    """UAV ids 0..n-1 in consecutive groups of ``per_process``, one process each; ``external`` UAVs
+    (flown by an agent not started here) are left out of their group, and a group left empty has no process."""
+    groups = [[i for i in range(a, min(a + per_process, n)) if i not in external] for a in range(0, n, per_process)]
+    return [g for g in groups if g]
 
 
 def group_name(ids: list[int]) -> str:
-    """The process name (log file, pids.json) of a group: ``agent3`` alone, ``agents0-9`` for several."""
-    return f"agent{ids[0]}" if len(ids) == 1 else f"agents{ids[0]}-{ids[-1]}"
+    """The process name (log file, pids.json) of a group: ``agent3`` alone, ``agents0-9`` for several
+    (``agents0,1,3`` when an external UAV left a gap)."""
+    if len(ids) == 1:
+        return f"agent{ids[0]}"
+    return f"agents{ids[0]}-{ids[-1]}" if ids[-1] - ids[0] == len(ids) - 1 else "agents" + ",".join(map(str, ids))
 
 
 @dataclass
@@ -129,6 +139,7 @@ class Outcome:
     ticked: bool = False
     exactness: dict | None = None  # lock-step only: see lockstep_exactness
     restarts: list[dict] = field(default_factory=list)  # truav.swarm.healing.Restart.as_dict(), in order
+    external: list[dict] = field(default_factory=list)  # truav.swarm.external.report() of each external UAV
 
     def fail(self, reason: str) -> None:
         if reason not in self.failures:

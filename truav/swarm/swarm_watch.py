@@ -11,6 +11,7 @@ import time
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.lograte import Every
+from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.healing import RESTART_BACKOFF_MAX_S, RESTART_RECORD, ROUTER_BACKOFF_MAX_S, Restart
 from truav.swarm.swarm_options import (RECORDER_START_TIMEOUT_S, ROUTER_RECONNECT_WAIT_S, ROUTER_START_TIMEOUT_S,
@@ -128,6 +129,41 @@ class SwarmWatch:
                           f"(see {self.children.log_dir}/recorder.log)")
         return False
 
+    def _watch_external(self) -> bool:
+        """The external UAVs (truav.swarm.external): before tick 0, wait for their liveliness tokens, a
+        progress line every PROGRESS_EVERY_S, and fail past --external-wait; after it, note one that leaves
+        before the run's end. False when the run must end."""
+        opts, monitor = self.opts, self.monitor
+        with monitor.lock:
+            alive, ending = set(monitor.alive), bool(monitor.shutdowns)
+        now = self._since()
+        for i in opts.external:
+            here = keys.uav_identity(i) in alive
+            if here and i not in self.external_joined:
+                self.external_joined[i] = now
+                print(f"external uav/{i} joined at {now:.1f} s", flush=True)
+            elif not here and i in self.external_joined and self.outcome.ticked and not ending \
+                    and i not in self.external_left:
+                self.external_left[i] = now
+                note = f"external uav/{i} left at {now:.1f} s (its liveliness token went away); its UAV hovers"
+                self.outcome.warnings.append(note)
+                print(note, flush=True)
+        missing = [i for i in opts.external if i not in self.external_joined]
+        if missing and self.outcome.ticked:  # the world ticks only once every UAV is alive (its wait is longer)
+            for i in missing:
+                self.external_joined[i] = now
+            return True
+        if not missing:
+            return True
+        waited = time.monotonic() - self.external_since
+        if waited >= opts.external_wait_s:
+            self.outcome.fail(external.never_joined_text(missing, opts.external_wait_s, opts.run))
+            return False
+        if waited >= self.external_progress + external.PROGRESS_EVERY_S:
+            self.external_progress = waited // external.PROGRESS_EVERY_S * external.PROGRESS_EVERY_S
+            print(external.waiting_line(missing, waited, opts.external_wait_s), flush=True)
+        return True
+
     def _watch(self) -> bool:
         """Until the world exits; False (with the failure noted) if the run must end early."""
         opts, monitor, children = self.opts, self.monitor, self.children
@@ -141,6 +177,8 @@ class SwarmWatch:
             faults_pending = self.controller is not None and not self.outcome.ticked
             time.sleep(0.05 if faults_pending or not self.outcome.ticked else 0.2)
             monitor.poll()
+            if opts.external and not self._watch_external():
+                return False
             if debug_every is not None and debug_every.due():  # -v: what the bus showed, once a second
                 print(f"debug: supervisor at {self._since():.1f} s: {monitor.debug_line()}", flush=True)
             if not self.outcome.ticked and monitor.t0 is not None:
