@@ -29,7 +29,7 @@ from pathlib import Path
 
 from truav.bus import keys
 from truav.bus.acl import file_stem
-from truav.cli_config import UsageError
+from truav.errors import UserError as UsageError  # a user mistake: one line, exit 2 (as truav/swarm/checks.py)
 
 DEFAULT_EXTERNAL_WAIT_S = 300.0
 """How long `up` waits for an external UAV's liveliness token before tick 0: time to read the printed

@@ -22,6 +22,7 @@ from truav.bus import keys, security
 from truav.bus.rejections import REJECTED_METRIC  # the world's step-metrics key, read back here
 from truav.cli_config import UsageError
 from truav.cli_args import positive_int
+from world.world_stats import uav_metrics  # the world's per-UAV step-metrics values, read back here
 
 
 def _table(args) -> tuple[tuple[security.Grant, ...], tuple[str, ...]]:
@@ -201,6 +202,11 @@ def rejections_heard(bus, run: str | None):
             reasons = ", ".join(f"{k.split('.', 1)[1]} {int(v)}" for k, v in sorted(values.items())
                                 if k.startswith(REJECTED_METRIC + "."))
             out.append(f"run {r}: the world rejected {total} message(s)" + (f" ({reasons})" if reasons else ""))
+            per_uav = uav_metrics(values)  # the world's worst UAVs (missed, late, stale, rejected), bounded
+            if per_uav:
+                out.append(f"run {r}: per UAV (worst first): " + "; ".join(
+                    f"uav {u} " + " ".join(f"{k} {n}" for k, n in sorted(c.items()))
+                    for u, c in sorted(per_uav.items(), key=lambda uc: (-sum(uc[1].values()), uc[0]))))
         for (r, uav), h in sorted(reports.items()):
             out.append(health_line(r, h))
         return out
