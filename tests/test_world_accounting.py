@@ -102,7 +102,8 @@ def test_out_of_range_action_in_its_uavs_rejected_and_exit_0_below_max_missed(tm
     check_totals(w)
     bad = w["per_uav"][1]
     assert bad["rejected"].get("out_of_range", 0) >= 1 and w["per_uav"][0]["rejected"] == {}
-    assert bad["missed"] >= 1 and bad["applied"] == EPISODES * STEPS - 1
+    # the refused tick is missed; marked silent, its next answer may also come after that round closed
+    assert bad["missed"] >= 1 and EPISODES * STEPS - 3 <= bad["applied"] <= EPISODES * STEPS - 1
     assert code == 0, log[-2000:]
 
 

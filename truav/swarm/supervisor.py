@@ -250,7 +250,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
             # The supervisor's bounded wait for external UAVs decides (with its progress lines); the world's is longer.
             world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
                                  wait_agents_s=opts.wait_agents_s + (opts.external_wait_s if opts.external else 0.0),
-                                 max_missed_share=opts.max_missed_share)
+                                 max_missed_share=1.0)  # up judges the missed share itself (summary, chaos)
             self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
                 *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share"])))
