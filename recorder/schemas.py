@@ -20,7 +20,7 @@ import msgpack
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
-         "beacons")
+         "beacons", "replay_status")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -128,6 +128,10 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
                "stale_obs_skipped": _INT,
                "rejected": {"type": "object", "additionalProperties": _INT, "description": "refused messages by reason"},
                "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"}},
+    "replay_status": {"state": {"enum": ["playing", "paused", "waiting", "ended"]},
+                      "position_s": {**_NUM, "description": "s from the recording's first message"},
+                      "span_s": _NUM, "tick": {**_INT, "description": "last tick sent, -1 none yet"}, "rate": _NUM,
+                      "paused": {"type": "boolean"}, "sent": _INT, "restored": _INT, "loop": _INT},
 }
 
 

@@ -152,6 +152,9 @@ class ReferenceGuard(Guard):
         elif isinstance(msg, schema.Command):
             if src != keys.SRC_CONTROLLER:
                 return R_SENDER, f"command from {src}"
+        elif isinstance(msg, schema.ReplayStatus):
+            if src != keys.SRC_REPLAY:
+                return R_SENDER, f"replay status from {src}"
         uav = getattr(msg, "uav", None)
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
@@ -196,7 +199,8 @@ class ReferenceGuard(Guard):
 # --- a corpus -------------------------------------------------------------------------------------------
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
-             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3"}
+             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3",
+             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY}
 
 
 def samples() -> list[Message]:
@@ -220,6 +224,8 @@ def samples() -> list[Message]:
         schema.Health(uav=3, last_tick=-1, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
         schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
+        schema.ReplayStatus(state=schema.REPLAY_PLAYING, position_s=1.5, span_s=9.0, tick=7, rate=1.0, paused=False,
+                            sent=40, restored=0, loop=0),
     ]
 
 

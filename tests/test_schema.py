@@ -60,6 +60,8 @@ def samples() -> list[schema.Message]:
         schema.Health(uav=3, last_tick=7, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
         schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
+        schema.ReplayStatus(state=schema.REPLAY_PAUSED, position_s=12.5, span_s=60.0, tick=40, rate=2.0, paused=True,
+                            sent=1234, restored=17, loop=0),
     ]
 
 

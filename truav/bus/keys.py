@@ -63,6 +63,9 @@ METRICS_ROOT = "metrics"  # metrics(run, scope) builds its keys
 FAULT_ROOT = "fault"
 CONTROL_ROOT = "control"
 GROUP = "group"  # group/<first>-<last>/beacons: the beacons of one process's UAVs first..last, batched
+REPLAY_ROOT = "replay"  # replay/status (a replay's position, ~5 Hz) and replay/ctl (its queryable)
+REPLAY_STATUS = "status"
+REPLAY_CTL = "ctl"
 
 # Last chunks of the per-UAV keys.
 OBS = "obs"
@@ -262,6 +265,16 @@ def control(run: str, *parts: str) -> str:
 
 def all_control(run: str) -> str:
     return f"{prefix(run)}/{CONTROL_ROOT}/**"
+
+
+def replay_status(run: str) -> str:
+    """``truav/<run>/replay/status``: where a replay publishing into ``run`` stands (about 5 Hz)."""
+    return f"{prefix(run)}/{REPLAY_ROOT}/{REPLAY_STATUS}"
+
+
+def replay_ctl(run: str) -> str:
+    """``truav/<run>/replay/ctl``: the queryable that takes a replay's commands and answers its status."""
+    return f"{prefix(run)}/{REPLAY_ROOT}/{REPLAY_CTL}"
 
 
 # --- liveliness tokens --------------------------------------------------------

@@ -16,9 +16,9 @@ from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _ch
 from truav.bus.keys import MAX_UAVS
 from truav.bus.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
-    KIND_OBS, KIND_POSITIONS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
+    KIND_OBS, KIND_POSITIONS, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
-    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, SCOPES,
+    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, REPLAY_STATES, SCOPES,
     SchemaError)
 
 # --- message classes ------------------------------------------------------------------
@@ -323,7 +323,49 @@ class Beacons(Envelope):
     """(uav, tick, pos, vel) per beacon."""
 
 
-Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons]
+REPLAY_STATUS_PERIOD_S = 0.2
+"""How often a replay publishes its ReplayStatus while it runs (and at each change)."""
+
+
+@dataclass(frozen=True)
+class ReplayStatus(Envelope):
+    """Replay -> operator, recorder: where a replay stands, every REPLAY_STATUS_PERIOD_S and after each
+    command (also the answer of its ``replay/ctl`` queryable)."""
+
+    KIND: ClassVar[str] = KIND_REPLAY_STATUS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.REPLAY_ROOT,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "state": _choice(REPLAY_STATES),
+            "position_s": _nonneg,
+            "span_s": _nonneg,
+            "tick": _int(-1, (1 << 63) - 1),
+            "rate": _positive,
+            "paused": _bool,
+            "sent": _uint63,
+            "restored": _uint63,
+            "loop": _uint63,
+        }
+    )
+    state: str
+    position_s: float
+    """Receive time of the last message sent, in seconds from the recording's first message."""
+    span_s: float
+    """The recording's length in seconds (first to last message)."""
+    tick: int
+    """The last world tick sent (-1: none yet)."""
+    rate: float
+    paused: bool
+    sent: int
+    """Recorded messages sent so far (a message sent again after a seek back counts again)."""
+    restored: int
+    """Messages re-sent after seeks to restore each channel's last value."""
+    loop: int
+    """Complete passes so far (--loop)."""
+
+
+Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
+                ReplayStatus]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -331,7 +373,8 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
-    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons):
+    for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
+                ReplayStatus):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -382,6 +425,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
     KIND_BEACONS: {**_SMALL_LIMITS, "max_array_len": MAX_BATCH_ENTRIES},
+    KIND_REPLAY_STATUS: {**_SMALL_LIMITS, "max_array_len": 0},
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
     {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})

@@ -53,6 +53,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "command": ("controller", "agent i (scheme central)"),
     "health": ("uav/i", "supervisor, status, recorder"),
     "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
+    "replay_status": ("replay", "operator (`truav-swarm replay-ctl`), recorder"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
@@ -62,6 +63,7 @@ KEY_TAILS: Mapping[str, str] = {
     keys.CONTROL_ROOT: "<part>[/<part>...]",
     keys.CONTROLLER: f"{keys.COMMAND}/<i>",
     "group": "<first>-<last>/beacons",  # --batch-beacons: one process's UAVs first..last
+    keys.REPLAY_ROOT: keys.REPLAY_STATUS,  # replay/ctl is a queryable, not a put
 }
 """The key chunks after a one-chunk ``PLACE`` (the rest of the key names the instance)."""
 
@@ -168,6 +170,17 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "stale_obs_skipped": ("", "real time: observations skipped because a newer one was waiting"),
         "rejected": ("", "messages it refused so far, by reason (the table of reasons)"),
         "senders": ("", "messages it refused so far, by sender: only the most refused"),
+    },
+    "replay_status": {
+        "state": ("", "playing, paused, waiting (--lockstep: for the live agents' answers) or ended"),
+        "position_s": ("s", "receive time of the last message sent, from the recording's first message"),
+        "span_s": ("s", "the recording's length, first to last message"),
+        "tick": ("", "the last world tick sent (-1: none yet)"),
+        "rate": ("", "speed factor (2: twice as fast as recorded)"),
+        "paused": ("", "true while paused (a step or burst leaves it paused)"),
+        "sent": ("messages", "recorded messages sent so far (again after a seek back)"),
+        "restored": ("messages", "messages re-sent after seeks: each channel's last value before the new position"),
+        "loop": ("", "complete passes so far (--loop)"),
     },
     "beacons": {
         "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "

@@ -20,6 +20,7 @@ KIND_POSITIONS = "positions"
 KIND_STATE = "state"
 KIND_COMMAND = "command"
 KIND_HEALTH = "health"
+KIND_REPLAY_STATUS = "replay_status"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -29,6 +30,12 @@ SCOPES = (SCOPE_STEP, SCOPE_EPISODE)
 PHASE_START = "start"
 PHASE_END = "end"
 PHASES = (PHASE_START, PHASE_END)
+
+REPLAY_PLAYING = "playing"
+REPLAY_PAUSED = "paused"
+REPLAY_WAITING = "waiting"  # --lockstep: for the live agents' answers
+REPLAY_ENDED = "ended"
+REPLAY_STATES = (REPLAY_PLAYING, REPLAY_PAUSED, REPLAY_WAITING, REPLAY_ENDED)
 
 FAULT_LOSS = "loss"
 FAULT_LATENCY = "latency"
