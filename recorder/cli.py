@@ -3,7 +3,7 @@
 * :func:`add_log_commands` adds to ``truav``::
 
       truav log record --run RUN --out FILE [-e ENDPOINT] [--config-toml FILE]   # until Ctrl-C / SIGTERM
-      truav log play FILE [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused]
+      truav log play FILE... [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused] [--lockstep]
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
@@ -180,38 +180,43 @@ def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
 def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     import signal
 
-    from recorder.replay import (CONTROL_PART, KeyboardControl, Replayer, ReplayOptions, ReplayUsageError,
-                                 recording_info, replay_on_bus, split_patterns)
+    from recorder.replay import (CONTROL_PART, KEYS_HELP, KeyboardControl, Replayer, ReplayOptions,
+                                 ReplayUsageError, recording_info, split_patterns)
+    from recorder.replay_bus import replay_on_bus
     from truav.bus import keys
     from truav.bus.transport import apply_creds, config_from_args
 
-    problem = _mcap_file(args.file)
-    if problem:
-        return _fail(prog, problem)
+    for name in args.file:
+        problem = None if name.endswith(".parts.json") and Path(name).is_file() else _mcap_file(name)
+        if problem and not (len(args.file) == 1 and _parts_index_beside(name)):
+            return _fail(prog, problem)
     try:
         include, exclude = split_patterns(args.topics, args.exclude)
-        options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
-                                include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
-                                paused=args.paused, with_control=args.with_control)
+        options = ReplayOptions(path=tuple(Path(f) for f in args.file), run=args.run, rate=args.rate,
+                                loops=None if args.loop else 1, include=include, exclude=exclude,
+                                start_s=args.start, duration_s=args.duration, paused=args.paused,
+                                with_control=args.with_control, lockstep=args.lockstep,
+                                lockstep_wait_s=args.lockstep_wait)
         apply_creds(args, keys.SRC_REPLAY)
         zconfig = config_from_args(args)
+        info = recording_info(options.path)  # the parts resolved: each is checked below
     except (ReplayUsageError, ValueError) as exc:
         return _fail(prog, str(exc))
     from recorder.check import check
-    audit = check(args.file)  # a damaged chunk would stop the replay halfway: say so first
-    if audit.corrupt_chunks or audit.read_error:
-        return _fail(prog, f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                                    f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+    for part in info.paths:
+        audit = check(part)  # a damaged chunk would stop the replay halfway: say so first
+        if audit.corrupt_chunks or audit.read_error:
+            return _fail(prog, f"{part}: damaged recording ({'; '.join(audit.problems[:3])}); "
+                               f"`truav log recover {part} FIXED.mcap` salvages the rest")
     try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
-        info = recording_info(options.path)
         target = Replayer(options, lambda _key, _payload: None, info).target_run
         if target is None:
-            return _fail(prog, f"{args.file}: no truav/<run>/ keys to replay")
+            return _fail(prog, f"{args.file[0]}: no truav/<run>/ keys to replay")
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except damage_errors() as exc:
-        return _fail(prog, f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); "
-                                    f"`truav log recover` salvages the rest")
+        return _fail(prog, f"{args.file[0]}: damaged recording ({type(exc).__name__}: {exc}); "
+                           f"`truav log recover` salvages the rest")
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet
@@ -225,10 +230,13 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
         previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         if not quiet:
-            hint = "space pause/resume, s step, q quit; " if keyboard else ""
+            hint = f"keys: {KEYS_HELP}; " if keyboard else ""
             recorded = ", ".join(repr(r) for r in info.runs)
             runs = f"run {recorded}" if list(info.runs) == [target] else f"recorded run(s) {recorded} as {target!r}"
-            print(f"replay: {args.file} ({runs}){' (paused)' if args.paused else ''}; {hint}bus commands on "
+            files = args.file[0] if len(info.paths) == 1 else f"{len(info.paths)} parts of {args.file[0]}"
+            print(f"replay: {files} ({runs}){' (paused)' if args.paused else ''}"
+                  f"{' (lock-step with the live agents)' if args.lockstep else ''}; {hint}status on "
+                  f"{keys.replay_status(target)}; `truav-swarm replay-ctl --run {target} ...` or bus commands on "
                   f"{keys.control(target, CONTROL_PART)}", file=sys.stderr, flush=True)
         stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
     except ReplayUsageError as exc:
@@ -242,6 +250,12 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
             signal.signal(sig, handler)
     print(stats.format())
     return EXIT_OK
+
+
+def _parts_index_beside(name: str) -> bool:
+    """``<stem>.mcap`` that a split recording never wrote, its ``<stem>.parts.json`` beside it."""
+    from recorder.replay_source import index_beside
+    return index_beside(Path(name)) is not None
 
 
 REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live agent drops replayed traffic "
@@ -280,15 +294,21 @@ def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
 
 def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentParser:
     """``play`` (``truav log``) or ``replay`` (``truav-swarm``): re-publish a recording."""
+    from recorder.replay import KEYS_HELP
     from truav.cli_args import add_transport_args
 
     rp = subparsers.add_parser(
         name, help=help,
-        description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
-                    "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
-                    "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
-                    f"{REPLAY_EXAMPLE}")
-    rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+        description="Re-publish a recording's payloads unchanged, with the recorded timing. "
+                    f"Keys (on a terminal): {KEYS_HELP}. From another terminal: truav-swarm replay-ctl --run RUN "
+                    "seek --tick 40|rate 2|pause|resume|step|burst 5|status (over the queryable "
+                    "truav/<run>/replay/ctl), or a control message on truav/<run>/control/replay with command "
+                    "pause|resume|toggle|step|burst|next|seek|rate|quit. A seek (to a time, a tick, or back/forward "
+                    "by a time) first sends each channel's last message before that point. Status about 5 times a "
+                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}")
+    rp.add_argument("file", metavar="FILE", nargs="+",
+                    help="MCAP recording (finished or not); a split recording: its <stem>.parts.json, any part, "
+                         "or all its parts (played as one, in part order)")
     rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
     rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
     rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
@@ -302,6 +322,13 @@ def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentP
     rp.add_argument("--with-control", action="store_true",
                     help="also replay recorded control messages (skipped by default: old stop/shutdown "
                          "commands would hit live processes)")
+    rp.add_argument("--lockstep", action="store_true",
+                    help="consumer-paced: send the recorded tick k only once the live agents sent an observation "
+                         "of tick k-1 answered it (their actions; recorded actions are not replayed), as fast as "
+                         "they answer")
+    rp.add_argument("--lockstep-wait", type=positive_float, default=60.0, metavar="S",
+                    help="--lockstep: how long to wait for a live agent's answer before going on without it "
+                         "(default 60)")
     rp.add_argument("--no-keys", action="store_true", help="ignore the keyboard even on a terminal")
     rp.add_argument("--quiet", action="store_true", help="print only the final summary")
     add_transport_args(rp)

@@ -96,7 +96,7 @@ def nothing_starts(monkeypatch, tmp_path):
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
     import recorder.cli_process
-    import recorder.replay
+    import recorder.replay_bus
     import truav.experiments.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
@@ -112,7 +112,7 @@ def nothing_starts(monkeypatch, tmp_path):
                          (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
                          (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.swarm.cli_ops, "Bus"),
                          (truav.swarm.cli_processes, "run_router"), (recorder.cli_process, "cmd_record"),
-                         (recorder.replay, "replay_on_bus"),
+                         (recorder.replay_bus, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)
 
