@@ -75,6 +75,7 @@ LAYERS: list[tuple[str, int]] = [
     ("agents.central_process",          PROCESS),
     ("recorder.process",                PROCESS),
     ("recorder.replay",                 PROCESS),
+    ("recorder.replay_bus",             PROCESS),   # the replay on the bus: commands, queryable, status, lock-step
     ("truav.swarm.view",                PROCESS),
     ("truav.swarm.monitor",             PROCESS),
     ("truav.swarm.fault_control",       PROCESS),
@@ -98,6 +99,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.plots",               ANALYSIS),
     ("recorder.mcap_log",               ANALYSIS),
     ("recorder.reader",                 ANALYSIS),
+    ("recorder.replay_source",          ANALYSIS),  # what a replay reads: parts resolved, the seek timeline
     ("recorder.mcap_writer",            ANALYSIS),
     ("recorder.mcap_chunk",             ANALYSIS),
     ("recorder.mirror_channels",        ANALYSIS),
