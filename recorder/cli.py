@@ -221,9 +221,10 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     stop = threading.Event()
     quiet = args.quiet
 
-    def on_state(command: str) -> None:
+    def on_state(command: str) -> None:  # from several threads (keys, bus, the replay): one write per line
         if not quiet:
-            print(f"replay: {command}", file=sys.stderr, flush=True)
+            sys.stderr.write(f"replay: {command}\n")
+            sys.stderr.flush()
 
     previous = {}
     if threading.current_thread() is threading.main_thread():  # signal handlers only work there

@@ -556,7 +556,7 @@ class Replayer:
             assert current is not None
             if current.key in self._send and not self._hold_for_answers(current):
                 continue  # a seek or quit came while waiting: look again
-            self._send_message(current, restored=False)
+            self._send_message(current, restored=False, timed=not stepped)
             if stepped:
                 with self._cond:
                     self._anchor = (clock(), current.log_time)
@@ -577,7 +577,8 @@ class Replayer:
                 self._waiting = False
         return self._quit is None and self._seek is None
 
-    def _send_message(self, message: RecordedMessage, restored: bool) -> None:
+    def _send_message(self, message: RecordedMessage, restored: bool, timed: bool = False) -> None:
+        """Publish one message; ``timed``: it went out at its due time (its lateness is counted)."""
         out_key = self._rewrite(message.key)
         if fnmatchcase(message.key, TICK_PATTERN):
             tick = tick_of(message.payload)
@@ -597,7 +598,7 @@ class Replayer:
                 return
             self.stats.published += 1
             self.stats.per_channel[out_key] += 1
-            if self._anchor is not None and not self.options.lockstep:
+            if timed and self._anchor is not None and not self.options.lockstep:
                 mono, log = self._anchor
                 self.stats.add_lateness(now - mono - round((message.log_time - log) / self._rate))
 

@@ -86,6 +86,7 @@ SETUP = "the environment the check runs in was set up so (the quick start's inst
 OTHER_TERMINAL = "needs a swarm running in another terminal; the parts it talks to are tested in tests/test_swarm*.py"
 OTHER_HOST = "a part for another host (ROUTER, ~/truav-creds are the user's); tests/test_multihost.py runs them"
 LONG = "an experiment of minutes (many swarm runs); its code runs small in tests/test_fault_sweep.py, test_scheme_faults.py"
+REPLAY_RUNNING = "needs a replay running in another terminal; tests/test_replay_ctl.py runs replay-ctl against one"
 BENCH = "a benchmark: minutes, and it measures the host (bench/ is run by hand)"
 CHECKED: dict[str, str] = {
     "python3 -m venv .venv": SETUP,
@@ -110,6 +111,13 @@ CHECKED: dict[str, str] = {
     "truav-swarm replay runs/demo.mcap --rate 2 --topics 'truav/*/uav/1/obs' --paused":
         "starts paused, waiting for keys or bus commands; replay is tested in tests/test_replay.py",
     "truav-swarm record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav-swarm replay-ctl --run demo seek --tick 40": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo seek --by -5": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo rate 4": REPLAY_RUNNING,
+    "truav log play runs/split.parts.json": "needs a split recording (the recorder's split flags) and a router; "
+                                            "tests/test_replay_seek.py plays parts as one",
+    "truav-swarm replay runs/demo.mcap --lockstep --topics 'truav/*/world/tick' 'truav/*/uav/1/obs' "
+    "-e tcp/127.0.0.1:7447": "needs a live agent answering in another terminal; tests/test_replay_ctl.py runs one",
     "truav log play runs/demo.mcap --rate 2 --paused":
         "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/test_log_group.py)",
     "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
