@@ -273,3 +273,48 @@ def test_acl_lets_the_replay_serve_and_the_operator_ask_only() -> None:
     assert rules["replay-serve"]["key_exprs"] == [ctl] and "declare_queryable" in rules["replay-serve"]["messages"]
     assert rules["supervisor-ask"]["key_exprs"] == [ctl] and rules["supervisor-ask"]["messages"] == ["query"]
     assert keys.replay_status(acl.replay_run("demo")) in next(g for g in table if g.identity == "supervisor").subscribe
+
+
+def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path) -> None:
+    """On a locked router (mutual TLS, the ACL of truav.bus.acl): the replay serves its run's replay/ctl,
+    the operator's identity (supervisor) gets answers, an agent's or the world's query reaches nothing."""
+    import zenoh
+
+    from tests.conftest import free_port
+    from truav.bus import security
+
+    run = "sec"
+    creds_dir = tmp_path / "creds"
+    security.issue(creds_dir, run, 2, f"tcp/127.0.0.1:{free_port()}")
+    creds = security.load(creds_dir, run)
+    router = zenoh.open(zenoh.Config.from_file(str(creds_dir / security.ROUTER_CONFIG)))
+    replay_run = acl.replay_run(run)
+    make_ticks(tmp_path / "r.mcap", ticks=20, gap_ms=10.0, run=run)
+    lines: list[str] = []
+    stop = threading.Event()
+    worker = threading.Thread(target=lambda: replay_on_bus(
+        ReplayOptions(path=tmp_path / "r.mcap", run=replay_run, paused=True),
+        zenoh.Config.from_file(str(creds.config_file("replay"))), stop=stop, on_state=lines.append), daemon=True)
+    worker.start()
+    buses = {i: Bus(i, replay_run if i == "supervisor" else run, zenoh.Config.from_file(str(creds.config_file(i))))
+             for i in ("supervisor", "uav/0", "world")}
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while True:
+            try:
+                status = ask_replay(buses["supervisor"], replay_run, "seek", {"tick": 5}, timeout=1.0)
+                break
+            except QueryRefused:
+                assert time.monotonic() < deadline, lines
+        assert status.tick == 4 and status.paused
+        for identity in ("uav/0", "world"):
+            with pytest.raises(QueryRefused, match="no answer"):
+                ask_replay(buses[identity], replay_run, "resume", {}, timeout=1.0)
+        assert ask_replay(buses["supervisor"], replay_run, "status", {}).paused  # nobody else resumed it
+    finally:
+        stop.set()
+        worker.join(WAIT_S)
+        for bus in buses.values():
+            bus.close()
+        router.close()
+    assert not worker.is_alive()
