@@ -15,7 +15,8 @@ What rosbag2 users expect, on the TRUAV bus:
 * ``--paused`` starts paused; while it plays, :meth:`Replayer.command` (any thread: the keyboard,
   a ``control`` message on ``truav/<run>/control/replay``, the ``truav/<run>/replay/ctl`` queryable
   of :mod:`recorder.replay_bus`) pauses, resumes, sets the rate, steps one world tick (every message
-  from the next tick message up to the one after it), bursts N ticks, steps N messages, or seeks to a
+  up to the next world tick message: from a tick's start, that whole tick; paused in the middle of
+  one, the rest of it), bursts N ticks, steps N messages, or seeks to a
   time (seconds from the recording's first message), to a tick, or by a time back or forward.
   After a seek the last message of every replayed channel before the new position is sent again
   first, so a subscriber that joined late sees the current state (rosbag2 #929); see
@@ -66,9 +67,10 @@ CMD_BURST, CMD_NEXT, CMD_SEEK, CMD_RATE, CMD_STATUS = "burst", "next", "seek", "
 COMMANDS = (CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_BURST, CMD_NEXT, CMD_SEEK, CMD_RATE, CMD_STATUS,
             CMD_QUIT)
 """What :meth:`Replayer.command` takes, with its arguments: ``step`` ``n`` ticks (default 1) and ``burst``
-``n`` ticks (both leave it paused), ``next`` ``n`` messages, ``seek`` with one of ``s`` (seconds from the
-recording's first message), ``tick`` or ``by`` (seconds, negative: back), ``rate`` with ``rate`` (> 0) or
-``factor`` (multiplies it), ``status`` (nothing: the answer is the status)."""
+``n`` ticks (both leave it paused; a tick ends where the next world tick message starts), ``next`` ``n``
+messages, ``seek`` with one of ``s`` (seconds from the recording's first message), ``tick`` or ``by``
+(seconds, negative: back), ``rate`` with ``rate`` (> 0) or ``factor`` (multiplies it), ``status``
+(nothing: the answer is the status)."""
 BURST_KEY_TICKS = 10
 SKIP_KEY_S = 5.0
 MIN_RATE, MAX_RATE = 1e-3, 1e3

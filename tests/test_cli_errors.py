@@ -225,6 +225,14 @@ ROWS = [
     ("replay-connect-garbage", "swarm", "replay {good_mcap} -e garbage", 2, "-e/--connect"),
     ("replay-topics-match-nothing", "swarm", "replay {good_mcap} --topics truav/*/world/nothing", 2, "--topics"),
     ("replay-corrupt-mcap", "swarm", "replay {corrupt_mcap}", 2, "corrupt.mcap"),
+    ("replay-lockstep-wait-zero", "swarm", "replay {good_mcap} --lockstep --lockstep-wait 0", 2, "--lockstep-wait"),
+    ("replay-same-file-twice", "swarm", "replay {good_mcap} {good_mcap}", 2, "named twice"),
+    ("replay-ctl-rate-zero", "swarm", "replay-ctl rate 0", 2, "R"),
+    ("replay-ctl-seek-nowhere", "swarm", "replay-ctl seek", 2, "--tick"),
+    ("replay-ctl-seek-twice", "swarm", "replay-ctl seek --tick 3 --time 1", 2, "--time"),
+    ("replay-ctl-seek-tick-negative", "swarm", "replay-ctl seek --tick -1", 2, "--tick"),
+    ("replay-ctl-bad-run", "swarm", "replay-ctl --run a.b status", 2, "--run"),
+    ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
 ]
 
 

@@ -318,3 +318,8 @@ def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path) -> 
             bus.close()
         router.close()
     assert not worker.is_alive()
+
+
+def test_replay_lockstep_wait_defaults_to_the_worlds() -> None:
+    args = build_parser().parse_args(["replay", "x.mcap", "--lockstep"])
+    assert args.lockstep and args.lockstep_wait == schema.DEFAULT_LOCKSTEP_WAIT_S == ReplayOptions("x").lockstep_wait_s
