@@ -250,6 +250,9 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(stats.format())
+    if stats.lockstep_given_up:  # not paced by every live agent throughout: say so in the exit code too
+        return _fail(prog, f"--lockstep: {stats.lockstep_given_up} answer(s) of live agents not received within "
+                           f"--lockstep-wait {args.lockstep_wait:g} s", EXIT_FAILED)
     return EXIT_OK
 
 

@@ -25,7 +25,9 @@ What rosbag2 users expect, on the TRUAV bus:
 
 Recorded ``control`` keys are skipped unless ``--with-control`` (re-sending
 old ``stop``/``shutdown`` commands into a live run is rarely wanted), and
-``control/replay`` always is (a replay must not steer itself).
+``control/replay`` and a recorded replay's own ``replay/*`` always are (a replay
+must not steer itself). ``--lockstep`` leaves out the recorded actions: the live
+agents answer (:class:`LockstepGate`, :mod:`recorder.replay_bus`).
 
 Driving one live agent from a recorded world: replay only what the world
 sent to it, and let the live agent answer::
@@ -122,6 +124,8 @@ class ReplayStats:
     published: int = 0
     restored: int = 0  # messages sent again after seeks (each channel's last value)
     seeks: int = 0
+    lockstep_held: int = 0  # --lockstep: ticks held for the live agents' answers
+    lockstep_given_up: int = 0  # --lockstep: answers not received within --lockstep-wait
     per_channel: Counter = field(default_factory=Counter)  # output key -> messages
     loops: int = 0  # complete passes
     wall_s: float = 0.0
@@ -145,6 +149,9 @@ class ReplayStats:
 
     def format(self) -> str:
         restored = f" ({self.seeks} seek(s), {self.restored} restored)" if self.seeks else ""
+        if self.lockstep_held:
+            restored += (f"; lock-step: {self.lockstep_held} tick(s) held for the live agents' answers, "
+                         f"{self.lockstep_given_up} answer(s) not received in time")
         return (f"replay: {self.published} messages on {len(self.per_channel)} channels in {self.wall_s:.2f} s{restored}, "
                 f"{self.loops} complete pass(es), ended by {self.quit_reason}; timing: late by "
                 f"p50 {self.lateness_ms(0.5):.2f} ms, p99 {self.lateness_ms(0.99):.2f} ms, "

@@ -217,6 +217,8 @@ def replay_on_bus(options: ReplayOptions, zenoh_config: Any = None, *, keyboard:
             ticker.join(1.0)
             if stop is not None:
                 stop.set()  # release the watcher
+        if gate is not None:
+            stats.lockstep_held, stats.lockstep_given_up = gate.waits, gate.given_up
         publish_status()  # the last word: ended
         time.sleep(LINGER_S)
     return stats

@@ -240,25 +240,33 @@ def test_lockstep_replay_paces_the_recorded_world_by_a_live_agent(tmp_path: Path
         assert agent.stderr is not None
         agent.stderr.close()
     assert stats.published == 2 * ticks and not any("did not answer" in line for line in lines), lines
+    assert stats.lockstep_held == ticks - 1 and stats.lockstep_given_up == 0
     with lock:
         assert answers == list(range(ticks))  # the live agent's answers, each tick once: the recorded ones stayed out
     assert took < (ticks - 1) * gap_ms / 1000 / 2, took  # paced by the agent, not by the recording
 
 
-def test_lockstep_goes_on_without_an_agent_that_never_answers(tmp_path: Path, bus_factory, endpoint: str) -> None:
+def test_lockstep_goes_on_without_an_agent_that_never_answers(tmp_path: Path, bus_factory, endpoint: str,
+                                                                capsys) -> None:
+    """A live agent (its token present) that never answers is waited for --lockstep-wait once, named, then
+    no longer waited for; the replay ends, and its summary and exit code 1 say that it was not paced throughout."""
     run = "mute"
     world_ticks(tmp_path / "world.mcap", run, 0, 4, 10.0)
     mute = bus_factory(keys.uav_identity(0), run)
     mute.declare_liveliness(keys.alive_uav(run, 0))  # alive, listening to nothing, answering nothing
     watcher = bus_factory("watcher", run)
     assert wait_until(lambda: bool(watcher.alive(keys.alive_uav(run, 0), timeout=0.5)))
-    lines: list[str] = []
-    stats = replay_on_bus(ReplayOptions(path=tmp_path / "world.mcap", lockstep=True, lockstep_wait_s=0.5),
-                          transport.make_config("client", connect=[endpoint]), on_state=lines.append)
-    refusals = [line for line in lines if "did not answer" in line]
-    assert refusals == ["lockstep: uav 0 did not answer tick 0 within 0.5 s (--lockstep-wait); going on without it "
-                        "(not waited for until it answers again)"]  # once: then it is not waited for
-    assert stats.published == 8
+    args = build_parser().parse_args(["replay", str(tmp_path / "world.mcap"), "--lockstep", "--lockstep-wait", "0.5",
+                                      "--no-keys", "-e", endpoint])
+    assert args.func(args) == 1
+    out, err = capsys.readouterr()
+    refusals = [line for line in err.splitlines() if "did not answer" in line]
+    assert refusals == ["replay: lockstep: uav 0 did not answer tick 0 within 0.5 s (--lockstep-wait); going on "
+                        "without it (not waited for until it answers again)"]  # once: then it is not waited for
+    assert "replay: 8 messages" in out and "lock-step: 3 tick(s) held for the live agents' answers, 1 answer(s) " \
+                                           "not received in time" in out
+    assert err.strip().splitlines()[-1] == ("truav-swarm: error: --lockstep: 1 answer(s) of live agents not received "
+                                            "within --lockstep-wait 0.5 s")
 
 
 def test_acl_lets_the_replay_serve_and_the_operator_ask_only() -> None:
