@@ -82,8 +82,13 @@ KEY_BINDINGS: dict[str, tuple[str, dict[str, Any]]] = {
     ",": (CMD_SEEK, {"by": -SKIP_KEY_S}), ".": (CMD_SEEK, {"by": SKIP_KEY_S}), "0": (CMD_SEEK, {"s": 0.0}),
     "q": (CMD_QUIT, {}),
 }
+ENTRY_KEYS = {"g": "tick", "t": "s"}
+"""Keys that start typing a seek target: g then a tick number, t then seconds from the start; Enter
+seeks, Esc (or any other key) cancels, Backspace deletes."""
+MAX_ENTRY_CHARS = 16
 KEYS_HELP = (f"space pause/resume, s step one tick, b burst {BURST_KEY_TICKS} ticks, n one message, + / - rate x2 / "
-             f"x0.5, , / . back / forward {SKIP_KEY_S:g} s, 0 to the start, q quit")
+             f"x0.5, , / . back / forward {SKIP_KEY_S:g} s, 0 to the start, g<tick>Enter go to a tick, "
+             f"t<seconds>Enter go to a time, q quit")
 """The keys, as --help and the banner say them."""
 
 CONTROL_PATTERN = "truav/*/control/*"  # recorded control keys: skipped by default
@@ -349,6 +354,7 @@ class Replayer:
         self._tick = -1  # the last world tick sent
         self._waiting = False  # --lockstep: for the agents' answers
         self._ended = False
+        self._entry: Optional[tuple[str, str]] = None  # a seek target being typed: (argument, text so far)
         self._last: dict[str, RecordedMessage] = {}  # each channel's last message up to _pos
         self.stats = ReplayStats()
 
@@ -395,11 +401,37 @@ class Replayer:
 
     # -- commands (any thread) --
     def key(self, char: str) -> bool:
-        """Apply the command bound to a key (:data:`KEY_BINDINGS`); False for an unbound key."""
+        """Apply the command bound to a key (:data:`KEY_BINDINGS`), or type a seek target
+        (:data:`ENTRY_KEYS`); False for an unbound key. ValueError (one line) for a refused seek."""
+        if self._entry is not None:
+            return self._type(char)
+        if char in ENTRY_KEYS:
+            self._entry = (ENTRY_KEYS[char], "")
+            self._on_state(f"go to {'tick' if char == 'g' else 'time (s)'}: type it, then Enter (Esc cancels)")
+            return True
         binding = KEY_BINDINGS.get(char.lower() if char.isalpha() else char)
         if binding is None:
             return False
         self.command(binding[0], **binding[1])
+        return True
+
+    def _type(self, char: str) -> bool:
+        assert self._entry is not None
+        what, text = self._entry
+        if char in "\r\n":
+            self._entry = None
+            try:
+                value: Any = int(text) if what == "tick" else float(text)
+            except ValueError:
+                raise ValueError(f"not a {'tick number' if what == 'tick' else 'time in seconds'}: {text!r}") from None
+            self.command(CMD_SEEK, **{what: value})
+        elif char in ("\x7f", "\b"):
+            self._entry = (what, text[:-1])
+        elif (char.isdigit() or (char == "." and what == "s")) and len(text) < MAX_ENTRY_CHARS:
+            self._entry = (what, text + char)
+        else:  # Esc or anything else: no seek
+            self._entry = None
+            self._on_state("seek cancelled")
         return True
 
     def command(self, name: str, **args: Any) -> None:

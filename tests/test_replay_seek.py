@@ -225,6 +225,22 @@ def test_keys_set_the_rate_step_a_tick_and_seek(tmp_path: Path) -> None:
         assert wait_until(lambda: sink.count() == 13 * PER_TICK)
         assert replayer.paused and not replayer.key("x")
         assert replayer.status().rate == 2.0 and replayer.status().paused
+        for char in "g42\r":  # go to tick 42
+            assert replayer.key(char)
+        assert wait_until(lambda: sink.count() == 14 * PER_TICK)
+        assert sink.items[13 * PER_TICK:] == last_before(written, 42) and replayer.status().tick == 41
+        for char in "t2.05\x7f\r":  # go to 2.0 s (typed 2.05, one deleted): tick 20
+            assert replayer.key(char)
+        assert wait_until(lambda: sink.count() == 15 * PER_TICK)
+        assert sink.items[14 * PER_TICK:] == last_before(written, 20)
+        for char in "g7\x1b":  # Esc: no seek
+            assert replayer.key(char)
+        with pytest.raises(ValueError, match="tick 999 is not in the replayed window"):
+            for char in "g999\n":
+                replayer.key(char)
+        replayer.key("s")
+        assert wait_until(lambda: sink.count() == 16 * PER_TICK)
+        assert sink.items[15 * PER_TICK:] == of_tick(written, 20)  # still where the last seek went
     finally:
         replayer.quit()
         thread.join(WAIT_S)
