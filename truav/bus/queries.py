@@ -70,6 +70,13 @@ class Queries:
             try:
                 queryable.undeclare()
             finally:
+                while True:  # what still waits gets an answer now, and the worker its end at once
+                    try:
+                        waiting = pending.get_nowait()
+                    except queue.Empty:
+                        break
+                    if waiting is not None:
+                        _answer(waiting, key, (False, b"closing: the server stopped"))
                 pending.put(None)
                 worker.join(DEFAULT_ASK_TIMEOUT_S)
 
