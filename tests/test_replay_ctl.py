@@ -332,3 +332,31 @@ def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path) -> 
 def test_replay_lockstep_wait_defaults_to_the_worlds() -> None:
     args = build_parser().parse_args(["replay", "x.mcap", "--lockstep"])
     assert args.lockstep and args.lockstep_wait == schema.DEFAULT_LOCKSTEP_WAIT_S == ReplayOptions("x").lockstep_wait_s
+
+
+def test_a_queryable_bounds_what_it_takes_and_survives_its_handler(bus_factory) -> None:
+    """Bus.serve: a query over its size limit is refused unread, a failing handler is an error answer
+    (the server goes on), and an answer over the asker's limit is refused by the asker."""
+    server, client = bus_factory("replay", "q"), bus_factory("supervisor", "q")
+    key = keys.replay_ctl("q")
+
+    def handler(data: bytes) -> tuple[bool, bytes]:
+        if data == b"boom":
+            raise RuntimeError("handler bug")
+        return True, data * 2
+
+    server.serve(key, handler, max_bytes=8)
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        try:
+            assert client.ask(key, b"ab", timeout=1.0) == b"abab"
+            break
+        except QueryRefused:
+            assert time.monotonic() < deadline
+    with pytest.raises(QueryRefused, match="query of 9 bytes, limit 8"):
+        client.ask(key, b"x" * 9)
+    with pytest.raises(QueryRefused, match="internal error: RuntimeError: handler bug"):
+        client.ask(key, b"boom")
+    with pytest.raises(QueryRefused, match="answer of 8 bytes, limit 4"):
+        client.ask(key, b"abcd", max_bytes=4)
+    assert client.ask(key, b"ok") == b"okok"
