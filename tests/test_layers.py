@@ -100,6 +100,7 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.mcap_log",               ANALYSIS),
     ("recorder.reader",                 ANALYSIS),
     ("recorder.replay_source",          ANALYSIS),  # what a replay reads: parts resolved, the seek timeline
+    ("recorder.replay_setup",           ANALYSIS),  # a replay's options, checked before it starts
     ("recorder.mcap_writer",            ANALYSIS),
     ("recorder.mcap_chunk",             ANALYSIS),
     ("recorder.mirror_channels",        ANALYSIS),
