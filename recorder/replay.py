@@ -233,7 +233,7 @@ class Replayer:
     def _type(self, char: str) -> bool:
         assert self._entry is not None
         what, text = self._entry
-        if char in "\r\n":
+        if char in ("\r", "\n"):
             self._entry = None
             try:
                 value: Any = int(text) if what == "tick" else float(text)
@@ -547,6 +547,8 @@ class KeyboardControl:
             if not ready:
                 continue
             char = os.read(fd, 1).decode(errors="ignore")
+            if not char:  # a byte of a multi-byte character: no key of ours
+                continue
             try:
                 self._replayer.key(char)
             except ValueError as exc:  # e.g. a seek past the end: say it, keep playing
