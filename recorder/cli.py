@@ -184,20 +184,21 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
                                  ReplayUsageError, recording_info, split_patterns)
     from recorder.replay_bus import replay_on_bus
     from truav.bus import keys
-    from truav.bus.transport import apply_creds, config_from_args
+    from truav.bus.transport import config_from_args
+    from truav.bus.zenoh_config import apply_replay_creds
 
     for name in args.file:
         problem = None if name.endswith(".parts.json") and Path(name).is_file() else _mcap_file(name)
         if problem and not (len(args.file) == 1 and _parts_index_beside(name)):
             return _fail(prog, problem)
     try:
+        apply_replay_creds(args, keys.SRC_REPLAY)  # under --creds: into <run>-replay, the only run it may use
         include, exclude = split_patterns(args.topics, args.exclude)
         options = ReplayOptions(path=tuple(Path(f) for f in args.file), run=args.run, rate=args.rate,
                                 loops=None if args.loop else 1, include=include, exclude=exclude,
                                 start_s=args.start, duration_s=args.duration, paused=args.paused,
                                 with_control=args.with_control, lockstep=args.lockstep,
                                 lockstep_wait_s=args.lockstep_wait)
-        apply_creds(args, keys.SRC_REPLAY)
         zconfig = config_from_args(args)
         info = recording_info(options.path)  # the parts resolved: each is checked below
     except (ReplayUsageError, ValueError) as exc:

@@ -24,6 +24,7 @@ from recorder.replay_bus import ask_replay, replay_on_bus
 from test_replay_seek import PER_TICK, last_before, make_ticks, of_tick
 from truav.bus import acl, keys, schema, transport
 from truav.bus.transport import Bus, QueryRefused
+from truav.cli_config import UsageError
 from truav.swarm.cli import build_parser
 
 RUN = "ctl"
@@ -284,9 +285,10 @@ def test_acl_lets_the_replay_serve_and_the_operator_ask_only() -> None:
     assert keys.replay_status(acl.replay_run("demo")) in next(g for g in table if g.identity == "supervisor").subscribe
 
 
-def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path) -> None:
-    """On a locked router (mutual TLS, the ACL of truav.bus.acl): the replay serves its run's replay/ctl,
-    the operator's identity (supervisor) gets answers, an agent's or the world's query reaches nothing."""
+def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path, capsys) -> None:
+    """On a locked router (mutual TLS, the ACL of truav.bus.acl): `replay --creds` publishes into the run's
+    replay run and serves its replay/ctl there; `replay-ctl --creds` (the operator, supervisor) gets answers;
+    an agent's or the world's query reaches nothing."""
     import zenoh
 
     from tests.conftest import free_port
@@ -299,34 +301,35 @@ def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path) -> 
     router = zenoh.open(zenoh.Config.from_file(str(creds_dir / security.ROUTER_CONFIG)))
     replay_run = acl.replay_run(run)
     make_ticks(tmp_path / "r.mcap", ticks=20, gap_ms=10.0, run=run)
-    lines: list[str] = []
-    stop = threading.Event()
-    worker = threading.Thread(target=lambda: replay_on_bus(
-        ReplayOptions(path=tmp_path / "r.mcap", run=replay_run, paused=True),
-        zenoh.Config.from_file(str(creds.config_file("replay"))), stop=stop, on_state=lines.append), daemon=True)
+    exits: list[int] = []
+    replay_args = build_parser().parse_args(["replay", str(tmp_path / "r.mcap"), "--paused", "--no-keys", "--quiet",
+                                             "--creds", str(creds_dir)])
+    worker = threading.Thread(target=lambda: exits.append(replay_args.func(replay_args)), daemon=True)
     worker.start()
-    buses = {i: Bus(i, replay_run if i == "supervisor" else run, zenoh.Config.from_file(str(creds.config_file(i))))
-             for i in ("supervisor", "uav/0", "world")}
+
+    def ctl(*argv: str) -> int:
+        args = build_parser().parse_args(["replay-ctl", "--creds", str(creds_dir), "--timeout", "1", *argv])
+        return args.func(args)
+
+    buses = {i: Bus(i, run, zenoh.Config.from_file(str(creds.config_file(i)))) for i in ("uav/0", "world")}
     try:
         deadline = time.monotonic() + WAIT_S
-        while True:
-            try:
-                status = ask_replay(buses["supervisor"], replay_run, "seek", {"tick": 5}, timeout=1.0)
-                break
-            except QueryRefused:
-                assert time.monotonic() < deadline, lines
-        assert status.tick == 4 and status.paused
+        while ctl("seek", "--tick", "5") != 0:
+            assert time.monotonic() < deadline, capsys.readouterr()
+        assert "paused at 0.040/0.190 s tick 4" in capsys.readouterr().out
         for identity in ("uav/0", "world"):
             with pytest.raises(QueryRefused, match="no answer"):
                 ask_replay(buses[identity], replay_run, "resume", {}, timeout=1.0)
-        assert ask_replay(buses["supervisor"], replay_run, "status", {}).paused  # nobody else resumed it
+        assert ctl("status") == 0 and "paused at" in capsys.readouterr().out  # nobody else resumed it
+        with pytest.raises(UsageError, match="a replay publishes into 'sec-replay'"):
+            ctl("--run", "other", "status")
     finally:
-        stop.set()
+        ctl("quit")
         worker.join(WAIT_S)
         for bus in buses.values():
             bus.close()
         router.close()
-    assert not worker.is_alive()
+    assert not worker.is_alive() and exits == [0]
 
 
 def test_replay_lockstep_wait_defaults_to_the_worlds() -> None:

@@ -17,8 +17,9 @@ import argparse
 import sys
 
 from truav.cli_args import non_negative_float, non_negative_int, positive_float, positive_int, run_name
-from truav.swarm.cli_common import add_transport_args, config_from_args, part_creds
+from truav.swarm.cli_common import add_transport_args, config_from_args
 
+DEFAULT_RUN = "demo"
 CTL_IDENTITY = "supervisor"
 """Under --secure the operator's identity: the ACL lets it query a replay's ctl key (truav.bus.acl)."""
 
@@ -55,8 +56,15 @@ def cmd_replay_ctl(args: argparse.Namespace) -> int:
     from recorder.replay_bus import ask_replay, status_line
     from truav.bus.transport import Bus, QueryRefused
 
+    from truav.bus.zenoh_config import apply_replay_creds
+    from truav.cli_config import UsageError
+
     command, cargs = command_of(args)
-    part_creds(args, CTL_IDENTITY)
+    try:
+        apply_replay_creds(args, CTL_IDENTITY)  # under --creds: the replay's own run, <run>-replay
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    args.run = args.run or DEFAULT_RUN
     with Bus(CTL_IDENTITY, args.run, config_from_args(args)) as bus:
         try:
             status = ask_replay(bus, args.run, command, cargs, timeout=args.timeout)
@@ -74,7 +82,8 @@ def add_replay_ctl(subparsers) -> None:
                     "truav/<run>/replay/ctl) and print its status after it. Seek takes seconds from the "
                     "recording's first message, a world tick, or seconds back (negative) or forward; after a "
                     "seek each channel's last message before that point is sent again first.")
-    ctl.add_argument("--run", type=run_name, default="demo", help="the run the replay publishes into (default demo)")
+    ctl.add_argument("--run", type=run_name, default=None,
+                     help="the run the replay publishes into (default demo; with --creds, <its run>-replay)")
     ctl.add_argument("--timeout", type=positive_float, default=5.0, metavar="S",
                      help="seconds to wait for the replay's answer (default 5)")
     add_transport_args(ctl)
