@@ -369,10 +369,15 @@ def test_remote_pause_and_resume(tmp_path: Path, endpoint: str, bus_factory, chi
     world, operator, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
     world.subscribe_raw(keys.everything(RUN), counter)
     ready(world, proc)
+    nobody = subprocess.run([sys.executable, "-m", "truav.cli", "log", "record-ctl", "pause", "--run", "other",
+                             "--wait", "0.5", "-e", endpoint], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert nobody.returncode == 1 and "no recorder of run other" in nobody.stderr
     kept: list[tuple[str, bytes]] = []
     commands: list[tuple[str, bytes]] = []  # recorded or not, depending on which comes first in the recorder
     send(world, kept, counter, 10)
-    control(operator, "pause", commands)
+    ctl = subprocess.run([sys.executable, "-m", "truav.cli", "log", "record-ctl", "pause", "--run", RUN, "-e",
+                          endpoint], capture_output=True, text=True, timeout=60, cwd=REPO)  # as a user sends it
+    assert ctl.returncode == 0 and f"sent pause to the recorder of run {RUN}" in ctl.stdout, ctl.stderr
     time.sleep(SETTLE_S)  # the pause reached the writer
     dropped: list[tuple[str, bytes]] = []
     send(world, dropped, counter, 10)
@@ -425,3 +430,13 @@ def test_snapshot_on_a_fault_window_in_the_process(tmp_path: Path, endpoint: str
     assert check(snapshot_path(out, 1)).finished
     assert read_metadata(snapshot_path(out, 2))[SNAPSHOT_METADATA]["trigger"] == "signal"
     assert not out.exists()
+
+
+def test_under_secure_only_the_supervisor_may_command_the_recorder() -> None:
+    """split/pause/resume/snapshot arrive on control/recorder: on a locked bus the router lets only the
+    supervisor put there (the recorder trusts the router's ACL, not the envelope's src)."""
+    from truav.bus import acl
+    key = keys.control(RUN, CONTROL_PART)
+    lines = acl.explain(acl.grants(RUN, 3), key=key)
+    allowed = {line.split()[0] for line in lines if "may put" in line}
+    assert allowed == {acl.SUPERVISOR}
