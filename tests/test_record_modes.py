@@ -34,6 +34,7 @@ from recorder.recover import recover
 from recorder.snapshot import SnapshotLog
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
+from truav.config import Config, to_toml
 
 REPO = Path(__file__).resolve().parents[1]
 RUN = "modes"
@@ -267,9 +268,10 @@ def children():
                 stream.close()
 
 
-def start(children: list, endpoint: str, out: Path, *extra: str, modes: RecordModes | None = None):
+def start(children: list, endpoint: str, out: Path, *extra: str, modes: RecordModes | None = None,
+          config: Path | None = None):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
-    proc = spawn_recorder(RUN, out, [endpoint], extra=extra, env=env, stdout=subprocess.PIPE,
+    proc = spawn_recorder(RUN, out, [endpoint], extra=extra, env=env, stdout=subprocess.PIPE, config_toml=config,
                           stderr=subprocess.PIPE, **({} if modes is None else {"modes": modes}))
     children.append(proc)
     return proc
@@ -318,8 +320,9 @@ def wait_parts(out: Path, n: int) -> None:
 
 def test_split_on_bus_command_and_sighup_and_by_duration(tmp_path: Path, endpoint: str, bus_factory,
                                                         children) -> None:
-    out = tmp_path / "run.mcap"
-    proc = start(children, endpoint, out, modes=RecordModes(split_on_command=True))
+    out, config = tmp_path / "run.mcap", tmp_path / "run.toml"
+    config.write_text(to_toml(Config()))
+    proc = start(children, endpoint, out, modes=RecordModes(split_on_command=True), config=config)
     world, operator, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
     world.subscribe_raw(keys.everything(RUN), counter)
     ready(world, proc)
@@ -338,6 +341,7 @@ def test_split_on_bus_command_and_sighup_and_by_duration(tmp_path: Path, endpoin
     index = read_parts_index(out)
     assert [row["reason"] for row in index["parts"]] == ["command", "signal", "end"]
     assert_valid_parts([part_path(out, n) for n in (1, 2, 3)], sent)
+    assert all(read_metadata(part_path(out, n))[CONFIG_METADATA]["toml"] == config.read_text() for n in (1, 2, 3))
     assert not out.exists()
     for n in (1, 2, 3):  # `truav log check`, as a user runs it
         proc = subprocess.run([sys.executable, "-m", "truav.cli", "log", "check", str(part_path(out, n))],
