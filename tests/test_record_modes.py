@@ -27,7 +27,7 @@ from recorder.mcap_log import McapLog, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA
 from recorder.parts import PartedLog, read_parts_index
 from recorder.process import CONTROL_PART, spawn_recorder, stop_recorder, wait_until_recording
-from recorder.reader import iter_messages, read_metadata
+from recorder.reader import iter_messages, probe, read_metadata
 from recorder.record_modes import (PART_FIELDS, PART_METADATA, PAUSE_METADATA, SNAPSHOT_METADATA, RecordModes,
                                    part_path, parts_index_path, snapshot_path)
 from recorder.recover import recover
@@ -43,6 +43,7 @@ T0 = 1_700_000_000 * S
 READY_S = 15.0
 EXIT_S = 30.0
 SETTLE_S = 0.3
+COMMAND_S = 1.0  # a command sent: the recorder's writer has applied it (it looks between any two pulls)
 
 
 def beacon(uav: int, seq: int) -> bytes:
@@ -53,6 +54,11 @@ def beacon(uav: int, seq: int) -> bytes:
 def fault_start(seq: int) -> bytes:
     return msgpack.packb({"v": 1, "kind": "fault", "src": "supervisor", "seq": seq, "t": T0, "inc": 1,
                           "fault": "loss", "phase": "start", "target": "uav/1", "params": {"p": 0.5}})
+
+
+def probe_finished(path: Path) -> bool:
+    with open(path, "rb") as f:
+        return probe(f).finished
 
 
 def bus_messages(path: Path) -> list[tuple[str, bytes]]:
@@ -382,12 +388,12 @@ def test_remote_pause_and_resume(tmp_path: Path, endpoint: str, bus_factory, chi
     ctl = subprocess.run([sys.executable, "-m", "truav.cli", "log", "record-ctl", "pause", "--run", RUN, "-e",
                           endpoint], capture_output=True, text=True, timeout=60, cwd=REPO)  # as a user sends it
     assert ctl.returncode == 0 and f"sent pause to the recorder of run {RUN}" in ctl.stdout, ctl.stderr
-    time.sleep(SETTLE_S)  # the pause reached the writer
+    time.sleep(COMMAND_S)  # the pause reached the writer
     dropped: list[tuple[str, bytes]] = []
     send(world, dropped, counter, 10)
     time.sleep(SETTLE_S)
     control(operator, "resume", commands)
-    time.sleep(SETTLE_S)
+    time.sleep(COMMAND_S)
     send(world, kept, counter, 10)
     time.sleep(SETTLE_S)
     assert stop_recorder(proc, EXIT_S) == 0
@@ -418,7 +424,8 @@ def test_snapshot_on_a_fault_window_in_the_process(tmp_path: Path, endpoint: str
     sent.append((keys.fault(RUN, "loss"), schema.encode(sup.publish(keys.fault(RUN, "loss"), fault))))
     send(world, sent, counter, 10)
     assert wait_until(lambda: snapshot_path(out, 1).exists(), 10.0)
-    time.sleep(1.5)  # the after-window ends: the snapshot is finished by the recorder itself
+    # the after-window ends: the recorder finishes the snapshot by itself, on a quiet bus too
+    assert wait_until(lambda: probe_finished(snapshot_path(out, 1)), 10.0)
     proc.send_signal(signal.SIGUSR1)  # a second snapshot, by signal
     send(world, sent, counter, 5)
     assert wait_until(lambda: snapshot_path(out, 2).exists(), 10.0)
@@ -427,7 +434,7 @@ def test_snapshot_on_a_fault_window_in_the_process(tmp_path: Path, endpoint: str
     meta = read_metadata(snapshot_path(out, 1))[SNAPSHOT_METADATA]
     assert meta["trigger"] == "fault" and meta["cut_short"] == "false"
     got = bus_messages(snapshot_path(out, 1))
-    assert (keys.fault(RUN, "loss"), sent[20][1]) in got and set(got) <= set(sent) and len(got) >= 20
+    assert (keys.fault(RUN, "loss"), sent[20][1]) in got and set(got) <= set(sent) and len(got) >= 10
     t_fault = int(meta["trigger_time_ns"])
     for m in iter_messages(snapshot_path(out, 1)):
         assert t_fault - S <= m.log_time <= t_fault + S
