@@ -19,6 +19,10 @@ stdout but one summary when it stops, and exits
   config not TOML ...), with a one-line message on stderr;
 * 1 when recording failed (router unreachable, disk full ...).
 
+The same control key takes ``split`` (recording in parts), ``pause``, ``resume`` and ``snapshot``
+(snapshot mode), as does SIGHUP (split) and SIGUSR1 (snapshot); see :mod:`recorder.record_modes`
+for the layouts (one file, parts, snapshots) and ``truav log record-ctl`` to send them.
+
 It is *recording* once its liveliness token ``truav/<run>/alive/recorder``
 is visible: the token is declared after the subscription, so a supervisor
 that waits for it (:func:`wait_until_recording`) loses no message it sends
