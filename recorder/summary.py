@@ -6,6 +6,7 @@ its :class:`recorder.mcap_log.LogSummary` and its Bus's statistics.
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict, dataclass, field
 from typing import Any, Optional
 
@@ -14,6 +15,7 @@ from recorder.mcap_log import LogSummary
 __all__ = ["RecorderSummary", "MAX_SUMMARY_ROWS"]
 
 MAX_SUMMARY_ROWS = 200  # channel / sender rows in the printed summary
+MAX_FILES_NAMED = 4  # parts / snapshots named in the printed summary (more: the first and the last)
 
 
 @dataclass
@@ -73,9 +75,9 @@ class RecorderSummary:
             f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
         ]
         if self.files and self.files != [self.path]:
-            shown = ", ".join(self.files[:MAX_SUMMARY_ROWS])
-            lines.append(f"  files: {len(self.files)} ({shown}" + (", ...)" if len(self.files) > MAX_SUMMARY_ROWS
-                                                                    else ")"))
+            names = [os.path.basename(f) for f in self.files]
+            shown = ", ".join(names) if len(names) <= MAX_FILES_NAMED else f"{names[0]} ... {names[-1]}"
+            lines.append(f"  files: {len(names)} ({shown}, beside {self.path})")
         if self.paused_s:
             lines.append(f"  paused by request for {self.paused_s:.1f} s: {self.not_recorded_paused} messages not "
                          "recorded (noted in the file's truav.pause metadata)")

@@ -451,3 +451,25 @@ def test_under_secure_only_the_supervisor_may_command_the_recorder() -> None:
     lines = acl.explain(acl.grants(RUN, 3), key=key)
     allowed = {line.split()[0] for line in lines if "may put" in line}
     assert allowed == {acl.SUPERVISOR}
+
+
+def test_up_records_in_parts(tmp_path: Path, small_cfg) -> None:
+    """`truav-swarm up --record --split-duration` hands the flag to its recorder: a tiny run in parts,
+    every part clean, together every message the recorder counted."""
+    from conftest import up_to_end
+    record = tmp_path / "swarm.mcap"
+    cfg = small_cfg.replace(scenario={"n_uavs": 2, "steps_per_episode": 10})
+    out = up_to_end(tmp_path, "parts", cfg, "--episodes", "1", "--lockstep", "--record", str(record),
+                    "--split-duration", "0.3")
+    rows = read_parts_index(record)["parts"]
+    assert len(rows) >= 2 and rows[-1]["reason"] == "end" and all(row["finished"] for row in rows)
+    total = 0
+    for row in rows:
+        path = record.with_name(row["path"])
+        report = check(path)
+        assert report.finished and report.missing == 0 and report.corrupt_chunks == 0, (path, report.problems)
+        total += len(bus_messages(path))
+    assert total > 0 and not record.exists()
+    recorder_log = (out / "logs" / "recorder.log").read_text()
+    assert f"  {total} messages on" in recorder_log and f"files: {len(rows)} (" in recorder_log
+    assert "parts listed in" in (tmp_path / "parts.log").read_text()
