@@ -149,6 +149,8 @@ class RecorderOptions:
         except UserError as exc:
             raise RecorderUsageError(str(exc)) from None
         first = part_path(out, 1) if self.modes.split else snapshot_path(out, 1) if self.modes.snapshot else out
+        if self.modes.split and parts_index_path(out).exists() and not first.exists():
+            first = parts_index_path(out)  # an earlier recording's index (its parts moved away)
         if first.exists() and not self.force:
             raise RecorderUsageError(f"{first} exists; use --force to overwrite it")
         if not out.parent.is_dir():

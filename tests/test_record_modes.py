@@ -163,6 +163,15 @@ def test_record_flags_bad_values_exit_2_in_one_line(tmp_path: Path, argv: list[s
     assert not list(tmp_path.iterdir())
 
 
+def test_parts_of_an_earlier_recording_are_not_overwritten_without_force(tmp_path: Path) -> None:
+    part_path(tmp_path / "x.mcap", 1).write_bytes(b"earlier")
+    proc = subprocess.run([sys.executable, "-m", "truav.cli", "log", "record", "--run", RUN, "--out",
+                           str(tmp_path / "x.mcap"), "--split-size", "1"], capture_output=True, text=True, timeout=60,
+                          cwd=REPO)
+    assert proc.returncode == 2 and "x_0001.mcap exists; use --force" in proc.stderr, proc.stderr
+    assert part_path(tmp_path / "x.mcap", 1).read_bytes() == b"earlier"
+
+
 def test_up_passes_the_flags_and_checks_them() -> None:
     import argparse
     from recorder.cli_process import add_record_args
