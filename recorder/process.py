@@ -261,10 +261,10 @@ class Recorder:
             return list(sink.paths)
         return [Path(self.options.out)]
 
-    def request(self, command: str, by: str) -> None:
+    def request(self, command: str, by: str, signalled: bool = False) -> None:
         """Ask the writer thread to split, pause, resume or snapshot (safe from a signal handler and
-        from the bus's threads: the writer alone touches the files)."""
-        self._queue.put((command, by, time.time_ns()))
+        from the bus's threads: the writer alone touches the files); ``signalled``: by a signal."""
+        self._queue.put((command, by, time.time_ns(), signalled))
 
     def _abort_start(self) -> None:
         """Startup failed: stop what runs and remove the (empty) file we created."""
@@ -363,12 +363,10 @@ class Recorder:
                 return False
             if item is _STOP:
                 return True
-            command, by, at_ns = item
-            self._apply(command, by, at_ns)
+            self._apply(*item)
 
-    def _apply(self, command: str, by: str, at_ns: int) -> None:
+    def _apply(self, command: str, by: str, at_ns: int, signalled: bool) -> None:
         sink = self._log
-        signal_ = by.startswith("SIG")
         if command == CMD_PAUSE:
             if self._pause is None:
                 self._pause = PauseLedger(at_ns, by)
@@ -379,14 +377,14 @@ class Recorder:
                 log.info("recorder: resumed by %s", by)
         elif command == CMD_SPLIT:
             if isinstance(sink, PartedLog):
-                path = sink.split(REASON_SIGNAL if signal_ else REASON_COMMAND)
+                path = sink.split(REASON_SIGNAL if signalled else REASON_COMMAND)
                 log.info("recorder: split by %s; now writing %s", by, path)
             else:
                 log.warning("recorder: ignoring split from %s: not recording in parts "
                             "(--split-size, --split-duration or --split-on-command)", by)
         elif command == CMD_SNAPSHOT:
             if isinstance(sink, SnapshotLog):
-                sink.trigger(Trigger(SIGNAL if signal_ else COMMAND, at_ns, f"{command} from {by}"))
+                sink.trigger(Trigger(SIGNAL if signalled else COMMAND, at_ns, f"{command} from {by}"))
             else:
                 log.warning("recorder: ignoring snapshot from %s: not in snapshot mode (--snapshot)", by)
 
@@ -497,7 +495,7 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
         requests[signal.SIGUSR1] = CMD_SNAPSHOT
 
     def on_request(signum: int, _frame: object) -> None:
-        recorder.request(requests[signal.Signals(signum)], signal.Signals(signum).name)
+        recorder.request(requests[signal.Signals(signum)], signal.Signals(signum).name, signalled=True)
 
     with _signals_set(stop, reasons), signals_handled(tuple(requests), on_request):
         try:
