@@ -161,9 +161,10 @@ class McapLog:
         self._open_file(output)
 
     @property
-    def bytes_in_file(self) -> int:
-        """Bytes of the current file: written, and waiting in the open chunk (uncompressed)."""
-        return self._writer.bytes_written + self._writer.pending_bytes
+    def bytes_on_disk(self) -> int:
+        """Bytes of the current file handed to the OS so far (closed chunks, metadata; the open chunk
+        not yet: it is compressed when it closes)."""
+        return self._writer.bytes_written
 
     def log_time_range(self) -> tuple[Optional[int], Optional[int]]:
         """(first, last) log time in the current file, (None, None) before its first message."""

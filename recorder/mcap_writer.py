@@ -234,11 +234,6 @@ class McapWriter:
     def bytes_written(self) -> int:
         return self._offset
 
-    @property
-    def pending_bytes(self) -> int:
-        """Uncompressed bytes in the open chunk (not yet written)."""
-        return len(self._open.data)
-
     def log_time_range(self) -> tuple[Optional[int], Optional[int]]:
         """(first, last) log time of the messages so far, the open chunk's included; (None, None) if none."""
         lo, hi = self._time_min, self._time_max

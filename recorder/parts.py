@@ -63,7 +63,7 @@ class PartedLog:
 
     def write(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: Optional[int] = None) -> None:
         self._log.write(key, payload, log_time_ns, publish_time_ns)
-        if self._max_bytes is not None and self._log.bytes_in_file >= self._max_bytes:
+        if self._max_bytes is not None and self._log.bytes_on_disk >= self._max_bytes:
             self.split(REASON_SIZE)
         elif self._max_s is not None and self._clock() - self._opened >= self._max_s:
             self.split(REASON_DURATION)

@@ -64,7 +64,7 @@ class RecordModes:
     """Split, snapshot or neither (one file, as before); see the module docstring."""
 
     split_size_mb: Optional[float] = opt(None, flag="--split-size", type="positive_float", metavar="MB",
-                                         help="start a new part once the current one holds this many MB "
+                                         help="start a new part once the current one holds this many MB on disk "
                                               "(<stem>_0001.mcap, ... and <stem>.parts.json)")
     split_duration_s: Optional[float] = opt(None, flag="--split-duration", type="positive_float", metavar="S",
                                             help="start a new part every S seconds")
