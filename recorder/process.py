@@ -536,8 +536,8 @@ def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] 
         argv += ["--geo-origin", "%r,%r" % geo_origin]
     if force:
         argv.append("--force")
-    if modes is not None:
-        argv += to_argv(modes, MODE_FLAGS)
+    if modes is not None:  # the flags given (a default is the recorder's own default too)
+        argv += to_argv(modes, [n for n in MODE_FLAGS if getattr(modes, n) != getattr(RecordModes(), n)])
     return argv + list(extra)
 
 
