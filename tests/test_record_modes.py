@@ -486,3 +486,20 @@ def test_up_records_in_parts(tmp_path: Path, small_cfg) -> None:
     recorder_log = (out / "logs" / "recorder.log").read_text()
     assert f"  {total} messages on" in recorder_log and f"files: {len(rows)} (" in recorder_log
     assert "parts listed in" in (tmp_path / "parts.log").read_text()
+
+
+def test_split_by_size_in_the_process(tmp_path: Path, endpoint: str, bus_factory, children) -> None:
+    out = tmp_path / "run.mcap"
+    proc = start(children, endpoint, out, modes=RecordModes(split_size_mb=0.002))
+    world, counter = bus_factory("world"), Counter()
+    world.subscribe_raw(keys.everything(RUN), counter)
+    ready(world, proc)
+    sent: list[tuple[str, bytes]] = []
+    for _ in range(8):  # a burst every 0.1 s: chunks close every 50 ms, so parts fill up chunk by chunk
+        send(world, sent, counter, 5)
+        time.sleep(0.1)
+    time.sleep(SETTLE_S)
+    assert stop_recorder(proc, EXIT_S) == 0
+    rows = read_parts_index(out)["parts"]
+    assert len(rows) >= 3 and {row["reason"] for row in rows[:-1]} == {"size"}
+    assert_valid_parts([out.with_name(row["path"]) for row in rows], sent)
