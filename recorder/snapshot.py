@@ -5,7 +5,9 @@ bounded in bytes too (the oldest go first).  A trigger (:mod:`recorder.snapshot_
 fault window starting, a sequence gap, missed actions; or :meth:`SnapshotLog.trigger` for a
 command or a signal) opens ``<stem>_snap_NNNN.mcap``, writes the ring's messages from
 ``before_s`` before the trigger, then every message until ``after_s`` after it; a trigger while
-a snapshot is open extends it to ``after_s`` after the latest one.  The file closes with a
+a snapshot is open extends it to ``after_s`` after the latest one, up to MAX_SPAN_FACTOR windows
+(at least MIN_MAX_SPAN_S) after it began: then it closes, and the next trigger opens another.  The
+file closes with a
 ``truav.snapshot`` metadata record (the first trigger's kind, time and what, the window, and
 every trigger it holds) and is a finished, self-contained MCAP (schemas, channels, the
 recording's metadata).  Outside a snapshot nothing is written to disk.
@@ -28,6 +30,8 @@ from recorder.snapshot_triggers import Trigger, TriggerWatch
 
 __all__ = ["SnapshotLog", "MAX_TRIGGERS_LISTED"]
 
+MAX_SPAN_FACTOR = 10  # a snapshot kept open by trigger after trigger ends this many windows after it began
+MIN_MAX_SPAN_S = 60.0  # ... and not before this long (a storm of gaps must not become one endless file)
 MAX_TRIGGERS_LISTED = 100  # triggers named in one snapshot's metadata (a storm of gaps is counted, not listed)
 RING_OVERHEAD = 64  # bytes counted per kept message on top of its payload (tuple, key reference)
 S = 1_000_000_000
@@ -54,6 +58,7 @@ class SnapshotLog:
         self._metadata: dict[str, dict[str, Any]] = {}  # written into every snapshot
         self._open: Optional[McapLog] = None
         self._end_ns = 0
+        self._last_ns = 0  # the latest a trigger may extend the open snapshot to
         self._triggers: list[Trigger] = []
         self._n_triggers = 0
         self.paths: list[Path] = []  # finished snapshot files
@@ -130,12 +135,14 @@ class SnapshotLog:
         if len(self._triggers) < MAX_TRIGGERS_LISTED:
             self._triggers.append(trig)
         if self._open is not None:
-            self._end_ns = max(self._end_ns, trig.at_ns + self._after)
+            self._end_ns = min(max(self._end_ns, trig.at_ns + self._after), self._last_ns)
             return
         path = snapshot_path(self.out, len(self.paths) + 1)
         log = self._open = self._make_log(path)
         self._path = path
         self._end_ns = trig.at_ns + self._after
+        span = max(MAX_SPAN_FACTOR * (self._before + self._after), int(MIN_MAX_SPAN_S * S))
+        self._last_ns = trig.at_ns - self._before + span  # however many triggers follow
         for name, data in self._metadata.items():
             log.set_metadata(name, data)
         start = trig.at_ns - self._before
@@ -153,6 +160,7 @@ class SnapshotLog:
             "window_start_ns": str(first.at_ns - self._before), "window_end_ns": str(self._end_ns),
             "triggers": json.dumps([[t.kind, t.at_ns, t.what] for t in self._triggers]),
             "trigger_count": str(self._n_triggers), "cut_short": "true" if cut_short else "false",
+            "at_span_limit": "true" if self._end_ns >= self._last_ns else "false",
         }
         log.set_metadata(SNAPSHOT_METADATA, record)
         log.close()

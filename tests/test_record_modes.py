@@ -503,3 +503,19 @@ def test_split_by_size_in_the_process(tmp_path: Path, endpoint: str, bus_factory
     rows = read_parts_index(out)["parts"]
     assert len(rows) >= 3 and {row["reason"] for row in rows[:-1]} == {"size"}
     assert_valid_parts([out.with_name(row["path"]) for row in rows], sent)
+
+
+def test_a_storm_of_triggers_does_not_make_one_endless_snapshot(tmp_path: Path) -> None:
+    from recorder.snapshot import MIN_MAX_SPAN_S
+    out = tmp_path / "run.mcap"
+    clock = [T0]
+    snap = SnapshotLog(out, before_s=0.5, after_s=0.5, max_bytes=10_000_000, make_log=make_log,
+                       now_ns=lambda: clock[0])
+    for n in range(600):  # a fault starting every 0.25 s for 150 s
+        clock[0] = T0 + n * S // 4
+        snap.write(keys.fault(RUN, "loss"), fault_start(n), clock[0])
+    snap.close()
+    assert len(snap.paths) == 3
+    first = read_metadata(snap.paths[0])[SNAPSHOT_METADATA]
+    assert first["at_span_limit"] == "true"
+    assert int(first["window_end_ns"]) - int(first["window_start_ns"]) == int(MIN_MAX_SPAN_S * S)
