@@ -7,6 +7,7 @@
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
+      truav log record-ctl split|pause|resume|snapshot --run RUN   # a running recorder (recorder.cli_record_ctl)
 
   and ``truav report``, an alias of ``truav log report``;
 * :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
@@ -31,6 +32,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from recorder.cli_record_ctl import add_record_ctl_parser
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -373,6 +375,8 @@ def add_log_commands(subparsers: Any) -> None:
     chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)
+
+    add_record_ctl_parser(log_sub)
 
     add_report_parser(subparsers, alias_help("truav log report")).set_defaults(func=cmd_report)
 

@@ -68,6 +68,8 @@ RUN: dict[str, list[str]] = {
     "truav report runs/demo.mcap": [],
     "truav log report runs/demo.mcap --out runs/demo-report": [],
     "truav-swarm up --record runs/foxglove.mcap --foxglove --out runs/swarm-foxglove": [*SWARM, "--foxglove", "0"],
+    "truav-swarm up --record runs/parts.mcap --split-size 1 --split-duration 60 --out runs/swarm-parts": SWARM,
+    "truav-swarm up --record runs/snap.mcap --snapshot 10:5 --out runs/swarm-snap": SWARM,
     "truav-swarm up --fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-faults": SWARM,
     "truav-swarm chaos --plan deploy/plans/partition-latency.toml": SWARM,
     "truav-swarm up --scheme central --fault-plan deploy/plans/controller-crash.toml "
@@ -113,6 +115,8 @@ CHECKED: dict[str, str] = {
     "truav log play runs/demo.mcap --rate 2 --paused":
         "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/test_log_group.py)",
     "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav log record-ctl pause --run demo -e tcp/127.0.0.1:7447":
+        OTHER_TERMINAL + " (tests/test_record_modes.py sends it to a recorder)",
     "truav-swarm view -e tcp/127.0.0.1:7447 --run demo": OTHER_TERMINAL,
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
     "truav-swarm faults --run demo --plan my.toml -e tcp/127.0.0.1:7447": OTHER_TERMINAL + " (my.toml: the user's plan)",

@@ -25,6 +25,9 @@ from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, ad
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.supervisor import SwarmOptions
+from recorder.record_modes import RecordModes
+from truav.cli_args import options_from
+from truav.errors import UserError
 from world.world_process import WorldOptions
 
 MAX_AGENTS = 50
@@ -178,7 +181,22 @@ def cmd_chaos(args) -> int:
 
 def cmd_up(args) -> int:
     cfg, opts = swarm_options(args)
+    opts.record_modes = record_modes(args)
     return supervisor.run_swarm(cfg, opts)
+
+
+def record_modes(args) -> RecordModes:
+    """`up`'s split or snapshot flags (declared in RecordModes), checked; they need --record."""
+    modes = options_from(RecordModes, args)
+    if modes != RecordModes() and args.record is None:
+        given = next(f for f in ("--split-size", "--split-duration", "--split-on-command", "--snapshot",
+                                 "--snapshot-max-mb") if getattr(args, f.lstrip("-").replace("-", "_")) not in
+                     (None, False, RecordModes.snapshot_max_mb))
+        raise UsageError(f"{given}: lays out the recording's files; give --record FILE too")
+    try:
+        return modes.validate()
+    except UserError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def add_up_args(up: argparse.ArgumentParser) -> None:
@@ -258,6 +276,8 @@ def add_up_commands(sub) -> None:
     up.add_argument("--external-wait", type=positive_float, metavar="S",
                     help=f"seconds to wait for the --external UAVs to join before the run fails "
                          f"(default {DEFAULT_EXTERNAL_WAIT_S:g})")
+    add_options(up.add_argument_group("recording in parts or snapshots (with --record; recorder/record_modes.py)"),
+                RecordModes)
     up.set_defaults(func=cmd_up)
 
     ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "
