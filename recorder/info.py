@@ -7,7 +7,8 @@ first/last log time and mean rate; each (src, kind, incarnation) stream's sequen
 per fault and target, as ``truav report`` shades them); the world's tick range; and what the
 metadata says of the run (run name, seed, scheme, lock-step), its part of a split recording, the
 window it was cut to, or what it was merged from. A cut's kept last-before messages are counted
-on their topics (``kept``) but not in the sequence statistics, where they would look like gaps.
+on their topics (``kept``) but not timed (their log time is the window's start) nor in the sequence
+statistics, where they would look like gaps.
 :func:`info` returns a :class:`FileInfo`; :meth:`FileInfo.as_json` and :meth:`FileInfo.format`
 are the two outputs.
 """
@@ -42,24 +43,29 @@ NS = 1e9
 
 @dataclass
 class Tally:
-    """Messages of one topic, sender or kind."""
+    """Messages of one topic, sender or kind; a cut's kept messages are counted but not timed (their log
+    time is the window's start, not theirs)."""
 
     count: int = 0
     first: Optional[int] = None  # log time, ns
     last: Optional[int] = None
     kept: int = 0  # a cut's kept last-before messages among them
 
-    def add(self, log_time: int) -> None:
+    def add(self, log_time: int, kept: bool = False) -> None:
         self.count += 1
+        if kept:
+            self.kept += 1
+            return
         self.first = log_time if self.first is None or log_time < self.first else self.first
         self.last = log_time if self.last is None or log_time > self.last else self.last
 
     @property
     def rate_hz(self) -> Optional[float]:
         """Mean rate over the tally's span ((count - 1) intervals); None for fewer than two or no span."""
-        if self.count < 2 or self.first is None or self.last is None or self.last == self.first:
+        timed = self.count - self.kept
+        if timed < 2 or self.first is None or self.last is None or self.last == self.first:
             return None
-        return (self.count - 1) * NS / (self.last - self.first)
+        return (timed - 1) * NS / (self.last - self.first)
 
 
 @dataclass
@@ -285,12 +291,9 @@ def info(path: str | os.PathLike[str]) -> FileInfo:
             result.mirrors.setdefault(key, Tally()).add(log_time)
             continue
         result.messages += 1
-        topic = result.topics.setdefault(key, Tally())
-        topic.add(log_time)
         is_kept = bool(kept) and kept.original_log_time(key, log_time, pub, payload) is not None
-        if is_kept:
-            topic.kept += 1
-            result.kept += 1
+        result.kept += is_kept
+        result.topics.setdefault(key, Tally()).add(log_time, is_kept)
         env = envelope_fields(payload)
         if env is None:
             result.undecodable += 1
@@ -298,10 +301,10 @@ def info(path: str | os.PathLike[str]) -> FileInfo:
             continue
         kind, src, number, _, body, inc = env
         result.topic_kinds.setdefault(key, kind)
-        result.senders.setdefault(src, Tally()).add(log_time)
+        result.senders.setdefault(src, Tally()).add(log_time, is_kept)
         result.sender_kinds.setdefault(src, set()).add(kind)
-        result.kinds.setdefault(kind, Tally()).add(log_time)
-        if is_kept:
+        result.kinds.setdefault(kind, Tally()).add(log_time, is_kept)
+        if is_kept:  # not a gap in its stream, not an event of the window
             continue
         seq.observe(src, kind, inc, number, log_time, pub)
         if kind == "fault":

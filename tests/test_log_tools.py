@@ -175,17 +175,18 @@ def test_cut_by_tick_holds_the_tick_window_and_the_state_before_it(recording: Pa
 
 
 def test_cut_by_time_and_topics(recording: Path, tmp_path: Path) -> None:
+    """--start/--end seconds, --topics and --exclude; a JSON mirror goes with the key it mirrors."""
     out = tmp_path / "uav1.mcap"
-    cut(recording, out, WindowSpec(start_s=1.0, end_s=2.5), include=["truav/*/uav/1/*"], exclude=["*/action"])
+    cut(recording, out, WindowSpec(start_s=1.0, end_s=2.5), include=["truav/*/uav/1/*", "truav/*/metrics/*"],
+        exclude=["*/action"])
     first = all_messages(recording)[0].log_time
-    got = all_messages(out, mirrors=False)
-    topics = {m.topic for m in got}
-    assert topics == {keys.uav_obs(RUN, 1), keys.uav_beacon(RUN, 1)}
     start, end = first + 1_000_000_000, first + 2_500_000_000
-    want = [m for m in all_messages(recording, mirrors=False) if m.topic in topics and start <= m.log_time < end]
-    assert got[2:] == want and [m.log_time for m in got[:2]] == [start, start]
-    mirrors = {m.topic for m in all_messages(out)} - topics
-    assert mirrors == {"/json/" + keys.uav_beacon(RUN, 1)} or all(t.endswith("uav/1/beacon") for t in mirrors)
+    topics = {keys.uav_obs(RUN, 1), keys.uav_beacon(RUN, 1), keys.metrics_step(RUN),
+              "/json/" + keys.metrics_step(RUN)}
+    got = all_messages(out)
+    assert {m.topic for m in got} == topics
+    assert [m.log_time for m in got[:len(topics)]] == [start] * len(topics)  # one kept per channel
+    assert got[len(topics):] == [m for m in all_messages(recording) if m.topic in topics and start <= m.log_time < end]
 
 
 def test_cut_then_merge_gives_back_every_message(recording: Path, tmp_path: Path) -> None:
