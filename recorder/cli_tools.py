@@ -55,22 +55,31 @@ def _seconds(ns: Optional[int], origin: Optional[int]) -> str:
     return "-" if ns is None or origin is None else f"{(ns - origin) / 1e9:.3f}"
 
 
+def _split_patterns(topics: list[str], exclude: list[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``--topics`` entries starting with ``!`` are excludes, as replay's ``--topics`` (recorder.replay, which
+    loads Zenoh: not imported for this); returns (include, exclude)."""
+    include = tuple(t for t in topics if not t.startswith("!"))
+    excluded = tuple(t[1:] for t in topics if t.startswith("!")) + tuple(exclude)
+    if any(not p for p in include + excluded):
+        raise UserError("--topics/--exclude: empty topic pattern")
+    return include, excluded
+
+
 # --- truav log cut ----------------------------------------------------------------------------------
 def cmd_log_cut(args: argparse.Namespace) -> int:
     from recorder.cut import WindowSpec, cut
     from recorder.log_copy import not_mcap_reason
-    from recorder.replay import ReplayUsageError, split_patterns
 
     problem = not_mcap_reason(args.input)
     if problem:
         return _fail(f"IN {problem}")
     try:
-        include, exclude = split_patterns(args.topics, args.exclude)
+        include, exclude = _split_patterns(args.topics, args.exclude)
         _check_out(args.output, [args.input], args.force)
         spec = WindowSpec(start_s=args.start, end_s=args.end, start_ns=args.start_ns, end_ns=args.end_ns,
                           from_tick=args.from_tick, to_tick=args.to_tick)
         report = cut(args.input, args.output, spec, include, exclude)
-    except (UserError, ReplayUsageError) as exc:
+    except UserError as exc:
         return _fail(str(exc))
     except _damage_errors() as exc:
         return _fail(f"IN {args.input}: damaged recording ({type(exc).__name__}: {exc}); "

@@ -105,7 +105,7 @@ class FileInfo:
     faults: list[dict[str, Any]] = field(default_factory=list)  # fault, target, start_s, end_s (None: open)
     ticks: Optional[tuple[int, int]] = None  # lowest and highest world tick
     episodes: Optional[tuple[int, int]] = None
-    kept: int = 0
+    kept: int = 0  # a cut's kept last-before messages (mirrors included)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
 
     @property
@@ -286,13 +286,13 @@ def info(path: str | os.PathLike[str]) -> FileInfo:
     for key, payload, log_time, pub in iter_messages(path, include_mirrors=True):
         result.first = log_time if result.first is None or log_time < result.first else result.first
         result.last = log_time if result.last is None or log_time > result.last else result.last
-        if is_mirror_topic(key):
-            result.mirror_messages += 1
-            result.mirrors.setdefault(key, Tally()).add(log_time)
-            continue
-        result.messages += 1
         is_kept = bool(kept) and kept.original_log_time(key, log_time, pub, payload) is not None
         result.kept += is_kept
+        if is_mirror_topic(key):
+            result.mirror_messages += 1
+            result.mirrors.setdefault(key, Tally()).add(log_time, is_kept)
+            continue
+        result.messages += 1
         result.topics.setdefault(key, Tally()).add(log_time, is_kept)
         env = envelope_fields(payload)
         if env is None:

@@ -187,6 +187,12 @@ def test_cut_by_time_and_topics(recording: Path, tmp_path: Path) -> None:
     assert {m.topic for m in got} == topics
     assert [m.log_time for m in got[:len(topics)]] == [start] * len(topics)  # one kept per channel
     assert got[len(topics):] == [m for m in all_messages(recording) if m.topic in topics and start <= m.log_time < end]
+    # the command line's spelling, !PATTERN excluding as replay's --topics does
+    again = tmp_path / "again.mcap"
+    done = truav("cut", recording, again, "--start", "1", "--end", "2.5", "--topics", "truav/*/uav/1/*",
+                 "truav/*/metrics/*", "!*/action")
+    assert done.returncode == 0 and "last-before messages kept" in done.stdout, done.stderr
+    assert all_messages(again) == got
 
 
 def test_cut_then_merge_gives_back_every_message(recording: Path, tmp_path: Path) -> None:
@@ -277,7 +283,8 @@ def test_info_cli_of_a_cut_and_its_json(recording: Path, tmp_path: Path) -> None
                           capture_output=True, text=True, timeout=120)  # the command as a user runs it
     rows = json.loads(done.stdout)
     assert [Path(r["path"]).name for r in rows] == ["run.mcap", "c.mcap"]
-    assert rows[1]["cut"]["from_tick"] == "5" and rows[1]["kept"] > 0
+    assert rows[1]["cut"]["from_tick"] == "5" and rows[1]["kept"] == rows[1]["cut"]["kept_before"] > 0
+    assert sum(t["kept"] for t in [*rows[1]["topics"].values(), *rows[1]["mirrors"].values()]) == rows[1]["kept"]
     # the kept messages are not sequence gaps
     assert all(s["missing"] == 0 for s in rows[1]["streams"])
 
