@@ -32,12 +32,8 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
 
 
 def _damage_errors() -> tuple[type[BaseException], ...]:
-    """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
-    import struct
-
-    import zstandard
-    from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
+    from recorder.log_copy import damage_errors
+    return damage_errors()
 
 
 def _check_out(out: str, inputs: list[str], force: bool) -> None:

@@ -31,7 +31,8 @@ from recorder.recover import PART_SUFFIX
 from truav.errors import UserError
 
 __all__ = ["LogMessage", "FinishedLog", "open_finished", "OutputChannels", "written_atomically", "new_writer",
-           "not_mcap_reason", "dump", "string_map"]
+           "not_mcap_reason", "dump", "string_map",
+           "damage_errors"]
 
 COPY_ZSTD_LEVEL = 9
 """Cut and merge outputs: zstd 9 (a few times faster than the recorder's level-19 compaction, a few % larger)."""
@@ -55,9 +56,13 @@ class FinishedLog:
         self.summary = summary
 
     def messages(self) -> Iterator[LogMessage]:
-        """Every message, ascending log time (ties in file order)."""
-        for schema, channel, message in self.reader.iter_messages(log_time_order=True):
-            yield LogMessage(schema, channel, message)
+        """Every message, ascending log time (ties in file order); a damaged chunk is a UserError naming the file."""
+        try:
+            for schema, channel, message in self.reader.iter_messages(log_time_order=True):
+                yield LogMessage(schema, channel, message)
+        except damage_errors() as exc:
+            raise UserError(f"IN {self.path}: damaged recording ({type(exc).__name__}: {exc}); `truav log check` "
+                            f"shows where, `truav log recover {self.path} FIXED.mcap` salvages the rest") from None
 
     def metadata(self) -> list[Metadata]:
         """Every metadata record, in file order (repeated names included)."""
@@ -80,6 +85,15 @@ class FinishedLog:
     def message_count(self) -> int:
         stats = self.summary.statistics
         return stats.message_count if stats is not None else 0
+
+
+def damage_errors() -> tuple[type[BaseException], ...]:
+    """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
+    import struct
+
+    import zstandard
+    from mcap.exceptions import McapError
+    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
 
 
 def not_mcap_reason(path: str | os.PathLike[str]) -> Optional[str]:
@@ -162,8 +176,10 @@ def new_writer(stream: IO[bytes], library: str) -> McapWriter:
 
 @contextlib.contextmanager
 def written_atomically(out: str | os.PathLike[str]) -> Iterator[IO[bytes]]:
-    """A stream to ``<out>.part``, renamed to ``out`` when the block ends normally (after fsync), removed otherwise."""
+    """A stream to ``<out>.part``, renamed to ``out`` when the block ends normally (after fsync), removed
+    otherwise; missing directories of ``out`` are made."""
     part = Path(os.fspath(out) + PART_SUFFIX)
+    part.parent.mkdir(parents=True, exist_ok=True)  # OUT's directory may be new (checked creatable before)
     try:
         with open(part, "wb") as stream:
             yield stream
