@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Optional
 
 from mcap.records import Metadata
@@ -26,7 +25,7 @@ from mcap.records import Metadata
 from recorder.check import _table
 from recorder.cut import CUT_METADATA, KeptMessages
 from recorder.merge import MERGE_METADATA, PART_METADATA
-from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA
+from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA
 from recorder.mirror_channels import is_mirror_topic
 from recorder.reader import iter_messages, open_source, probe, read_metadata
 from recorder.report_data import Recording

@@ -19,7 +19,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import IO, Iterator, Mapping, NamedTuple, Optional
+from typing import IO, Iterator, NamedTuple, Optional
 
 from mcap.reader import McapReader, make_reader
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
@@ -31,8 +31,7 @@ from recorder.recover import PART_SUFFIX
 from truav.errors import UserError
 
 __all__ = ["LogMessage", "FinishedLog", "open_finished", "OutputChannels", "written_atomically", "new_writer",
-           "not_mcap_reason", "dump", "string_map",
-           "damage_errors"]
+           "not_mcap_reason", "dump", "damage_errors"]
 
 COPY_ZSTD_LEVEL = 9
 """Cut and merge outputs: zstd 9 (a few times faster than the recorder's level-19 compaction, a few % larger)."""
@@ -188,8 +187,3 @@ def written_atomically(out: str | os.PathLike[str]) -> Iterator[IO[bytes]]:
         os.replace(part, out)
     finally:
         part.unlink(missing_ok=True)
-
-
-def string_map(values: Mapping[str, object]) -> dict[str, str]:
-    """A metadata map: strings as they are, anything else as JSON."""
-    return {k: v if isinstance(v, str) else dump(v) for k, v in values.items()}
