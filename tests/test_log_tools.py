@@ -324,6 +324,8 @@ def test_bad_inputs_are_one_line_exit_2(recording: Path, tmp_path: Path) -> None
         assert done.returncode == 2 and len(lines) == 1 and words in lines[0], (args, done.stderr)
         assert not out.exists() and not Path(str(out) + ".part").exists()
     assert exists.read_bytes() == b""
+    done = truav("info", unfinished)  # info reads what an unfinished file holds, and says so
+    assert done.returncode == 0 and "UNFINISHED" in done.stdout and "1 bus messages" in done.stdout
 
 
 def test_api_errors_are_user_errors(recording: Path, tmp_path: Path) -> None:
