@@ -65,8 +65,9 @@ def trace_dir(cfg: Config, root: Path | None = None) -> Path:
     return (root or cache_root()) / sumo_scenario.cache_key(cfg, sumo_version())
 
 
-def _run_tool(argv: list[str], what: str) -> None:
-    done = subprocess.run(argv, capture_output=True, text=True, env={**os.environ, "SUMO_HOME": sumo_home()})
+def _run_tool(argv: list[str], what: str, cwd: Path) -> None:
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=cwd,
+                          env={**os.environ, "SUMO_HOME": sumo_home()})
     if done.returncode != 0:
         tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
         raise RuntimeError(f"{what} failed (exit {done.returncode}): {tail[0]}")
@@ -78,7 +79,7 @@ def make_network(cfg: Config, work: Path) -> tuple[Path, list[tuple[str, str]]]:
     home = sumo_home()
     net = work / "grid.net.xml"
     _run_tool([os.path.join(home, "bin", "netgenerate"), *sumo_scenario.netgenerate_args(cfg, str(net))],
-              "netgenerate")
+              "netgenerate", work)
     edges = [e for e in sumolib.net.readNet(str(net)).getEdges() if e.allows("passenger")]
     centres = np.array([np.mean(e.getShape(), axis=0) for e in edges])
     weights = sumo_scenario.weights_xml([e.getID() for e in edges], sumo_scenario.hotspot_weights(centres, cfg))
@@ -86,7 +87,8 @@ def make_network(cfg: Config, work: Path) -> tuple[Path, list[tuple[str, str]]]:
         (work / f"weights{suffix}").write_text(weights)
     trips = work / "trips.xml"
     _run_tool([sys.executable, os.path.join(home, "tools", "randomTrips.py"),
-               *sumo_scenario.randomtrips_args(cfg, str(net), str(work / "weights"), str(trips))], "randomTrips.py")
+               *sumo_scenario.randomtrips_args(cfg, str(net), str(work / "weights"), str(trips),
+                                               str(work / "routes.rou.xml"))], "randomTrips.py", work)
     pairs = [(t.attr_from, t.to) for t in sumolib.xml.parse_fast(str(trips), "trip", ["from", "to"])]
     return net, pairs
 

@@ -61,10 +61,12 @@ def trips_needed(cfg: Config) -> int:
     return cfg.scenario.n_vehicles * (int(duration // 60.0) + 2)
 
 
-def randomtrips_args(cfg: Config, net_file: str, weights_prefix: str, trips_file: str) -> list[str]:
+def randomtrips_args(cfg: Config, net_file: str, weights_prefix: str, trips_file: str, routes_file: str) -> list[str]:
     """randomTrips.py's arguments: trips_needed trips, source and destination
-    edges weighted towards the major intersections, at least two blocks apart."""
-    return ["--net-file", net_file, "--output-trip-file", trips_file, "--weights-prefix", weights_prefix,
+    edges weighted towards the major intersections, at least two blocks apart,
+    validated by duarouter (its routes into routes_file; unroutable trips dropped)."""
+    return ["--net-file", net_file, "--output-trip-file", trips_file, "--route-file", routes_file,
+            "--weights-prefix", weights_prefix,
             "--seed", str(cfg.sumo.trace_seed), "--begin", "0", "--end", str(trips_needed(cfg)), "--period", "1",
             "--min-distance", repr(2.0 * cfg.roads.block_m)]
 
