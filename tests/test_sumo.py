@@ -142,3 +142,29 @@ def test_without_sumo_asking_for_it_is_one_line(tmp_path):
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and "pip install -e '.[sumo]'" in lines[0], done.stderr
         assert not (tmp_path / "runs").exists()
+
+
+def test_lockstep_swarm_on_sumo_traffic_learns_the_trainers_tables(tiny, tmp_path, monkeypatch):
+    """`truav-swarm up --lockstep --mobility sumo`: the world process replays the same trace, and every agent's
+    Q-table equals the in-process trainer's, entry for entry, as does each episode's coverage."""
+    import json
+
+    from conftest import run_to_end
+    from truav.trainer import run_chunk
+    cfg, root, _ = tiny
+    monkeypatch.setenv("TRUAV_TRACE_CACHE", str(root))
+    seed, episodes = 3, cfg.learner.episodes
+    expected = run_chunk("truav", cfg, [seed], episodes)
+    plain = Config().replace(**{**TINY, "scenario": {k: v for k, v in TINY["scenario"].items() if k != "mobility"}})
+    (tmp_path / "tiny.toml").write_text(to_toml(plain))
+    out = tmp_path / "swarm"
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--mobility", "sumo", "--seed", str(seed),
+           "--run", "sumo", "--episodes", str(episodes), "--scenario", str(tmp_path / "tiny.toml"), "--out", str(out),
+           "--quiet", "--no-plot"]
+    rc = run_to_end(cmd, tmp_path / "swarm.log", 180.0, term_wait_s=30)
+    assert rc == 0, (tmp_path / "swarm.log").read_text(errors="replace")
+    for i in range(cfg.scenario.n_uavs):
+        with np.load(out / f"agent{i}.npz") as ck:
+            assert np.array_equal(ck["q"], expected.q[0, i]), f"agent {i}"
+    world = json.loads((out / "world.json").read_text())
+    assert [e["coverage_pct"] for e in world["episodes"]] == list(expected.metrics["coverage_pct"][:, 0])
