@@ -48,9 +48,8 @@ def test_trace_is_sumos_own_positions_on_its_lanes(tiny):
     cfg, _, path = tiny
     trace = sumo_traffic.read_trace(path)
     assert trace.positions.shape == (3 * 10 + 1, 12, 2) and trace.active.all()
-    net_file = path.parent / "grid.net.xml"
-    trips = [(t.attr_from, t.to) for t in sumolib.xml.parse_fast(str(path.parent / "trips.xml"), "trip",
-                                                                  ["from", "to"])]
+    net_file = path.parent / sumo_traffic.NET_FILE
+    trips, homes = sumo_traffic.drive_inputs(cfg, path.parent)
     # The same scenario through the sumo binary and TraCI (not libsumo): the same position at every step.
     seen = []
     traci.start([os.path.join(sumo_traffic.sumo_home(), "bin", "sumo"),
@@ -60,7 +59,7 @@ def test_trace_is_sumos_own_positions_on_its_lanes(tiny):
             for k in range(pos.shape[0]):
                 assert tuple(pos[k]) == traci.vehicle.getPosition(f"v{k}")
             seen.append(pos.copy())
-        sumo_scenario.drive(traci, cfg, trips, on_row)
+        sumo_scenario.drive(traci, cfg, trips, homes, on_row)
     finally:
         traci.close()
     np.testing.assert_array_equal(np.stack(seen), trace.positions)

@@ -35,6 +35,8 @@ from world.trace import Trace, rows_needed
 
 INSTALL_HINT = "pip install -e '.[sumo]' (eclipse-sumo and libsumo 1.28)"
 TRACE_FILE = "trace.npz"
+NET_FILE = "grid.net.xml"
+TRIPS_FILE = "trips.xml"
 
 
 def sumo_home() -> str:
@@ -73,11 +75,11 @@ def _run_tool(argv: list[str], what: str, cwd: Path) -> None:
         raise RuntimeError(f"{what} failed (exit {done.returncode}): {tail[0]}")
 
 
-def make_network(cfg: Config, work: Path) -> tuple[Path, list[tuple[str, str]]]:
-    """The grid network and the hotspot-weighted trips, in work/: (net file, [(from, to)])."""
+def make_network(cfg: Config, work: Path) -> Path:
+    """The grid network and the hotspot-weighted trips, in work/ (NET_FILE, TRIPS_FILE)."""
     import sumolib
     home = sumo_home()
-    net = work / "grid.net.xml"
+    net = work / NET_FILE
     _run_tool([os.path.join(home, "bin", "netgenerate"), *sumo_scenario.netgenerate_args(cfg, str(net))],
               "netgenerate", work)
     edges = [e for e in sumolib.net.readNet(str(net)).getEdges() if e.allows("passenger")]
@@ -85,16 +87,27 @@ def make_network(cfg: Config, work: Path) -> tuple[Path, list[tuple[str, str]]]:
     weights = sumo_scenario.weights_xml([e.getID() for e in edges], sumo_scenario.hotspot_weights(centres, cfg))
     for suffix in (".src.xml", ".dst.xml"):
         (work / f"weights{suffix}").write_text(weights)
-    trips = work / "trips.xml"
+    trips = work / TRIPS_FILE
     _run_tool([sys.executable, os.path.join(home, "tools", "randomTrips.py"),
                *sumo_scenario.randomtrips_args(cfg, str(net), str(work / "weights"), str(trips),
                                                str(work / "routes.rou.xml"))], "randomTrips.py", work)
-    pairs = [(t.attr_from, t.to) for t in sumolib.xml.parse_fast(str(trips), "trip", ["from", "to"])]
-    return net, pairs
+    return net
 
 
-def record(cfg: Config, net: Path, trips: list[tuple[str, str]]) -> Trace:
-    """Run SUMO in-process (libsumo) over the network and trips; the trace of its vehicle positions."""
+def drive_inputs(cfg: Config, work: Path) -> tuple[list[tuple[str, str]], list[list[str]]]:
+    """What sumo_scenario.drive takes besides the simulation, from work/'s network and trips:
+    ([(from, to)] trips, the edges of each hotspot)."""
+    import sumolib
+    sumo_home()
+    edges = [e for e in sumolib.net.readNet(str(work / NET_FILE)).getEdges() if e.allows("passenger")]
+    centres = np.array([np.mean(e.getShape(), axis=0) for e in edges])
+    homes = sumo_scenario.home_edges([e.getID() for e in edges], centres, cfg)
+    trips = [(t.attr_from, t.to) for t in sumolib.xml.parse_fast(str(work / TRIPS_FILE), "trip", ["from", "to"])]
+    return trips, homes
+
+
+def record(cfg: Config, work: Path) -> Trace:
+    """Run SUMO in-process (libsumo) over work/'s network and trips; the trace of its vehicle positions."""
     sumo_home()
     try:
         import libsumo
@@ -107,9 +120,10 @@ def record(cfg: Config, net: Path, trips: list[tuple[str, str]]) -> Trace:
     def on_row(r: int, pos: np.ndarray, act: np.ndarray) -> None:
         positions[r], active[r] = pos, act
 
-    libsumo.start(["sumo", *sumo_scenario.sumo_args(cfg, str(net))])
+    trips, homes = drive_inputs(cfg, work)
+    libsumo.start(["sumo", *sumo_scenario.sumo_args(cfg, str(work / NET_FILE))])
     try:
-        sumo_scenario.drive(libsumo, cfg, trips, on_row)
+        sumo_scenario.drive(libsumo, cfg, trips, homes, on_row)
     finally:
         libsumo.close()
     return Trace(positions, active, float(cfg.scenario.step_s), int(cfg.scenario.steps_per_episode))
@@ -144,12 +158,12 @@ def build_trace(cfg: Config, root: Path | None = None, force: bool = False,
     with tempfile.TemporaryDirectory(dir=out) as tmp:
         work = Path(tmp)
         say(f"building the SUMO trace {out.name}: netgenerate, randomTrips.py ...")
-        net, trips = make_network(cfg, work)
+        make_network(cfg, work)
         t_net = time.perf_counter() - t0
         say(f"SUMO drives {cfg.scenario.n_vehicles} vehicles for {cfg.sumo.warmup_s:g} s + "
             f"{rows_needed(cfg) - 1} steps of {cfg.scenario.step_s:g} s ...")
-        trace = record(cfg, net, trips)
-        for name in ("grid.net.xml", "trips.xml"):
+        trace = record(cfg, work)
+        for name in (NET_FILE, TRIPS_FILE):
             os.replace(work / name, out / name)
     meta = {"sumo": sumo_version(), "trace_seed": cfg.sumo.trace_seed, "build_s": time.perf_counter() - t0,
             "network_s": t_net, "inactive_share": float(1.0 - trace.active.mean())}

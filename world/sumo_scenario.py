@@ -48,6 +48,14 @@ def hotspot_weights(centres: np.ndarray, cfg: Config) -> np.ndarray:
     return 1.0 + cfg.sumo.hotspot_weight * np.exp(-(d / cfg.sumo.hotspot_radius_m) ** 2)
 
 
+def home_edges(edge_ids: list[str], centres: np.ndarray, cfg: Config) -> list[list[str]]:
+    """For each major intersection, the edges whose midpoints lie within
+    sumo.hotspot_radius_m of it: where its cluster's vehicles drive to."""
+    majors = np.array(cfg.roads.major_intersections, np.float64).reshape(-1, 2) * cfg.roads.block_m
+    d = np.sqrt(((centres[:, None, :] - majors[None, :, :]) ** 2).sum(axis=-1))
+    return [[e for e, near in zip(edge_ids, d[:, m] <= cfg.sumo.hotspot_radius_m) if near] for m in range(len(majors))]
+
+
 def weights_xml(edge_ids: list[str], weights: np.ndarray) -> str:
     """An edgedata file of weights, as randomTrips.py's --weights-prefix reads it."""
     rows = "".join(f'    <edge id="{e}" value="{w:.6f}"/>\n' for e, w in zip(edge_ids, weights))
@@ -79,28 +87,37 @@ def sumo_args(cfg: Config, net_file: str) -> list[str]:
 
 
 TRACE_KEYS = {"scenario": ("area_m", "n_vehicles", "step_s", "steps_per_episode"),
-              "roads": ("block_m", "major_intersections"), "idm": ("desired_speed_mps",), "sumo": None}
+              "roads": ("block_m", "major_intersections", "p_attract"), "idm": ("desired_speed_mps",), "sumo": None}
 """The config keys a trace depends on (None: the whole section)."""
+DRIVE_VERSION = 2
+"""Bumped whenever `drive` or the tools' arguments change what a trace holds: cached traces of older ones are
+not reused."""
 
 
 def cache_key(cfg: Config, sumo_version: str) -> str:
     """Name of a trace in the cache: a hash of what it depends on and SUMO's version."""
     data = to_dict(cfg)
     picked = {sec: (data[sec] if keys is None else {k: data[sec][k] for k in keys}) for sec, keys in TRACE_KEYS.items()}
-    text = json.dumps({"sumo": sumo_version, "cfg": picked}, sort_keys=True, default=list)
+    text = json.dumps({"sumo": sumo_version, "drive": DRIVE_VERSION, "cfg": picked}, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def drive(sim, cfg: Config, trips: list[tuple[str, str]], on_row: Callable[[int, np.ndarray, np.ndarray], None]):
+def drive(sim, cfg: Config, trips: list[tuple[str, str]], homes: list[list[str]],
+          on_row: Callable[[int, np.ndarray, np.ndarray], None]):
     """Drive a started SUMO simulation `sim` (the libsumo or traci module, which
     share one API) and hand on_row(row, positions (N, 2), active (N,)) every
     recorded row: sumo.warmup_s first, then rows_needed rows one step apart.
 
     Vehicle n departs on trip n (departing at a random free spot of its first
-    edge) and, whenever it reaches the last edge of its route, is sent on to
-    the destination of the next unused trip, so the N vehicles stay on the road
-    (no arrival, teleports off); a slot is inactive only until its vehicle is
-    inserted. The same trips and calls give the same run (SUMO is seeded)."""
+    edge) and, whenever it reaches the last edge of its route, is sent on: with
+    probability roads.p_attract to an edge of its home hotspot (homes[n mod K],
+    home_edges: the clusters of the built-in model, around the major
+    intersections), else to the destination of the next unused trip; so the N
+    vehicles stay on the road (no arrival, teleports off) and gather near the
+    major intersections. A slot is inactive only until its vehicle is inserted.
+    Draws come from a generator seeded by sumo.trace_seed, and SUMO is seeded:
+    the same inputs give the same run."""
+    rng = np.random.default_rng(cfg.sumo.trace_seed)
     n = cfg.scenario.n_vehicles
     if len(trips) < n:
         raise ValueError(f"{len(trips)} trips for {n} vehicles")
@@ -127,9 +144,13 @@ def drive(sim, cfg: Config, trips: list[tuple[str, str]], on_row: Callable[[int,
                 route_len[k] = len(sim.vehicle.getRoute(vid))
             if sim.vehicle.getRouteIndex(vid) >= route_len[k] - 1:  # on its last edge: on to the next destination
                 here = sim.vehicle.getRoadID(vid)
+                home = homes[k % len(homes)]
                 for _ in range(len(trips) if not here.startswith(":") else 0):
-                    dst = trips[next_trip % len(trips)][1]
-                    next_trip += 1
+                    if home and rng.random() < cfg.roads.p_attract:
+                        dst = home[int(rng.integers(len(home)))]
+                    else:
+                        dst = trips[next_trip % len(trips)][1]
+                        next_trip += 1
                     if dst == here:
                         continue
                     try:
