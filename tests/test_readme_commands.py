@@ -57,6 +57,9 @@ RUN: dict[str, list[str]] = {
     "truav config show --set scenario.n_uavs=8 --set learner.episodes=200": [],
     "truav config show --set learner.episodes=200 '>' my-config.toml": [],
     "truav train --config my-config.toml --out runs/my-config": TRAIN,
+    "truav traffic build": [],
+    "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
+    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": SWARM,
     "truav experiment velocity": VELOCITY,
     "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
     "truav experiment velocity --quick": VELOCITY,
@@ -120,7 +123,7 @@ CHECKED: dict[str, str] = {
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
     **{c: BENCH for c in (
-        "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
+        "python bench/bench_trainer.py", "python bench/bench_trainer.py --full", "python bench/bench_sumo.py",
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
         "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",
