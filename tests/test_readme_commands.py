@@ -60,6 +60,7 @@ RUN: dict[str, list[str]] = {
     "truav traffic build": [],
     "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
     "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": SWARM,
+    "truav experiment velocity --quick --mobility sumo --out runs/velocity-sumo": VELOCITY,
     "truav experiment velocity": VELOCITY,
     "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
     "truav experiment velocity --quick": VELOCITY,

@@ -167,3 +167,16 @@ def test_lockstep_swarm_on_sumo_traffic_learns_the_trainers_tables(tiny, tmp_pat
             assert np.array_equal(ck["q"], expected.q[0, i]), f"agent {i}"
     world = json.loads((out / "world.json").read_text())
     assert [e["coverage_pct"] for e in world["episodes"]] == list(expected.metrics["coverage_pct"][:, 0])
+
+
+def test_velocity_experiment_runs_on_sumo_traffic(tiny, tmp_path):
+    _, root, _ = tiny
+    plain = Config().replace(**{**TINY, "scenario": {k: v for k, v in TINY["scenario"].items() if k != "mobility"}})
+    (tmp_path / "tiny.toml").write_text(to_toml(plain))
+    env = {**os.environ, "TRUAV_TRACE_CACHE": str(root)}
+    done = _cli(["experiment", "velocity", "--mobility", "sumo", "--config", "tiny.toml", "--schemes", "truav",
+                 "--seeds", "1", "--episodes", "2", "--eval-episodes", "1", "--speeds", "10", "--workers", "1",
+                 "--quiet", "--out", "runs/v"], env, tmp_path)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert 'mobility = "sumo"' in (tmp_path / "runs" / "v" / "config.toml").read_text()
+    assert (tmp_path / "runs" / "v" / "velocity.csv").is_file()
