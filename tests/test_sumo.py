@@ -22,7 +22,8 @@ from world.uavs import HOVER
 
 TINY = {"scenario": {"mobility": "sumo", "area_m": 1000.0, "n_vehicles": 12, "n_uavs": 2, "steps_per_episode": 10,
                      "rsu_intersections": [[1, 1], [3, 3]]},
-        "roads": {"major_intersections": [[1, 1], [3, 3]], "warmup_steps": 5},
+        "roads": {"major_intersections": [[1, 1], [3, 3]], "warmup_steps": 5,
+                  "hotspot_move_prob": 0.5, "hotspot_step_blocks": 1},  # hotspots that move (--preset paper)
         "learner": {"episodes": 4},
         "sumo": {"trace_episodes": 3, "warmup_s": 20.0}}
 
@@ -48,7 +49,7 @@ def test_trace_is_sumos_own_positions_on_its_lanes(tiny):
     trace = sumo_traffic.read_trace(path)
     assert trace.positions.shape == (3 * 10 + 1, 12, 2) and trace.active.all()
     net_file = path.parent / sumo_traffic.NET_FILE
-    trips, homes = sumo_traffic.drive_inputs(cfg, path.parent)
+    trips, edges = sumo_traffic.drive_inputs(cfg, path.parent)
     # The same scenario through the sumo binary and TraCI (not libsumo): the same position at every step.
     seen = []
     traci.start([os.path.join(sumo_traffic.sumo_home(), "bin", "sumo"),
@@ -58,7 +59,7 @@ def test_trace_is_sumos_own_positions_on_its_lanes(tiny):
             for k in range(pos.shape[0]):
                 assert tuple(pos[k]) == traci.vehicle.getPosition(f"v{k}")
             seen.append(pos.copy())
-        sumo_scenario.drive(traci, cfg, trips, homes, on_row)
+        sumo_scenario.drive(traci, cfg, trips, edges, on_row)
     finally:
         traci.close()
     np.testing.assert_array_equal(np.stack(seen), trace.positions)

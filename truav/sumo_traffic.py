@@ -93,16 +93,15 @@ def make_network(cfg: Config, work: Path) -> Path:
     return net
 
 
-def drive_inputs(cfg: Config, work: Path) -> tuple[list[tuple[str, str]], list[list[str]]]:
+def drive_inputs(cfg: Config, work: Path) -> tuple[list[tuple[str, str]], tuple[list[str], np.ndarray]]:
     """What sumo_scenario.drive takes besides the simulation, from work/'s network and trips:
-    ([(from, to)] trips, the edges of each hotspot)."""
+    ([(from, to)] trips, (the ids of the edges cars may take, their midpoints (E, 2)))."""
     import sumolib
     sumo_home()
     edges = [e for e in sumolib.net.readNet(str(work / NET_FILE)).getEdges() if e.allows("passenger")]
     centres = np.array([np.mean(e.getShape(), axis=0) for e in edges])
-    homes = sumo_scenario.home_edges([e.getID() for e in edges], centres, cfg)
     trips = [(t.attr_from, t.to) for t in sumolib.xml.parse_fast(str(work / TRIPS_FILE), "trip", ["from", "to"])]
-    return trips, homes
+    return trips, ([e.getID() for e in edges], centres)
 
 
 def record(cfg: Config, work: Path) -> Trace:
@@ -119,10 +118,10 @@ def record(cfg: Config, work: Path) -> Trace:
     def on_row(r: int, pos: np.ndarray, act: np.ndarray) -> None:
         positions[r], active[r] = pos, act
 
-    trips, homes = drive_inputs(cfg, work)
+    trips, edges = drive_inputs(cfg, work)
     libsumo.start(["sumo", *sumo_scenario.sumo_args(cfg, str(work / NET_FILE))])
     try:
-        sumo_scenario.drive(libsumo, cfg, trips, homes, on_row)
+        sumo_scenario.drive(libsumo, cfg, trips, edges, on_row)
     finally:
         libsumo.close()
     return Trace(positions, active, float(cfg.scenario.step_s), int(cfg.scenario.steps_per_episode))

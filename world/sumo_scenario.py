@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from truav.config import Config, n_grid_roads, to_dict
+from world.roads import RoadGrid, move_hotspots_env
 
 
 def node_id(i: int, j: int) -> str:
@@ -48,12 +49,13 @@ def hotspot_weights(centres: np.ndarray, cfg: Config) -> np.ndarray:
     return 1.0 + cfg.sumo.hotspot_weight * np.exp(-(d / cfg.sumo.hotspot_radius_m) ** 2)
 
 
-def home_edges(edge_ids: list[str], centres: np.ndarray, cfg: Config) -> list[list[str]]:
-    """For each major intersection, the edges whose midpoints lie within
+def home_edges(edge_ids: list[str], centres: np.ndarray, sites: np.ndarray, cfg: Config) -> list[list[str]]:
+    """For each hotspot site (K, 2) (grid indices: at first the major
+    intersections), the edges whose midpoints (centres (E, 2)) lie within
     sumo.hotspot_radius_m of it: where its cluster's vehicles drive to."""
-    majors = np.array(cfg.roads.major_intersections, np.float64).reshape(-1, 2) * cfg.roads.block_m
-    d = np.sqrt(((centres[:, None, :] - majors[None, :, :]) ** 2).sum(axis=-1))
-    return [[e for e, near in zip(edge_ids, d[:, m] <= cfg.sumo.hotspot_radius_m) if near] for m in range(len(majors))]
+    xy = np.asarray(sites, np.float64).reshape(-1, 2) * cfg.roads.block_m
+    d = np.sqrt(((centres[:, None, :] - xy[None, :, :]) ** 2).sum(axis=-1))
+    return [[e for e, near in zip(edge_ids, d[:, m] <= cfg.sumo.hotspot_radius_m) if near] for m in range(len(xy))]
 
 
 def weights_xml(edge_ids: list[str], weights: np.ndarray) -> str:
@@ -87,9 +89,10 @@ def sumo_args(cfg: Config, net_file: str) -> list[str]:
 
 
 TRACE_KEYS = {"scenario": ("area_m", "n_vehicles", "step_s", "steps_per_episode"),
-              "roads": ("block_m", "major_intersections", "p_attract"), "idm": ("desired_speed_mps",), "sumo": None}
+              "roads": ("block_m", "major_intersections", "p_attract", "hotspot_move_prob", "hotspot_step_blocks"),
+              "idm": ("desired_speed_mps",), "sumo": None}
 """The config keys a trace depends on (None: the whole section)."""
-DRIVE_VERSION = 2
+DRIVE_VERSION = 3
 """Bumped whenever `drive` or the tools' arguments change what a trace holds: cached traces of older ones are
 not reused."""
 
@@ -102,7 +105,7 @@ def cache_key(cfg: Config, sumo_version: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def drive(sim, cfg: Config, trips: list[tuple[str, str]], homes: list[list[str]],
+def drive(sim, cfg: Config, trips: list[tuple[str, str]], edges: tuple[list[str], np.ndarray],
           on_row: Callable[[int, np.ndarray, np.ndarray], None]):
     """Drive a started SUMO simulation `sim` (the libsumo or traci module, which
     share one API) and hand on_row(row, positions (N, 2), active (N,)) every
@@ -110,14 +113,22 @@ def drive(sim, cfg: Config, trips: list[tuple[str, str]], homes: list[list[str]]
 
     Vehicle n departs on trip n (departing at a random free spot of its first
     edge) and, whenever it reaches the last edge of its route, is sent on: with
-    probability roads.p_attract to an edge of its home hotspot (homes[n mod K],
-    home_edges: the clusters of the built-in model, around the major
-    intersections), else to the destination of the next unused trip; so the N
-    vehicles stay on the road (no arrival, teleports off) and gather near the
-    major intersections. A slot is inactive only until its vehicle is inserted.
+    probability roads.p_attract to an edge near its home hotspot (site n mod K,
+    `home_edges` of the network's edges (ids, midpoints): the clusters of the
+    built-in model, at first the major intersections), else to the destination
+    of the next unused trip; so the N vehicles stay on the road (no arrival,
+    teleports off) and gather near the hotspots. With
+    roads.hotspot_move_prob > 0 the sites move at every window's start as the
+    world moves them at an episode's (roads.move_hotspots_env), and the
+    vehicles head for the new ones. A slot is inactive only until its vehicle
+    is inserted.
     Draws come from a generator seeded by sumo.trace_seed, and SUMO is seeded:
     the same inputs give the same run."""
     rng = np.random.default_rng(cfg.sumo.trace_seed)
+    grid = RoadGrid(cfg)
+    sites, hotspots = grid.majors.copy(), grid.hotspot_params()
+    homes = home_edges(*edges, sites, cfg)
+    no_vehicles = np.zeros(0, np.int64)
     n = cfg.scenario.n_vehicles
     if len(trips) < n:
         raise ValueError(f"{len(trips)} trips for {n} vehicles")
@@ -135,6 +146,10 @@ def drive(sim, cfg: Config, trips: list[tuple[str, str]], homes: list[list[str]]
     for step in range(warm + rows):
         if step:
             sim.simulationStep()
+        row = step - warm
+        if row > 0 and row % cfg.scenario.steps_per_episode == 0 and hotspots.move_prob > 0.0:
+            move_hotspots_env(sites, rng.random((len(sites), 2)), hotspots, no_vehicles, no_vehicles)
+            homes = home_edges(*edges, sites, cfg)
         present = set(sim.vehicle.getIDList())
         for k, vid in enumerate(ids):
             if vid not in present:
@@ -161,5 +176,5 @@ def drive(sim, cfg: Config, trips: list[tuple[str, str]], homes: list[list[str]]
                     break
             active[k] = True
             pos[k] = sim.vehicle.getPosition(vid)
-        if step >= warm:
-            on_row(step - warm, pos, active)
+        if row >= 0:
+            on_row(row, pos, active)
