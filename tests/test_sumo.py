@@ -180,3 +180,26 @@ def test_velocity_experiment_runs_on_sumo_traffic(tiny, tmp_path):
     assert done.returncode == 0, done.stdout + done.stderr
     assert 'mobility = "sumo"' in (tmp_path / "runs" / "v" / "config.toml").read_text()
     assert (tmp_path / "runs" / "v" / "velocity.csv").is_file()
+
+
+def test_a_trace_is_keyed_by_what_shapes_it_and_refused_where_it_does_not_fit(tiny):
+    cfg, _, path = tiny
+    key = sumo_scenario.cache_key(cfg, "1.28.0")
+    # UAV speed, learner and packets leave the traffic alone: one trace serves the velocity sweep.
+    assert sumo_scenario.cache_key(cfg.replace(scenario={"uav_speed_mps": 25.0}, learner={"episodes": 9},
+                                               traffic={"packet_rate_hz": 1.0}), "1.28.0") == key
+    for other in ({"scenario": {"n_vehicles": 13}}, {"sumo": {"trace_seed": 1}}, {"roads": {"block_m": 200.0}},
+                  {"roads": {"hotspot_move_prob": 0.0}}):
+        assert sumo_scenario.cache_key(cfg.replace(**other), "1.28.0") != key, other
+    assert sumo_scenario.cache_key(cfg, "1.29.0") != key
+    trace = sumo_traffic.read_trace(path)
+    for other, why in (({"n_vehicles": 13}, "13"), ({"steps_per_episode": 20}, "have 20 steps")):
+        assert why in trace.mismatch(cfg.replace(scenario=other))
+        with pytest.raises(ValueError, match="does not fit"):
+            World(cfg.replace(scenario=other), 1, trace)
+    with pytest.raises(ValueError, match="needs a trace"):
+        World(cfg, 1)
+    # Traffic lights at the major intersections; the grid's junctions where the world has them.
+    args = sumo_scenario.netgenerate_args(cfg, "x.net.xml")
+    assert args[args.index("--tls.set") + 1] == "1/1,3/3"
+    assert args[args.index("--grid.number") + 1] == "5" and args[args.index("--grid.length") + 1] == "250.0"
