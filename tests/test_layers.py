@@ -94,6 +94,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.trainer",                   ANALYSIS),
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
+    ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
     ("truav.plots",                     ANALYSIS),
     ("truav.swarm.plots",               ANALYSIS),
     ("recorder.mcap_log",               ANALYSIS),

@@ -38,6 +38,7 @@ from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.bus.rejections import rejection_metrics
 from world.env import World
+from truav.sumo_traffic import make_world
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 from world.uavs import HOVER
 
@@ -106,7 +107,9 @@ def warm_up_kernels(cfg: Config) -> None:
     """Compile (or load from the cache) every kernel a world step runs, on a throwaway two-step
     world, before joining: on a cold cache that takes seconds, which would otherwise land in
     tick 0 and make the first ticks late and their actions missed."""
-    small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2},
+    # The grid's own mobility even for a replayed trace: the same kernels compile (one step function for both).
+    small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2,
+                                  "mobility": "builtin"},
                         roads={"warmup_steps": min(cfg.roads.warmup_steps, 2)})
     world = World(small, 1)
     world.reset([seeding.world_rng(0)])
@@ -144,6 +147,7 @@ def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick:
             densest_sector=int(densest[i])))
     if tick % POSITIONS_EVERY_TICKS == 0:
         vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
+        vehicles = vehicles[np.isfinite(vehicles).all(axis=1)]  # a replayed trace's vehicles not on the road
         bus.publish(keys.world_positions(run), schema.Positions(
             tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, vehicles))))
 
@@ -154,7 +158,7 @@ class WorldNode:
     def __init__(self, cfg: Config, opts: WorldOptions, bus: Bus, clock=time.monotonic):
         self.cfg, self.opts, self.bus, self.clock = cfg, opts, bus, clock
         self.n_uavs = cfg.scenario.n_uavs
-        self.world = World(cfg, 1)
+        self.world = make_world(cfg, 1)
         warm_up_kernels(cfg)
         self.stats = WorldStats()
         self._debug = Every(log)

@@ -13,6 +13,7 @@ import re
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_out_dir, check_out_file
 from truav.cli_config import UsageError, parse_sets
+from truav.config import MOBILITIES
 from agents.agent_process import AgentOptions
 from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
@@ -41,7 +42,9 @@ agents keep up hosted 10 per process with --share-beacons."""
 def swarm_options(args):
     """The scenario and options of `up`/`chaos`, every flag and file checked: nothing has started yet."""
     sets = parse_sets(args.set).get("scenario", {})
-    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps)):
+    mobility = getattr(args, "mobility", None)  # `up` only
+    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps),
+                             ("--mobility", "mobility", mobility)):
         if value is not None and key in sets and sets[key] != value:
             raise UsageError(f"{flag} {value} contradicts --set scenario.{key}={sets[key]}; give one of them")
     cfg = scenario_from(args)
@@ -49,6 +52,11 @@ def swarm_options(args):
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
     if args.steps is not None:
         cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
+    if mobility is not None:
+        cfg = cfg.replace(scenario={"mobility": mobility})
+    if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
+        from truav import sumo_traffic
+        sumo_traffic.sumo_home()
     n = cfg.scenario.n_uavs
     external = tuple(getattr(args, "external", None) or ())  # `up` only: chaos runs the swarm twice
     processes = -(-n // args.agents_per_process)
@@ -118,6 +126,10 @@ def swarm_options(args):
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
+    if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
+        path, _ = sumo_traffic.build_trace(cfg, say=lambda line: None if args.quiet else print(line, flush=True))
+        if not args.quiet:
+            print(f"SUMO traffic: {path}", flush=True)
     return cfg, opts
 
 
@@ -210,6 +222,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help=f"start more than {MAX_AGENTS} agent processes (not real time on a 2-core machine)")
     up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
     up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
+    up.add_argument("--mobility", choices=MOBILITIES,
+                    help="vehicle mobility: builtin (the grid's IDM) or sumo (the world replays a SUMO trace, built "
+                         "and cached first; `truav traffic build`) (default: scenario.mobility, builtin)")
     add_lockstep_args(up, "the world waits for every live agent each tick")
     up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
