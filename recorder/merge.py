@@ -32,13 +32,12 @@ from recorder.cut import CUT_METADATA, KeptMessages
 from recorder.log_copy import FinishedLog, LogMessage, OutputChannels, dump, new_writer, open_finished, \
     written_atomically
 from recorder.mcap_writer import LIBRARY
+from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX
 from truav.errors import UserError
 
 __all__ = ["MERGE_METADATA", "PART_METADATA", "PARTS_INDEX_SUFFIX", "MergeReport", "merge", "expand_inputs"]
 
 MERGE_METADATA = "truav.merge"
-PART_METADATA = "truav.part"  # written by a split recording (recorder.record_modes): session, part, reason, ...
-PARTS_INDEX_SUFFIX = ".parts.json"  # <stem>.parts.json: {"session": ..., "parts": [{"part": n, "path": name}, ...]}
 FOLDED = (PART_METADATA, CUT_METADATA)
 
 
