@@ -94,6 +94,7 @@ class AgentReports:
             st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
                     "out_of_order_obs": self.out_of_order_obs,
+                    "refused_by_world": dict(self.refused_by_world),
                     **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
                     "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,

@@ -36,6 +36,8 @@ from truav.fault_filter import attach_plan
 from truav.faults import load_plan
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.bus.placement import facts_of
+from truav.bus.rejection_notices import RejectionNotices
 from truav.bus.rejections import rejection_metrics
 from world.env import World
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
@@ -182,6 +184,10 @@ class WorldNode:
         if self.central:
             self._plane = ControlCounters(cfg, 1)
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
+        # What it refuses of an agent's messages is told to that agent (at most once per UAV per period).
+        self.notices = RejectionNotices(self.n_uavs)
+        self._notice_wake = threading.Event()
+        bus.on_refused = self._on_refused
         bus.accept_replay = opts.accept_replay
         # Real time: a flood on the action keys costs a bounded amount of work (the oldest samples are
         # dropped inside Zenoh when the world falls behind) instead of a backlog that delays every action.
@@ -197,6 +203,7 @@ class WorldNode:
         bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
                     *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
         gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
+        threading.Thread(target=self._tell_rejections, name="world-rejections", daemon=True).start()
         bus.declare_liveliness(keys.alive_world(run))
 
     # -- bus callbacks (delivery thread: keep short) --
@@ -225,6 +232,9 @@ class WorldNode:
                     self.stats.late_actions += 1
                     self.accounts.late[msg.uav] += 1
                 first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+                self.notices.note(msg.uav, schema.R_STALE_ACTION if stale else schema.R_LATE_ACTION, msg.KIND, key,
+                                  msg.tick, "after a newer action of it" if stale else "after its round closed")
+                self._notice_wake.set()
         if back:
             log.info("uav %d answered again (tick %d): the world waits for it again", msg.uav, msg.tick)
         if first is None:
@@ -233,6 +243,29 @@ class WorldNode:
             "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
             "after a newer one of it (out of order)" if stale else "after its round closed",
             "stale_actions" if stale else "late_actions")
+
+    def _on_refused(self, key: str, exc: schema.SchemaError) -> None:
+        """A message the bus refused: noted for the UAV of its key (under --secure only that UAV may put there;
+        the payload's word is not taken), told by _tell_rejections."""
+        facts = facts_of(key)
+        if facts.uav is not None:
+            self.notices.note(facts.uav, exc.reason, facts.kind or "", key, self._round, exc.detail or exc.reason)
+            self._notice_wake.set()
+
+    def _tell_rejections(self) -> None:
+        """Publish the rejections due, at most one per UAV per REJECTION_PERIOD_S, until the world stops."""
+        notices, wake, run = self.notices, self._notice_wake, self.opts.run
+        while not self._stop.is_set():
+            wake.wait()
+            wake.clear()
+            while notices.pending() and not self._stop.is_set():
+                for msg in notices.due(self.clock()):
+                    try:
+                        self.bus.publish(keys.uav_rejected(run, msg.uav), msg)
+                    except Exception as exc:  # a closing bus: nothing more to tell
+                        log.debug("rejection for uav %d not sent: %r", msg.uav, exc)
+                        return
+                self._stop.wait(notices.period_s / 2)
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
@@ -273,6 +306,7 @@ class WorldNode:
 
     def stop(self) -> None:
         self._stop.set()
+        self._notice_wake.set()
         with self._cond:
             self._cond.notify_all()
 
