@@ -203,7 +203,9 @@ class WorldNode:
         bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
                     *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
         gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
-        threading.Thread(target=self._tell_rejections, name="world-rejections", daemon=True).start()
+        self._notices_closing = threading.Event()
+        self._notifier = threading.Thread(target=self._tell_rejections, name="world-rejections", daemon=True)
+        self._notifier.start()
         bus.declare_liveliness(keys.alive_world(run))
 
     # -- bus callbacks (delivery thread: keep short) --
@@ -253,19 +255,29 @@ class WorldNode:
             self._notice_wake.set()
 
     def _tell_rejections(self) -> None:
-        """Publish the rejections due, at most one per UAV per REJECTION_PERIOD_S, until the world stops."""
+        """Publish the rejections due, at most one per UAV per REJECTION_PERIOD_S, until close_rejections()
+        (which lets it send what is still pending first)."""
         notices, wake, run = self.notices, self._notice_wake, self.opts.run
-        while not self._stop.is_set():
+        while True:
             wake.wait()
             wake.clear()
-            while notices.pending() and not self._stop.is_set():
+            while notices.pending():
                 for msg in notices.due(self.clock()):
                     try:
                         self.bus.publish(keys.uav_rejected(run, msg.uav), msg)
-                    except Exception as exc:  # a closing bus: nothing more to tell
+                    except Exception as exc:  # a closed bus: nothing more to tell
                         log.debug("rejection for uav %d not sent: %r", msg.uav, exc)
                         return
-                self._stop.wait(notices.period_s / 2)
+                time.sleep(notices.period_s / 2)
+            if self._notices_closing.is_set():
+                return
+
+    def close_rejections(self, timeout_s: float = 2.0) -> None:
+        """Send the rejections still pending (within about REJECTION_PERIOD_S) and end their thread: before
+        the session closes."""
+        self._notices_closing.set()
+        self._notice_wake.set()
+        self._notifier.join(timeout_s)
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
@@ -306,7 +318,6 @@ class WorldNode:
 
     def stop(self) -> None:
         self._stop.set()
-        self._notice_wake.set()
         with self._cond:
             self._cond.notify_all()
 
@@ -376,6 +387,7 @@ class WorldNode:
             self._sleep_until(next_due)
         with self._cond:
             self._ending = True
+        self.close_rejections()  # told before the shutdown, on which the agents leave
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
 
