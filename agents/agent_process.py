@@ -233,7 +233,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self.faults = shared_plan.attach(bus) if shared_plan is not None else \
             attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None, opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
-        bus.subscribe(keys.uav_rejected(run, me), self._on_rejected)  # rare: off the observation path
+        # Rare (at most 10 a second): polled with the health report, no thread of its own.
+        self.drain_rejections = bus.poll_subscribe(keys.uav_rejected(run, me), self._on_rejected)
         # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
         # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \

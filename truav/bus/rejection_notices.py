@@ -73,4 +73,5 @@ class RejectionNotices:
 
 def _ascii(text: str) -> str:
     """Printable ASCII (others escaped): the receiver's msgpack limits count bytes, the schema characters."""
-    return "".join(c if " " <= c <= "~" else repr(c)[1:-1] for c in text[:MAX_DETAIL_LEN])
+    return "".join(c if " " <= c <= "~" else c.encode("unicode_escape").decode("ascii")
+                   for c in text[:MAX_DETAIL_LEN])
