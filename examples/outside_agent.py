@@ -105,7 +105,7 @@ def main() -> int:
             action = rng.randrange(N_ACTIONS)
             sent = args.bad_action if args.bad_action is not None and answered == 0 else action
             out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=sent)
-            vel = velocity(action, obs["speed_max"]) if sent == action else [0.0, 0.0]  # refused: it hovers
+            vel = velocity(sent, obs["speed_max"]) if 0 <= sent < N_ACTIONS else [0.0, 0.0]  # refused: it hovers
             answered += 1
         print(f"uav {me}: answered {answered} observations, last tick {last_tick}", flush=True)
         token.undeclare()
