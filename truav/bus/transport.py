@@ -124,6 +124,9 @@ class Bus(Publishing, Receiving, Delivery, Liveliness):
         self._shed = 0  # messages refused or evicted so far (read without the lock by the pumps)
         self.rejections = Rejections(f"bus {self._identity}", logger=log)
         """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
+        self.on_refused: Callable[[str, schema.SchemaError], None] | None = None
+        """Called with (key, error) for every message this Bus refuses (after counting it): the world tells
+        the sender (truav.bus.rejection_notices). Keep it short: it runs on the receive path."""
         self.guard: Guard | None = None
         """Sender/range checks applied after the schema (:mod:`truav.bus.guard`); None: schema only."""
         self.accept_replay = True
