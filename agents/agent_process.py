@@ -196,6 +196,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self.resumed = False  # started from its checkpoint: a restart within the same run
         self._last_tick = -1  # the tick of the last observation handled (health reports)
         self.out_of_order_obs = 0
+        self.refused_by_world: dict[str, int] = {}
+        """What the world told this agent it refused of its messages (rejections on uav/<i>/rejected), by reason."""
         """Observations dropped because their tick was not newer than one already answered (a delayed
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
@@ -231,6 +233,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self.faults = shared_plan.attach(bus) if shared_plan is not None else \
             attach_plan(bus, run, load_plan(opts.fault_plan) if opts.fault_plan else None, opts.tick_period_s)
         bus.subscribe(keys.uav_obs(run, me), self._on_obs)
+        # Rare (at most 10 a second): polled with the health report, no thread of its own.
+        self.drain_rejections = bus.poll_subscribe(keys.uav_rejected(run, me), self._on_rejected)
         # Range-limited beacons: the inbox starts on the all-to-all key (no one sends there) and
         # follows this UAV's cells from its first observation on.
         self._beacon_inbox = bus.inbox(keys.all_beacons(run), **inbox_opts) if beacon_inbox is None \
@@ -295,6 +299,17 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
     # -- bus callbacks (delivery thread: keep short) --
     def _on_obs(self, key, msg: schema.Obs, raw, recv_ns) -> None:
         self._obs.put(msg)
+
+    def _on_rejected(self, key, msg: schema.Rejection, raw, recv_ns) -> None:
+        """The world refused messages of this agent: counted by reason, each reason's first logged."""
+        new = [r for r in msg.counts if r not in self.refused_by_world]
+        for reason, n in msg.counts.items():
+            if reason in self.refused_by_world or len(self.refused_by_world) < schema.MAX_HEALTH_REASONS:
+                self.refused_by_world[reason] = self.refused_by_world.get(reason, 0) + n
+        if new:
+            log.warning("uav %d: the world refused our %s on %s at tick %d: %s (%s); further '%s' refusals "
+                        "only counted", self.opts.uav, msg.refused_kind or "message", msg.key, msg.at_tick,
+                        msg.reason, msg.detail, "', '".join(new))
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN:

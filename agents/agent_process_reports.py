@@ -25,7 +25,9 @@ class AgentReports:
     """Health reports and the stats file of an agent node."""
 
     def health(self) -> schema.Health:
-        """This agent's health report: what its bus refused, by reason and (the most refused) sender."""
+        """This agent's health report: what its bus refused, by reason and (the most refused) sender. (First
+        it takes in what the world told it it refused: its rejections wait for this, about once a second.)"""
+        self._take_rejections()
         by_reason = sorted(self.bus.rejections.by_reason().items(), key=lambda kv: (-kv[1], kv[0]))
         by_sender: dict[str, int] = {}
         for per_sender in self.bus.rejections.as_dict().values():
@@ -36,6 +38,14 @@ class AgentReports:
         return schema.Health(uav=self.opts.uav, last_tick=self._last_tick, steps=self.steps,
                              stale_obs_skipped=self.stale_obs_skipped,
                              rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top))
+
+    def _take_rejections(self) -> None:
+        drain = getattr(self, "drain_rejections", None)
+        try:
+            if drain is not None:
+                drain()
+        except RuntimeError:  # bus closed at shutdown
+            pass
 
     def publish_health(self) -> bool:
         """Publish one health report unless this node has stopped (a host's shared health thread calls it
@@ -88,12 +98,14 @@ class AgentReports:
     def write_stats(self) -> None:
         if self.opts.stats_out:
             self._take_beacons()  # the last tick's beacons count too
+            self._take_rejections()  # and the world's last rejections
             with self._lock:
                 samples = [round(x, 3) for x in self._latency_ms]
                 senders = list(self._latency_from)
             st = self.bus.stats()
             data = {"uav": self.opts.uav, "steps": self.steps, "stale_obs_skipped": self.stale_obs_skipped,
                     "out_of_order_obs": self.out_of_order_obs,
+                    "refused_by_world": dict(self.refused_by_world),
                     **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
                     "beacon_latency_ms": self.latency_stats(),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,

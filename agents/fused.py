@@ -31,7 +31,7 @@ from agents.state import encode_one, nearest_sector_one, neighbour_one
 from world.draws import pcg64_episode_draws
 from world.network import COVERED, DENSEST, IN_RANGE, QUEUED, RELAYED
 from world.roads import mobility_scratch, move_hotspots_env
-from world.step import env_step, pairwise_sum
+from world.step import env_step, pairwise_sum, replayed_row
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
     # The experiment and trainer pools fork worker processes; GNU OpenMP (the
@@ -45,8 +45,8 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 @njit(parallel=True, nogil=True, cache=True)
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
                   draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
-                  pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, slots, total, arrivals,
-                  up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
+                  pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0, slots,
+                  total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
     """Run steps 0..T-1 of the current episode for every env b, in place.
 
     draw: first make env b's deferred draws of the episode (World.deferred_draws:
@@ -59,7 +59,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
     fence the agents' geofence (qlearning.Fence);
     others (U, U) which peers each UAV hears (all but itself); turn_u
     (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
-    as in `step.env_step`, with a leading B; reward_sum (B,) adds each step's
+    as in `step.env_step`, with a leading B (trace and row0 as in
+    `step.world_step`); reward_sum (B,) adds each step's
     mean reward over UAVs."""
     n_env, n_uav = state.shape
     n_steps = turn_u.shape[0]
@@ -77,12 +78,14 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
         q_b, pos_b, vel_b, heading_b, road_b, s_b, v_b = q[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b]
         home_b, next_turn_b, lane_order_b, slots_b, total_b = home[b], next_turn[b], lane_order[b], slots[b], total[b]
         o, out_env_b, energy_b, above_hover_b, totals_b = out_uav[b], out_env[b], energy[b], above_hover[b], totals[b]
+        xy_b, row0_b = xy[b], row0[b]
         for t in range(n_steps):
             for u in range(n_uav):
                 actions[u] = act_one(q_b[u, state[b, u]], explore_u[t, b, u], random_a[t, b, u], epsilon,
                                      pos_b[u, 0], pos_b[u, 1], fence)
             env_step(actions, False, no_delay, no_delay, pos_b, vel_b, heading_b, road_b, s_b, v_b,
-                     home_b, next_turn_b, lane_order_b, turn_u[t, b], slots_b, total_b, arrivals[t, b], t,
+                     home_b, next_turn_b, lane_order_b, turn_u[t, b], xy_b, replayed_row(trace, row0_b, t), slots_b,
+                     total_b, arrivals[t, b], t,
                      up, mp, rp, ch, o, out_env_b, energy_b, above_hover_b, totals_b, work_f, work_i, work_b)
             for u in range(n_uav):
                 x, y = pos_b[u, 0], pos_b[u, 1]
@@ -99,7 +102,7 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
 
 @njit(parallel=True, nogil=True, cache=True)
 def patrol_episode(plan, cand, cand_action, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
-                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
+                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0,
                    slots, total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, err_sum):
     """The patrol baseline's episode, as PatrolController.act/observe step it:
     each UAV takes the candidate action (cand (17, 2) velocities) landing
@@ -134,7 +137,8 @@ def patrol_episode(plan, cand, cand_action, draw, rng_state, exp_neg_lam, moves,
                         best, best_c = miss, c
                 actions[u] = cand_action[best_c]
             env_step(actions, False, no_delay, no_delay, pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                     home[b], next_turn[b], lane_order[b], turn_u[t, b], slots[b], total[b], arrivals[t, b], t,
+                     home[b], next_turn[b], lane_order[b], turn_u[t, b], xy[b], replayed_row(trace, row0[b], t),
+                     slots[b], total[b], arrivals[t, b], t,
                      up, mp, rp, ch, out_uav[b], out_env[b], energy[b], above_hover[b], totals[b],
                      work_f, work_i, work_b)
             for u in range(n_uav):
@@ -146,7 +150,8 @@ def patrol_episode(plan, cand, cand_action, draw, rng_state, exp_neg_lam, moves,
 def _world_args(world):
     veh, queues, draws = world.vehicles, world.queues, world._draws
     return (world.uav_pos, world._velocity, veh.heading, veh.road, veh.s, veh.v, veh.home, veh.next_turn,
-            veh.lane_order, draws.turn_u, queues.slots, queues.total, draws.arrivals, world.uav, world.grid.params,
+            veh.lane_order, draws.turn_u, world._xy, world._trace, world._row0, queues.slots, queues.total,
+            draws.arrivals, world.uav, world.grid.params,
             world.relay, world.channel, world._out_uav, world._out_env, world._energy, world._above_hover, world._totals)
 
 

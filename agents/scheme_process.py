@@ -170,6 +170,8 @@ class CentralAgentNode(_NoLearner):
         self._round_tick = -1
         self._cmd = threading.Condition()
         self._controller_up = False
+        self._controller_seen = False  # its token has been seen at least once (the watch reports it asynchronously)
+        self._controller_never_came = False  # lock-step waited its bound for a first sight, in vain
         return None
 
     def _setup_scheme(self, bus: Bus) -> None:
@@ -188,6 +190,7 @@ class CentralAgentNode(_NoLearner):
     def _on_controller(self, up: bool) -> None:
         with self._cmd:
             self._controller_up = up
+            self._controller_seen = self._controller_seen or up
             self._cmd.notify_all()
         (log.info if up else log.warning)("uav %d: controller %s", self.opts.uav, "joined" if up else "lost")
 
@@ -223,15 +226,18 @@ class CentralAgentNode(_NoLearner):
             while not self._stop.is_set():
                 if self._latest is not None and self._latest[0] >= obs.tick:
                     return
-                if self.opts.lockstep and not self._controller_up:
-                    return  # no one will answer: fly on without waiting
+                if self.opts.lockstep and not self._controller_up and \
+                        (self._controller_seen or self._controller_never_came):
+                    return  # it was lost (or never came): no one will answer, fly on without waiting
                 left = deadline - time.monotonic()
                 if left <= 0:
                     if self.opts.lockstep:  # a live controller's command did not come: no longer exact
                         self.inexact.add(obs.tick)
-                        log.warning("uav %d, tick %d: no command from the live controller within %.1f s; flying "
+                        if not self._controller_seen:  # the world saw it before tick 0; this agent never did
+                            self._controller_never_came = True
+                        log.warning("uav %d, tick %d: no command from the %s controller within %.1f s; flying "
                                     "on without (the run is no longer exact)", self.opts.uav, obs.tick,
-                                    self.opts.lockstep_wait_s)
+                                    "live" if self._controller_seen else "never seen", self.opts.lockstep_wait_s)
                     return
                 self._cmd.wait(min(left, 0.05))
 

@@ -49,6 +49,7 @@ def main() -> int:
     ap.add_argument("-e", "--connect", action="append", default=[], help="router endpoint (default tcp/127.0.0.1:7447)")
     ap.add_argument("-c", "--config", help="zenoh JSON5 config (a --secure swarm: uav-<id>.json5 of its credentials)")
     ap.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
+    ap.add_argument("--bad-action", type=int, help="(to see a rejection) send this action at the first tick")
     args = ap.parse_args()
 
     conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
@@ -69,11 +70,17 @@ def main() -> int:
 
         def on_control(sample: zenoh.Sample) -> None:
             msg = msgpack.unpackb(sample.payload.to_bytes())
-            if isinstance(msg, dict) and msg.get("src") == "world" and msg.get("command") == "shutdown":
-                inbox.put(None)
+            if isinstance(msg, dict) and msg.get("src") in ("world", "supervisor") and msg.get("command") == "shutdown":
+                inbox.put(None)  # the world's at the run's end; the supervisor's (`truav-swarm down`) before it
+
+        def on_rejected(sample: zenoh.Sample) -> None:  # what the world refused of ours (at most 10 a second)
+            r = msgpack.unpackb(sample.payload.to_bytes())
+            print(f"uav {me}: the world refused {r['refused_kind']} on {r['key']} at tick {r['at_tick']}: "
+                  f"{r['reason']} ({r['detail']}); since the last notice: {r['counts']}", flush=True)
 
         subs = [session.declare_subscriber(f"{base}/uav/{me}/obs", on_obs),
-                session.declare_subscriber(f"{base}/control/shutdown", on_control)]
+                session.declare_subscriber(f"{base}/control/shutdown", on_control),
+                session.declare_subscriber(f"{base}/uav/{me}/rejected", on_rejected)]
         token = session.liveliness().declare_token(f"{base}/alive/uav/{me}")  # the world waits for it
         vel, last_tick, end = [0.0, 0.0], -1, time.monotonic() + args.timeout
         while time.monotonic() < end:
@@ -96,8 +103,10 @@ def main() -> int:
                 out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=0)
                 continue
             action = rng.randrange(N_ACTIONS)
-            out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=action)
-            vel, answered = velocity(action, obs["speed_max"]), answered + 1
+            sent = args.bad_action if args.bad_action is not None and answered == 0 else action
+            out.send(f"{base}/uav/{me}/action", "action", uav=me, tick=tick, action=sent)
+            vel = velocity(sent, obs["speed_max"]) if 0 <= sent < N_ACTIONS else [0.0, 0.0]  # refused: it hovers
+            answered += 1
         print(f"uav {me}: answered {answered} observations, last tick {last_tick}", flush=True)
         token.undeclare()
         for sub in subs:

@@ -15,7 +15,10 @@ a recording:
 * an *unfinished* file (no footer) = the recorder itself died; it lost its
   last <= flush_interval of messages, which show as a cut tail, not as gaps
   (run ``truav log recover`` to finish the file);
-* a *corrupt chunk* (bad CRC or compression) = messages lost on disk.
+* a *corrupt chunk* (bad CRC or compression) = messages lost on disk;
+* a *pause* (``pause``/``resume`` on ``control/recorder``) leaves out messages on purpose: the
+  ``truav.pause`` metadata names their seq ranges (:mod:`recorder.pause`), and gaps inside them
+  count as ``paused``, not missing.
 
 The file is read record by record (the salvage path of :mod:`recorder.reader`),
 so a damaged chunk is counted, not fatal.  ``truav log check`` exits 1 when
@@ -31,8 +34,10 @@ import os
 from dataclasses import dataclass, field
 from typing import Optional
 
-from mcap.records import Channel, Message
+from mcap.records import Channel, Message, Metadata
 
+from recorder.pause import skipped_ranges, stream_label
+from recorder.record_modes import PAUSE_METADATA
 from recorder.reader import SalvageStats, Source, TopicFilter, iter_salvaged_records, open_source, probe
 from recorder.schemas import decode_envelope
 
@@ -55,6 +60,7 @@ class SenderCheck:
     gap_ranges: list[tuple[int, int]] = field(default_factory=list)  # inclusive (lo, hi)
     duplicates: int = 0  # messages repeating a seq already recorded
     out_of_order: int = 0  # messages with a seq below one recorded before them (not duplicates)
+    paused: int = 0  # seq numbers left out while the recorder was paused (truav.pause): not a loss
 
     @property
     def gaps(self) -> int:
@@ -94,6 +100,11 @@ class CheckReport:
     def missing(self) -> int:
         """Messages the bus lost, over all senders."""
         return sum(s.missing for s in self.senders.values())
+
+    @property
+    def paused(self) -> int:
+        """Messages left out on purpose while the recorder was paused."""
+        return sum(s.paused for s in self.senders.values())
 
     @property
     def problems(self) -> list[str]:
@@ -138,7 +149,8 @@ class CheckReport:
         lines = [
             f"{self.path}: {state}",
             f"{self.messages} messages over {span:.3f} s, {self.undecodable} undecodable, "
-            f"{self.missing} missing by seq (lost before reaching the recorder)",
+            f"{self.missing} missing by seq (lost before reaching the recorder)"
+            + (f", {self.paused} not recorded while paused" if self.paused else ""),
             "",
         ]
         rows = [("src", "kind", "#", "inc", "msgs", "first", "last", "missing", "gaps", "dup", "ooo", "gap ranges")]
@@ -184,19 +196,35 @@ class _SeqAudit:
         if self.top is None or seq > self.top:
             self.top = seq
 
-    def finish(self) -> SenderCheck:
+    def finish(self, paused: list[tuple[int, int]] = ()) -> SenderCheck:  # type: ignore[assignment]
+        """The stream's figures; seq ranges in ``paused`` were left out on purpose (not missing)."""
         check = self.check
         ordered = sorted(self.seen)
         if ordered:
             check.first_seq, check.last_seq = ordered[0], ordered[-1]
             if check.incarnation > 1 and ordered[0] > 0:  # started while recording: its first messages are lost
-                check.gap_ranges.append((0, ordered[0] - 1))
-                check.missing += ordered[0]
+                self._gap(0, ordered[0] - 1, paused)
             for lo, hi in zip(ordered, ordered[1:]):
                 if hi > lo + 1:
-                    check.gap_ranges.append((lo + 1, hi - 1))
-                    check.missing += hi - lo - 1
+                    self._gap(lo + 1, hi - 1, paused)
         return check
+
+    def _gap(self, lo: int, hi: int, paused: list[tuple[int, int]]) -> None:
+        """Seq lo..hi absent: what a pause covers is paused, each remaining run a gap."""
+        check = self.check
+        for p_lo, p_hi in sorted(paused):
+            if p_hi < lo or p_lo > hi:
+                continue
+            if p_lo > lo:
+                check.gap_ranges.append((lo, p_lo - 1))
+                check.missing += p_lo - lo
+            covered_hi = min(hi, p_hi)
+            check.paused += covered_hi - max(lo, p_lo) + 1
+            lo = covered_hi + 1
+            if lo > hi:
+                return
+        check.gap_ranges.append((lo, hi))
+        check.missing += hi - lo + 1
 
 
 def check(source: Source) -> CheckReport:
@@ -212,9 +240,14 @@ def check(source: Source) -> CheckReport:
         messages = undecodable = 0
         first: Optional[int] = None
         last: Optional[int] = None
+        paused: dict[str, list[tuple[int, int]]] = {}  # stream label -> seq ranges left out by pauses
         for record in iter_salvaged_records(stream, state, stats):
             if isinstance(record, Channel):
                 topics.setdefault(record.id, record.topic)
+                continue
+            if isinstance(record, Metadata) and record.name == PAUSE_METADATA:
+                for label, span in skipped_ranges(record.metadata).items():
+                    paused.setdefault(label, []).append(span)
                 continue
             key = topics.get(record.channel_id) if isinstance(record, Message) else None
             if key is None or not keep(key):  # other records, mirrors, messages of an undeclared channel
@@ -242,6 +275,6 @@ def check(source: Source) -> CheckReport:
     return CheckReport(
         path=name, finished=state.finished, torn_bytes=state.torn_bytes, messages=messages,
         undecodable=undecodable, first_log_time=first, last_log_time=last, channels=channels,
-        senders={k: a.finish() for k, a in audits.items()},
+        senders={k: a.finish(paused.get(stream_label(*k), [])) for k, a in audits.items()},
         corrupt_chunks=stats.corrupt_chunks, read_error=stats.error,
     )

@@ -7,6 +7,11 @@
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
+      truav log record-ctl split|pause|resume|snapshot --run RUN   # a running recorder (recorder.cli_record_ctl)
+      truav log play-ctl --run RUN seek --tick K|rate R|pause|step|status ...   # a running play (truav.swarm.cli_replay)
+      truav log cut IN OUT --from-tick A --to-tick B   # a window (recorder.cli_tools: cut, merge, info)
+      truav log merge OUT IN...          # parts, cuts or runs as one
+      truav log info FILE...             # per topic, sender and kind; gaps, faults, run metadata
 
   and ``truav report``, an alias of ``truav log report``;
 * :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
@@ -31,6 +36,8 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from recorder.cli_record_ctl import add_record_ctl_parser
+from recorder.cli_tools import add_tool_parsers
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -370,13 +377,21 @@ def cmd_log_play(args: argparse.Namespace) -> int:
     return cmd_replay(args, prog="truav")
 
 
+def cmd_log_play_ctl(args: argparse.Namespace) -> int:
+    """``truav log play-ctl``: ``truav-swarm replay-ctl``'s command, its endpoints checked as there."""
+    from truav.swarm.cli_replay import cmd_replay_ctl
+    _check_endpoints(args)
+    return cmd_replay_ctl(args)
+
+
 # --- the command groups ---------------------------------------------------------------------------
 def add_log_commands(subparsers: Any) -> None:
-    """Add ``log record|play|report|check|recover`` to the ``truav`` CLI, and ``report``, an alias of
+    """Add ``log record|play|report|check|recover|cut|merge|info`` to the ``truav`` CLI, and ``report``, an alias of
     ``log report``."""
-    log = subparsers.add_parser("log", help="record, play, report on, check and repair MCAP recordings of swarm runs",
-                                description="Record, play, report on, check and repair MCAP recordings made by "
-                                            "the TRUAV recorder.")
+    log = subparsers.add_parser("log", help="record, play, report on, check, repair, cut, merge and describe MCAP "
+                                            "recordings of swarm runs",
+                                description="Record, play, report on, check, repair, cut, merge and describe MCAP "
+                                            "recordings made by the TRUAV recorder.")
     log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
     add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)
@@ -405,6 +420,12 @@ def add_log_commands(subparsers: Any) -> None:
     chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)
+    add_tool_parsers(log_sub)
+
+    add_record_ctl_parser(log_sub)
+    from truav.swarm.cli_replay import add_replay_ctl  # the same command as truav-swarm replay-ctl
+    add_replay_ctl(log_sub, "play-ctl", "truav log play-ctl", "steer a running play (seek, rate, pause, step by tick...) "
+                                                             "and print its status").set_defaults(func=cmd_log_play_ctl)
 
     add_report_parser(subparsers, alias_help("truav log report")).set_defaults(func=cmd_report)
 

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Optional
 
 from recorder.foxglove import DEFAULT_ORIGIN, parse_origin
 from recorder.mcap_writer import COMPRESSIONS, DEFAULT_COMPRESSION, DEFAULT_FLUSH_INTERVAL_S
+from recorder.record_modes import RecordModes
 from truav import cli_args
 from truav.bus import keys, transport
 
@@ -51,7 +52,8 @@ def options_from_args(args: argparse.Namespace) -> RecorderOptions:
         toml_text = path.read_text(encoding="utf-8")
     return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, compression=args.compression,
                            flush_interval_s=args.flush_ms / 1000.0, mirrors=not args.no_mirrors, fsync=args.fsync,
-                           force=args.force, geo_origin=args.geo_origin, compact=not args.no_compact).validate()
+                           force=args.force, geo_origin=args.geo_origin, compact=not args.no_compact,
+                           modes=cli_args.options_from(RecordModes, args)).validate()
 
 
 def _origin_arg(text: str) -> tuple[float, float]:
@@ -81,6 +83,7 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--no-compact", action="store_true",
                         help="keep the 50 ms chunks at a clean finish instead of rewriting them into chunks of "
                              "up to 2 s compressed harder")
+    cli_args.add_options(parser.add_argument_group("split and snapshot (one file when none is given)"), RecordModes)
     parser.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     parser.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON here")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug lines: what was recorded, once a second")

@@ -125,19 +125,50 @@ class McapLog:
         # True: the default scene geometry; the recorder process passes one built from the run config
         fox: Optional[FoxgloveMirror] = (FoxgloveMirror() if foxglove is True else foxglove or None) \
             if mirrors else None
-        self._writer = writer = McapWriter(
-            output, compression=compression, flush_interval_s=flush_interval_s, chunk_bytes=chunk_bytes,
-            chunk_span_ns=chunk_span_ns, auto_flush=auto_flush, fsync=fsync, zstd_level=zstd_level, clock=clock,
-            library=library)
+        self._writer_args = dict(compression=compression, flush_interval_s=flush_interval_s, chunk_bytes=chunk_bytes,
+                                 chunk_span_ns=chunk_span_ns, auto_flush=auto_flush, fsync=fsync,
+                                 zstd_level=zstd_level, clock=clock, library=library)
+        self._mirrors = mirrors
+        self._fox = fox
+        self._fox_kinds = fox.KINDS if fox is not None else frozenset()
+        # the streams' figures run on across rotate(): callbacks reach whichever file is open
+        self._stats = SenderStats(*((lambda *a: self._mirror.joined(*a), lambda *a: self._mirror.lost(*a))
+                                    if fox is not None else ()))
+        self._observe = self._stats.observe
+        self._undecodable = 0
+        self._earlier = LogSummary()  # the files finished by rotate(): their counts
+        self._open_file(output)
+
+    def _open_file(self, output: Output) -> None:
+        """A new file: its writer, mirrors and channel table (channels are declared again on first use)."""
+        self._writer = writer = McapWriter(output, **self._writer_args)
         self._append = writer.append
         self._close_chunk_if_due = writer.close_chunk_if_due
-        self._mirrors = mirrors
-        self._mirror = MirrorChannels(writer, fox)
-        self._fox_kinds = self._mirror.fox_kinds
-        self._stats = SenderStats(*((self._mirror.joined, self._mirror.lost) if fox is not None else ()))
-        self._observe = self._stats.observe
+        self._mirror = MirrorChannels(writer, self._fox)
         self._chans: dict[str, KeyChannel] = {}
-        self._undecodable = 0
+
+    def rotate(self, output: Output) -> None:
+        """Finish the current file (summary, footer) and go on writing into ``output``: a
+        self-contained file of its own (schemas and channels declared again, metadata as the
+        caller sets it); :meth:`summary` keeps counting over both."""
+        this = self._file_summary()
+        self._writer.close()
+        earlier = self._earlier
+        for name in ("messages", "mirror_messages", "mirror_errors", "chunks", "bytes_written"):
+            setattr(earlier, name, getattr(earlier, name) + getattr(this, name))
+        for key, n in this.channels.items():
+            earlier.channels[key] = earlier.channels.get(key, 0) + n
+        self._open_file(output)
+
+    @property
+    def bytes_on_disk(self) -> int:
+        """Bytes of the current file handed to the OS so far (closed chunks, metadata; the open chunk
+        not yet: it is compressed when it closes)."""
+        return self._writer.bytes_written
+
+    def log_time_range(self) -> tuple[Optional[int], Optional[int]]:
+        """(first, last) log time in the current file, (None, None) before its first message."""
+        return self._writer.log_time_range()
 
     # --- context manager -------------------------------------------------------------
     def __enter__(self) -> "McapLog":
@@ -238,17 +269,26 @@ class McapLog:
 
     # --- statistics ------------------------------------------------------------------------
     def summary(self) -> LogSummary:
-        """Counts so far: messages per key, per-(src, kind, incarnation) sequence stats, undecodable."""
+        """Counts so far (over every file since :meth:`rotate`): messages per key,
+        per-(src, kind, incarnation) sequence stats, undecodable."""
+        this, earlier = self._file_summary(), self._earlier
+        for name in ("messages", "mirror_messages", "mirror_errors", "chunks", "bytes_written"):
+            setattr(this, name, getattr(earlier, name) + getattr(this, name))
+        for key, n in earlier.channels.items():
+            this.channels[key] = this.channels.get(key, 0) + n
+        this.undecodable = self._undecodable
+        this.senders = self._stats.snapshot()
+        return this
+
+    def _file_summary(self) -> LogSummary:
         writer, mirror = self._writer, self._mirror
         return LogSummary(
             messages=writer.messages - mirror.messages,
             mirror_messages=mirror.messages,
-            undecodable=self._undecodable,
             mirror_errors=mirror.errors,
             chunks=writer.chunks,
             bytes_written=writer.bytes_written,
             channels={key: chan.count for key, chan in self._chans.items()},
-            senders=self._stats.snapshot(),
         )
 
     # --- registry ------------------------------------------------------------------------------

@@ -234,6 +234,14 @@ class McapWriter:
     def bytes_written(self) -> int:
         return self._offset
 
+    def log_time_range(self) -> tuple[Optional[int], Optional[int]]:
+        """(first, last) log time of the messages so far, the open chunk's included; (None, None) if none."""
+        lo, hi = self._time_min, self._time_max
+        if self._open.n:
+            lo = self._open.start if lo is None else min(lo, self._open.start)
+            hi = self._open.end if hi is None else max(hi, self._open.end)
+        return lo, hi
+
     # --- registry ------------------------------------------------------------------------------
     def json_schema_id(self, name: str, schema: dict[str, Any]) -> int:
         """The id of a JSON Schema (registered, in the open chunk, on first use)."""

@@ -19,6 +19,10 @@ stdout but one summary when it stops, and exits
   config not TOML ...), with a one-line message on stderr;
 * 1 when recording failed (router unreachable, disk full ...).
 
+The same control key takes ``split`` (recording in parts), ``pause``, ``resume`` and ``snapshot``
+(snapshot mode), as does SIGHUP (split) and SIGUSR1 (snapshot); see :mod:`recorder.record_modes`
+for the layouts (one file, parts, snapshots) and ``truav log record-ctl`` to send them.
+
 It is *recording* once its liveliness token ``truav/<run>/alive/recorder``
 is visible: the token is declared after the subscription, so a supervisor
 that waits for it (:func:`wait_until_recording`) loses no message it sends
@@ -69,7 +73,15 @@ from recorder.mcap_log import (
 from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry
 from recorder.recover import compact
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
+from recorder.parts import PartedLog
+from recorder.pause import PauseLedger
+from recorder.record_modes import (MODE_FLAGS, PAUSE_METADATA, REASON_COMMAND, REASON_SIGNAL, RecordModes,
+                                   part_path, parts_index_path, snapshot_path)
+from recorder.snapshot import SnapshotLog
+from recorder.snapshot_triggers import COMMAND, SIGNAL, Trigger
 from recorder.summary import RecorderSummary
+from truav.errors import UserError
+from truav.options import to_argv
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
 from truav.lifecycle import signals_handled, watch_supervisor
@@ -80,6 +92,12 @@ log = logging.getLogger("truav.recorder")
 ENTRY_MODULE = "recorder.cli_process"  # `python -m ENTRY_MODULE` runs the recorder (recorder_argv)
 CONTROL_PART = "recorder"  # commands arrive on keys.control(run, CONTROL_PART)
 CMD_STOP = "stop"
+CMD_SPLIT, CMD_PAUSE, CMD_RESUME, CMD_SNAPSHOT = "split", "pause", "resume", "snapshot"
+COMMANDS = (CMD_STOP, CMD_SPLIT, CMD_PAUSE, CMD_RESUME, CMD_SNAPSHOT)
+COMPACT_MAX_BYTES = 64 * 1024 * 1024
+"""A clean finish compacts a single file up to this size (seconds of work); a longer one keeps its chunks as
+written (already bounded: DEFAULT_CHUNK_BYTES, compressed as they fill), so the finish stays fast."""
+MB = 1_000_000
 
 # --- timing ------------------------------------------------------------------------------
 IDLE_WAKE_S = 0.25  # writer wake-up when nothing is pending (bounds stop latency, costs nothing)
@@ -111,6 +129,7 @@ class RecorderOptions:
     force: bool = False  # overwrite an existing output file
     geo_origin: tuple[float, float] = DEFAULT_ORIGIN  # (lat, lon) of the area's centre in Foxglove's Map panel
     compact: bool = True  # rewrite into bigger, bounded chunks at a clean finish (recorder.recover.compact)
+    modes: RecordModes = RecordModes()  # one file, parts or snapshots (recorder.record_modes)
 
     def validate(self) -> "RecorderOptions":
         """Raise RecorderUsageError for anything a user can get wrong; return self."""
@@ -125,8 +144,15 @@ class RecorderOptions:
         out = Path(self.out)
         if out.is_dir():
             raise RecorderUsageError(f"{out} is a directory; give a file name such as {out / 'run.mcap'}")
-        if out.exists() and not self.force:
-            raise RecorderUsageError(f"{out} exists; use --force to overwrite it")
+        try:
+            self.modes.validate()
+        except UserError as exc:
+            raise RecorderUsageError(str(exc)) from None
+        first = part_path(out, 1) if self.modes.split else snapshot_path(out, 1) if self.modes.snapshot else out
+        if self.modes.split and parts_index_path(out).exists() and not first.exists():
+            first = parts_index_path(out)  # an earlier recording's index (its parts moved away)
+        if first.exists() and not self.force:
+            raise RecorderUsageError(f"{first} exists; use --force to overwrite it")
         if not out.parent.is_dir():
             raise RecorderUsageError(f"directory {out.parent} does not exist")
         if self.config_toml is not None:
@@ -176,6 +202,9 @@ class Recorder:
         self.written = 0  # messages handed to the log so far (-v lines), but those of the last pull at the stop
         self._started_ns = 0
         self._summary: Optional[RecorderSummary] = None
+        self._pause: Optional[PauseLedger] = None  # set while paused (writer thread only)
+        self._paused_ns = 0
+        self._paused_messages = 0
 
     # -- life cycle --
     def start(self) -> "Recorder":
@@ -183,9 +212,7 @@ class Recorder:
         opts = self.options
         self._started_ns = time.time_ns()
         try:
-            fox = FoxgloveMirror(_scene_geometry(opts.config_toml), opts.geo_origin) if opts.mirrors else False
-            self._log = McapLog(opts.out, compression=opts.compression, flush_interval_s=opts.flush_interval_s,
-                                chunk_bytes=opts.chunk_bytes, mirrors=opts.mirrors, foxglove=fox, fsync=opts.fsync)
+            self._log = self._open_sink()
         except OSError as exc:
             raise RecorderUsageError(f"cannot write {opts.out}: {exc.strerror or exc}") from None
         try:
@@ -209,6 +236,36 @@ class Recorder:
             raise
         return self
 
+    def _open_sink(self) -> "McapLog | PartedLog | SnapshotLog":
+        """The file(s) the writer thread writes: one McapLog, or parts, or snapshots of McapLogs."""
+        opts = self.options
+        fox = FoxgloveMirror(_scene_geometry(opts.config_toml), opts.geo_origin) if opts.mirrors else False
+
+        def make_log(path: Path) -> McapLog:
+            return McapLog(path, compression=opts.compression, flush_interval_s=opts.flush_interval_s,
+                           chunk_bytes=opts.chunk_bytes, mirrors=opts.mirrors, foxglove=fox, fsync=opts.fsync)
+
+        modes = opts.modes
+        if modes.split:
+            return PartedLog(opts.out, modes, make_log, repeat=(RECORDING_METADATA, CONFIG_METADATA))
+        window = modes.window
+        if window is not None:
+            return SnapshotLog(opts.out, window[0], window[1], int(modes.snapshot_max_mb * MB), make_log)
+        return make_log(opts.out)
+
+    @property
+    def files(self) -> list[Path]:
+        """The files written so far (parts, snapshots, or the one file)."""
+        sink = self._log
+        if isinstance(sink, (PartedLog, SnapshotLog)):
+            return list(sink.paths)
+        return [Path(self.options.out)]
+
+    def request(self, command: str, by: str, signalled: bool = False) -> None:
+        """Ask the writer thread to split, pause, resume or snapshot (safe from a signal handler and
+        from the bus's threads: the writer alone touches the files); ``signalled``: by a signal."""
+        self._queue.put((command, by, time.time_ns(), signalled))
+
     def _abort_start(self) -> None:
         """Startup failed: stop what runs and remove the (empty) file we created."""
         if self._bus is not None:
@@ -219,8 +276,10 @@ class Recorder:
         if self._log is not None:
             with contextlib.suppress(Exception):
                 self._log.close()
-            with contextlib.suppress(OSError):
-                os.unlink(self.options.out)
+            leftovers = self.files + ([parts_index_path(self.options.out)] if self.options.modes.split else [])
+            for path in leftovers:
+                with contextlib.suppress(OSError):
+                    os.unlink(path)
 
     def stop(self, reason: Optional[str] = None) -> RecorderSummary:
         """Unsubscribe, write everything received, finish the file. Idempotent."""
@@ -240,10 +299,14 @@ class Recorder:
             self._error = self._error or f"writer did not finish within {WRITER_JOIN_TIMEOUT_S:.0f} s"
         bus_stats = bus.stats()
         bus.close()  # the liveliness token goes with the session
+        if self._pause is not None and not self._writer.is_alive():  # stopped while paused: say so in the file
+            with contextlib.suppress(Exception):
+                self._end_pause("stop")
         summary = RecorderSummary(
             run=self.options.run, path=os.fspath(self.options.out), started_ns=self._started_ns,
             stopped_ns=time.time_ns(), stop_reason=self.stop_reason, log=logfile.summary(), bus=bus_stats,
-            max_backlog=self._max_backlog, error=self._error,
+            max_backlog=self._max_backlog, error=self._error, paused_s=self._paused_ns / 1e9,
+            not_recorded_paused=self._paused_messages,
         )
         if not self._writer.is_alive():  # the writer is done with the log: safe to finish it here
             try:
@@ -255,7 +318,10 @@ class Recorder:
                 detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
                 summary.error = self._error = f"finishing {self.options.out} failed: {detail}"
             else:
-                if self.options.compact and self._error is None:
+                summary.files = [os.fspath(p) for p in self.files]
+                single = isinstance(logfile, McapLog)
+                if self.options.compact and self._error is None and single \
+                        and os.path.getsize(self.options.out) <= COMPACT_MAX_BYTES:
                     try:
                         summary.compacted = compact(self.options.out, compression=self.options.compression)
                     except Exception as exc:  # the finished (uncompacted) file is still there and valid
@@ -277,12 +343,61 @@ class Recorder:
 
     # -- callbacks (Bus delivery thread) --
     def _on_control(self, key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
-        if isinstance(msg, schema.Control) and msg.command == CMD_STOP:
+        command = msg.command if isinstance(msg, schema.Control) else None
+        if command == CMD_STOP:
             self.stop_reason = f"stop command from {msg.src}"
             self.stop_requested.set()
+        elif command in COMMANDS:  # under --secure only the supervisor may put on control/* (truav.bus.acl)
+            self.request(command, msg.src)
         else:
             log.warning("recorder: ignoring control command %r from %s (known: %s)",
-                        getattr(msg, "command", msg.KIND), msg.src, CMD_STOP)
+                        getattr(msg, "command", msg.KIND), msg.src, ", ".join(COMMANDS))
+
+    # -- requests (writer thread) --
+    def _apply_requests(self) -> bool:
+        """Carry out the queued requests in order; True once the stop sentinel is reached."""
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return False
+            if item is _STOP:
+                return True
+            self._apply(*item)
+
+    def _apply(self, command: str, by: str, at_ns: int, signalled: bool) -> None:
+        sink = self._log
+        if command == CMD_PAUSE:
+            if self._pause is None:
+                self._pause = PauseLedger(at_ns, by)
+                log.info("recorder: paused by %s", by)
+        elif command == CMD_RESUME:
+            if self._pause is not None:
+                self._end_pause(by)
+                log.info("recorder: resumed by %s", by)
+        elif command == CMD_SPLIT:
+            if isinstance(sink, PartedLog):
+                path = sink.split(REASON_SIGNAL if signalled else REASON_COMMAND)
+                log.info("recorder: split by %s; now writing %s", by, path)
+            else:
+                log.warning("recorder: ignoring split from %s: not recording in parts "
+                            "(--split-size, --split-duration or --split-on-command)", by)
+        elif command == CMD_SNAPSHOT:
+            if isinstance(sink, SnapshotLog):
+                sink.trigger(Trigger(SIGNAL if signalled else COMMAND, at_ns, f"{command} from {by}"))
+            else:
+                log.warning("recorder: ignoring snapshot from %s: not in snapshot mode (--snapshot)", by)
+
+    def _end_pause(self, by: str) -> None:
+        ledger, now = self._pause, time.time_ns()
+        assert ledger is not None and self._log is not None
+        self._pause = None
+        self._paused_ns += now - ledger.started_ns
+        self._paused_messages += ledger.messages
+        self._log.set_metadata(PAUSE_METADATA, ledger.record(now, by))
+
+    def _write_fn(self):
+        return self._pause.skip if self._pause is not None else self._log.write  # type: ignore[union-attr]
 
     # -- the writer thread --
     def _write_loop(self) -> None:
@@ -291,22 +406,24 @@ class Recorder:
         Ends on _STOP (put by stop()) after writing every sample still waiting."""
         logfile = self._log
         assert logfile is not None
-        pull, write, clock = self._receiver.try_recv, logfile.write, time.monotonic
+        pull, clock, requests = self._receiver.try_recv, time.monotonic, self._queue
         try:
+            write = self._write_fn()
             while True:
+                if not requests.empty():
+                    if self._apply_requests():  # stop: the samples still waiting, then done
+                        write = self._write_fn()
+                        while (item := pull()) is not None:
+                            write(*item)
+                        return
+                    write = self._write_fn()
                 item = pull()
                 if item is None:
-                    try:
-                        self._queue.get_nowait()  # only _STOP is ever queued
-                    except queue.Empty:
-                        logfile.maybe_flush()
-                        due = logfile.next_flush_due()
-                        pause = PULL_IDLE_S if due is None else min(max(due - clock(), 0.0), PULL_IDLE_S)
-                        time.sleep(pause)
-                        continue
-                    while (item := pull()) is not None:  # last samples before the stop
-                        write(*item)
-                    return
+                    logfile.maybe_flush()
+                    due = logfile.next_flush_due()
+                    pause = PULL_IDLE_S if due is None else min(max(due - clock(), 0.0), PULL_IDLE_S)
+                    time.sleep(pause)
+                    continue
                 write(*item)  # closes the chunk itself once it is flush_interval old
                 burst = 1
                 while burst < BURST and (item := pull()) is not None:
@@ -371,7 +488,16 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
         stop.set()
 
     watch_supervisor(supervisor_gone)
-    with _signals_set(stop, reasons):
+    requests = {}  # SIGHUP splits a recording in parts, SIGUSR1 takes a snapshot (only in those modes)
+    if options.modes.split:
+        requests[signal.SIGHUP] = CMD_SPLIT
+    if options.modes.snapshot is not None:
+        requests[signal.SIGUSR1] = CMD_SNAPSHOT
+
+    def on_request(signum: int, _frame: object) -> None:
+        recorder.request(requests[signal.Signals(signum)], signal.Signals(signum).name, signalled=True)
+
+    with _signals_set(stop, reasons), signals_handled(tuple(requests), on_request):
         try:
             summary = run_until_stopped(recorder, stop)
         except RecorderUsageError as exc:
@@ -396,10 +522,11 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
 def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
                   config_toml: str | os.PathLike[str] | None = None, force: bool = False,
                   geo_origin: tuple[float, float] | None = None, extra: Sequence[str] = (),
-                  python: str = sys.executable) -> list[str]:
+                  modes: RecordModes | None = None, python: str = sys.executable) -> list[str]:
     """The command line that runs the recorder as a subprocess (see the module docstring): the
     :class:`RecorderOptions` a supervisor sets, as the flags of :mod:`recorder.cli_process`
-    (``config_toml`` here is the file; ``extra``: more flags, e.g. credentials or ``-v``)."""
+    (``config_toml`` here is the file; ``modes``: split or snapshot, their flags as declared in
+    :class:`recorder.record_modes.RecordModes`; ``extra``: more flags, e.g. credentials or ``-v``)."""
     argv = [python, "-m", ENTRY_MODULE, "--run", run, "--out", os.fspath(out)]
     for endpoint in connect:
         argv += ["--connect", endpoint]
@@ -409,13 +536,15 @@ def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] 
         argv += ["--geo-origin", "%r,%r" % geo_origin]
     if force:
         argv.append("--force")
+    if modes is not None:  # the flags given (a default is the recorder's own default too)
+        argv += to_argv(modes, [n for n in MODE_FLAGS if getattr(modes, n) != getattr(RecordModes(), n)])
     return argv + list(extra)
 
 
 def spawn_recorder(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
                    config_toml: str | os.PathLike[str] | None = None, force: bool = False,
                    geo_origin: tuple[float, float] | None = None, extra: Sequence[str] = (),
-                   **popen_kwargs: Any) -> subprocess.Popen:
+                   modes: RecordModes | None = None, **popen_kwargs: Any) -> subprocess.Popen:
     """Start the recorder subprocess (stdout: its summary; pass ``stdout=PIPE`` to capture it).
 
     The child ignores nothing: stop it with :func:`stop_recorder` (SIGTERM).
@@ -423,7 +552,7 @@ def spawn_recorder(run: str, out: str | os.PathLike[str], connect: Sequence[str]
     """
     popen_kwargs.setdefault("stdin", subprocess.DEVNULL)
     return subprocess.Popen(recorder_argv(run, out, connect, config_toml=config_toml, force=force,
-                                          geo_origin=geo_origin, extra=extra), **popen_kwargs)
+                                          geo_origin=geo_origin, extra=extra, modes=modes), **popen_kwargs)
 
 
 def wait_until_recording(bus: transport.Bus, run: str, timeout: float = DEFAULT_READY_TIMEOUT_S) -> bool:

@@ -28,10 +28,8 @@ from typing import Optional, Union
 import msgpack
 
 from recorder.reader import RecordedMessage, iter_messages, read_metadata
+from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX  # what the recorder writes (recorder.parts)
 
-PART_METADATA = "truav.part"
-"""The metadata record of each part of a split recording (string values: session, part, reason, ...)."""
-PARTS_INDEX_SUFFIX = ".parts.json"
 MAX_PARTS = 100_000
 MAX_INDEX_BYTES = 16 << 20
 _PART_NAME = re.compile(r"^(?P<stem>.+)_(?P<n>\d{4,})\.mcap$")

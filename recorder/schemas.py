@@ -20,7 +20,7 @@ import msgpack
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
-         "beacons", "replay_status")
+         "beacons", "rejection", "replay_status")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -128,6 +128,15 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
                "stale_obs_skipped": _INT,
                "rejected": {"type": "object", "additionalProperties": _INT, "description": "refused messages by reason"},
                "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"}},
+    "rejection": {"uav": _INT,
+                  "at_tick": {**_INT, "description": "the refused action's tick (late/stale), else the world's "
+                                                     "latest tick; -1 before tick 0"},
+                  "reason": {**_STR, "description": "reason code of the first message refused since the last one"},
+                  "refused_kind": {**_STR, "description": "the kind its key carries, e.g. action"},
+                  "key": {**_STR, "description": "the key it came on"},
+                  "detail": {**_STR, "description": "what was wrong, at most 160 characters"},
+                  "counts": {"type": "object", "additionalProperties": _INT,
+                             "description": "everything refused of this UAV since the last rejection, by reason"}},
     "replay_status": {"state": {"enum": ["playing", "paused", "waiting", "ended"]},
                       "position_s": {**_NUM, "description": "s from the recording's first message"},
                       "span_s": _NUM, "tick": {**_INT, "description": "last tick sent, -1 none yet"}, "rate": _NUM,

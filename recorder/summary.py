@@ -6,7 +6,8 @@ its :class:`recorder.mcap_log.LogSummary` and its Bus's statistics.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import os
+from dataclasses import asdict, dataclass, field
 from typing import Any, Optional
 
 from recorder.mcap_log import LogSummary
@@ -14,6 +15,7 @@ from recorder.mcap_log import LogSummary
 __all__ = ["RecorderSummary", "MAX_SUMMARY_ROWS"]
 
 MAX_SUMMARY_ROWS = 200  # channel / sender rows in the printed summary
+MAX_FILES_NAMED = 4  # parts / snapshots named in the printed summary (more: the first and the last)
 
 
 @dataclass
@@ -30,6 +32,9 @@ class RecorderSummary:
     max_backlog: int = 0  # most messages waiting for the writer at once
     error: Optional[str] = None
     compacted: Optional[tuple[int, int]] = None  # file size before and after the compaction at the finish
+    files: list[str] = field(default_factory=list)  # the files written: parts or snapshots (or the one file)
+    paused_s: float = 0.0  # time spent paused by request (nothing written then: not a loss)
+    not_recorded_paused: int = 0  # messages received while paused
 
     @property
     def duration_s(self) -> float:
@@ -53,6 +58,7 @@ class RecorderSummary:
             "senders": {f"{src} {kind} {inc:016x}": asdict(s)
                         for (src, kind, inc), s in sorted(self.log.senders.items())},
             "rejected": self.bus.rejected,
+            "files": list(self.files), "paused_s": self.paused_s, "not_recorded_paused": self.not_recorded_paused,
         }
 
     def format(self) -> str:
@@ -68,6 +74,13 @@ class RecorderSummary:
             f"  lost before the recorder (sequence gaps): {log_.missing}; lost in the recorder: "
             f"{self.recorder_dropped}; undecodable: {log_.undecodable}; peak backlog {self.max_backlog}",
         ]
+        if self.files and self.files != [self.path]:
+            names = [os.path.basename(f) for f in self.files]
+            shown = ", ".join(names) if len(names) <= MAX_FILES_NAMED else f"{names[0]} ... {names[-1]}"
+            lines.append(f"  files: {len(names)} ({shown}, beside {self.path})")
+        if self.paused_s:
+            lines.append(f"  paused by request for {self.paused_s:.1f} s: {self.not_recorded_paused} messages not "
+                         "recorded (noted in the file's truav.pause metadata)")
         if self.error:
             lines.append(f"  ERROR: {self.error}")
         if log_.channels:

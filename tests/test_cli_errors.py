@@ -158,6 +158,12 @@ ROWS = [
     ("recover-nothing-salvageable", "truav", "log recover {header_only_mcap} {dir}/fixed.mcap", 1,
      "nothing salvageable"),
     ("recover-out-under-file", "truav", "log recover {good_mcap} {a_file}/fixed.mcap", 2, "OUT"),
+    ("cut-corrupt", "truav", "log cut {corrupt_mcap} {dir}/cut.mcap", 2, "corrupt.mcap"),
+    ("cut-unfinished", "truav", "log cut {unfinished_mcap} {dir}/cut.mcap", 2, "truav log recover"),
+    ("cut-out-under-file", "truav", "log cut {good_mcap} {a_file}/cut.mcap", 2, "OUT"),
+    ("cut-tick-negative", "truav", "log cut {good_mcap} {dir}/cut.mcap --from-tick -1", 2, "--from-tick"),
+    ("merge-corrupt", "truav", "log merge {dir}/merged.mcap {good_mcap} {corrupt_mcap}", 2, "corrupt.mcap"),
+    ("info-random-bytes", "truav", "log info {good_mcap} {random_toml}", 2, "random.toml"),
     # truav-swarm up / chaos
     ("up-listen-garbage", "swarm", "up -l garbage", 2, "-l/--listen"),
     ("up-two-listens", "swarm", "up -l tcp/127.0.0.1:7447 -l tcp/127.0.0.1:7448", 2, "-l/--listen"),

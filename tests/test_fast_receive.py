@@ -137,7 +137,8 @@ def reference_check_placement(key: str, msg: Message) -> None:
 class ReferenceGuard(Guard):
     def check(self, key: str, msg: schema.Message) -> tuple[str, str] | None:
         b, src = self.bounds, msg.src
-        if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
+        # (schema.Rejection added since, with the kind: only the world tells a sender what it refused)
+        if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics, schema.Rejection)):
             if src != keys.SRC_WORLD:
                 return R_SENDER, f"{msg.KIND} from {src}"
         elif isinstance(msg, (schema.Beacon, schema.Action, schema.State, schema.Health)):
@@ -199,7 +200,7 @@ class ReferenceGuard(Guard):
 # --- a corpus -------------------------------------------------------------------------------------------
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
-             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3",
+             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3", schema.KIND_REJECTION: "world",
              schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY}
 
 
@@ -224,6 +225,9 @@ def samples() -> list[Message]:
         schema.Health(uav=3, last_tick=-1, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
         schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
+        schema.Rejection(uav=3, at_tick=7, reason="out_of_range", refused_kind="action",
+                         key="truav/r/uav/3/action", detail="action.action=99 outside [-1, 15]",
+                         counts={"out_of_range": 2, "bad_type": 1}),
         schema.ReplayStatus(state=schema.REPLAY_PLAYING, position_s=1.5, span_s=9.0, tick=7, rate=1.0, paused=False,
                             sent=40, restored=0, loop=0),
     ]
@@ -335,7 +339,7 @@ EXPECTS = (None, *MESSAGE_CLASSES, "no_such_kind", "")
 
 GUARDED_KINDS = (schema.KIND_TICK, schema.KIND_OBS, schema.KIND_BEACON, schema.KIND_ACTION, schema.KIND_METRICS,
                  schema.KIND_FAULT, schema.KIND_CONTROL, schema.KIND_POSITIONS, schema.KIND_STATE,
-                 schema.KIND_COMMAND, schema.KIND_HEALTH)
+                 schema.KIND_COMMAND, schema.KIND_HEALTH, schema.KIND_REJECTION)
 """The kinds whose sender and values the guard checks (a new kind decodes through the corpus all the same)."""
 
 

@@ -89,12 +89,14 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.bus.messages",              WIRE),
     ("truav.bus.codec",                 WIRE),
     ("truav.bus.guard",                 WIRE),
+    ("truav.bus.rejection_notices",     WIRE),   # what the world tells a sender it refused (pure)
     ("truav.bus.protocol_doc",          WIRE),   # docs/protocol.md's tables, generated from the schema
     # -- 4 analysis / drivers: pure or file I/O, no zenoh --------------------------------------
     ("truav.driver",                    ANALYSIS),
     ("truav.trainer",                   ANALYSIS),
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
+    ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
     ("truav.plots",                     ANALYSIS),
     ("truav.swarm.plots",               ANALYSIS),
     ("recorder.mcap_log",               ANALYSIS),
@@ -114,6 +116,15 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.metadata",               ANALYSIS),
     ("recorder.schemas",                ANALYSIS),
     ("recorder.foxglove",               ANALYSIS),
+    ("recorder.record_modes",           ANALYSIS),
+    ("recorder.parts",                  ANALYSIS),
+    ("recorder.pause",                  ANALYSIS),
+    ("recorder.snapshot",               ANALYSIS),
+    ("recorder.snapshot_triggers",      ANALYSIS),
+    ("recorder.log_copy",               ANALYSIS),
+    ("recorder.cut",                    ANALYSIS),
+    ("recorder.merge",                  ANALYSIS),
+    ("recorder.info",                   ANALYSIS),
     ("truav.experiments.cells",         ANALYSIS),
     ("truav.experiments.runner",        ANALYSIS),
     ("truav.experiments.report",        ANALYSIS),

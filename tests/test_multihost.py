@@ -38,6 +38,7 @@ import numpy as np
 import pytest
 
 from tests import netns
+from truav.bus.secure_configs import inline_material
 from truav.config import Config, to_toml
 from truav.swarm import deploy
 from truav.lifecycle import child_env
@@ -126,12 +127,12 @@ def test_each_host_bundle_holds_only_its_own_keys_and_moves_anywhere(tmp_path):
         sans = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
         assert h.address in [str(ip) for ip in sans.get_values_for_type(x509.IPAddress)]
         assert oct((creds / h.name).stat().st_mode & 0o777) == "0o700"
-    # A bundle copied elsewhere still finds its files: relative names are read next to the config.
+    # A bundle copied elsewhere still holds its material: each config has its certificates and key inline.
     moved = tmp_path / "elsewhere" / "truav-creds"
     moved.parent.mkdir()
     (creds / "b").rename(moved)
     conf = transport.make_config(None, config_file=moved / "uav-0.json5")
-    assert json.loads(conf.get_json("transport/link/tls/connect_certificate")) == str(moved / "uav-0.pem")
+    assert json.loads(conf.get_json("transport/link/tls/connect_certificate_base64"))
     explained = _run_cli("acl", "explain", "--creds", str(moved))
     assert "router/a, router/c (the other routers): relay everything" in explained.stdout
     # The scenario must fly the agents the credentials were made for.
@@ -200,9 +201,10 @@ def test_three_hosts_lockstep_equals_one_host_and_rides_out_a_cut_link(hosts, tm
     creds = tmp_path / "creds"
     subprocess.run([*CLI, "certs", "--deployment", str(DEPLOYMENT), "--out", str(creds)], check=True,
                    capture_output=True)
-    for h in PLAN.hosts:  # the bundles carry exactly the committed configs
+    for h in PLAN.hosts:  # the bundles carry the committed configs, with the files they name inline
         for f in (COMMITTED_CONFIGS / h.name).glob("*.json5"):
-            assert (creds / h.name / f.name).read_text() == f.read_text(), (f, REGENERATE)
+            inlined = inline_material(json.loads(f.read_text()), creds / h.name)
+            assert json.loads((creds / h.name / f.name).read_text()) == inlined, (f, REGENERATE)
     scenario = tmp_path / "scenario.toml"
     scenario.write_text(to_toml(CFG))
     logs = tmp_path / "logs"

@@ -12,7 +12,7 @@ import zenoh
 
 from tests.conftest import free_port
 from truav.bus import keys, security
-from truav.bus.schema import HEALTH_PERIOD_S
+from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 from truav.swarm.supervisor import SwarmOptions
 
 RUN = "caps"
@@ -38,14 +38,15 @@ def test_router_config_caps_every_key_of_a_realtime_run(tmp_path) -> None:
     for i in range(N):
         expected |= {keys.uav_obs(RUN, i): tick, keys.uav_action(RUN, i): tick, keys.uav_state(RUN, i): tick,
                      keys.controller_cmd(RUN, i): tick, f"{keys.uav_beacon(RUN, i)}/**": RATE_HZ / 10 * M,
-                     keys.uav_health(RUN, i): M / HEALTH_PERIOD_S}
+                     keys.uav_health(RUN, i): M / HEALTH_PERIOD_S, keys.uav_rejected(RUN, i): M / REJECTION_PERIOD_S}
     assert caps == expected
     # Every key a run sends is capped (by exactly one rule), but the supervisor's control and faults
     # (rare and bursty) and the replay's own run; and each put pattern of the ACL stands for some of them.
     sent = [keys.world_tick(RUN), keys.world_positions(RUN), keys.metrics_step(RUN), keys.metrics_episode(RUN)]
     for i in range(N):
         sent += [keys.uav_obs(RUN, i), keys.uav_beacon(RUN, i), keys.uav_beacon_in_cell(RUN, i, (2, 3)),
-                 keys.uav_action(RUN, i), keys.uav_state(RUN, i), keys.uav_health(RUN, i), keys.controller_cmd(RUN, i)]
+                 keys.uav_action(RUN, i), keys.uav_state(RUN, i), keys.uav_health(RUN, i), keys.controller_cmd(RUN, i),
+                 keys.uav_rejected(RUN, i)]
     for key in sent:
         assert sum(security._matches(key, rule) for rule in caps) == 1, key
     uncapped = {keys.all_control(RUN), keys.all_faults(RUN), keys.control(RUN, "shutdown")}

@@ -57,6 +57,10 @@ RUN: dict[str, list[str]] = {
     "truav config show --set scenario.n_uavs=8 --set learner.episodes=200": [],
     "truav config show --set learner.episodes=200 '>' my-config.toml": [],
     "truav train --config my-config.toml --out runs/my-config": TRAIN,
+    "truav traffic build": [],
+    "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
+    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": SWARM,
+    "truav experiment velocity --quick --mobility sumo --out runs/velocity-sumo": VELOCITY,
     "truav experiment velocity": VELOCITY,
     "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
     "truav experiment velocity --quick": VELOCITY,
@@ -67,7 +71,14 @@ RUN: dict[str, list[str]] = {
     "truav log check runs/demo.mcap": [],
     "truav report runs/demo.mcap": [],
     "truav log report runs/demo.mcap --out runs/demo-report": [],
+    "truav log info runs/demo.mcap": [],
+    "truav log cut runs/demo.mcap runs/demo-ticks.mcap --from-tick 2 --to-tick 3": [],
+    "truav log cut runs/demo.mcap runs/demo-a.mcap --to-tick 2": [],
+    "truav log cut runs/demo.mcap runs/demo-b.mcap --from-tick 3": [],
+    "truav log merge runs/demo-ab.mcap runs/demo-a.mcap runs/demo-b.mcap": [],
     "truav-swarm up --record runs/foxglove.mcap --foxglove --out runs/swarm-foxglove": [*SWARM, "--foxglove", "0"],
+    "truav-swarm up --record runs/parts.mcap --split-size 1 --split-duration 60 --out runs/swarm-parts": SWARM,
+    "truav-swarm up --record runs/snap.mcap --snapshot 10:5 --out runs/swarm-snap": SWARM,
     "truav-swarm up --fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-faults": SWARM,
     "truav-swarm chaos --plan deploy/plans/partition-latency.toml": SWARM,
     "truav-swarm up --scheme central --fault-plan deploy/plans/controller-crash.toml "
@@ -114,13 +125,16 @@ CHECKED: dict[str, str] = {
     "truav-swarm replay-ctl --run demo seek --tick 40": REPLAY_RUNNING,
     "truav-swarm replay-ctl --run demo seek --by -5": REPLAY_RUNNING,
     "truav-swarm replay-ctl --run demo rate 4": REPLAY_RUNNING,
-    "truav log play runs/split.parts.json": "needs a split recording (the recorder's split flags) and a router; "
-                                            "tests/test_replay_seek.py plays parts as one",
+    "truav log play runs/parts.parts.json --rate 4 --paused":
+        "starts paused, waiting for keys or bus commands; tests/test_replay_seek.py plays parts as one",
+    "truav log play-ctl --run demo status": REPLAY_RUNNING,
     "truav-swarm replay runs/demo.mcap --lockstep --topics 'truav/*/world/tick' 'truav/*/uav/1/obs' "
     "-e tcp/127.0.0.1:7447": "needs a live agent answering in another terminal; tests/test_replay_ctl.py runs one",
     "truav log play runs/demo.mcap --rate 2 --paused":
         "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/test_log_group.py)",
     "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav log record-ctl pause --run demo -e tcp/127.0.0.1:7447":
+        OTHER_TERMINAL + " (tests/test_record_modes.py sends it to a recorder)",
     "truav-swarm view -e tcp/127.0.0.1:7447 --run demo": OTHER_TERMINAL,
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
     "truav-swarm faults --run demo --plan my.toml -e tcp/127.0.0.1:7447": OTHER_TERMINAL + " (my.toml: the user's plan)",
@@ -128,7 +142,7 @@ CHECKED: dict[str, str] = {
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
     **{c: BENCH for c in (
-        "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
+        "python bench/bench_trainer.py", "python bench/bench_trainer.py --full", "python bench/bench_sumo.py",
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
         "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",

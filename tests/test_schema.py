@@ -60,6 +60,9 @@ def samples() -> list[schema.Message]:
         schema.Health(uav=3, last_tick=7, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
         schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
+        schema.Rejection(uav=3, at_tick=7, reason="out_of_range", refused_kind="action",
+                         key="truav/r/uav/3/action", detail="action.action=99 outside [-1, 15]",
+                         counts={"out_of_range": 2, "bad_type": 1}),
         schema.ReplayStatus(state=schema.REPLAY_PAUSED, position_s=12.5, span_s=60.0, tick=40, rate=2.0, paused=True,
                             sent=1234, restored=17, loop=0),
     ]

@@ -184,6 +184,60 @@ def test_router_does_not_forward_to_identities_what_they_may_not_read(creds) -> 
             s.close()
 
 
+def test_only_uav_i_reads_the_rejections_of_uav_i(creds) -> None:
+    """The world may put uav/<i>/rejected; the router forwards it to uav/<i> only (uav/2 subscribing to it, or
+    to every UAV's, gets nothing), and no UAV may put one (not even on its own key)."""
+    world, agent0, agent1, agent2, rec = (client(creds, i) for i in ("world", "uav/0", "uav/1", "uav/2", "recorder"))
+    try:
+        own, other, wide, heard = [], [], [], []
+        agent1.declare_subscriber(keys.uav_rejected(RUN, 1), lambda s: own.append(s.payload.to_bytes()))
+        agent2.declare_subscriber(keys.uav_rejected(RUN, 1), lambda s: other.append(1))  # denied by the router
+        agent2.declare_subscriber(keys.all_rejected(RUN), lambda s: wide.append(str(s.key_expr)))
+        rec.declare_subscriber(keys.all_rejected(RUN), lambda s: heard.append(s.payload.to_bytes()))
+        time.sleep(0.3)
+        agent0.put(keys.uav_rejected(RUN, 1), b"forged")  # denied: only the world tells
+        agent0.put(keys.uav_rejected(RUN, 0), b"forged")  # even on its own key
+        world.put(keys.uav_rejected(RUN, 1), b"told")
+        assert until(lambda: own == [b"told"])
+        time.sleep(WAIT_S)
+        assert own == [b"told"] and other == [] and wide == [] and heard == [b"told"]
+    finally:
+        for s in (world, agent0, agent1, agent2, rec):
+            s.close()
+
+
+PLAIN_ZENOH_CLIENT = """
+import sys, zenoh
+with zenoh.open(zenoh.Config.from_file(sys.argv[1])) as s:
+    s.put(sys.argv[2], b"from elsewhere")
+"""
+
+
+def test_a_credentials_config_loads_with_plain_zenoh_from_any_directory(creds, tmp_path) -> None:
+    """uav-1.json5 alone, copied to a directory of its own and opened by plain zenoh from another working
+    directory, connects to the --secure router as uav/1 (its certificates and key are inline)."""
+    conf = json.loads(creds.config_file("uav/1").read_text())
+    tls = conf["transport"]["link"]["tls"]
+    assert {"root_ca_certificate_base64", "connect_private_key_base64", "connect_certificate_base64"} <= set(tls)
+    assert not set(tls) & set(security.TLS_FILE_KEYS)  # no file names left to resolve
+    assert oct(creds.config_file("uav/1").stat().st_mode & 0o777) == "0o600"  # it holds the private key
+    alone, cwd = tmp_path / "alone", tmp_path / "cwd"
+    alone.mkdir()
+    cwd.mkdir()
+    (alone / "uav-1.json5").write_text(creds.config_file("uav/1").read_text())
+    rec = client(creds, "recorder")
+    try:
+        got: list[str] = []
+        rec.declare_subscriber(keys.all_beacons(RUN), lambda s: got.append(str(s.key_expr)))
+        time.sleep(0.3)
+        done = subprocess.run([sys.executable, "-c", PLAIN_ZENOH_CLIENT, str(alone / "uav-1.json5"),
+                               keys.uav_beacon(RUN, 1)], cwd=cwd, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert until(lambda: got == [keys.uav_beacon(RUN, 1)]), got
+    finally:
+        rec.close()
+
+
 # --- defence in depth, unit level -------------------------------------------------------------------------
 def test_size_and_msgpack_limits_apply_before_parsing() -> None:
     from bench.hostile import large_obs_payload

@@ -57,14 +57,16 @@ def _stop(*procs: subprocess.Popen) -> None:
             p.wait()
 
 
-@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+@pytest.mark.parametrize("mode", ["lockstep", "realtime", "secure-lockstep"])
 def test_external_agent_from_the_printed_command_flies_to_result_ok(tmp_path, mode):
-    extra = ["--lockstep"] if mode == "lockstep" else ["--rate", "5"]
-    up, log = _up(tmp_path, "--external", "2", *extra)
+    extra = {"lockstep": ["--lockstep"], "realtime": ["--rate", "5"], "secure-lockstep": ["--lockstep", "--secure"]}
+    up, log = _up(tmp_path, "--external", "2", *extra[mode])
     agent = None
     try:
         cmd = _printed_command(log, up)
-        assert cmd[:2] == ["python", "examples/outside_agent.py"] and ("--lockstep" in cmd) == (mode == "lockstep")
+        assert cmd[:2] == ["python", "examples/outside_agent.py"] and ("--lockstep" in cmd) == ("lockstep" in mode)
+        if mode == "secure-lockstep":  # its identity's credentials: a config that holds them, loadable anywhere
+            assert cmd[cmd.index("-c") + 1].endswith("creds/uav-2.json5") and "-e" not in cmd
         agent = subprocess.Popen([sys.executable, *cmd[1:]], cwd=REPO, stdout=subprocess.DEVNULL,
                                  stderr=subprocess.STDOUT)
         rc = up.wait(RUN_TIMEOUT_S)
@@ -76,7 +78,7 @@ def test_external_agent_from_the_printed_command_flies_to_result_ok(tmp_path, mo
     assert "external uav/2: joined" in text
     world = json.loads((tmp_path / "out" / "world.json").read_text())
     ext = world["per_uav"][2]
-    if mode == "lockstep":  # every action of the outside agent applied
+    if "lockstep" in mode:  # every action of the outside agent applied
         assert ext["applied"] == STEPS and ext["missed"] == 0 and ext["rejected"] == {}
     else:  # real time on a busy machine: it flew, nothing refused
         assert ext["applied"] > 0 and ext["rejected"] == {}

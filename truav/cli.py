@@ -4,6 +4,7 @@
     truav train --speed 25 --episodes 500 --seeds 4 --out runs/quick
     truav evaluate runs/train-15mps --against random hover
     truav config show --set scenario.n_uavs=8
+    truav traffic build                 # the scenario's SUMO trace, for truav train --mobility sumo
     truav experiment velocity --quick   # the paper's velocity figure (see truav/experiments/cli.py)
 """
 
@@ -23,7 +24,8 @@ from truav.cli_args import (  # noqa: F401  (the number types are shared from he
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
 from truav.cli_config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
     UsageError, add_config_args, add_preset_arg, config_from, parse_sets, preset_from)
-from truav.config import Config, LearnerConfig, ScenarioConfig, to_toml
+from truav.config import MOBILITIES, Config, LearnerConfig, ScenarioConfig, to_toml
+from truav.cli_traffic import add_traffic_parser
 from truav.experiments.cli import add_experiment_parser
 from truav.seeding import EVAL_SEED_OFFSET
 
@@ -81,7 +83,12 @@ def cmd_train(args) -> int:
         extra["scenario"] = {"uav_speed_mps": args.speed}
     if args.episodes is not None:
         extra["learner"] = {"episodes": args.episodes}
+    if args.mobility is not None:
+        extra.setdefault("scenario", {})["mobility"] = args.mobility
     cfg = config_from(args, extra)
+    if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
+        from truav import sumo_traffic
+        sumo_traffic.sumo_home()
     seeds = seed_list(args)
     from truav.trainer import RESUMABLE, Checkpointing, split
     scheme = args.scheme
@@ -105,13 +112,17 @@ def cmd_train(args) -> int:
         save=lambda i, data: runio.write_chunk_state(out, i, data),
         load=(lambda i: runio.read_chunk_state(out, i)) if args.resume else (lambda i: None))
     print(f"{'resuming' if args.resume else 'training'} {scheme}: {len(seeds)} seeds x {episodes} episodes x "
-          f"{cfg.scenario.steps_per_episode} steps at {cfg.scenario.uav_speed_mps:g} m/s on {workers} worker(s) "
+          f"{cfg.scenario.steps_per_episode} steps at {cfg.scenario.uav_speed_mps:g} m/s"
+          + (" on SUMO traffic" if cfg.scenario.mobility == "sumo" else "") + f" on {workers} worker(s) "
           f"-> {out}", flush=True)
     from truav import kernel_cache  # here: it imports numba, which `truav --help` does without
     note = kernel_cache.cold_start_note(kernel_cache.TRAIN_KERNELS
                                         + (["agents/sac_kernels.py"] if scheme == "central" else []))
     if note:  # else the progress bar sits at 0 for most of a minute without a word
         print(note, flush=True)
+    if cfg.scenario.mobility == "sumo":  # built once and cached (truav traffic build), before the progress bar
+        path, _ = sumo_traffic.build_trace(cfg, say=lambda line: print(line, flush=True))
+        print(f"SUMO traffic: {path}", flush=True)
     t0 = time.perf_counter()
     try:
         result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
@@ -231,6 +242,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "`truav-swarm up --scheme central --policy RUN`)")
     tr.add_argument("--speed", type=positive_float,
                     help=f"UAV speed in m/s (default: scenario.uav_speed_mps, {ScenarioConfig().uav_speed_mps:g})")
+    tr.add_argument("--mobility", choices=MOBILITIES,
+                    help="vehicle mobility: builtin (the grid's IDM) or sumo (a SUMO trace, built and cached on "
+                         "first use; `truav traffic build`) (default: scenario.mobility, builtin)")
     tr.add_argument("--seeds", type=positive_int, default=10,
                     help="number of seeds (default %(default)s, as the paper)")
     tr.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
@@ -258,6 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(func=cmd_evaluate)
 
     add_experiment_parser(sub)  # truav experiment velocity | scale
+    add_traffic_parser(sub)  # truav traffic build
     from recorder.cli import add_log_commands
     add_log_commands(sub)  # truav log record | play | report | check | recover, and truav report (an alias)
     return ap

@@ -122,6 +122,16 @@ def run_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def snapshot_window(text: str) -> str:
+    """argparse type: ``BEFORE_S:AFTER_S`` (recorder snapshot mode), both > 0; kept as text."""
+    from recorder.record_modes import parse_snapshot
+    try:
+        parse_snapshot(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the zenoh-example style flags ``-e/--connect``, ``-l/--listen``, ``-c/--config``, ``-m/--mode``."""
     from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODES  # deferred: zenoh is imported only by bus commands
@@ -144,7 +154,7 @@ def _option_types() -> dict[str, Callable[[str], object]]:
     """The argument checks a declaration names in its ``type`` (truav.options.opt)."""
     return {"positive_int": positive_int, "non_negative_int": non_negative_int, "seed_int": seed_int,
             "positive_float": positive_float, "non_negative_float": non_negative_float, "share": share,
-            "run_name": run_name, "tcp_port": tcp_port}
+            "run_name": run_name, "tcp_port": tcp_port, "snapshot_window": snapshot_window}
 
 
 def add_options(parser: argparse.ArgumentParser, cls, names=None, **defaults) -> None:

@@ -21,6 +21,7 @@ from truav.errors import UserError
 
 
 UAV_STARTS = ("random", "persist", "center")
+MOBILITIES = ("builtin", "sumo")
 
 
 class ConfigError(UserError):
@@ -65,6 +66,11 @@ class ScenarioConfig:
     "persist" (where the last episode ended: a swarm serving the city
     continuously; random at the very first reset) or "center". Random draws
     come from the world's generator."""
+    mobility: str = param("builtin")
+    """Where the vehicles' positions come from: "builtin" (the grid's own IDM
+    car following, world/roads.py) or "sumo" (a trace SUMO recorded on a grid
+    network like this one, replayed: `truav traffic build`, section [sumo];
+    needs the optional `sumo` extra)."""
 
 
 @dataclass(frozen=True)
@@ -350,6 +356,33 @@ class CentralConfig:
 
 
 @dataclass(frozen=True)
+class SumoConfig:
+    """SUMO traffic (scenario.mobility = "sumo"): a netgenerate grid of the
+    scenario's size and block length, trips drawn by SUMO's randomTrips.py
+    towards the major intersections, driven by SUMO's own car following and
+    junction model; vehicle positions recorded once per step into a trace."""
+
+    lanes_per_direction: int = param(1, 1, 8)
+    """Lanes of each road per direction (the paper's "two-lane roads": one each way)."""
+    trace_episodes: int = param(20, 1, 100_000)
+    """Episodes of traffic the trace holds; episode e of an environment replays
+    window (offset + e) mod trace_episodes, the offset drawn from its generator."""
+    warmup_s: float = param(300.0, 0.0, 100_000.0)
+    """SUMO time run before recording starts, so every vehicle is inserted and
+    traffic has gathered at the hotspots."""
+    hotspot_weight: float = param(20.0, 0.0, 1e6)
+    """Extra weight of a trip destination at a major intersection against one
+    far from all (randomTrips.py's edge weights: 1 + hotspot_weight x
+    exp(-(d / hotspot_radius_m)^2), d the distance to the nearest major intersection)."""
+    hotspot_radius_m: float = param(500.0, 1.0, 1e6)
+    """Radius of the hotspots' pull (m): one comm range."""
+    signals_at_major: bool = param(True)
+    """Traffic lights at the major intersections (netgenerate --tls.set); the others are priority junctions."""
+    trace_seed: int = param(0, 0, 2**31 - 1)
+    """Seed of netgenerate, randomTrips.py and SUMO: one trace per scenario and trace_seed."""
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole effective configuration of a run."""
 
@@ -362,6 +395,7 @@ class Config:
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     patrol: PatrolConfig = field(default_factory=PatrolConfig)
     central: CentralConfig = field(default_factory=CentralConfig)
+    sumo: SumoConfig = field(default_factory=SumoConfig)
 
     def replace(self, **sections: Mapping[str, Any]) -> "Config":
         """A copy with some keys changed, validated: replace(scenario={"n_uavs": 3})."""
@@ -455,6 +489,8 @@ def _check_consistency(cfg: Config) -> None:
     if 0.0 < cfg.learner.sense_range_m <= s.comm_range_m:
         raise ConfigError(f"learner.sense_range_m: {cfg.learner.sense_range_m:g} must be 0 (off) or exceed "
                           f"scenario.comm_range_m ({s.comm_range_m:g})")
+    if s.mobility not in MOBILITIES:
+        raise ConfigError(f"scenario.mobility: {s.mobility!r} is not one of {', '.join(MOBILITIES)}")
     if s.uav_start not in UAV_STARTS:
         raise ConfigError(f"scenario.uav_start: {s.uav_start!r} is not one of {', '.join(UAV_STARTS)}")
     n_roads = n_grid_roads(cfg)

@@ -18,6 +18,7 @@ import numpy as np
 from truav import seeding
 from truav.config import Config
 from world.env import EPISODE_FIELDS, LocalObs, World
+from truav.sumo_traffic import make_world
 
 EpisodeCallback = Callable[[int, dict[str, np.ndarray]], None]
 """Called after each episode with (episode index, metrics each of shape (B,))."""
@@ -76,7 +77,7 @@ def run_episodes(cfg: Config, seeds: list[int], controller: Controller, episodes
     world and controller ran (a resumed training: the exploration schedule follows the episode).
     after_episode(episode): called at each episode's end, with everything of it done (a checkpoint
     taken there continues exactly); True stops the run there (the metrics then end with it)."""
-    world = World(cfg, len(seeds)) if world is None else world
+    world = make_world(cfg, len(seeds)) if world is None else world
     with ThreadPoolExecutor(max_workers=max(1, min(len(seeds), os.cpu_count() or 1))) as pool:
         if len(seeds) > 1:
             world.draw_map = pool.map  # each env's draws from its own generator, on threads

@@ -46,6 +46,7 @@ from truav import seeding
 from truav.config import Config
 from world import network
 from world.env import LocalObs, World
+from truav.sumo_traffic import make_world
 from world.uavs import HOVER, N_ACTIONS
 
 OBS_DIM = STATE_DIM + 1
@@ -93,7 +94,7 @@ class TruavParallelEnv(ParallelEnv):
         if seed is not None or self._world is None:
             if seed is None:
                 seed = int(np.random.SeedSequence().entropy % (2 ** 63))
-            self._world = World(self.cfg, 1)
+            self._world = make_world(self.cfg, 1)
             obs = self._world.reset([seeding.world_rng(int(seed))])
         else:
             obs = self._world.start_episode()

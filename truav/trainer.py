@@ -118,13 +118,14 @@ def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bo
               ckpt: Checkpointing | None = None, index: int = 0) -> RunResult:
     """One batch of seeds in this process (start_pos: see driver.run_episodes); with ``ckpt``, from
     and to chunk ``index``'s checkpoint."""
-    from world.env import World
+    from truav.sumo_traffic import make_world
     saved = ckpt.load(index) if ckpt is not None else None
     if saved is not None:  # the caller's own file of an earlier run of this command (runio.read_chunk_state)
         state = pickle.loads(saved)
         first, world, controller, history = state["episode"], state["world"], state["controller"], state["history"]
     else:
-        first, world, controller, history = 0, World(cfg, len(seeds)), make_controller(kind, cfg, seeds, train, q), {}
+        world, controller = make_world(cfg, len(seeds)), make_controller(kind, cfg, seeds, train, q)
+        first, history = 0, {}
     end_pos = np.zeros((len(seeds), cfg.scenario.n_uavs, 2))
     last_save = [time.monotonic()]
 
@@ -237,6 +238,9 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     if ckpt is not None and kind not in RESUMABLE:
         raise ValueError(f"{kind}: training cannot be checkpointed (only {', '.join(RESUMABLE)})")
     chunks = chunks or split(list(seeds), workers)
+    if cfg.scenario.mobility == "sumo":  # built (if not cached) once, before the workers load it
+        from truav.sumo_traffic import build_trace
+        build_trace(cfg)
     ctx = mp.get_context("fork")
     if ckpt is not None and ckpt.stop is None:
         ckpt.stop = ctx.Event()

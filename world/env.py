@@ -30,7 +30,8 @@ from world.network import (COVERED, DENSEST, E_COVERED, E_DELAY_S, E_DELIVERED, 
                            UAV_COLUMNS)
 from world.packets import Queues
 from world.roads import RoadGrid, Vehicles
-from world.step import TOTAL_COLUMNS, uav_params, world_step
+from world.step import TOTAL_COLUMNS, grid_xy, uav_params, world_step
+from world.trace import Trace
 
 
 @dataclass
@@ -108,9 +109,14 @@ class _EpisodeDraws:
 
 class World:
     """B environments of the paper's scenario. Actions are (B, U) ints in
-    [-1, 16); -1 (uavs.HOVER) hovers, e.g. when an agent's action is missing."""
+    [-1, 16); -1 (uavs.HOVER) hovers, e.g. when an agent's action is missing.
 
-    def __init__(self, cfg: Config, batch: int):
+    trace: the vehicles' positions, replayed, when scenario.mobility is "sumo"
+    (world/trace.py; truav/sumo_traffic.py loads it): each env starts at a
+    window drawn from its generator at reset and takes the next window each
+    episode; the grid's own mobility then does not run."""
+
+    def __init__(self, cfg: Config, batch: int, trace: Trace | None = None):
         self.cfg = cfg
         self.batch = batch
         sc = cfg.scenario
@@ -133,6 +139,21 @@ class World:
         self._energy = np.zeros((batch, self.n_uavs))
         self._above_hover = np.zeros((batch, self.n_uavs))
         self._no_arrivals = np.zeros((batch, self.n_vehicles), np.int64)
+        self.trace = trace
+        if (trace is None) != (sc.mobility != "sumo"):
+            raise ValueError(f"scenario.mobility = {sc.mobility!r} " + ("needs a trace" if trace is None else
+                                                                        "replays no trace"))
+        if trace is not None and trace.mismatch(cfg):
+            raise ValueError(f"the mobility trace does not fit the scenario: {trace.mismatch(cfg)}")
+        self._trace = np.zeros((0, self.n_vehicles, 2)) if trace is None else \
+            np.ascontiguousarray(trace.positions, np.float64)
+        """(R, N, 2) the replayed positions, or (0, N, 2) for the grid's own mobility."""
+        self._trace_offset = np.zeros(batch, np.int64)
+        """Each env's first window of the trace (drawn at reset)."""
+        self._row0 = np.zeros(batch, np.int64)
+        """Each env's trace row of its current episode's start."""
+        self._xy = np.zeros((batch, self.n_vehicles, 2))
+        """(B, N, 2) the vehicles' positions now: what packets, channel and routing see."""
         self._zeros_bu = np.zeros((batch, self.n_uavs))
         self.draw_map = map
         """How start_episode maps its per-env draws: a thread pool's map draws
@@ -163,7 +184,9 @@ class World:
         self.rngs = list(rngs)
         self.vehicles = Vehicles.concat([self.grid.spawn(rng, self.n_vehicles) for rng in self.rngs])
         warm = self.cfg.roads.warmup_steps
-        if warm:
+        if self.trace is not None:  # replayed traffic warmed up in SUMO; an env's windows start where its draw says
+            self._trace_offset = np.array([rng.integers(self.trace.windows) for rng in self.rngs], np.int64)
+        elif warm:
             u = np.stack([rng.random((warm, self.n_vehicles, 2)) for rng in self.rngs], axis=1)
             for k in range(warm):
                 self.grid.step(self.vehicles, self.cfg.scenario.step_s, u[k])
@@ -229,6 +252,14 @@ class World:
         self._totals[:] = 0.0
         self.t = 0
         self.episode += 1
+        if self.trace is None:
+            v = self.vehicles
+            for b in range(self.batch):
+                grid_xy(v.heading[b], v.road[b], v.s[b], self.grid.block, self._xy[b])
+        else:
+            self._row0 = np.array([self.trace.episode_row0(int(o), self.episode) for o in self._trace_offset],
+                                  np.int64)
+            self._xy[:] = self._trace[self._row0]
         self._run_relay(self._no_arrivals, serve_packets=False)
         return self._observe(np.zeros((self.batch, U)))
 
@@ -285,7 +316,8 @@ class World:
         v, q, draws = self.vehicles, self.queues, self._draws
         world_step(np.ascontiguousarray(actions, np.int64), blend, np.ascontiguousarray(delay),
                    np.ascontiguousarray(control), self.uav_pos, self._velocity, v.heading, v.road, v.s, v.v,
-                   v.home, v.next_turn, v.lane_order, draws.turn_u[t], q.slots, q.total, draws.arrivals[t], t, self.uav,
+                   v.home, v.next_turn, v.lane_order, draws.turn_u[t], self._xy, self._trace, self._row0, q.slots,
+                   q.total, draws.arrivals[t], t, self.uav,
                    self.grid.params, self.relay, self.channel, self._out_uav, self._out_env, self._energy,
                    self._above_hover, self._totals)
         out_env = self._out_env
@@ -306,9 +338,8 @@ class World:
 
     # -- sensing --------------------------------------------------------------
     def _run_relay(self, arrivals: np.ndarray, serve_packets: bool, busy0: np.ndarray | None = None) -> None:
-        v = self.vehicles
         busy0 = np.zeros((self.batch, self.n_uavs)) if busy0 is None else np.ascontiguousarray(busy0)
-        network.relay_step(v.heading, v.road, v.s, self.uav_pos, self.queues.slots, self.queues.total,
+        network.relay_step(self._xy, self.uav_pos, self.queues.slots, self.queues.total,
                            np.ascontiguousarray(arrivals), self.t, serve_packets, self.relay, self.channel,
                            busy0, self._out_uav, self._out_env)
 
@@ -342,6 +373,5 @@ class World:
             }
 
     def vehicle_xy(self) -> np.ndarray:
-        """(B, N, 2) vehicle positions."""
-        x, y = self.vehicles.xy(self.grid.block)
-        return np.stack([x, y], axis=-1)
+        """(B, N, 2) vehicle positions (NaN: a replayed vehicle not on the road)."""
+        return self._xy.copy()

@@ -148,10 +148,11 @@ def routes(uav_pos, p, ch):
 
 
 @njit(cache=True)
-def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env,
+def _relay_env(xy, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env,
                work_f, work_i):
-    """One env's step; scratch work_f (>= 2N floats), work_i (>= 2N int64)."""
-    n, n_uav = s.size, uav_pos.shape[0]
+    """One env's step; xy (N, 2) the vehicles' positions (NaN: a vehicle not on
+    the road, which nothing covers); scratch work_f (>= 2N floats), work_i (>= 2N int64)."""
+    n, n_uav = xy.shape[0], uav_pos.shape[0]
     out_uav[:] = 0.0
     out_env[:] = 0.0
     for i in range(n):
@@ -170,8 +171,7 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
     floats[:] = 0.0
     dist, cost = floats[:n], floats[n:]
     for i in range(n):
-        fixed = road[i] * p.block
-        x, y = (s[i], fixed) if (heading[i] & 1) == 0 else (fixed, s[i])
+        x, y = xy[i, 0], xy[i, 1]
         best = np.inf
         for u in range(n_uav):
             d2 = (x - uav_pos[u, 0]) ** 2 + (y - uav_pos[u, 1]) ** 2
@@ -252,13 +252,13 @@ def _relay_env(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packe
 
 
 @njit(cache=True)
-def relay_step(heading, road, s, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env):
+def relay_step(xy, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, busy0, out_uav, out_env):
     """One step of packets for all envs, in place on slots (B, N, D) and total
-    (B, N); arrivals (B, N). With serve_packets False only senses (association,
+    (B, N); xy (B, N, 2) vehicle positions; arrivals (B, N). With serve_packets False only senses (association,
     queues) - used at the start of an episode. busy0 (B, U): seconds of each
     UAV's radio time already used this step (e.g. by control-plane traffic).
     Fills out_uav (B, U, 5) and out_env (B, 7), see the column constants."""
-    work_f, work_i = np.empty(2 * s.shape[1]), np.empty(2 * s.shape[1], np.int64)
-    for b in range(s.shape[0]):
-        _relay_env(heading[b], road[b], s[b], uav_pos[b], slots[b], total[b], arrivals[b], t,
+    work_f, work_i = np.empty(2 * xy.shape[1]), np.empty(2 * xy.shape[1], np.int64)
+    for b in range(xy.shape[0]):
+        _relay_env(xy[b], uav_pos[b], slots[b], total[b], arrivals[b], t,
                    serve_packets, p, ch, busy0[b], out_uav[b], out_env[b], work_f, work_i)

@@ -107,7 +107,7 @@ def pairwise_sum(a, lo, n):
 
 @njit(cache=True)
 def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
-             slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals,
+             xy, replayed, slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals,
              work_f, work_i, work_b):
     """Advance one environment by one step, in place.
 
@@ -115,6 +115,10 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
     its previous velocity for delay (U,) seconds; control (U,) control-plane
     airtime (s, already clipped to [0, dt]); pos, velocity (U, 2); vehicles
     and queues of this env; turn_u (N, 2) and arrivals (N,) of step t.
+    xy (N, 2) receives the vehicles' positions after the step: those of the
+    grid's own mobility, or, where replayed (N, 2) is not empty, a mobility
+    trace's row for this step (scenario.mobility = "sumo"; the vehicle arrays
+    then stand still). Packets, channel and routing see only xy.
     Fills out_uav (U, 5), out_env (7,), energy and above_hover (U,) and adds
     the step to totals (TOTAL_COLUMNS,). work_f, work_i, work_b: scratch
     of `roads.mobility_scratch`, reused by mobility and relay."""
@@ -139,8 +143,12 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
         sx, sy = nx - pos[u, 0], ny - pos[u, 1]
         pos[u, 0], pos[u, 1] = nx, ny
         speed[u] = np.sqrt(sx * sx + sy * sy) / dt
-    _mobility_env(heading, road, s, v, home, next_turn, lane_order, turn_u, dt, mp, work_f, work_i, work_b)
-    _relay_env(heading, road, s, pos, slots, total, arrivals, t, True, rp, ch, control, out_uav, out_env,
+    if replayed.shape[0] == 0:
+        _mobility_env(heading, road, s, v, home, next_turn, lane_order, turn_u, dt, mp, work_f, work_i, work_b)
+        grid_xy(heading, road, s, mp.block, xy)
+    else:
+        xy[:, :] = replayed
+    _relay_env(xy, pos, slots, total, arrivals, t, True, rp, ch, control, out_uav, out_env,
                work_f, work_i)
     for u in range(n_uav):
         energy[u] = (up.hover_w + (up.move_w - up.hover_w) * speed[u] / up.ref_speed) * dt \
@@ -157,11 +165,35 @@ def env_step(actions, blend, delay, control, pos, velocity, heading, road, s, v,
 
 
 @njit(cache=True)
+def grid_xy(heading, road, s, block, xy):
+    """Planar positions (N, 2) of vehicles on the grid, into xy (roads.Vehicles.xy)."""
+    for i in range(s.size):
+        fixed = road[i] * block
+        if (heading[i] & 1) == 0:
+            xy[i, 0], xy[i, 1] = s[i], fixed
+        else:
+            xy[i, 0], xy[i, 1] = fixed, s[i]
+
+
+@njit(cache=True)
+def replayed_row(trace, row0, t):
+    """The trace's positions (N, 2) after step t of an episode whose start is
+    row row0 (trace.window_rows); an empty (0, 2) array when there is no trace."""
+    if trace.shape[0] == 0:
+        return np.empty((0, 2))
+    return trace[row0 + t + 1]
+
+
+@njit(cache=True)
 def world_step(actions, blend, delay, control, pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u,
-               slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals):
-    """env_step for every env of the batch (leading axis B on every array)."""
+               xy, trace, row0, slots, total, arrivals, t, up, mp, rp, ch, out_uav, out_env, energy, above_hover,
+               totals):
+    """env_step for every env of the batch (leading axis B on every array but
+    trace (R, N, 2), the replayed mobility or empty, whose episode starts at
+    rows row0 (B,))."""
     work_f, work_i, work_b = mobility_scratch(s.shape[1], mp.n_roads)
     for b in range(pos.shape[0]):
         env_step(actions[b], blend, delay[b], control[b], pos[b], velocity[b], heading[b], road[b], s[b], v[b],
-                 home[b], next_turn[b], lane_order[b], turn_u[b], slots[b], total[b], arrivals[b], t, up, mp, rp, ch,
+                 home[b], next_turn[b], lane_order[b], turn_u[b], xy[b], replayed_row(trace, row0[b], t), slots[b],
+                 total[b], arrivals[b], t, up, mp, rp, ch,
                  out_uav[b], out_env[b], energy[b], above_hover[b], totals[b], work_f, work_i, work_b)

@@ -35,6 +35,8 @@ def host_world(cfg: Config, opts: WorldOptions, conf, router_timeout_s: float | 
         stats.rejected = bus.rejections.as_dict()
         stats.per_uav = node.accounts.per_uav(stats.rejected)
         stats.silent_at_end = sorted(node.silent())
+        node.close_rejections()  # what is still pending goes out before the session closes
+        stats.rejections_sent = node.notices.sent
     if opts.stats_out:
         write_stats(opts.stats_out, stats)
     log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,

@@ -36,8 +36,11 @@ from truav.fault_filter import attach_plan
 from truav.faults import load_plan
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.bus.placement import facts_of
+from truav.bus.rejection_notices import RejectionNotices
 from truav.bus.rejections import rejection_metrics
 from world.env import World
+from truav.sumo_traffic import make_world
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 from world.uavs import HOVER
 
@@ -106,7 +109,9 @@ def warm_up_kernels(cfg: Config) -> None:
     """Compile (or load from the cache) every kernel a world step runs, on a throwaway two-step
     world, before joining: on a cold cache that takes seconds, which would otherwise land in
     tick 0 and make the first ticks late and their actions missed."""
-    small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2},
+    # The grid's own mobility even for a replayed trace: the same kernels compile (one step function for both).
+    small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2,
+                                  "mobility": "builtin"},
                         roads={"warmup_steps": min(cfg.roads.warmup_steps, 2)})
     world = World(small, 1)
     world.reset([seeding.world_rng(0)])
@@ -144,6 +149,7 @@ def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick:
             densest_sector=int(densest[i])))
     if tick % POSITIONS_EVERY_TICKS == 0:
         vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
+        vehicles = vehicles[np.isfinite(vehicles).all(axis=1)]  # a replayed trace's vehicles not on the road
         bus.publish(keys.world_positions(run), schema.Positions(
             tick=tick, uavs=tuple(map(tuple, obs.pos[0])), vehicles=tuple(map(tuple, vehicles))))
 
@@ -154,7 +160,7 @@ class WorldNode:
     def __init__(self, cfg: Config, opts: WorldOptions, bus: Bus, clock=time.monotonic):
         self.cfg, self.opts, self.bus, self.clock = cfg, opts, bus, clock
         self.n_uavs = cfg.scenario.n_uavs
-        self.world = World(cfg, 1)
+        self.world = make_world(cfg, 1)
         warm_up_kernels(cfg)
         self.stats = WorldStats()
         self._debug = Every(log)
@@ -182,6 +188,10 @@ class WorldNode:
         if self.central:
             self._plane = ControlCounters(cfg, 1)
         bus.guard = guard.for_config(cfg)  # senders, value ranges, one action per UAV per tick
+        # What it refuses of an agent's messages is told to that agent (at most once per UAV per period).
+        self.notices = RejectionNotices(self.n_uavs)
+        self._notice_wake = threading.Event()
+        bus.on_refused = self._on_refused
         bus.accept_replay = opts.accept_replay
         # Real time: a flood on the action keys costs a bounded amount of work (the oldest samples are
         # dropped inside Zenoh when the world falls behind) instead of a backlog that delays every action.
@@ -197,6 +207,9 @@ class WorldNode:
         bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
                     *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
         gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
+        self._notices_closing = threading.Event()
+        self._notifier = threading.Thread(target=self._tell_rejections, name="world-rejections", daemon=True)
+        self._notifier.start()
         bus.declare_liveliness(keys.alive_world(run))
 
     # -- bus callbacks (delivery thread: keep short) --
@@ -225,6 +238,9 @@ class WorldNode:
                     self.stats.late_actions += 1
                     self.accounts.late[msg.uav] += 1
                 first = (self.stats.stale_actions if stale else self.stats.late_actions) == 1
+                self.notices.note(msg.uav, schema.R_STALE_ACTION if stale else schema.R_LATE_ACTION, msg.KIND, key,
+                                  msg.tick, "after a newer action of it" if stale else "after its round closed")
+                self._notice_wake.set()
         if back:
             log.info("uav %d answered again (tick %d): the world waits for it again", msg.uav, msg.tick)
         if first is None:
@@ -233,6 +249,39 @@ class WorldNode:
             "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
             "after a newer one of it (out of order)" if stale else "after its round closed",
             "stale_actions" if stale else "late_actions")
+
+    def _on_refused(self, key: str, exc: schema.SchemaError) -> None:
+        """A message the bus refused: noted for the UAV of its key (under --secure only that UAV may put there;
+        the payload's word is not taken), told by _tell_rejections."""
+        facts = facts_of(key)
+        if facts.uav is not None:
+            self.notices.note(facts.uav, exc.reason, facts.kind or "", key, self._round, exc.detail or exc.reason)
+            self._notice_wake.set()
+
+    def _tell_rejections(self) -> None:
+        """Publish the rejections due, at most one per UAV per REJECTION_PERIOD_S, until close_rejections()
+        (which lets it send what is still pending first)."""
+        notices, wake, run = self.notices, self._notice_wake, self.opts.run
+        while True:
+            wake.wait()
+            wake.clear()
+            while notices.pending():
+                for msg in notices.due(self.clock()):
+                    try:
+                        self.bus.publish(keys.uav_rejected(run, msg.uav), msg)
+                    except Exception as exc:  # a closed bus: nothing more to tell
+                        log.debug("rejection for uav %d not sent: %r", msg.uav, exc)
+                        return
+                time.sleep(notices.period_s / 2)
+            if self._notices_closing.is_set():
+                return
+
+    def close_rejections(self, timeout_s: float = 2.0) -> None:
+        """Send the rejections still pending (within about REJECTION_PERIOD_S) and end their thread: before
+        the session closes."""
+        self._notices_closing.set()
+        self._notice_wake.set()
+        self._notifier.join(timeout_s)
 
     def _on_control(self, key, msg: schema.Control, raw, recv_ns) -> None:
         if msg.command == CONTROL_SHUTDOWN and msg.src != self.bus.identity:
@@ -342,6 +391,7 @@ class WorldNode:
             self._sleep_until(next_due)
         with self._cond:
             self._ending = True
+        self.close_rejections()  # told before the shutdown, on which the agents leave
         self.bus.publish(keys.control(opts.run, CONTROL_SHUTDOWN), schema.Control(command=CONTROL_SHUTDOWN, args={}))
         return self.stats
 

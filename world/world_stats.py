@@ -53,6 +53,9 @@ class WorldStats:
     """Lock-step: times a live UAV was marked silent (it missed a round; not waited for until it answers again)."""
     silent_at_end: list[int] = field(default_factory=list)
     """Lock-step: the UAVs still marked silent when the run ended."""
+    rejections_sent: int = 0
+    """Rejection messages the world sent its agents (on uav/<i>/rejected; at most one per UAV per
+    REJECTION_PERIOD_S, whatever the flood: truav.bus.rejection_notices)."""
     per_uav: list[dict] = field(default_factory=list)
     """Per UAV id 0..n_uavs-1: {"uav", "received", "applied", "late", "stale", "missed", "rejected": {reason: n}}
     (UavAccounts.per_uav); received = applied + late + stale, missed = acting ticks it hovered without an

@@ -75,7 +75,7 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
     r = keys.prefix(replay_run(run))
     table = [
         Grant(WORLD,
-              put=(f"{p}/world/*", keys.all_obs(run), keys.all_metrics(run),
+              put=(f"{p}/world/*", keys.all_obs(run), keys.all_metrics(run), keys.all_rejected(run),
                    # The world announces the end of the run: its only control key.
                    keys.control(run, "shutdown")),
               subscribe=(keys.all_actions(run), keys.all_control(run), keys.world_tick(run)),
@@ -107,7 +107,7 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
             keys.uav_identity(i),
             put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
                  keys.uav_health(run, i), *([batches[i]] if i in batches else [])),
-            subscribe=(keys.uav_obs(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
+            subscribe=(keys.uav_obs(run, i), keys.uav_rejected(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
                        keys.all_control(run), keys.controller_cmd(run, i),
                        *([keys.all_beacon_batches(run)] if batches else [])),
             tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from truav.bus.acl import ROUTER, CredentialsError, Grant, file_stem, grants
 from truav.bus.secure_configs import (CA_CERT, CA_KEY, DEFAULT_HOSTS, MANIFEST, ROUTER_CONFIG, Site,
-                                      _write_json, client_config, router_config, site_configs, site_manifest,
-                                      tls_endpoint, write_configs)
+                                      _write_json, client_config, inline_material, router_config, site_configs,
+                                      site_manifest, tls_endpoint, write_configs)
 
 DEFAULT_VALID_DAYS = 30
 
@@ -128,10 +128,13 @@ def issue(directory: str | os.PathLike[str], run: str, n_uavs: int, endpoint: st
     host = ep.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
     all_hosts = tuple(dict.fromkeys([*hosts, host]))
     write_pair(d, ROUTER, *make_leaf(ca_key, ca_cert, ROUTER, all_hosts, server=True))
+    # Every config holds its certificates and key inline (inline_material): plain Zenoh loads it from any
+    # working directory; the .key/.pem files stay beside it for other tools.
     for g in table:
         write_pair(d, file_stem(g.identity), *make_leaf(ca_key, ca_cert, g.identity, ()))
-        _write_json(d / f"{file_stem(g.identity)}.json5", client_config(d, g.identity, [ep]))
-    _write_json(d / ROUTER_CONFIG, router_config(d, [ep], table, caps=caps))
+        _write_json(d / f"{file_stem(g.identity)}.json5", inline_material(client_config(d, g.identity, [ep]), d),
+                    secret=True)
+    _write_json(d / ROUTER_CONFIG, inline_material(router_config(d, [ep], table, caps=caps), d), secret=True)
     _write_json(d / MANIFEST, {"run": run, "n_uavs": n_uavs, "endpoint": ep, "hosts": list(all_hosts),
                                "identities": [g.identity for g in table], "batch_group_size": batch_group_size})
     return d
@@ -145,7 +148,7 @@ def _issue_site(d: Path, ca_key, ca_cert, site: Site, files: dict[str, dict], ma
     write_pair(d, ROUTER, *make_leaf(ca_key, ca_cert, site.router, tuple(manifest["hosts"]), server=True))
     for identity in site.identities:
         write_pair(d, file_stem(identity), *make_leaf(ca_key, ca_cert, identity, ()))
-    write_configs(d, files)
+    write_configs(d, files, inline=True)
     _write_json(d / MANIFEST, manifest)
 
 

@@ -115,6 +115,9 @@ class Delivery:
             self._malformed[exc.reason] = self._malformed.get(exc.reason, 0) + 1
             self._shed += 1
         self.rejections.add(exc.reason, exc.src, key, str(exc))
+        told = getattr(self, "on_refused", None)
+        if told is not None:
+            told(key, exc)
 
     def _count_backoff(self) -> None:
         with self._lock:

@@ -4,7 +4,7 @@ A message that passed the schema (:mod:`truav.bus.schema`, which bounds sizes
 and msgpack lengths before parsing) is further checked by the :class:`Guard`
 a process installs on its Bus:
 
-* **who may send it**: ticks, observations, positions and metrics only from
+* **who may send it**: ticks, observations, positions, metrics and rejections only from
   ``world``; beacons, actions, state uploads and health reports only from ``uav/<i>`` about UAV ``i``;
   commands only from ``controller``; a replay's status only from ``replay``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
@@ -192,7 +192,7 @@ class Guard:
 
     def _check_any(self, key: str, msg: schema.Message) -> tuple[str, str] | None:
         b, src = self.bounds, msg.src
-        if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics)):
+        if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics, schema.Rejection)):
             if src != keys.SRC_WORLD:
                 return R_SENDER, f"{msg.KIND} from {src}"
         elif isinstance(msg, (schema.Beacon, schema.Action, schema.State, schema.Health)):

@@ -12,6 +12,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``uav/<i>/beacon/<cx>_<cy>``    agent i -> near     ``beacon`` (range-limited: map cell of its position)
 ``uav/<i>/action``              agent i -> world    ``action``
 ``uav/<i>/state``               agent i -> ctrl     ``state`` (scheme central: the state upload)
+``uav/<i>/rejected``            world -> agent i    ``rejection`` (what the world refused of agent i)
 ``controller/cmd/<i>``          ctrl -> agent i     ``command`` (scheme central)
 ``group/<a>-<b>/beacons``       agents a..b -> all  ``beacons`` (``--batch-beacons``: one process's UAVs a..b)
 ``metrics/step``                world -> recorder   ``metrics`` (scope "step")
@@ -73,6 +74,7 @@ BEACON = "beacon"
 ACTION = "action"
 STATE = "state"
 HEALTH = "health"
+REJECTED = "rejected"
 BEACONS = "beacons"  # last chunk of a group's batch key
 CONTROLLER = "controller"
 COMMAND = "cmd"
@@ -157,6 +159,15 @@ def uav_health(run: str, i: int) -> str:
 
 def all_health(run: str) -> str:
     return f"{prefix(run)}/{UAV}/*/{HEALTH}"
+
+
+def uav_rejected(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>/rejected``: the world tells agent i what it refused of its messages."""
+    return f"{uav_prefix(run, i)}/{REJECTED}"
+
+
+def all_rejected(run: str) -> str:
+    return f"{prefix(run)}/{UAV}/*/{REJECTED}"
 
 
 def controller_cmd(run: str, i: int) -> str:

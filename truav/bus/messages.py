@@ -16,7 +16,8 @@ from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _ch
 from truav.bus.keys import MAX_UAVS
 from truav.bus.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
-    KIND_OBS, KIND_POSITIONS, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
+    KIND_OBS, KIND_POSITIONS, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
+    MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
     MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, REPLAY_STATES, SCOPES,
     SchemaError)
@@ -288,6 +289,44 @@ class Health(Envelope):
     senders: dict[str, int]
 
 
+REJECTION_PERIOD_S = 0.1
+"""The world sends a UAV at most one rejection this often, however much of it it refuses (the rest counted
+in the next one): a flood of bad actions makes the world no amplifier."""
+
+
+@dataclass(frozen=True)
+class Rejection(Envelope):
+    """World -> agent ``uav``: what the world refused (or did not apply) of that agent's messages.
+
+    The UAV is the one of the key the refused message arrived on (under ``--secure`` only ``uav/<i>`` may
+    put there), never read from its payload. At most one per UAV every :data:`REJECTION_PERIOD_S`: it
+    describes the first message refused since the last one and counts all of them by reason."""
+
+    KIND: ClassVar[str] = KIND_REJECTION
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.REJECTED)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "at_tick": _int(-1, (1 << 63) - 1),
+            "reason": _name,
+            "refused_kind": _text(MAX_NAME_LEN, allow_empty=True),
+            "key": _text(MAX_TARGET_LEN),
+            "detail": _text(MAX_DETAIL_LEN, allow_empty=True),
+            "counts": _count_map(MAX_HEALTH_REASONS, _name),
+        }
+    )
+    uav: int
+    at_tick: int
+    """The refused action's tick (a late or stale one), else the world's latest tick when it refused the
+    message (-1: before tick 0)."""
+    reason: str
+    refused_kind: str
+    key: str
+    detail: str
+    counts: dict[str, int]
+    """Everything refused of this UAV since the previous rejection, by reason (this one included)."""
+
+
 KIND_BEACONS = "beacons"
 MAX_BATCH_ENTRIES = MAX_UAVS
 """Beacons one batch may carry: at most every UAV of the swarm (the group of its key bounds it further)."""
@@ -365,7 +404,7 @@ class ReplayStatus(Envelope):
 
 
 Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                ReplayStatus]
+                Rejection, ReplayStatus]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -374,7 +413,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
     for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                ReplayStatus):
+                Rejection, ReplayStatus):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -425,6 +464,8 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
     KIND_BEACONS: {**_SMALL_LIMITS, "max_array_len": MAX_BATCH_ENTRIES},
+    KIND_REJECTION: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, 18), "max_array_len": 0,
+                     "max_str_len": max(MAX_TARGET_LEN, MAX_DETAIL_LEN)},
     KIND_REPLAY_STATUS: {**_SMALL_LIMITS, "max_array_len": 0},
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(

@@ -31,7 +31,7 @@ from truav.bus import guard, keys, schema_names
 from truav.bus.codec import unpack_limits
 from truav.bus.field_checks import _name
 from truav.bus.messages import (DEFAULT_LOCKSTEP_WAIT_S, HEALTH_PERIOD_S, LOCKSTEP_JOIN_GRACE_S, MESSAGE_CLASSES,
-                                size_limit)
+                                REJECTION_PERIOD_S, size_limit)
 from truav.bus.schema_names import _ENVELOPE_KEYS, SCHEMA_VERSION
 from world.uavs import ACTION_UNIT_VELOCITY
 
@@ -53,6 +53,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "command": ("controller", "agent i (scheme central)"),
     "health": ("uav/i", "supervisor, status, recorder"),
     "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
+    "rejection": ("world", "agent i only (under --secure no other identity may read it)"),
     "replay_status": ("replay", "operator (`truav-swarm replay-ctl`), recorder"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
@@ -171,6 +172,18 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "rejected": ("", "messages it refused so far, by reason (the table of reasons)"),
         "senders": ("", "messages it refused so far, by sender: only the most refused"),
     },
+    "rejection": {
+        "uav": ("", "the UAV of the key the refused messages came on (`uav/<i>/...`), never read from their "
+                    "payload"),
+        "at_tick": ("", "the refused action's own tick (`late_action`, `stale_action`), else the world's latest "
+                        "tick when it refused the message; -1: before tick 0"),
+        "reason": ("", "reason code (the table of reasons) of the first message refused since the last rejection"),
+        "refused_kind": ("", "the kind that message's key carries (`action`); empty for a key of no kind"),
+        "key": ("", "the key it came on"),
+        "detail": ("", "what was wrong with it, in words (cut to 160 printable ASCII characters)"),
+        "counts": ("", "every message of this UAV refused since the last rejection, by reason (the first "
+                       "included): a flood is summed here, not answered one by one"),
+    },
     "replay_status": {
         "state": ("", "playing, paused, waiting (--lockstep: for the live agents' answers) or ended"),
         "position_s": ("s", "receive time of the last message sent, from the recording's first message"),
@@ -207,6 +220,10 @@ REASON_NOTES: Mapping[str, str] = {
     "tick_out_of_window": f"a tick more than {guard.TICK_WINDOW} from the receiver's current tick",
     "duplicate_action": "a second action of one UAV for one tick",
     "replayed": "traffic a replay put into a live run (refused unless the receiver accepts replays)",
+    "late_action": "(world, told in a rejection only) a valid action that came after its round closed: not "
+                   "applied, counted in `late`",
+    "stale_action": "(world, told in a rejection only) a valid action for an older tick than one the same UAV "
+                    "already answered: not applied, counted in `stale`",
 }
 
 
@@ -381,6 +398,8 @@ def constants_table() -> str:
         ("AREA_MARGIN_M", f"{guard.AREA_MARGIN_M:g}", "positions may lie this far outside the area (m)"),
         ("SPEED_MARGIN", f"{guard.SPEED_MARGIN:g}", "speeds may exceed the UAV's by this factor"),
         ("HEALTH_PERIOD_S", f"{HEALTH_PERIOD_S:g}", "an agent's health report period (s)"),
+        ("REJECTION_PERIOD_S", f"{REJECTION_PERIOD_S:g}", "the world sends a UAV at most one rejection this "
+                                                          "often (s)"),
         ("DEFAULT_LOCKSTEP_WAIT_S", f"{DEFAULT_LOCKSTEP_WAIT_S:g}", "lock-step: how long the world waits for a "
                                                                     "live agent's answer, an agent for a peer's beacon (s)"),
         ("LOCKSTEP_JOIN_GRACE_S", f"{LOCKSTEP_JOIN_GRACE_S:g}", "lock-step: how long an agent waits for a peer "

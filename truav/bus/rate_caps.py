@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from truav.bus import keys
-from truav.bus.schema import HEALTH_PERIOD_S
+from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 
 RATE_CAP_MARGIN = 20.0
 """Each key's cap is this many times the rate the run needs on it. Zenoh's downsampler is a minimum
@@ -19,7 +19,7 @@ DOWNSAMPLING_ID = "truav-rate-caps"
 def rate_caps(run: str, n_uavs: int, rate_hz: float, beacon_every: int = 1) -> tuple[tuple[str, float], ...]:
     """(key expression, puts/s) the router lets each session send on each key of a real-time run at
     ``rate_hz``: the rate the schema needs there (one per tick; beacons every ``beacon_every`` ticks;
-    health every schema.HEALTH_PERIOD_S) times RATE_CAP_MARGIN. Control and fault keys (the
+    health every schema.HEALTH_PERIOD_S, rejections every REJECTION_PERIOD_S) times RATE_CAP_MARGIN. Control and fault keys (the
     supervisor's, rare and bursty: several faults at one instant) are not capped."""
     per_tick = (keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run), keys.metrics_episode(run))
     needed: list[tuple[str, float]] = [(k, rate_hz) for k in per_tick]
@@ -27,7 +27,8 @@ def rate_caps(run: str, n_uavs: int, rate_hz: float, beacon_every: int = 1) -> t
         needed += [(keys.uav_obs(run, i), rate_hz),
                    (f"{keys.uav_beacon(run, i)}/**", rate_hz / beacon_every),  # range-limited ones too
                    (keys.uav_action(run, i), rate_hz), (keys.uav_state(run, i), rate_hz),
-                   (keys.uav_health(run, i), 1.0 / HEALTH_PERIOD_S), (keys.controller_cmd(run, i), rate_hz)]
+                   (keys.uav_health(run, i), 1.0 / HEALTH_PERIOD_S), (keys.controller_cmd(run, i), rate_hz),
+                   (keys.uav_rejected(run, i), 1.0 / REJECTION_PERIOD_S)]
     return tuple((k, hz * RATE_CAP_MARGIN) for k, hz in needed)
 
 

@@ -143,9 +143,40 @@ class Receiving:
         come and go as it moves); ``close()`` the returned handle to stop."""
         return self._pump(key_expr, box.on_sample, f"inbox {key_expr}")
 
+    def poll_subscribe(self, key_expr: str, callback: DataCallback, capacity: int = 16) -> Callable[[], int]:
+        """:meth:`subscribe` without a thread, for messages that come seldom (the world's rejections): samples wait
+        in a ring of ``capacity`` inside Zenoh (a flood drops the oldest there, without Python) until the returned
+        ``drain()`` decodes, checks and delivers them on the caller's thread; it returns how many it took.
+        (A Zenoh callback subscriber would cost a thread as well: zenoh-python runs each on its own.)"""
+        on_sample = self._sample_handler(lambda key, raw, arr_ns, arr_mono: self._on_data(
+            key, raw, arr_ns, arr_mono, callback), schema.MAX_PAYLOAD_BYTES)
+        sub = self._session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(capacity))
+        self._register(Handle(f"polled subscriber {key_expr}", sub.undeclare))
+        handler = sub.handler
+
+        def drain() -> int:
+            taken = 0
+            while taken < capacity:
+                try:
+                    sample = handler.try_recv()
+                except zenoh.ZError:  # undeclared, or the session closed
+                    return taken
+                if sample is None:
+                    return taken
+                on_sample(sample)
+                taken += 1
+            return taken
+
+        return drain
+
     def _declare_data(
         self, key_expr: str, handle: Callable[[str, bytes, int, int], None], max_bytes: int | None = None
     ) -> Handle:
+        return self._pump(key_expr, self._sample_handler(handle, max_bytes), f"subscriber {key_expr}")
+
+    def _sample_handler(self, handle: Callable[[str, bytes, int, int], None],
+                        max_bytes: int | None) -> Callable[[zenoh.Sample], None]:
+        """What a subscription does with each sample: count it, refuse replayed or oversized ones, ``handle`` the rest."""
         def on_sample(sample: zenoh.Sample) -> None:  # zenoh-python's callback thread: keep it short
             if sample.kind != zenoh.SampleKind.PUT:
                 return
@@ -161,7 +192,7 @@ class Receiving:
             with self._deliver_lock:  # one message at a time through filter and callback
                 handle(key, raw, arrival_ns, arrival_mono)
 
-        return self._pump(key_expr, on_sample, f"subscriber {key_expr}")
+        return on_sample
 
     def _pump(self, key_expr: str, on_sample: Callable[[zenoh.Sample], None], what: str) -> Handle:
         """Subscribe ``key_expr`` into a bounded Zenoh channel (FIFO, or a ring with :attr:`receive_ring`)

@@ -14,7 +14,7 @@ import zenoh
 from truav.bus import keys, schema
 from truav.bus.bus_types import BUS_LOGGER
 from truav.bus.placement import KIND_BY_KEY
-from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODE_ROUTER, make_config, open_session
+from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODE_ROUTER, close_session, make_config, open_session
 
 log = logging.getLogger(BUS_LOGGER)
 
@@ -85,7 +85,8 @@ def run_router(
     """Run a Zenoh router until ``stop`` is set (or Ctrl-C), for ``truav-swarm router``;
     ``on_ready()`` is called once it listens."""
     stop = stop if stop is not None else threading.Event()
-    with open_router(listen, connect, config_file) as session:
+    session = open_router(listen, connect, config_file)  # a ZError here: it could not listen
+    try:
         log.info("zenoh router %s listening on %s", session.zid(), ", ".join(listen) or "config endpoints")
         if on_ready is not None:
             on_ready()
@@ -94,4 +95,6 @@ def run_router(
                 pass
         except KeyboardInterrupt:
             log.info("router interrupted")
+    finally:
+        close_session(session, "router")  # a close that times out is not an error of the run
     log.info("zenoh router stopped")

@@ -20,6 +20,7 @@ KIND_POSITIONS = "positions"
 KIND_STATE = "state"
 KIND_COMMAND = "command"
 KIND_HEALTH = "health"
+KIND_REJECTION = "rejection"
 KIND_REPLAY_STATUS = "replay_status"
 
 # --- enumerated string values ------------------------------------------------
@@ -61,6 +62,7 @@ MAX_ARGS_NODES = 65_536
 MAX_ARGS_STR_LEN = 64 << 10
 MAX_HEALTH_REASONS = 32  # rejection reasons in a health message (there are about 20)
 MAX_HEALTH_SENDERS = 8  # the senders most refused, in a health message
+MAX_DETAIL_LEN = 160  # a rejection's detail text (cut to this)
 INT64_MAX = (1 << 63) - 1
 UINT64_MAX = (1 << 64) - 1
 
@@ -76,6 +78,9 @@ R_EXTRA_FIELD = "extra_field"
 R_BAD_TYPE = "bad_type"
 R_OUT_OF_RANGE = "out_of_range"
 R_UNSTAMPED = "unstamped"
+# Not refused by the bus, but not applied by the world either: told to the sender in a rejection.
+R_LATE_ACTION = "late_action"
+R_STALE_ACTION = "stale_action"
 
 _SRC_RE = re.compile(r"[A-Za-z0-9_-]+(?:/[A-Za-z0-9_-]+)*")
 _NAME_RE = re.compile(r"[A-Za-z0-9_.-]+")

@@ -4,7 +4,9 @@ plus the credentials directory's file names and a probe telling a TLS router fro
 
 from __future__ import annotations
 
+import base64
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +49,24 @@ class Site:
 TLS_FILE_KEYS = ("root_ca_certificate", "listen_private_key", "listen_certificate", "connect_private_key",
                  "connect_certificate")
 """The TLS settings that name files; a relative one is read next to its config file (zenoh_config.make_config)."""
+
+
+INLINE_SUFFIX = "_base64"
+"""Zenoh 1.x reads each TLS file setting also inline: ``<name>_base64``, the file's bytes (PEM) in base64."""
+
+
+def inline_material(conf: dict, directory: Path) -> dict:
+    """``conf`` with every TLS file it names (a relative name: in ``directory``) put inline
+    (``root_ca_certificate`` -> ``root_ca_certificate_base64``, ...): the config then holds its certificates
+    and key itself, and plain Zenoh (``zenoh.Config.from_file``, ``zenohd -c``) loads it from any working
+    directory. It holds a private key: write it owner-only (:func:`_write_json` ``secret``)."""
+    tls = conf.get("transport", {}).get("link", {}).get("tls", {})
+    for name in TLS_FILE_KEYS:
+        value = tls.pop(name, None)
+        if value is not None:
+            path = Path(value) if os.path.isabs(value) else directory / value
+            tls[name + INLINE_SUFFIX] = base64.b64encode(path.read_bytes()).decode("ascii")
+    return conf
 
 
 def _file_namer(directory: Path | None):
@@ -130,10 +150,12 @@ def site_manifest(run: str, n_uavs: int, sites: Sequence[Site], site: Site) -> d
             "peer_routers": [s.router for s in sites if s is not site]}
 
 
-def write_configs(directory: Path, files: dict[str, dict]) -> None:
+def write_configs(directory: Path, files: dict[str, dict], *, inline: bool = False) -> None:
+    """Each config into ``directory``; ``inline``: with the TLS files it names (already there) inline,
+    owner-only (:func:`inline_material`)."""
     directory.mkdir(parents=True, exist_ok=True)
     for name, conf in files.items():
-        _write_json(directory / name, conf)
+        _write_json(directory / name, inline_material(conf, directory) if inline else conf, secret=inline)
 
 
 def tls_endpoint(endpoint: str) -> str:
@@ -167,6 +189,14 @@ def answers_tls(endpoint: str, timeout_s: float = 1.0) -> bool:
     return len(reply) == 2 and reply[0] == 0x15 and reply[1] == 0x03
 
 
-def _write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=1) + "\n")  # JSON is JSON5
+def _write_json(path: Path, data: dict, *, secret: bool = False) -> None:
+    """JSON (which is JSON5); ``secret``: owner-only (it holds a private key)."""
+    text = json.dumps(data, indent=1) + "\n"
+    if not secret:
+        path.write_text(text)
+        return
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.chmod(path, 0o600)  # an older file of that name kept its mode
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
 

@@ -75,7 +75,7 @@ from truav.bus.router import ROUTER_SIZE_SLACK_BYTES, open_router, router_size_f
 from truav.bus.scheduler import Scheduler
 from truav.bus.zenoh_config import (  # noqa: F401
     DEFAULT_ENDPOINT, DEFAULT_PEER_LISTEN, LEAN_ZENOH_RUNTIME, MODE_CLIENT, MODE_PEER, MODE_ROUTER, MODES,
-    ZENOH_RUNTIME_ENV, apply_creds, config_from_args, make_config, open_session)
+    ZENOH_RUNTIME_ENV, apply_creds, close_session, config_from_args, make_config, open_session)
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +125,9 @@ class Bus(Publishing, Receiving, Delivery, Liveliness, Queries):
         self._shed = 0  # messages refused or evicted so far (read without the lock by the pumps)
         self.rejections = Rejections(f"bus {self._identity}", logger=log)
         """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
+        self.on_refused: Callable[[str, schema.SchemaError], None] | None = None
+        """Called with (key, error) for every message this Bus refuses (after counting it): the world tells
+        the sender (truav.bus.rejection_notices). Keep it short: it runs on the receive path."""
         self.guard: Guard | None = None
         """Sender/range checks applied after the schema (:mod:`truav.bus.guard`); None: schema only."""
         self.accept_replay = True
@@ -195,7 +198,7 @@ class Bus(Publishing, Receiving, Delivery, Liveliness, Queries):
             except RuntimeError as exc:  # "Already borrowed": another thread is inside this publisher's put
                 log.debug("bus %s: publisher busy at close (%s); the session's close undeclares it",
                           self._identity, exc)
-        self._session.close()
+        close_session(self._session, f"bus {self._identity}")  # a timed-out close must not skip what follows
         self._sched.stop()
         # A pump still waiting inside Zenoh when the interpreter exits would be torn down mid-Rust-call
         # (a daemon thread re-taking the GIL during finalization): the process aborts ("FATAL: exception

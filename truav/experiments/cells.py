@@ -98,13 +98,13 @@ def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None 
     """Train then evaluate one cell in this process."""
     from truav.driver import run_episodes
     from truav.trainer import make_controller
-    from world.env import World
+    from truav.sumo_traffic import make_world
     cfg = cell.config(base)
     seeds = list(cell.seeds)
     cb = None if on_episode is None else (lambda e, m: on_episode(len(seeds)))
     t0 = time.perf_counter()
     controller = make_controller(cell.scheme, cfg, seeds, True, None)
-    world = World(cfg, len(seeds))
+    world = make_world(cfg, len(seeds))
     train = run_episodes(cfg, seeds, controller, cell.episodes, cb, world=world)
     t_train = time.perf_counter() - t0
     # Under "persist" the swarm and the city go on: every scheme is evaluated in

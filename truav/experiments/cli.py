@@ -24,7 +24,7 @@ from typing import Any
 from truav import runio
 from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from
-from truav.config import LearnerConfig
+from truav.config import MOBILITIES, LearnerConfig
 from truav.experiments import runner, scale, velocity
 from truav.experiments.cli_executor import (  # noqa: F401  (re-exported)
     RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
@@ -64,6 +64,9 @@ def _check_schemes(schemes) -> None:
 
 def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help: str) -> None:
     add_config_args(p)
+    p.add_argument("--mobility", choices=MOBILITIES,
+                   help="vehicle mobility: builtin (the grid's IDM) or sumo (SUMO traces, built and cached before "
+                        "the cells run; `truav traffic build`) (default: scenario.mobility, builtin)")
     p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
                    help=f"schemes to run (default: {' '.join(default_schemes)})")
     p.add_argument("--seeds", type=positive_int, help=f"number of seeds (default {FULL['seeds']})")
@@ -112,7 +115,11 @@ def add_experiment_parser(sub) -> None:
 def _setup(args, default_out: str, default_episodes: int | None):
     quick = args.quick
     # --quick only fills in what the user left out: an explicit flag, --config or --set wins.
-    cfg = config_from(args, base=QUICK_CONFIG if quick else None)
+    cfg = config_from(args, {"scenario": {"mobility": args.mobility}} if args.mobility else None,
+                      base=QUICK_CONFIG if quick else None)
+    if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
+        from truav import sumo_traffic
+        sumo_traffic.sumo_home()
 
     def pick(given, quick_value, full_value):
         return given if given is not None else (quick_value if quick else full_value)
@@ -143,6 +150,10 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
           f"on {where} -> {out}", flush=True)
     if not todo:
         return 0.0
+    if cfg.scenario.mobility == "sumo":  # each cell's trace built once here; the workers only load them
+        from truav import sumo_traffic
+        for cell in todo:  # cached after the first of a scenario
+            sumo_traffic.build_trace(cell.config(cfg), say=lambda line: print(line, flush=True))
     from tqdm import tqdm
     t0 = time.perf_counter()
     finished = [0]

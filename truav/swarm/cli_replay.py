@@ -53,6 +53,7 @@ def command_of(args: argparse.Namespace) -> tuple[str, dict]:
 
 
 def cmd_replay_ctl(args: argparse.Namespace) -> int:
+    """``truav-swarm replay-ctl`` (and ``truav log play-ctl``): one command, the status after it."""
     from recorder.replay_bus import ask_replay, status_line
     from truav.bus.transport import Bus, QueryRefused
 
@@ -65,19 +66,27 @@ def cmd_replay_ctl(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     args.run = args.run or DEFAULT_RUN
-    with Bus(CTL_IDENTITY, args.run, config_from_args(args)) as bus:
+    try:
+        bus = Bus(CTL_IDENTITY, args.run, config_from_args(args))
+    except Exception as exc:  # zenoh.ZError: no router there (the endpoint's form was checked before)
+        from recorder.process import short_error
+        print(f"{args.ctl_prog}: error: cannot open a session: {short_error(exc)}", file=sys.stderr)
+        return 1
+    with bus:
         try:
             status = ask_replay(bus, args.run, command, cargs, timeout=args.timeout)
         except QueryRefused as exc:
-            print(f"truav-swarm replay-ctl: {command}: {exc}", file=sys.stderr)
+            print(f"{args.ctl_prog}: {command}: {exc}", file=sys.stderr)
             return 1
     print(status_line(status))
     return 0
 
 
-def add_replay_ctl(subparsers) -> None:
+def add_replay_ctl(subparsers, name: str = "replay-ctl", prog: str = "truav-swarm replay-ctl",
+                   help: str = "alias of `truav log play-ctl`") -> argparse.ArgumentParser:
+    """``replay-ctl`` of ``truav-swarm``, or ``play-ctl`` of ``truav log`` (the same parser and command)."""
     ctl = subparsers.add_parser(
-        "replay-ctl", help="steer a running replay (seek, rate, pause, step by tick...) and print its status",
+        name, help=help,
         description="Send one command to the replay publishing into --run (over its queryable "
                     "truav/<run>/replay/ctl) and print its status after it. Seek takes seconds from the "
                     "recording's first message, a world tick, or seconds back (negative) or forward; after a "
@@ -106,4 +115,5 @@ def add_replay_ctl(subparsers) -> None:
     where.add_argument("--tick", type=non_negative_int, metavar="K", help="the start of world tick K")
     where.add_argument("--time", type=non_negative_float, metavar="S", help="S seconds from the recording's first message")
     where.add_argument("--by", type=finite, metavar="S", help="S seconds forward (negative: back) from where it is")
-    ctl.set_defaults(func=cmd_replay_ctl)
+    ctl.set_defaults(func=cmd_replay_ctl, ctl_prog=prog)
+    return ctl

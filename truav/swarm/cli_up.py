@@ -13,6 +13,7 @@ import re
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_out_dir, check_out_file
 from truav.cli_config import UsageError, parse_sets
+from truav.config import MOBILITIES
 from agents.agent_process import AgentOptions
 from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
@@ -25,6 +26,9 @@ from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, ad
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.supervisor import SwarmOptions
+from recorder.record_modes import RecordModes
+from truav.cli_args import options_from
+from truav.errors import UserError
 from world.world_process import WorldOptions
 
 MAX_AGENTS = 50
@@ -38,7 +42,9 @@ agents keep up hosted 10 per process with --share-beacons."""
 def swarm_options(args):
     """The scenario and options of `up`/`chaos`, every flag and file checked: nothing has started yet."""
     sets = parse_sets(args.set).get("scenario", {})
-    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps)):
+    mobility = getattr(args, "mobility", None)  # `up` only
+    for flag, key, value in (("--agents", "n_uavs", args.agents), ("--steps", "steps_per_episode", args.steps),
+                             ("--mobility", "mobility", mobility)):
         if value is not None and key in sets and sets[key] != value:
             raise UsageError(f"{flag} {value} contradicts --set scenario.{key}={sets[key]}; give one of them")
     cfg = scenario_from(args)
@@ -46,6 +52,11 @@ def swarm_options(args):
         cfg = cfg.replace(scenario={"n_uavs": args.agents})
     if args.steps is not None:
         cfg = cfg.replace(scenario={"steps_per_episode": args.steps})
+    if mobility is not None:
+        cfg = cfg.replace(scenario={"mobility": mobility})
+    if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
+        from truav import sumo_traffic
+        sumo_traffic.sumo_home()
     n = cfg.scenario.n_uavs
     external = tuple(getattr(args, "external", None) or ())  # `up` only: chaos runs the swarm twice
     processes = -(-n // args.agents_per_process)
@@ -115,6 +126,10 @@ def swarm_options(args):
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
+    if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
+        path, _ = sumo_traffic.build_trace(cfg, say=lambda line: None if args.quiet else print(line, flush=True))
+        if not args.quiet:
+            print(f"SUMO traffic: {path}", flush=True)
     return cfg, opts
 
 
@@ -178,7 +193,22 @@ def cmd_chaos(args) -> int:
 
 def cmd_up(args) -> int:
     cfg, opts = swarm_options(args)
+    opts.record_modes = record_modes(args)
     return supervisor.run_swarm(cfg, opts)
+
+
+def record_modes(args) -> RecordModes:
+    """`up`'s split or snapshot flags (declared in RecordModes), checked; they need --record."""
+    modes = options_from(RecordModes, args)
+    if modes != RecordModes() and args.record is None:
+        given = next(f for f in ("--split-size", "--split-duration", "--split-on-command", "--snapshot",
+                                 "--snapshot-max-mb") if getattr(args, f.lstrip("-").replace("-", "_")) not in
+                     (None, False, RecordModes.snapshot_max_mb))
+        raise UsageError(f"{given}: lays out the recording's files; give --record FILE too")
+    try:
+        return modes.validate()
+    except UserError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def add_up_args(up: argparse.ArgumentParser) -> None:
@@ -192,6 +222,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help=f"start more than {MAX_AGENTS} agent processes (not real time on a 2-core machine)")
     up.add_argument("--episodes", type=positive_int, default=2, help="episodes before the swarm stops (default 2)")
     up.add_argument("--steps", type=positive_int, help="steps per episode (default scenario.steps_per_episode, 100)")
+    up.add_argument("--mobility", choices=MOBILITIES,
+                    help="vehicle mobility: builtin (the grid's IDM) or sumo (the world replays a SUMO trace, built "
+                         "and cached first; `truav traffic build`) (default: scenario.mobility, builtin)")
     add_lockstep_args(up, "the world waits for every live agent each tick")
     up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
@@ -258,6 +291,8 @@ def add_up_commands(sub) -> None:
     up.add_argument("--external-wait", type=positive_float, metavar="S",
                     help=f"seconds to wait for the --external UAVs to join before the run fails "
                          f"(default {DEFAULT_EXTERNAL_WAIT_S:g})")
+    add_options(up.add_argument_group("recording in parts or snapshots (with --record; recorder/record_modes.py)"),
+                RecordModes)
     up.set_defaults(func=cmd_up)
 
     ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "

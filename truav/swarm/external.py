@@ -29,7 +29,7 @@ from pathlib import Path
 
 from truav.bus import keys
 from truav.bus.acl import file_stem
-from truav.errors import UserError as UsageError  # a user mistake: one line, exit 2 (as truav/swarm/checks.py)
+from truav.errors import UserError  # a user mistake: one line, exit 2 (as truav/swarm/checks.py)
 
 DEFAULT_EXTERNAL_WAIT_S = 300.0
 """How long `up` waits for an external UAV's liveliness token before tick 0: time to read the printed
@@ -46,17 +46,17 @@ def check_external(ids: tuple[int, ...], n_uavs: int, args, plan) -> None:
     flag = f"--external {','.join(map(str, ids))}"
     outside = [i for i in ids if i >= n_uavs]
     if outside:
-        raise UsageError(f"{flag}: UAV id(s) {', '.join(map(str, outside))} outside [0, {n_uavs}) "
+        raise UserError(f"{flag}: UAV id(s) {', '.join(map(str, outside))} outside [0, {n_uavs}) "
                          f"(--agents / scenario.n_uavs is {n_uavs})")
     if args.scheme != "truav":
-        raise UsageError(f"{flag}: only --scheme truav leaves a UAV to an outside agent (this is --scheme "
+        raise UserError(f"{flag}: only --scheme truav leaves a UAV to an outside agent (this is --scheme "
                          f"{args.scheme})")
     if args.batch_beacons:
-        raise UsageError(f"{flag}: --batch-beacons sends a process's beacons under its range of consecutive UAV "
+        raise UserError(f"{flag}: --batch-beacons sends a process's beacons under its range of consecutive UAV "
                          f"ids; drop --batch-beacons")
     for f in (plan.faults if plan is not None else ()):
         if f.kind in ("crash", "freeze") and f.params.get("uav") in ids:
-            raise UsageError(f"{flag}: the fault plan {args.fault_plan} {'crashes' if f.kind == 'crash' else 'freezes'} "
+            raise UserError(f"{flag}: the fault plan {args.fault_plan} {'crashes' if f.kind == 'crash' else 'freezes'} "
                              f"uav {f.params['uav']}, whose agent is not a process of this swarm; drop that fault or "
                              f"that UAV from --external")
 
@@ -95,8 +95,8 @@ def instructions(ids: tuple[int, ...], run: str, endpoint: str, out: Path, *, lo
                      f"(from {Path.cwd()}):")
         lines.append("  command: " + shlex.join(agent_command(i, run, endpoint, lockstep=lockstep, creds=creds)))
         lines.append(f"  endpoint: {endpoint}" + ("" if creds is None else
-                     f"; credentials: {_shown(creds)} (identity {keys.uav_identity(i)}: certificate uav-{i}.pem, "
-                     f"key uav-{i}.key, CA ca.pem, beside it)"))
+                     f"; credentials: {_shown(creds)} (identity {keys.uav_identity(i)}: a zenoh config holding its "
+                     f"certificate, key and the CA inline; plain zenoh loads it from any directory)"))
         lines.append(f"  tick 0 waits for its liveliness token {keys.alive_uav(run, i)} (at most --external-wait "
                      f"{wait_s:g} s){'; lock-step' if lockstep else ''}; protocol: docs/protocol.md")
     return lines

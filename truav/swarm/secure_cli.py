@@ -101,7 +101,7 @@ def cmd_deploy_configs(args) -> int:
     except (ValueError, OSError) as exc:
         raise UsageError(str(exc)) from None
     print(f"zenoh configs of {len(configs)} hosts in {out}/<host>/ (no keys; `truav-swarm certs --deployment "
-          f"{args.deployment}` writes the same files next to the keys)")
+          f"{args.deployment}` writes the same with the keys, and each config with its files inline)")
     return 0
 
 

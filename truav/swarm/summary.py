@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recorder.record_modes import parts_index_path, snapshot_path
 from truav.bus import keys
 from truav.config import Config
 from truav.swarm import external
@@ -146,7 +147,7 @@ class SwarmEnd:
                                        episodes_done=len((world or {}).get("episodes") or []) if world else None)
                 print(f"picture: {picture}")
             if opts.record:
-                print(f"recording: {opts.record}")
+                print(f"recording: {recording_files(opts)}")
         for r in o.restarts:
             print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
                   f"{r['cause']}; restart {r['number']})")
@@ -320,3 +321,13 @@ def _read_json(path: Path):
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+
+
+def recording_files(opts) -> str:
+    """Where `up --record` wrote: the file, or its parts' index, or its snapshots' pattern."""
+    modes = opts.record_modes
+    if modes.split:
+        return f"parts listed in {parts_index_path(Path(opts.record))}"
+    if modes.snapshot is not None:
+        return f"snapshots {snapshot_path(Path(opts.record), 1)} ... (none if nothing triggered one)"
+    return str(opts.record)

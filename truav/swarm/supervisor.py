@@ -223,6 +223,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         if opts.record:
             self.children.start("recorder", recorder_argv(
                 opts.run, opts.record, [ep], config_toml=scenario, force=opts.force, geo_origin=opts.geo_origin,
+                modes=opts.record_modes,
                 extra=[*self.creds_args, *(["-v"] if opts.verbose else [])]))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,

@@ -13,6 +13,7 @@ from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
+from recorder.record_modes import RecordModes
 from world.world_process import WorldOptions
 
 DOWN_IDENTITY = "supervisor"
@@ -51,6 +52,8 @@ class SwarmOptions:
     """Lock-step: how long world and agents wait for a live process before the run gives up exactness."""
     rate_hz: float = WorldOptions.rate_hz
     record: str | None = None
+    record_modes: RecordModes = field(default_factory=RecordModes)
+    """With ``record``: one file, parts (split by size, time, command) or snapshots (recorder.record_modes)."""
     qtable: str | None = None
     greedy: bool = False
     out: str | None = None

@@ -1,0 +1,57 @@
+"""``truav log record-ctl split|pause|resume|snapshot --run RUN``: command a running recorder over the bus.
+
+Publishes a ``Control`` message with that command on ``truav/<run>/control/recorder`` as the
+``supervisor`` identity (under ``--secure`` the router lets only that identity put there:
+``--creds DIR`` takes its certificate).  Exit 0 once sent to a listening recorder; 1 when no
+recorder of the run listens within the wait; 2 for a user mistake.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from truav import cli_args
+
+__all__ = ["add_record_ctl_parser", "cmd_record_ctl", "RECORDER_COMMANDS"]
+
+RECORDER_COMMANDS = ("split", "pause", "resume", "snapshot")  # recorder.process CMD_* (stop: `truav-swarm down`)
+CONTROL_IDENTITY = "supervisor"
+LISTENER_WAIT_S = 5.0
+HELP = "send split, pause, resume or snapshot to a running recorder (over the bus)"
+
+
+def add_record_ctl_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "record-ctl", help=HELP,
+        description="Send a command to the recorder of a running swarm on truav/<run>/control/recorder: split "
+                    "(start the next part; recording in parts), pause (write nothing until resume; the file notes "
+                    "it so the gap is not taken for a loss), resume, snapshot (snapshot mode: write the kept "
+                    "seconds and those after). Sent as the supervisor identity (--creds under --secure).")
+    p.add_argument("command", choices=RECORDER_COMMANDS, help="what the recorder should do")
+    p.add_argument("--run", type=cli_args.run_name, default="demo", help="run name (default demo)")
+    p.add_argument("--wait", type=cli_args.positive_float, default=LISTENER_WAIT_S, metavar="S",
+                   help=f"how long to wait for the recorder to be listening (default {LISTENER_WAIT_S:g})")
+    cli_args.add_transport_args(p)
+    p.set_defaults(func=cmd_record_ctl)
+    return p
+
+
+def cmd_record_ctl(args: argparse.Namespace) -> int:
+    from truav.bus import keys, schema, transport
+    from recorder.process import CONTROL_PART
+
+    try:
+        transport.apply_creds(args, CONTROL_IDENTITY)
+    except ValueError as exc:
+        raise cli_args.UserError(f"--creds: {exc}") from None
+    with transport.Bus(CONTROL_IDENTITY, args.run, transport.config_from_args(args)) as bus:
+        key = keys.control(args.run, CONTROL_PART)
+        if not bus.await_subscribers(key, args.wait):
+            print(f"truav log record-ctl: error: no recorder of run {args.run} listens on {key} "
+                  f"(waited {args.wait:g} s)", file=sys.stderr)
+            return 1
+        bus.publish(key, schema.Control(command=args.command, args={}))
+    print(f"sent {args.command} to the recorder of run {args.run}")
+    return 0
