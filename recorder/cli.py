@@ -38,20 +38,13 @@ from typing import Any, Callable
 
 from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
+from recorder.log_copy import damage_errors, not_mcap_reason
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_PROBLEMS = 1
 """`truav log check`: the recording is unfinished, damaged or has sequence anomalies (like diff/grep, 1 = found)."""
 
-
-def damage_errors() -> tuple[type[BaseException], ...]:
-    """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
-    import struct
-
-    import zstandard
-    from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
 
 Command = Callable[[argparse.Namespace], int]
 
@@ -63,21 +56,7 @@ def _fail(prog: str, message: str, code: int = EXIT_USAGE) -> int:
 
 def _mcap_file(path: str) -> str | None:
     """An error message when ``path`` is not a readable MCAP file, else None."""
-    from recorder.reader import probe
-
-    p = Path(path)
-    if not p.exists():
-        return f"{path}: no such file"
-    if not p.is_file():
-        return f"{path}: not a file"
-    try:
-        with open(p, "rb") as f:
-            probe(f)
-    except ValueError as exc:
-        return f"{path}: {exc}"
-    except OSError as exc:
-        return f"{path}: {exc.strerror or exc}"
-    return None
+    return not_mcap_reason(path)
 
 
 # --- truav log recover / check, truav report --------------------------------------------------
