@@ -78,6 +78,8 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.view",                PROCESS),
     ("truav.swarm.monitor",             PROCESS),
     ("truav.swarm.fault_control",       PROCESS),
+    ("world.world_messages",            WIRE),       # the world's observation messages, from the model
+    ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
     ("world.*",                         MODEL),
     ("agents.*",                        MODEL),
@@ -109,6 +111,8 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.recover",                ANALYSIS),
     ("recorder.report",                 ANALYSIS),
     ("recorder.metadata",               ANALYSIS),
+    ("recorder.resim",                  ANALYSIS),
+    ("recorder.resim_*",                ANALYSIS),
     ("recorder.schemas",                ANALYSIS),
     ("recorder.foxglove",               ANALYSIS),
     ("truav.experiments.cells",         ANALYSIS),

@@ -38,6 +38,7 @@ from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.bus.rejections import rejection_metrics
 from world.env import World
+from world.world_messages import observation_messages
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 from world.uavs import HOVER
 
@@ -131,17 +132,8 @@ def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick:
         tick=tick, episode=episode, sim_time=tick * sc.step_s,
         deadline_ms=opts.lockstep_wait_s * 1e3 if lockstep else opts.deadline_frac * period_ms,
         n_uavs=n_uavs))
-    # Every column converted once (tolist: the same Python ints and floats as int()/float() per element), and
-    # the keys made once per run: at 100 UAVs the per-element numpy reads were most of a round's cost.
-    pos, in_range, queued = obs.pos[0].tolist(), obs.vehicles_in_range[0].tolist(), obs.queued[0].tolist()
-    relayed, covered, energy = obs.relayed[0].tolist(), obs.covered[0].tolist(), obs.energy_j[0].tolist()
-    densest = obs.densest_sector[0].tolist()
-    for i, key in enumerate(_obs_keys(run, n_uavs)):
-        bus.publish(key, schema.Obs(
-            tick=tick, episode=episode, uav=i, pos=(float(pos[i][0]), float(pos[i][1])),
-            vehicles_in_range=int(in_range[i]), queued_packets=int(queued[i]), relayed=int(relayed[i]),
-            covered=int(covered[i]), energy_j=float(energy[i]), speed_max=sc.uav_speed_mps, done=done,
-            densest_sector=int(densest[i])))
+    for key, msg in zip(_obs_keys(run, n_uavs), observation_messages(cfg, tick, episode, obs, done)):
+        bus.publish(key, msg)
     if tick % POSITIONS_EVERY_TICKS == 0:
         vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
         bus.publish(keys.world_positions(run), schema.Positions(

@@ -92,6 +92,15 @@ class _Interrupts:
         raise KeyboardInterrupt
 
 
+def run_info(opts: SwarmOptions) -> dict:
+    """How this run is started beyond its config, for the recording (recorder.metadata.RUN_METADATA): what the
+    re-simulation of a lock-step recording needs to re-run it (`truav log resim`)."""
+    return {"seed": opts.seed, "lockstep": opts.lockstep, "scheme": opts.scheme, "episodes": opts.episodes,
+            "qtable": str(Path(opts.qtable).resolve()) if opts.qtable else None, "qtable_index": 0,
+            "greedy": opts.greedy, "resume": opts.resume, "external": list(opts.external),
+            "fault_plan": str(Path(opts.fault_plan).resolve()) if opts.fault_plan else None}
+
+
 def _python_module(*args: str) -> list[str]:
     return [sys.executable, "-m", *args]
 
@@ -223,7 +232,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         if opts.record:
             self.children.start("recorder", recorder_argv(
                 opts.run, opts.record, [ep], config_toml=scenario, force=opts.force, geo_origin=opts.geo_origin,
-                extra=[*self.creds_args, *(["-v"] if opts.verbose else [])]))
+                extra=[*self.creds_args, *(["-v"] if opts.verbose else [])], run_info=run_info(opts)))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
