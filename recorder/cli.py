@@ -7,6 +7,7 @@
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
+      truav log resim FILE [--from TICK --qtable RUN --greedy --set K=V]  # re-run a lock-step run, check it
 
   and ``truav report``, an alias of ``truav log report``;
 * :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
@@ -31,6 +32,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
+from recorder.cli_resim import add_resim_parser, cmd_resim
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -349,6 +351,7 @@ def add_log_commands(subparsers: Any) -> None:
     add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
     add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)
     add_report_parser(log_sub, REPORT_HELP).set_defaults(func=cmd_report)
+    add_resim_parser(log_sub).set_defaults(func=cmd_resim)
 
     rec = log_sub.add_parser(
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",

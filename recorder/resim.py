@@ -26,7 +26,8 @@ from agents.agent_decision import TruavDecision, peer_arrays
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder
-from recorder.metadata import read_config_toml, read_run_info
+from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_info
+from recorder.reader import read_metadata
 from truav import seeding
 from truav.bus import schema
 from truav.config import Config, ConfigError, config_from_dict
@@ -43,6 +44,8 @@ class RecordedRun:
     """What a lock-step recording says about how to re-run it."""
 
     cfg: Config
+    run: str
+    """The run's name (its keys are under truav/<run>/)."""
     seed: int
     episodes: int
     greedy: bool
@@ -77,7 +80,10 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
         seed, episodes = int(info["seed"]), int(info["episodes"])
     except (tomllib.TOMLDecodeError, ConfigError, KeyError, TypeError, ValueError) as exc:
         raise UserError(f"{name}: its recorded run config or settings are unreadable ({exc})") from None
-    return RecordedRun(cfg=cfg, seed=seed, episodes=episodes, greedy=bool(info.get("greedy")),
+    run = read_metadata(path).get(RECORDING_METADATA, {}).get("run")
+    if not run:
+        raise UserError(f"{name}: not a TRUAV recording: it names no run")
+    return RecordedRun(cfg=cfg, run=run, seed=seed, episodes=episodes, greedy=bool(info.get("greedy")),
                        qtable=info.get("qtable") or None, qtable_index=int(info.get("qtable_index") or 0), info=info)
 
 

@@ -80,7 +80,7 @@ class Verification:
             lines += [f"  then: {d.format()}" for d in self.divergences[1:5]]
             if self.divergent_messages > 5:
                 lines.append(f"  ... {self.divergent_messages - 5} more divergent message(s)")
-        extra = [f"{n} {what}" for n, what in ((self.leftover, "recorded message(s) of ticks never re-simulated"),
+        extra = [f"{n} {what}" for n, what in ((self.leftover, "recorded message(s) never compared (of ticks not re-simulated, or late)"),
                                                (self.undecodable, "undecodable recorded message(s)"),
                                                (self.duplicates, "duplicate recorded message(s), first compared"))
                  if n]
@@ -95,20 +95,21 @@ class Verification:
 class RecordedTicks:
     """The recording's observations, beacons and actions of run ``run``, handed out per tick in order."""
 
-    def __init__(self, path: str | os.PathLike[str], run: str, result: Verification):
+    def __init__(self, path: str | os.PathLike[str], run: str, result: Verification, from_tick: int = 0):
         prefix = keys.prefix(run)
         self._messages = iter_messages(path, include=[f"{prefix}/uav/*", f"{prefix}/group/*"])
         self._pending: dict[int, dict[Slot, tuple[str, Any]]] = defaultdict(dict)
         self._newest = -1
         self._done = False
-        self._taken = -1
+        self._from = from_tick  # earlier ticks are not wanted (a branch compares from its tick on)
         self._result = result
 
     def take(self, tick: int) -> dict[Slot, tuple[str, Any]]:
         """{(kind, uav): (key, message)} recorded for ``tick``."""
         while not self._done and self._newest < tick + LOOKAHEAD_TICKS:
             self._read_one()
-        self._taken = max(self._taken, tick)
+        for late in [t for t in self._pending if t < tick]:  # arrived after its tick was compared: never compared
+            self._result.leftover += len(self._pending.pop(late))
         return self._pending.pop(tick, {})
 
     def ended_before(self, tick: int) -> bool:
@@ -121,7 +122,7 @@ class RecordedTicks:
         """Recorded messages not taken: drains the rest of the file."""
         while not self._done:
             self._read_one()
-        return sum(len(slots) for slots in self._pending.values())
+        return self._result.leftover + sum(len(slots) for slots in self._pending.values())
 
     def _read_one(self) -> None:
         try:
@@ -142,6 +143,8 @@ class RecordedTicks:
 
     def _keep(self, key: str, msg: Any) -> None:
         self._newest = max(self._newest, msg.tick)
+        if msg.tick < self._from:
+            return
         slots = self._pending[msg.tick]
         slot = (msg.KIND, msg.uav)
         if slot in slots:
