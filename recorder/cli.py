@@ -342,11 +342,12 @@ def cmd_log_play(args: argparse.Namespace) -> int:
 
 # --- the command groups ---------------------------------------------------------------------------
 def add_log_commands(subparsers: Any) -> None:
-    """Add ``log record|play|report|check|recover`` to the ``truav`` CLI, and ``report``, an alias of
+    """Add ``log record|play|report|check|recover|resim`` to the ``truav`` CLI, and ``report``, an alias of
     ``log report``."""
-    log = subparsers.add_parser("log", help="record, play, report on, check and repair MCAP recordings of swarm runs",
-                                description="Record, play, report on, check and repair MCAP recordings made by "
-                                            "the TRUAV recorder.")
+    log = subparsers.add_parser("log", help="record, play, report on, check, repair and re-simulate MCAP recordings "
+                                            "of swarm runs",
+                                description="Record, play, report on, check, repair and re-simulate MCAP recordings "
+                                            "made by the TRUAV recorder.")
     log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
     add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)

@@ -26,7 +26,7 @@ from truav.swarm.cli import build_parser as swarm_parser
 from truav.swarm.cli import main as swarm_main
 
 REPO = Path(__file__).resolve().parents[1]
-LOG_ACTIONS = ("record", "play", "report", "check", "recover")
+LOG_ACTIONS = ("record", "play", "report", "check", "recover", "resim")
 ALIASES = {  # (program, alias) -> the truav log action it names
     ("truav", "report"): "report",
     ("truav-swarm", "record"): "record",
