@@ -62,8 +62,8 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
     toml_text = read_config_toml(path)
     info = read_run_info(path)
     if toml_text is None or info is None:
-        missing = "its run config" if toml_text is None else "its run settings (seed, lock-step)"
-        raise UserError(f"{name}: not a lock-step TRUAV run recording: it holds no {missing} (record with "
+        missing = "run config" if toml_text is None else "run settings (seed, lock-step)"
+        raise UserError(f"{name}: not a lock-step TRUAV run recording: it holds no {missing} (record one with "
                         f"`truav-swarm up --lockstep --record FILE`)")
     if not info.get("lockstep"):
         raise UserError(f"{name}: a real-time run (not --lockstep): its timing decided which actions and beacons "

@@ -133,8 +133,13 @@ def run_branch(path: str | os.PathLike[str], run: str, rec: RecordedRun, sim: Re
         result.changes.append("greedy, not learning")
     recorded = RecordedTicks(path, run, result.after, from_tick=from_tick)
     for rnd in sim.rounds():
-        divergent = compare_round(rnd, recorded.take(rnd.tick), run, result.after)
-        result.after.ticks += 1
+        divergent = 0
+        if not result.after.recording_ended:  # past a stopped run's recording there is nothing to compare
+            messages = recorded.take(rnd.tick)
+            last = recorded.ended_before(rnd.tick + 1)
+            divergent = compare_round(rnd, messages, run, result.after, last)
+            result.after.ticks += 1
+            result.after.recording_ended = last and sim.episode < sim.episodes
         collect(rnd, divergent)
     result.after.leftover = recorded.leftover()
     result.branch = summaries

@@ -59,6 +59,8 @@ class Verification:
     undecodable: int = 0
     leftover: int = 0
     """Recorded messages of ticks the re-simulation never reached (or arriving after their tick was checked)."""
+    cut_short: int = 0
+    """Messages of the recording's last tick it does not hold (a run stopped amid a tick): not compared."""
     recording_ended: bool = False
     """The recording ended before the run's last tick (its run was stopped early): checked up to there."""
 
@@ -82,7 +84,9 @@ class Verification:
                 lines.append(f"  ... {self.divergent_messages - 5} more divergent message(s)")
         extra = [f"{n} {what}" for n, what in ((self.leftover, "recorded message(s) never compared (of ticks not re-simulated, or late)"),
                                                (self.undecodable, "undecodable recorded message(s)"),
-                                               (self.duplicates, "duplicate recorded message(s), first compared"))
+                                               (self.duplicates, "duplicate recorded message(s), first compared"),
+                                               (self.cut_short, "message(s) of the last recorded tick not recorded "
+                                                                "(the run stopped amid it), not compared"))
                  if n]
         if extra:
             lines.append("also: " + "; ".join(extra))
@@ -180,14 +184,20 @@ def _key_of(run: str, kind: str, uav: int) -> str:
             schema.KIND_ACTION: keys.uav_action}[kind](run, uav)
 
 
-def compare_round(rnd: Round, recorded: dict[Slot, tuple[str, Any]], run: str, result: Verification) -> int:
-    """Compare one re-simulated tick with its recorded messages; the number of divergent messages."""
+def compare_round(rnd: Round, recorded: dict[Slot, tuple[str, Any]], run: str, result: Verification,
+                  last: bool = False) -> int:
+    """Compare one re-simulated tick with its recorded messages; the number of divergent messages. ``last``: the
+    recording's last tick, which a stopped run may have cut short: what it lacks is not compared."""
     divergent = 0
     simulated = [*rnd.obs, *rnd.beacons, *rnd.actions]
     for msg in simulated:
         slot = (msg.KIND, msg.uav)
         result.compared[msg.KIND] += 1
         got = recorded.pop(slot, None)
+        if got is None and last:
+            result.compared[msg.KIND] -= 1
+            result.cut_short += 1
+            continue
         if got is None:
             found = [Divergence(rnd.tick, _key_of(run, *slot), "(message)", "not recorded", "sent")]
         else:
@@ -222,11 +232,16 @@ def verify(path: str | os.PathLike[str], run: str, sim: Resimulation, until_tick
             result.recording_ended = True
             break
         rnd = sim.step()
-        divergent = compare_round(rnd, recorded.take(rnd.tick), run, result)
+        messages = recorded.take(rnd.tick)
+        last = recorded.ended_before(rnd.tick + 1)
+        divergent = compare_round(rnd, messages, run, result, last)
         result.ticks += 1
         if on_round is not None:
             on_round(rnd, divergent)
         if divergent and stop_at_first:
+            break
+        if last and sim.episode < sim.episodes:  # the run was stopped here
+            result.recording_ended = True
             break
     if until_tick is None and not (stop_at_first and result.divergent_messages):
         result.leftover = recorded.leftover()

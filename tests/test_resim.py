@@ -44,10 +44,10 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def rewrite(src: Path, dst: Path, payload: Callable[[str, bytes], bytes] = lambda _k, d: d,
+def rewrite(src: Path, dst: Path, payload: Callable[[str, bytes], bytes | None] = lambda _k, d: d,
             metadata: Callable[[str, dict], dict | None] = lambda _n, m: m) -> Path:
     """A copy of ``src`` with every message's payload through ``payload(topic, data)`` and every metadata record
-    through ``metadata(name, map)`` (None drops it)."""
+    through ``metadata(name, map)`` (None drops either)."""
     with open(src, "rb") as f, open(dst, "wb") as g:
         reader = make_reader(f)
         writer = Writer(g)
@@ -64,8 +64,10 @@ def rewrite(src: Path, dst: Path, payload: Callable[[str, bytes], bytes] = lambd
             if channel.id not in channels:
                 channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
                                                                schemas.get(channel.schema_id, 0), channel.metadata)
-            writer.add_message(channels[channel.id], message.log_time, payload(channel.topic, message.data),
-                               message.publish_time, message.sequence)
+            data = payload(channel.topic, message.data)
+            if data is not None:  # None: the message is left out
+                writer.add_message(channels[channel.id], message.log_time, data, message.publish_time,
+                                   message.sequence)
         writer.finish()
     return dst
 
@@ -172,3 +174,22 @@ def test_recordings_and_flags_it_cannot_use_are_one_line_errors(recording: Path,
         assert code == 2, (argv, out, err)
         lines = err.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0] and "Traceback" not in err, (argv, err)
+
+
+def test_a_run_stopped_amid_a_tick_is_checked_up_to_its_end(recording: Path, tmp_path: Path, capsys) -> None:
+    """A lock-step run stopped early (`truav-swarm down`) leaves a recording that ends amid a tick: what it
+    holds is checked, what it lacks of that tick is not a divergence, and the summary says where it ends."""
+    cut_tick = 7
+    obs_of_cut = keys.uav_obs(RUN, 3)
+
+    def cut(topic: str, data: bytes) -> bytes | None:
+        if not topic.startswith(f"{keys.prefix(RUN)}/uav/"):  # the bus keys (not the mirrors for Foxglove)
+            return data
+        tick = msgpack.unpackb(data, raw=False).get("tick", 0)
+        return None if tick > cut_tick or (tick == cut_tick and topic >= obs_of_cut) else data
+
+    stopped = rewrite(recording, tmp_path / "stopped.mcap", cut)
+    code, out, err = resim(capsys, stopped)
+    assert code == 0, out + err
+    assert f"the recording ends after tick {cut_tick}" in out
+    assert "of the last recorded tick not recorded" in out
