@@ -38,8 +38,8 @@ def add_resim_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="branch: which seed's tables of --qtable (default 0)")
     p.add_argument("--greedy", action="store_true", help="branch: act greedily and learn nothing from TICK on")
     p.add_argument("--set", action="append", default=[], metavar="learner.KEY=VALUE",
-                   help="branch: change a learner setting from TICK on (rates, exploration, reward weights, "
-                        "geofence; repeatable)")
+                   help="branch: change a learner setting from TICK on (rates, reward weights, geofence; the "
+                        "exploration schedule from the next episode; repeatable)")
     p.add_argument("--out", metavar="DIR", help="branch: where whatif.csv and whatif.png go (default: "
                                                 "<FILE stem>_whatif next to FILE)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -17,6 +17,7 @@ What a recording must hold (else :func:`load_run` raises UserError: one line, ex
 from __future__ import annotations
 
 import os
+import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -35,8 +36,6 @@ from truav.errors import UserError
 from truav.runio import read_qtables
 from world.env import World
 from world.world_messages import observation_messages
-
-import tomllib
 
 
 @dataclass(frozen=True)
@@ -182,8 +181,9 @@ class Resimulation:
             agent.learners.epsilon = 0.0
 
     def set_learner(self, cfg: Config) -> None:
-        """Use ``cfg``'s learner settings (rates, exploration schedule, reward weights, geofence) from now on;
-        the state encoding stays (recorder.resim_branch refuses settings that change it)."""
+        """Use ``cfg``'s learner settings (rates, reward weights, geofence) from now on, its exploration schedule
+        from the next episode (an episode's exploration is drawn at its start); the state encoding stays
+        (recorder.resim_branch refuses settings that change it)."""
         self.cfg = cfg
         for agent in self.agents:
             agent.cfg = cfg
