@@ -43,6 +43,8 @@ class TruavDecision:
         self.action = 0
         self.velocity = (0.0, 0.0)
         self._encoded = np.zeros((1, 1), np.int64)  # the state as the encoder returned it (act's input)
+        self.touched: set[int] = set()
+        """Q-table rows updated so far: a snapshot (agents.decision_state) carries only these."""
 
     def beacon(self, obs: schema.Obs) -> schema.Beacon:
         """This UAV's beacon for the tick of ``obs`` (its velocity: that of its last action)."""
@@ -65,6 +67,7 @@ class TruavDecision:
             r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
                             np.array([[obs.energy_j]]), overlap)
             if self.train:
+                self.touched.add(self.state)
                 self.learners.update(np.array([[self.state]]), np.array([[self.action]]), r, state, False)
             self.t += 1
         self.state, self._encoded = int(state[0, 0]), state

@@ -24,6 +24,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from agents.agent_decision import TruavDecision, peer_arrays
+from agents.decision_state import decision_state, restore_decision
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder
@@ -36,6 +37,7 @@ from truav.errors import UserError
 from truav.runio import read_qtables
 from world.env import World
 from world.world_messages import observation_messages
+from world.world_state import restore_world, world_state
 
 
 @dataclass(frozen=True)
@@ -166,6 +168,25 @@ class Resimulation:
             chosen = np.array([[a.action for a in actions]], np.int64)
             self._obs, _, self._done = self.world.step(chosen)
         return Round(tick, episode, done, obs, beacons, actions, summary)
+
+    # -- snapshots ----------------------------------------------------------------------------------------
+    def snapshot(self) -> tuple[int, dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
+        """The state before the next tick, as a lock-step run's snapshot holds it: (tick, the world's state,
+        each agent's state)."""
+        return self.tick, world_state(self.world, self._obs), [decision_state(a) for a in self.agents]
+
+    def restore(self, tick: int, world: dict[str, np.ndarray], agents: list[dict[str, np.ndarray]]) -> None:
+        """Continue from a snapshot (see :meth:`snapshot`) of this run: the agents' learners must hold the
+        tables the run started with (only the rows they updated are in a snapshot). ValueError when the
+        snapshot does not fit this run."""
+        if len(agents) != len(self.agents):
+            raise ValueError(f"a snapshot of {len(agents)} agent(s), the run has {len(self.agents)}")
+        self.world, self._obs = restore_world(self.cfg, world)
+        self.episode = self.world.episode
+        self._done = self.world.t >= self.cfg.scenario.steps_per_episode
+        for agent, state in zip(self.agents, agents):
+            restore_decision(agent, state)
+        self.tick = tick
 
     # -- what a branch changes ------------------------------------------------------------------------
     def set_tables(self, tables: list[np.ndarray]) -> None:
