@@ -79,6 +79,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.monitor",             PROCESS),
     ("truav.swarm.fault_control",       PROCESS),
     ("world.world_messages",            WIRE),       # the world's observation messages, from the model
+    ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
     ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
     ("agents.decision_state",           ANALYSIS),   # that cycle's state captured and restored (snapshots)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
