@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.agent_decision import DONE_ACK_ACTION, TruavDecision, peer_arrays
+from agents.decision_state import decision_state
 from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
@@ -62,6 +63,7 @@ from truav.faults import load_plan
 from truav.options import opt
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from world.snapshot_messages import agent_snapshot, fits, snapshot_due, snapshot_every_option
 
 log = logging.getLogger("truav.agent")
 
@@ -109,6 +111,9 @@ class AgentOptions:
     LOCKSTEP_JOIN_GRACE_S) before deciding without it, which the stats count: the run is then not exact."""
     train: bool = True
     """Learn online (epsilon-greedy + updates); False acts greedily and never updates."""
+    snapshot_every: int = snapshot_every_option()
+    """Lock-step: publish this agent's decision state (agents.decision_state) at the ticks the world
+    snapshots (divisible by this; 0: never)."""
     checkpoint: str | None = opt(None, flag="--checkpoint", metavar="FILE",
                                  help="Q-table checkpoint (.npz): resume from it, rewrite it")
     """Q-table checkpoint file (.npz): resumed from if it exists, rewritten every checkpoint_every steps."""
@@ -198,6 +203,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
         self.decision = TruavDecision(cfg, opts.uav, self.learners, opts.train, self.encoder, self.reward)
+        self._snapshot_too_large = False  # said once
         self._steps_at_start = self.steps
         self._earlier_incarnations = self._read_earlier_incarnations()
         self._debug = Every(log)
@@ -368,6 +374,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         """One observation: beacon, state, learn, act (the trainer's cycle for one agent: agents.agent_decision,
         which the re-simulation of a recording runs too)."""
         o, d = self.opts, self.decision
+        if snapshot_due(o.lockstep, o.snapshot_every, obs.tick):
+            self._publish_snapshot(obs.tick)
         self._send_beacon(obs)
         if o.debug_delay_s:
             self._stop.wait(o.debug_delay_s)
@@ -389,6 +397,17 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
                       obs.vehicles_in_range, obs.queued_packets, len(peers[0, 0]), d.state,
                       "-" if r is None else f"{float(r[0, 0]):.3f}", d.action,
                       "learning" if o.train else "greedy", self.steps, self.stale_obs_skipped)
+
+    def _publish_snapshot(self, tick: int) -> None:
+        """This agent's state before ``tick``'s observation, for `truav log resim --from`."""
+        state = decision_state(self.decision)
+        if not fits(state):
+            if not self._snapshot_too_large:
+                log.warning("uav %d: %d Q-table rows updated do not fit one snapshot message: not published",
+                            self.opts.uav, len(state["q_rows"]))
+            self._snapshot_too_large = True
+            return
+        self.bus.publish(keys.uav_snapshot(self.opts.run, self.opts.uav), agent_snapshot(self.opts.uav, tick, state))
 
     def _send_beacon(self, obs: schema.Obs) -> None:
         o = self.opts

@@ -40,6 +40,9 @@ def add_resim_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="learner.KEY=VALUE",
                    help="branch: change a learner setting from TICK on (rates, reward weights, geofence; the "
                         "exploration schedule from the next episode; repeatable)")
+    p.add_argument("--no-snapshots", action="store_true",
+                   help="branch: restore by re-simulating from tick 0 even when the recording holds state "
+                        "snapshots (by default from the latest one at or before TICK)")
     p.add_argument("--out", metavar="DIR", help="branch: where whatif.csv and whatif.png go (default: "
                                                 "<FILE stem>_whatif next to FILE)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -89,7 +92,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
         return _fail(problem)
     branch = args.from_tick is not None
     changes = [flag for flag, given in (("--qtable", args.qtable), ("--greedy", args.greedy), ("--set", args.set),
-                                        ("--out", args.out)) if given]
+                                        ("--out", args.out), ("--no-snapshots", args.no_snapshots)) if given]
     if changes and not branch:
         return _fail(f"{changes[0]} changes a what-if branch: give --from TICK")
     try:
@@ -116,6 +119,8 @@ def cmd_resim(args: argparse.Namespace) -> int:
         if branch:
             return _branch(args, rec, sim, out, bar, tables, learner)
         return _verify(args, rec, sim, bar)
+    except UserError as exc:  # a recorded snapshot that does not fit its run
+        return _fail(str(exc))
     except damage_errors() as exc:
         return _fail(f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log recover` salvages "
                      f"the rest")
@@ -150,7 +155,9 @@ def _verify(args, rec, sim, bar) -> int:
         print("result: reproduced (every recorded observation, beacon and action, bit for bit)")
         return EXIT_OK
     print(f"result: NOT reproduced ({result.divergent_messages} divergent message(s)"
-          + (f", {result.leftover} recorded message(s) never compared" if result.leftover else "") + ")")
+          + (f", {result.leftover} recorded message(s) never compared" if result.leftover else "")
+          + (f", {result.snapshots_differing} recorded state snapshot(s) differ" if result.snapshots_differing
+             else "") + ")")
     return EXIT_DIVERGED
 
 
@@ -160,17 +167,25 @@ def _branch(args, rec, sim, out: Path, bar, tables, learner) -> int:
     from truav.checks import make_dir
 
     result = run_branch(args.file, rec.run, rec, sim, args.from_tick, tables=tables, greedy=args.greedy,
-                        learner=learner, on_round=_on_round(bar, "differing"))
+                        learner=learner, on_round=_on_round(bar, "differing"), snapshots=not args.no_snapshots,
+                        on_restore=bar.update)
     bar.close()
     restored = result.restored
-    if restored.divergent_messages or restored.recording_ended:
+    if restored.divergent_messages or restored.recording_ended or restored.snapshots_differing:
         print("\n".join(restored.summary_lines()))
         why = (f"diverged before it ({restored.first.format()})" if restored.first is not None
                else "the recording ends before it")
         return _fail(f"cannot branch at tick {args.from_tick}: the re-simulation of the recording {why}", EXIT_DIVERGED)
     what = ", ".join(result.changes) or "nothing changed (the recorded policy)"
-    print(f"restored at tick {result.from_tick} (episode {result.from_episode}) by re-simulating ticks 0-"
-          f"{result.from_tick - 1}, each checked against the recording; branch: {what}")
+    start = 0 if result.snapshot_tick is None else result.snapshot_tick
+    if result.snapshot_tick is not None:
+        how = f"from the recording's snapshot of tick {start}"
+    else:
+        how = "from tick 0 (" + ("--no-snapshots" if args.no_snapshots else
+                                 f"the recording holds no snapshot at or before tick {result.from_tick}") + ")"
+    span = f"re-simulating ticks {start}-{result.from_tick - 1}" if result.from_tick > start else "nothing to re-run"
+    print(f"restored at tick {result.from_tick} (episode {result.from_episode}) {how}, {span}, each tick checked "
+          f"against the recording; branch: {what}")
     print("\n".join(result.table_lines()))
     if result.departed is None and result.after.exact:
         print(f"the branch equals the recorded run from tick {result.from_tick} on (every message, bit for bit)")

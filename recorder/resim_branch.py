@@ -1,13 +1,12 @@
 """A what-if branched from a recorded lock-step run: restore the run at a tick, change the policy or a learner
 setting, run on, and set the outcome beside the recorded one.
 
-Restoring is by re-simulation (recorder.resim): the world and every agent are re-run from tick 0 to the
-branch tick and checked against the recording on the way (recorder.resim_verify), so the state at the tick
-(world, vehicles, queues, generators, Q-tables) is the recorded run's exactly, or the branch is refused.
-(The recording holds no state snapshots: a world's vehicles, queues and generators and every agent's table
-are far larger than a bus message, and the re-simulation rebuilds them exactly, at about the trainer's
-speed.) From the tick on, what changes: the agents' Q-tables (another run's, ``tables``), greedy acting
-without learning (``greedy``), the learner's settings (``learner``: rates, exploration, reward weights,
+Restoring: from the latest state snapshot the recording holds at or before the branch tick
+(recorder.resim_snapshots; `truav-swarm up --lockstep --record` takes one every --snapshot-every ticks),
+else from tick 0; from there the world and every agent are re-run to the branch tick and checked against the
+recording on the way (recorder.resim_verify), so the state at the tick (world, vehicles, queues, generators,
+Q-tables) is the recorded run's exactly, or the branch is refused. From the tick on, what changes: the
+agents' Q-tables (another run's, ``tables``), greedy acting without learning (``greedy``), the learner's settings (``learner``: rates, exploration, reward weights,
 geofence; settings that change the state encoding or the world are refused). The branch's messages are
 compared with the recording too: the first one that differs is where the what-if departs from the run.
 """
@@ -22,6 +21,7 @@ import numpy as np
 
 from recorder.reader import iter_messages
 from recorder.resim import RecordedRun, Resimulation, Round
+from recorder.resim_snapshots import latest_snapshot
 from recorder.resim_verify import Divergence, RecordedTicks, Verification, compare_round, verify
 from truav.bus import keys, schema
 from truav.config import Config, ConfigError, config_from_dict, to_dict
@@ -58,7 +58,10 @@ class BranchResult:
     from_episode: int
     changes: list[str]
     restored: Verification
-    """The re-simulation from tick 0 to the branch tick, checked against the recording."""
+    """The re-simulation from the snapshot (or tick 0) to the branch tick, checked against the recording."""
+    snapshot_tick: int | None = None
+    """The tick of the snapshot restored; None: none (the recording has none at or before the branch tick, or
+    snapshots were not used): re-simulated from tick 0."""
     after: Verification = field(default_factory=Verification)
     """The branch from its tick on, compared with the recording: where it departs from the run."""
     recorded: dict[int, dict[str, float]] = field(default_factory=dict)
@@ -103,11 +106,26 @@ def recorded_episode_metrics(path: str | os.PathLike[str], run: str) -> dict[int
 
 def run_branch(path: str | os.PathLike[str], run: str, rec: RecordedRun, sim: Resimulation, from_tick: int, *,
                tables: list[np.ndarray] | None = None, greedy: bool = False, learner: Config | None = None,
-               on_round: Callable[[Round, int], None] | None = None) -> BranchResult:
-    """Re-simulate ``sim`` (fresh, of ``rec``) to ``from_tick`` checked against the recording, apply the
-    changes, run it to the end; the outcome beside the recorded one. ``restored.divergent_messages`` > 0: the
-    recording was not reproduced before the tick, and nothing was branched."""
+               on_round: Callable[[Round, int], None] | None = None, snapshots: bool = True,
+               on_restore: Callable[[int], None] | None = None) -> BranchResult:
+    """Restore ``sim`` (fresh, of ``rec``) from the recording's latest snapshot at or before ``from_tick``
+    (``snapshots``; else, or without one, from tick 0; ``on_restore(tick)`` then), re-simulate it to
+    ``from_tick`` checked against the recording, apply the changes, run it to the end; the outcome beside the
+    recorded one. ``restored.divergent_messages`` > 0: the recording was not reproduced before the tick, and
+    nothing was branched. Episodes over before the snapshot were not re-simulated: their branch metrics are
+    the recorded ones. UserError when the recording's snapshot does not fit its run."""
     summaries: dict[int, dict[str, float]] = {}
+    recorded_metrics = recorded_episode_metrics(path, run)
+    snap = latest_snapshot(path, run, rec.cfg.scenario.n_uavs, from_tick) if snapshots else None
+    if snap is not None:
+        try:
+            sim.restore(snap.tick, snap.world, snap.agents)
+        except ValueError as exc:
+            raise UserError(f"{os.fspath(path)}: its snapshot of tick {snap.tick} does not fit its run ({exc}); "
+                            f"--no-snapshots re-simulates from tick 0") from None
+        summaries.update({e: m for e, m in recorded_metrics.items() if e < sim.episode})
+        if on_restore is not None:
+            on_restore(snap.tick)
 
     def collect(rnd: Round, divergent: int) -> None:
         if rnd.summary is not None:
@@ -117,8 +135,8 @@ def run_branch(path: str | os.PathLike[str], run: str, rec: RecordedRun, sim: Re
 
     restored = verify(path, run, sim, until_tick=from_tick, on_round=collect, stop_at_first=True)
     result = BranchResult(from_tick=from_tick, from_episode=sim.episode, changes=[], restored=restored,
-                          recorded=recorded_episode_metrics(path, run))
-    if restored.divergent_messages or restored.recording_ended:
+                          snapshot_tick=None if snap is None else snap.tick, recorded=recorded_metrics)
+    if restored.divergent_messages or restored.recording_ended or restored.snapshots_differing:
         return result
     if tables is not None:
         sim.set_tables(tables)

@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 from recorder.reader import iter_messages
 from recorder.resim import Resimulation, Round, payload_fields
+from recorder.resim_snapshots import differing_arrays, iter_snapshots
 from truav.bus import keys, schema
 
 LOOKAHEAD_TICKS = 2
@@ -63,6 +64,9 @@ class Verification:
     """Messages of the recording's last tick it does not hold (a run stopped amid a tick): not compared."""
     recording_ended: bool = False
     """The recording ended before the run's last tick (its run was stopped early): checked up to there."""
+    snapshots_checked: int = 0
+    """Recorded state snapshots compared with the re-simulated state at their tick, array by array."""
+    snapshots_differing: int = 0
 
     @property
     def first(self) -> Divergence | None:
@@ -70,7 +74,8 @@ class Verification:
 
     @property
     def exact(self) -> bool:
-        return self.divergent_messages == 0 and self.leftover == 0 and self.undecodable == 0
+        return self.divergent_messages == 0 and self.leftover == 0 and self.undecodable == 0 \
+            and self.snapshots_differing == 0
 
     def summary_lines(self) -> list[str]:
         total = sum(self.compared.values())
@@ -90,6 +95,9 @@ class Verification:
                  if n]
         if extra:
             lines.append("also: " + "; ".join(extra))
+        if self.snapshots_checked:
+            lines.append(f"{self.snapshots_checked - self.snapshots_differing} of {self.snapshots_checked} recorded "
+                         f"state snapshot(s) equal the re-simulated state, array by array")
         if self.recording_ended:
             lines.append(f"the recording ends after tick {self.ticks - 1}, before the run's last episode ended "
                          f"(stopped early): checked up to there")
@@ -221,16 +229,25 @@ def compare_round(rnd: Round, recorded: dict[Slot, tuple[str, Any]], run: str, r
 
 
 def verify(path: str | os.PathLike[str], run: str, sim: Resimulation, until_tick: int | None = None,
-           on_round: Callable[[Round, int], None] | None = None, stop_at_first: bool = False) -> Verification:
+           on_round: Callable[[Round, int], None] | None = None, stop_at_first: bool = False,
+           check_snapshots: bool = True) -> Verification:
     """Step ``sim`` and compare each tick with the recording, up to (not including) ``until_tick``, the run's
     end or the recording's (a run stopped early); ``on_round(round, divergent)`` after each tick (progress).
-    ``stop_at_first``: stop after the first divergent tick."""
+    ``stop_at_first``: stop after the first divergent tick. ``check_snapshots``: at each tick the recording
+    holds a state snapshot of, compare it with the re-simulated state, array by array (a snapshot that
+    differs would restore a branch wrongly)."""
     result = Verification()
-    recorded = RecordedTicks(path, run, result)
+    recorded = RecordedTicks(path, run, result, from_tick=sim.tick)  # a restored sim starts at its snapshot
+    snapshots = iter_snapshots(path, run, len(sim.agents)) if check_snapshots else iter(())
+    snap = next(snapshots, None)
     while sim.episode < sim.episodes and (until_tick is None or sim.tick < until_tick):
         if recorded.ended_before(sim.tick):
             result.recording_ended = True
             break
+        while snap is not None and snap.tick < sim.tick:
+            snap = next(snapshots, None)
+        if snap is not None and snap.tick == sim.tick:
+            _check_snapshot(snap, sim, run, result)
         rnd = sim.step()
         messages = recorded.take(rnd.tick)
         last = recorded.ended_before(rnd.tick + 1)
@@ -246,6 +263,18 @@ def verify(path: str | os.PathLike[str], run: str, sim: Resimulation, until_tick
     if until_tick is None and not (stop_at_first and result.divergent_messages):
         result.leftover = recorded.leftover()
     return result
+
+
+def _check_snapshot(snap, sim: Resimulation, run: str, result: Verification) -> None:
+    _, world, agents = sim.snapshot()
+    result.snapshots_checked += 1
+    differing = differing_arrays(snap, world, agents, run)
+    if differing:
+        result.snapshots_differing += 1
+        if len(result.divergences) < MAX_KEPT:
+            key, name = differing[0]
+            result.divergences.append(Divergence(snap.tick, key, f"state array {name}", "recorded",
+                                                 f"differs ({len(differing)} array(s) in all)"))
 
 
 __all__ = ["Divergence", "RecordedTicks", "Verification", "compare_round", "same", "verify"]

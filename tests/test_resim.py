@@ -20,7 +20,7 @@ from mcap.writer import Writer
 
 from conftest import up_to_end
 from recorder.metadata import RUN_METADATA
-from recorder.resim import Resimulation, load_run
+from recorder.resim import Resimulation, load_run, payload_fields
 from recorder.resim_branch import run_branch
 from truav.bus import keys
 from truav.cli import main as truav_main
@@ -34,13 +34,15 @@ CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 8, "n_ua
 TICKS = EPISODES * (CFG.scenario.steps_per_episode + 1)
 ALTERED_TICK, ALTERED_UAV = 5, 2
 BRANCH_TICK = 11  # in episode 1 (ticks 9-17)
+SNAPSHOT_EVERY = 4  # snapshots at ticks 0, 4, 8, 12, 16: a branch at 11 restores the one of tick 8
 
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tmp = tmp_path_factory.mktemp("resim")
     path = tmp / "lockstep.mcap"
-    up_to_end(tmp, RUN, CFG, "--lockstep", "--seed", str(SEED), "--episodes", str(EPISODES), "--record", str(path))
+    up_to_end(tmp, RUN, CFG, "--lockstep", "--seed", str(SEED), "--episodes", str(EPISODES), "--record", str(path),
+              "--snapshot-every", str(SNAPSHOT_EVERY))
     return path
 
 
@@ -90,6 +92,8 @@ def test_a_recorded_lockstep_run_is_reproduced_bit_for_bit(recording: Path, caps
     assert f"{TICKS} ticks re-simulated: {3 * total} of {3 * total} messages reproduced bit for bit" in out
     assert f"{total}/{total} obs, {total}/{total} beacon, {total}/{total} action" in out
     assert "result: reproduced" in out
+    snapshots = len(range(0, TICKS, SNAPSHOT_EVERY))
+    assert f"{snapshots} of {snapshots} recorded state snapshot(s) equal the re-simulated state" in out
 
 
 def test_one_altered_action_is_reported_at_its_tick_and_key(recording: Path, tmp_path: Path, capsys) -> None:
@@ -121,7 +125,8 @@ def test_a_branch_under_the_recorded_policy_equals_the_run_from_its_tick_on(reco
                                                                            capsys) -> None:
     rec, sim = fresh(recording)
     result = run_branch(recording, rec.run, rec, sim, BRANCH_TICK)
-    assert result.restored.divergent_messages == 0 and result.restored.ticks == BRANCH_TICK
+    assert result.snapshot_tick == 8 and result.restored.ticks == BRANCH_TICK - 8
+    assert result.restored.divergent_messages == 0
     assert result.from_episode == 1 and result.changes == []
     assert result.after.ticks == TICKS - BRANCH_TICK and result.after.exact and result.departed is None
     for episode in range(EPISODES):  # the world's recorded episode metrics, value for value
@@ -131,6 +136,43 @@ def test_a_branch_under_the_recorded_policy_equals_the_run_from_its_tick_on(reco
     assert code == 0, out + err
     assert f"the branch equals the recorded run from tick {BRANCH_TICK} on" in out
     assert "branch: nothing changed (the recorded policy)" in out
+    assert f"restored at tick {BRANCH_TICK} (episode 1) from the recording's snapshot of tick 8, re-simulating " \
+           f"ticks 8-{BRANCH_TICK - 1}" in out
+
+
+def branch_rounds(recording: Path, snapshots: bool) -> tuple:
+    """A greedy branch at BRANCH_TICK: its result and every round it ran from its tick on (payload fields)."""
+    rec, sim = fresh(recording)
+    rounds: list = []
+
+    def keep(rnd, _divergent: int) -> None:
+        if rnd.tick >= BRANCH_TICK:
+            rounds.append(([payload_fields(m) for m in rnd.obs + rnd.beacons + rnd.actions],
+                           None if rnd.summary is None else {k: repr(v) for k, v in rnd.summary.items()}))
+    result = run_branch(recording, rec.run, rec, sim, BRANCH_TICK, greedy=True, on_round=keep, snapshots=snapshots)
+    return result, rounds, sim
+
+
+def test_a_branch_from_a_snapshot_equals_the_branch_from_tick_0(recording: Path) -> None:
+    snap, snap_rounds, snap_sim = branch_rounds(recording, snapshots=True)
+    full, full_rounds, full_sim = branch_rounds(recording, snapshots=False)
+    assert snap.snapshot_tick == 8 and full.snapshot_tick is None and full.restored.ticks == BRANCH_TICK
+    assert len(snap_rounds) == TICKS - BRANCH_TICK and snap_rounds == full_rounds  # every message, every metric
+    assert snap.after.divergent_messages == full.after.divergent_messages > 0  # greedy departs from the run
+    assert snap.branch[1] == full.branch[1]
+    for a, b in zip(snap_sim.agents, full_sim.agents):
+        assert (a.learners.q == b.learners.q).all()
+
+
+def test_a_recording_without_snapshots_branches_from_tick_0_and_says_so(recording: Path, tmp_path: Path,
+                                                                         capsys) -> None:
+    bare = rewrite(recording, tmp_path / "bare.mcap",
+                   lambda topic, data: None if topic.endswith("/" + keys.SNAPSHOT) else data)
+    code, out, err = resim(capsys, bare, "--from", BRANCH_TICK, "--out", tmp_path / "bare")
+    assert code == 0, out + err
+    assert (f"from tick 0 (the recording holds no snapshot at or before tick {BRANCH_TICK}), re-simulating ticks "
+            f"0-{BRANCH_TICK - 1}") in out
+    assert f"the branch equals the recorded run from tick {BRANCH_TICK} on" in out
 
 
 def test_a_branch_under_another_policy_reports_how_the_outcome_differs(recording: Path, tmp_path: Path,
@@ -193,3 +235,36 @@ def test_a_run_stopped_amid_a_tick_is_checked_up_to_its_end(recording: Path, tmp
     assert code == 0, out + err
     assert f"the recording ends after tick {cut_tick}" in out
     assert "of the last recorded tick not recorded" in out
+
+
+def test_a_recorded_snapshot_is_checked_against_the_re_simulated_state(recording: Path, tmp_path: Path,
+                                                                      capsys) -> None:
+    """Verify compares every recorded snapshot with the state it re-simulated; a branch refuses a snapshot that
+    is not its run's (one line) and one that does not reproduce the recording (exit 1)."""
+    world_key = keys.world_snapshot(RUN)
+
+    def change_uav_pos(shape_of: Callable[[list], list], data_of: Callable[[bytes], bytes]):
+        def change(topic: str, data: bytes) -> bytes:
+            if topic != world_key:
+                return data
+            body = msgpack.unpackb(data, raw=False)
+            if body["tick"] == 8:
+                dtype, shape, raw = body["arrays"]["uav_pos"]
+                body["arrays"]["uav_pos"] = [dtype, shape_of(shape), data_of(raw)]
+            return msgpack.packb(body, use_bin_type=True)
+        return change
+
+    moved = rewrite(recording, tmp_path / "moved.mcap",
+                    change_uav_pos(lambda s: s, lambda raw: bytes([raw[0] ^ 1]) + raw[1:]))
+    code, out, err = resim(capsys, moved)
+    assert code == 1, out + err
+    assert f"first divergence: tick 8, {world_key}, state array uav_pos: recorded 'recorded'" in out
+    assert "result: NOT reproduced (0 divergent message(s), 1 recorded state snapshot(s) differ)" in out
+    code, out, err = resim(capsys, moved, "--from", BRANCH_TICK, "--out", tmp_path / "moved")
+    assert code == 1 and f"cannot branch at tick {BRANCH_TICK}" in err, out + err
+
+    shrunk = rewrite(recording, tmp_path / "shrunk.mcap",
+                     change_uav_pos(lambda s: [s[0], s[1] - 1, s[2]], lambda raw: raw[:-16]))
+    code, out, err = resim(capsys, shrunk, "--from", BRANCH_TICK, "--out", tmp_path / "shrunk")
+    assert code == 2 and len(err.strip().splitlines()) == 1, out + err
+    assert "its snapshot of tick 8 does not fit its run (state array uav_pos" in err

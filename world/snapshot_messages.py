@@ -10,6 +10,24 @@ from __future__ import annotations
 import numpy as np
 
 from truav.bus import schema
+from truav.options import opt
+
+SNAPSHOT_EVERY = 100
+"""Default of --snapshot-every: a recorded lock-step run's state every 100 ticks."""
+
+
+def snapshot_every_option():
+    """The --snapshot-every field of the world's and the agents' options (one declaration for both: they
+    must snapshot at the same ticks)."""
+    return opt(SNAPSHOT_EVERY, flag="--snapshot-every", type="non_negative_int", metavar="TICKS",
+               help=f"lock-step with --record: the world and every agent publish their whole state every TICKS "
+                    f"ticks, so `truav log resim --from` restores from the latest one instead of tick 0 "
+                    f"(default {SNAPSHOT_EVERY}; 0: none)")
+
+
+def snapshot_due(lockstep: bool, every: int, tick: int) -> bool:
+    """Whether tick ``tick``'s round starts with a snapshot (the world's and every agent's)."""
+    return lockstep and every > 0 and tick % every == 0
 
 _ENVELOPE_ALLOWANCE = 1024
 """Bytes kept for the envelope, the keys and the msgpack headers of a snapshot's arrays."""
@@ -47,4 +65,4 @@ def agent_snapshot(uav: int, tick: int, state: dict[str, np.ndarray]) -> schema.
     return schema.AgentSnapshot(uav=uav, tick=tick, arrays=wire_arrays(state))
 
 
-__all__ = ["agent_snapshot", "fits", "state_arrays", "wire_arrays", "world_snapshot"]
+__all__ = ["SNAPSHOT_EVERY", "agent_snapshot", "fits", "snapshot_due", "snapshot_every_option", "state_arrays", "wire_arrays", "world_snapshot"]

@@ -256,20 +256,25 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 self.children.start("controller", _python_module(
                     "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
                     *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
+            # Snapshots only where a recording keeps them and a re-simulation can use them.
+            snapshot_every = opts.snapshot_every if opts.record and opts.lockstep and opts.scheme == "truav" else 0
             # The supervisor's bounded wait for external UAVs decides (with its progress lines); the world's is longer.
             world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
                                  wait_agents_s=opts.wait_agents_s + (opts.external_wait_s if opts.external else 0.0),
-                                 max_missed_share=1.0)  # up judges the missed share itself (summary, chaos)
+                                 max_missed_share=1.0,  # up judges the missed share itself (summary, chaos)
+                                 snapshot_every=snapshot_every)
             self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
-                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share"])))
+                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share",
+                                 "snapshot_every"])))
             for ids in self.groups:
                 name = "{id}" if len(ids) > 1 else str(ids[0])  # the agent process fills in each UAV's id
                 agent = AgentOptions(checkpoint=str(out / f"agent{name}.npz"), stats_out=str(out / f"agent{name}.json"),
                                      checkpoint_every=opts.checkpoint_every, qtable=opts.qtable or None,
                                      command_hold_s=opts.command_hold_s, beacon_every=opts.beacon_every,
-                                     beacon_cell_m=opts.beacon_cell_m, beacon_slots=opts.beacon_slots)
-                extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every"]), *scheme,
+                                     beacon_cell_m=opts.beacon_cell_m, beacon_slots=opts.beacon_slots,
+                                     snapshot_every=snapshot_every)
+                extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every", "snapshot_every"]), *scheme,
                          *to_argv(agent, ["qtable"])]
                 extra += ["--greedy"] if opts.greedy else []
                 extra += to_argv(agent, ["command_hold_s"]) if self.central else []
