@@ -6,8 +6,9 @@ Restoring: from the latest state snapshot the recording holds at or before the b
 else from tick 0; from there the world and every agent are re-run to the branch tick and checked against the
 recording on the way (recorder.resim_verify), so the state at the tick (world, vehicles, queues, generators,
 Q-tables) is the recorded run's exactly, or the branch is refused. From the tick on, what changes: the
-agents' Q-tables (another run's, ``tables``), greedy acting without learning (``greedy``), the learner's settings (``learner``: rates, exploration, reward weights,
-geofence; settings that change the state encoding or the world are refused). The branch's messages are
+agents' Q-tables (another run's, ``tables``), greedy acting without learning (``greedy``), the learner's
+settings (``learner``: rates, exploration, reward weights, geofence; settings that change the state encoding
+or the world are refused). The branch's messages are
 compared with the recording too: the first one that differs is where the what-if departs from the run.
 """
 

@@ -221,8 +221,10 @@ def samples() -> list[Message]:
         schema.Health(uav=3, last_tick=-1, steps=7, stale_obs_skipped=1, rejected={"not_msgpack": 2},
                       senders={"?": 1, "(other senders)": 1}),
         schema.Beacons(entries=((3, 7, (1234.5, 987.25), (3.2, -1.5)), (4, 7, (10.0, 20.0), (0.0, 0.0)))),
-        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)), "uav_pos": ("<f8", (1, 2, 2), bytes(32))}),
-        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16)), "rng": ("<u8", (6,), bytes(48))}),
+        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
+                                                        "uav_pos": ("<f8", (1, 2, 2), bytes(32))}),
+        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16)),
+                                                    "rng": ("<u8", (6,), bytes(48))}),
     ]
 
 

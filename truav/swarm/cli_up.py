@@ -116,7 +116,8 @@ def swarm_options(args):
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
                         beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process,
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
-                        snapshot_every=args.snapshot_every, restart=args.restart, restart_limit=args.restart_limit, external=external,
+                        snapshot_every=args.snapshot_every,
+                        restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
     return cfg, opts
 
