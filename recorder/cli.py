@@ -12,6 +12,7 @@
       truav log cut IN OUT --from-tick A --to-tick B   # a window (recorder.cli_tools: cut, merge, info)
       truav log merge OUT IN...          # parts, cuts or runs as one
       truav log info FILE...             # per topic, sender and kind; gaps, faults, run metadata
+      truav log resim FILE [--from TICK --qtable RUN --greedy --set K=V]  # re-run a lock-step run, check it
 
   and ``truav report``, an alias of ``truav log report``;
 * :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
@@ -38,6 +39,7 @@ from typing import Any, Callable
 
 from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
+from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
@@ -365,16 +367,17 @@ def cmd_log_play_ctl(args: argparse.Namespace) -> int:
 
 # --- the command groups ---------------------------------------------------------------------------
 def add_log_commands(subparsers: Any) -> None:
-    """Add ``log record|play|report|check|recover|cut|merge|info`` to the ``truav`` CLI, and ``report``, an alias of
-    ``log report``."""
-    log = subparsers.add_parser("log", help="record, play, report on, check, repair, cut, merge and describe MCAP "
-                                            "recordings of swarm runs",
-                                description="Record, play, report on, check, repair, cut, merge and describe MCAP "
-                                            "recordings made by the TRUAV recorder.")
+    """Add ``log record|play|report|check|recover|cut|merge|info|resim`` (and the record-ctl / play-ctl
+    commands) to the ``truav`` CLI, and ``report``, an alias of ``log report``."""
+    log = subparsers.add_parser("log", help="record, play, report on, check, repair, cut, merge, describe and "
+                                            "re-simulate MCAP recordings of swarm runs",
+                                description="Record, play, report on, check, repair, cut, merge, describe and "
+                                            "re-simulate MCAP recordings made by the TRUAV recorder.")
     log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
     add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)
     add_report_parser(log_sub, REPORT_HELP).set_defaults(func=cmd_report)
+    add_resim_parser(log_sub).set_defaults(func=cmd_resim)
 
     rec = log_sub.add_parser(
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",

@@ -218,6 +218,8 @@ ROWS = [
     ("world-seed-negative", "swarm", "world --seed -1", 2, "--seed"),
     ("agent-id-negative", "swarm", "agent --id -1", 2, "--id"),
     ("up-lockstep-wait-real-time", "swarm", "up --lockstep-wait 5", 2, "--lockstep-wait"),
+    ("up-snapshots-unrecorded", "swarm", "up --lockstep --snapshot-every 5", 2, "--snapshot-every"),
+    ("up-snapshots-negative", "swarm", "up --snapshot-every -1", 2, "--snapshot-every"),
     ("agent-lockstep-wait-real-time", "swarm", "agent --id 0 --lockstep-wait 5", 2, "--lockstep-wait"),
     ("world-lockstep-wait-zero", "swarm", "world --lockstep --lockstep-wait 0", 2, "--lockstep-wait"),
     ("agent-checkpoint-empty", "swarm", "agent --id 0 --checkpoint {empty_npz}", 2, "--checkpoint"),

@@ -201,7 +201,7 @@ class ReferenceGuard(Guard):
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
              schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3", schema.KIND_REJECTION: "world",
-             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY}
+             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY, schema.KIND_WORLD_SNAPSHOT: "world"}
 
 
 def samples() -> list[Message]:
@@ -230,6 +230,10 @@ def samples() -> list[Message]:
                          counts={"out_of_range": 2, "bad_type": 1}),
         schema.ReplayStatus(state=schema.REPLAY_PLAYING, position_s=1.5, span_s=9.0, tick=7, rate=1.0, paused=False,
                             sent=40, restored=0, loop=0),
+        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
+                                                        "uav_pos": ("<f8", (1, 2, 2), bytes(32))}),
+        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16)),
+                                                    "rng": ("<u8", (6,), bytes(48))}),
     ]
 
 

@@ -79,6 +79,10 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.view",                PROCESS),
     ("truav.swarm.monitor",             PROCESS),
     ("truav.swarm.fault_control",       PROCESS),
+    ("world.world_messages",            WIRE),       # the world's observation messages, from the model
+    ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
+    ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
+    ("agents.decision_state",           ANALYSIS),   # that cycle's state captured and restored (snapshots)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
     ("world.*",                         MODEL),
     ("agents.*",                        MODEL),
@@ -114,6 +118,8 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.recover",                ANALYSIS),
     ("recorder.report",                 ANALYSIS),
     ("recorder.metadata",               ANALYSIS),
+    ("recorder.resim",                  ANALYSIS),
+    ("recorder.resim_*",                ANALYSIS),
     ("recorder.schemas",                ANALYSIS),
     ("recorder.foxglove",               ANALYSIS),
     ("recorder.record_modes",           ANALYSIS),

@@ -26,7 +26,8 @@ from truav.swarm.cli import build_parser as swarm_parser
 from truav.swarm.cli import main as swarm_main
 
 REPO = Path(__file__).resolve().parents[1]
-LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info", "play-ctl")
+LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info", "play-ctl",
+               "resim")
 ALIASES = {  # (program, alias) -> the truav log action it names
     ("truav", "report"): "report",
     ("truav-swarm", "record"): "record",

@@ -69,6 +69,9 @@ RUN: dict[str, list[str]] = {
         [*VELOCITY, "--episodes-for", "patrol_ctrl=2"],
     "truav-swarm up --record runs/demo.mcap --out runs/swarm-record": SWARM,
     "truav log check runs/demo.mcap": [],
+    "truav-swarm up --lockstep --record runs/lockstep.mcap --out runs/swarm-lockstep-rec": SWARM,
+    "truav log resim runs/lockstep.mcap": [],
+    "truav log resim runs/lockstep.mcap --from 150 --greedy": ["--from", "3"],  # the tiny run has 6 ticks
     "truav report runs/demo.mcap": [],
     "truav log report runs/demo.mcap --out runs/demo-report": [],
     "truav log info runs/demo.mcap": [],

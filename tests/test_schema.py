@@ -65,6 +65,9 @@ def samples() -> list[schema.Message]:
                          counts={"out_of_range": 2, "bad_type": 1}),
         schema.ReplayStatus(state=schema.REPLAY_PAUSED, position_s=12.5, span_s=60.0, tick=40, rate=2.0, paused=True,
                             sent=1234, restored=17, loop=0),
+        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
+                                                        "pos": ("<f8", (1, 2, 2), bytes(32))}),
+        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16))}),
     ]
 
 

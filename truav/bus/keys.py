@@ -75,6 +75,7 @@ ACTION = "action"
 STATE = "state"
 HEALTH = "health"
 REJECTED = "rejected"
+SNAPSHOT = "snapshot"  # world/snapshot and uav/<i>/snapshot: a lock-step recording's state snapshots
 BEACONS = "beacons"  # last chunk of a group's batch key
 CONTROLLER = "controller"
 COMMAND = "cmd"
@@ -155,6 +156,16 @@ def all_states(run: str) -> str:
 def uav_health(run: str, i: int) -> str:
     """``truav/<run>/uav/<i>/health``: agent i's own statistics (what it refused), about once a second."""
     return f"{uav_prefix(run, i)}/{HEALTH}"
+
+
+def world_snapshot(run: str) -> str:
+    """``truav/<run>/world/snapshot``: the world's whole state every --snapshot-every ticks (lock-step)."""
+    return f"{prefix(run)}/{WORLD}/{SNAPSHOT}"
+
+
+def uav_snapshot(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>/snapshot``: agent i's learner state at the world's snapshot ticks."""
+    return f"{uav_prefix(run, i)}/{SNAPSHOT}"
 
 
 def all_health(run: str) -> str:

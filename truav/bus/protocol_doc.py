@@ -55,6 +55,8 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
     "rejection": ("world", "agent i only (under --secure no other identity may read it)"),
     "replay_status": ("replay", "operator (`truav-swarm replay-ctl`), recorder"),
+    "world_snapshot": ("world", "recorder (lock-step, --snapshot-every)"),
+    "agent_snapshot": ("uav/i", "recorder (lock-step, --snapshot-every)"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
@@ -199,6 +201,18 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
                               "beacon's meaning and bounds; only the UAVs first..last of the key, each once"),
     },
+    "world_snapshot": {
+        "tick": ("", "the state is the world's before this tick's round (what `truav log resim --from` restores)"),
+        "episode": ("", "the episode of that tick"),
+        "arrays": ("", "the world's whole state, named arrays (world/world_state.py): vehicles, queues, UAVs, "
+                       "totals, generators now and before the episode's draws"),
+    },
+    "agent_snapshot": {
+        "uav": ("", _UAV_NOTE),
+        "tick": ("", "the state is the agent's before this tick's observation"),
+        "arrays": ("", "its decision state (agents/decision_state.py): the Q-table rows it updated (q_rows, "
+                       "q_values), its generator, the episode's exploration draws"),
+    },
 }
 
 REASON_NOTES: Mapping[str, str] = {
@@ -281,6 +295,11 @@ def describe(check: Any) -> tuple[str, str]:
         return "map (JSON-like: nil, bool, int, float64, str, array, map)", (
             f"nesting <= {schema_names.MAX_ARGS_DEPTH}, <= {schema_names.MAX_ARGS_NODES} values, strings <= "
             f"{schema_names.MAX_ARGS_STR_LEN} characters, map keys str <= {schema_names.MAX_NAME_LEN}")
+    if name == "_snapshot_arrays":  # a snapshot's named state arrays (--snapshot-every)
+        return "map of str: [dtype, shape, bin]", (
+            f"<= {schema_names.MAX_SNAPSHOT_ARRAYS} arrays, names as metric names; dtype one of "
+            f"{', '.join(schema_names.SNAPSHOT_DTYPES)}; shape <= {schema_names.MAX_SNAPSHOT_DIMS} lengths; "
+            f"data exactly 8 bytes per element")
     if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)
         return "array of [int, int, [x, y], [vx, vy]]", (f"1..{keys.MAX_UAVS} entries: uav [0, {keys.MAX_UAVS - 1}], "
                                                           f"tick [0, 2^63-1], finite float64 pairs")

@@ -67,6 +67,9 @@ from truav.bus.messages import (  # noqa: F401
     DEFAULT_LOCKSTEP_WAIT_S, HEALTH_PERIOD_S, KINDS, LOCKSTEP_JOIN_GRACE_S, M, MESSAGE_CLASSES, Action, Beacon,
     Command, Control, Envelope, Fault, Health, Message, Metrics, Obs, Positions, State, Tick, size_limit,
     KIND_BEACONS, MAX_BATCH_ENTRIES, Beacons, REJECTION_PERIOD_S, Rejection, REPLAY_STATUS_PERIOD_S, ReplayStatus)
+from truav.bus.messages import AgentSnapshot, SnapshotArrays, WorldSnapshot  # noqa: F401
+from truav.bus.schema_names import (  # noqa: F401
+    KIND_AGENT_SNAPSHOT, KIND_WORLD_SNAPSHOT, MAX_SNAPSHOT_ARRAYS, MAX_SNAPSHOT_BYTES)
 from truav.bus.codec import (  # noqa: F401
     Sequencer, decode, encode, new_incarnation, padded, peek_src, unpack_limits)
 from truav.actions import HOVER, N_ACTIONS  # noqa: F401  (an action is an int in [0, N_ACTIONS), or HOVER, an

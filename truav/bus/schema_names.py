@@ -22,6 +22,8 @@ KIND_COMMAND = "command"
 KIND_HEALTH = "health"
 KIND_REJECTION = "rejection"
 KIND_REPLAY_STATUS = "replay_status"
+KIND_WORLD_SNAPSHOT = "world_snapshot"
+KIND_AGENT_SNAPSHOT = "agent_snapshot"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -63,6 +65,12 @@ MAX_ARGS_STR_LEN = 64 << 10
 MAX_HEALTH_REASONS = 32  # rejection reasons in a health message (there are about 20)
 MAX_HEALTH_SENDERS = 8  # the senders most refused, in a health message
 MAX_DETAIL_LEN = 160  # a rejection's detail text (cut to this)
+# Snapshots (a lock-step recording's periodic state: world_snapshot, agent_snapshot), named arrays each
+# [dtype, shape, raw little-endian bytes]; a state that does not fit one message is not published.
+MAX_SNAPSHOT_BYTES = MAX_PAYLOAD_BYTES
+MAX_SNAPSHOT_ARRAYS = 40  # a world snapshot has 28
+MAX_SNAPSHOT_DIMS = 3
+SNAPSHOT_DTYPES = ("<f8", "<i8", "<u8")
 INT64_MAX = (1 << 63) - 1
 UINT64_MAX = (1 << 64) - 1
 
