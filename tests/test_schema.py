@@ -215,7 +215,7 @@ def nested(depth: int) -> dict[str, Any]:
 
 # --- decode rejections -----------------------------------------------------------------
 def valid_wire() -> dict[str, Any]:
-    return wire(Sequencer("uav/3", clock=fake_clock()).stamp(Action(uav=3, tick=9, action=4)))
+    return wire(Sequencer("uav/3", clock=fake_clock(), incarnation=7).stamp(Action(uav=3, tick=9, action=4)))  # fixed: ids stay equal across pytest -n workers
 
 
 def with_(**changes: Any) -> bytes:
