@@ -49,8 +49,10 @@ def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
     assert len(world["episodes"]) == 1 and world["ticks"] == STEPS + 1  # the world ran its episode to the end
     assert len(world["controller_losses"]) == 1
     commands = [a["commands"] for a in summary["agents"]]
-    # Before the crash fresh commands; after it one held tick (hold 1 s = one 1 s step), then hovering.
-    assert all(c["fresh"] > 0 and c["held"] >= 1 and c["hovered"] > 0 for c in commands), commands
+    # Before the crash commands (fresh in their round, or on a loaded host late and held for the next
+    # round: real time promises no deadline there), after it at most one held tick (hold 1 s = one 1 s
+    # step), then hovering: every UAV hovers once the controller is gone.
+    assert all(c["fresh"] + c["held"] > 0 and c["hovered"] > 0 for c in commands), commands
     assert 0 < world["hover_answers"] <= sum(c["hovered"] for c in commands)  # some late, under load
     assert [(kind, phase) for _, kind, phase in summary["fault_events"]] == [("crash", "start")]
 
