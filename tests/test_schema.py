@@ -63,6 +63,8 @@ def samples() -> list[schema.Message]:
         schema.Rejection(uav=3, at_tick=7, reason="out_of_range", refused_kind="action",
                          key="truav/r/uav/3/action", detail="action.action=99 outside [-1, 15]",
                          counts={"out_of_range": 2, "bad_type": 1}),
+        schema.QShare(uav=3, tick=7, episode=2, part=0, parts=2, states=np.array([5, 17]), counts=np.array([4, 1]),
+                      q=np.linspace(-1.0, 2.5, 32)),
     ]
 
 

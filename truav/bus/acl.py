@@ -87,6 +87,7 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
               subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_beacons_in_cells(run),
                          *([keys.all_beacon_batches(run)] if batch_group_size > 1 else []),
                          keys.all_control(run), keys.all_states(run), keys.all_commands(run),  # traffic measured for the summary
+                         keys.all_qshares(run),  # federated TRUAV: its traffic, measured for the summary
                          keys.all_health(run)),  # the agents' health reports, for `status`
               watch=(keys.all_alive(run),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),
@@ -98,9 +99,9 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
         table.append(Grant(
             keys.uav_identity(i),
             put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
-                 keys.uav_health(run, i), *([batches[i]] if i in batches else [])),
+                 keys.uav_health(run, i), keys.uav_qshares(run, i), *([batches[i]] if i in batches else [])),
             subscribe=(keys.uav_obs(run, i), keys.uav_rejected(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
-                       keys.all_control(run), keys.controller_cmd(run, i),
+                       keys.all_control(run), keys.controller_cmd(run, i), keys.all_qshares(run),
                        *([keys.all_beacon_batches(run)] if batches else [])),
             tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))
     return tuple(table)

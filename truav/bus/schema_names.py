@@ -21,6 +21,7 @@ KIND_STATE = "state"
 KIND_COMMAND = "command"
 KIND_HEALTH = "health"
 KIND_REJECTION = "rejection"
+KIND_QSHARE = "qshare"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -56,6 +57,9 @@ MAX_ARGS_STR_LEN = 64 << 10
 MAX_HEALTH_REASONS = 32  # rejection reasons in a health message (there are about 20)
 MAX_HEALTH_SENDERS = 8  # the senders most refused, in a health message
 MAX_DETAIL_LEN = 160  # a rejection's detail text (cut to this)
+MAX_QSHARE_ROWS = 320  # Q rows in one qshare message (16 float64 each: ~47 KB of values)
+MAX_QSHARE_PARTS = 64  # messages one share may be split over: 20,480 rows, more than any table has
+MAX_QSHARE_PAYLOAD_BYTES = 64 << 10  # MAX_QSHARE_ROWS rows of ~150 bytes, and the envelope
 INT64_MAX = (1 << 63) - 1
 UINT64_MAX = (1 << 64) - 1
 
