@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.agent_process_federated import FederatedShares
 from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
@@ -173,7 +174,7 @@ class AgentOptions:
         return max(REALTIME_BEACON_MAX_AGE_TICKS, 2 * self.beacon_every)
 
 
-class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
+class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares):
     """One agent: the bus wiring, the main loop and the TRUAV decision; the lock-step and real-time halves
     and the reports are its parts (agents.agent_process_lockstep, agents.agent_process_realtime,
     agents.agent_process_reports)."""
@@ -221,6 +222,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._velocity = (0.0, 0.0)
         self._init_lockstep()
         self._init_realtime()
+        self._init_federated()
+        self._resume_visits()
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
@@ -250,6 +253,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me),
                     keys.uav_health(run, me))
         self._setup_scheme(bus)
+        self._setup_federated(bus)
         # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
         # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
         gc.freeze()
@@ -276,6 +280,14 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         probe.act(np.zeros((1, 1), np.int64), 0, pos)
         probe.update(np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64), r, np.zeros((1, 1), np.int64), False)
         del state
+
+    def _resume_visits(self) -> None:
+        """A resumed agent's visit counts (federated TRUAV's weights), from its checkpoint."""
+        if self.resumed and self.opts.checkpoint:
+            with np.load(self.opts.checkpoint) as ck:
+                if "visits" in ck.files and ck["visits"].shape == self.visits.shape:
+                    self.visits[...] = ck["visits"]
+                    self.visits_at_share[...] = ck["visits_at_share"]
 
     def _make_learners(self) -> QLearners:
         o = self.opts
@@ -403,16 +415,20 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
                             np.array([[obs.energy_j]]), overlap)
             if o.train:
                 self.learners.update(np.array([[self._state]]), np.array([[self._action]]), r, state, False)
+                self._count_visit(self._state)
             self._t += 1
             self.steps += 1
             if o.checkpoint and checkpoint_due(self.steps, o.uav, self.n_uavs, o.checkpoint_every):
                 self.checkpoint()
         self._state = int(state[0, 0])
         if obs.done:
+            self._federated_round(obs.episode, obs.tick)  # once learned from the episode's last step
             if o.lockstep:  # the acknowledgement the world waits for before the next tick (and the shutdown)
                 self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick,
                                                                              action=DONE_ACK_ACTION))
             return
+        if not o.lockstep:  # real time: peers' shares of the last round, merged as they complete
+            self._merge_ready()
         self._action = int(self.learners.act(state, min(self._t, T - 1), pos)[0, 0])
         self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
         self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
@@ -469,7 +485,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         path = Path(self.opts.checkpoint)
         tmp = path.with_name(path.name + ".tmp.npz")
         state = json.dumps(self.learners.rngs[0].bit_generator.state)
-        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state)
+        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
+                 visits_at_share=self.visits_at_share)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -99,3 +99,26 @@ def test_federated_trainer_fused_equals_the_step_path_and_is_reproducible(small_
     np.testing.assert_array_equal(again.q, c_got.learners.q)  # same seed, same tables
     plain = run_chunk("truav", cfg.replace(federated={"every": 0}), [0, 4], 3)
     assert not np.array_equal(plain.q, again.q)  # sharing changed the tables
+
+
+def test_lockstep_federated_swarm_learns_the_federated_trainers_tables(tmp_path):
+    """3 agent processes sharing every episode over the bus, in lock-step: the in-process federated trainer's
+    Q-tables entry for entry, and each agent's stats say what it sent (bytes of its Q shares)."""
+    import json
+
+    from test_lockstep import SEED, agent_tables, run_swarm
+    cfg = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": 3},
+                           roads={"warmup_steps": 10}, learner={"episodes": 4}, federated={"every": 1})
+    expected = run_chunk("truav", cfg, [SEED], cfg.learner.episodes)
+    out = run_swarm(tmp_path, "fed", cfg=cfg)
+    q, steps = agent_tables(out, cfg)
+    assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * 3
+    differing = [int(np.sum(q[i] != expected.q[0, i])) for i in range(3)]
+    assert differing == [0, 0, 0], f"entries differing from the federated trainer, per agent: {differing}"
+    unshared = run_chunk("truav", cfg.replace(federated={"every": 0}), [SEED], cfg.learner.episodes)
+    assert not np.array_equal(q, unshared.q[0])  # the shares were merged
+    for i in range(3):
+        fed = json.loads((out / f"agent{i}.json").read_text())["federated"]
+        assert fed["shares_sent"] == cfg.learner.episodes and fed["messages_sent"] == cfg.learner.episodes
+        assert fed["shares_merged"] == 2 * cfg.learner.episodes and not fed["refused"] and not fed["missing"]
+        assert fed["bytes_sent"] > 16 * 8 * fed["rows_sent"]  # float64 rows, and the envelope
