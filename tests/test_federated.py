@@ -122,3 +122,72 @@ def test_lockstep_federated_swarm_learns_the_federated_trainers_tables(tmp_path)
         assert fed["shares_sent"] == cfg.learner.episodes and fed["messages_sent"] == cfg.learner.episodes
         assert fed["shares_merged"] == 2 * cfg.learner.episodes and not fed["refused"] and not fed["missing"]
         assert fed["bytes_sent"] > 16 * 8 * fed["rows_sent"]  # float64 rows, and the envelope
+
+
+def _qshare(uav=1, tick=5, n=2, **kw):
+    from truav.bus import schema
+    fields = dict(uav=uav, tick=tick, episode=0, part=0, parts=1, states=np.arange(n), counts=np.ones(n, np.int64),
+                  q=np.zeros(16 * n))
+    return schema.QShare(**{**fields, **kw})
+
+
+def test_guard_placement_and_acl_bound_a_qshare(small_cfg):
+    """A share comes only from its UAV, on its own key and part, near the current tick, with whole rows; under
+    --secure uav/i may put only its own shares; a share too large to send is refused before it goes out."""
+    from truav.bus import acl, guard, keys, placement, schema
+    from truav.bus.schema import SchemaError
+    g = guard.for_config(small_cfg)
+    stamp = lambda src, m: schema.Sequencer(src).stamp(m)  # noqa: E731
+    assert g.check("k", stamp("world", schema.Tick(tick=5, episode=0, sim_time=5.0, deadline_ms=100.0,
+                                                   n_uavs=small_cfg.scenario.n_uavs))) is None
+    assert g.check("k", stamp("uav/1", _qshare())) is None
+    assert g.check("k", stamp("uav/2", _qshare()))[0] == guard.R_SENDER  # a forged sender
+    assert g.check("k", stamp("uav/1", _qshare(tick=10_000)))[0] == guard.R_TICK  # stale or far ahead
+    assert g.check("k", stamp("uav/1", _qshare(q=np.zeros(17))))[0] == guard.R_IMPLAUSIBLE  # not whole rows
+    assert g.check("k", stamp("uav/1", _qshare(part=1, parts=1)))[0] == guard.R_IMPLAUSIBLE
+    with pytest.raises(SchemaError):
+        placement.check_placement(keys.uav_qshare("r", 2, 0), stamp("uav/1", _qshare()))  # another UAV's key
+    with pytest.raises(SchemaError):
+        placement.check_placement(keys.uav_qshare("r", 1, 3), stamp("uav/1", _qshare()))  # another part's key
+    with pytest.raises(SchemaError):
+        _qshare(states=np.arange(321), counts=np.ones(321, np.int64), q=np.zeros(16 * 321))  # > MAX_QSHARE_ROWS
+    with pytest.raises(SchemaError):
+        _qshare(q=np.array([np.nan] * 32))
+    mine = next(gr for gr in acl.grants("r", 3) if gr.identity == "uav/1")
+    assert keys.uav_qshares("r", 1) in mine.put and not any(keys.uav_qshares("r", 2) in gr.put for gr in [mine])
+    assert acl._matches(keys.uav_qshare("r", 1, 4), keys.uav_qshares("r", 1))
+    assert not any(acl._matches(keys.uav_qshare("r", 2, 0), p) for p in mine.put)
+
+
+def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg):
+    """The swarm agent's receive side (agents.agent_process_federated): a share with an out-of-range value or a
+    count no run could make is refused whole and counted; one of an older round is stale; a good one moves the
+    agent's entries at most federated.max_weight of the way, and only in its rows."""
+    import threading
+    from types import SimpleNamespace
+
+    from agents.agent_process_federated import FederatedShares
+    from agents.qlearning import QLearners
+    from agents.state import StateEncoder
+
+    cfg = small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 1, "max_weight": 0.25})
+    node = FederatedShares()
+    node.cfg, node.opts = cfg, SimpleNamespace(uav=0, run="r", train=True, lockstep=False)
+    node.encoder = StateEncoder(cfg)
+    node.learners = QLearners(cfg.learner, node.encoder.n_states, [np.random.default_rng(0)], 1, 1)
+    node._lock, node._gone = threading.Lock(), set()
+    node._init_federated()
+    before = node.learners.q[0, 0].copy()
+    node._round = 3  # this agent shared after episode 3
+    T = cfg.scenario.steps_per_episode
+    node._on_qshare("k", _qshare(uav=1, episode=3, q=np.full(32, 1e9)), None, 0)  # out of range
+    node._on_qshare("k", _qshare(uav=2, episode=3, counts=np.array([1, 4 * T + 1])), None, 0)  # too many visits
+    node._on_qshare("k", _qshare(uav=3, episode=2), None, 0)  # an older round: stale
+    node._on_qshare("k", _qshare(uav=3, episode=3, counts=np.array([10 ** 0, 4 * T]), q=np.full(32, -5.0)), None, 0)
+    node._merge_ready()
+    st = node.fed_stats
+    assert st["refused"] == {"stale_round": 1, "bad_value": 1, "bad_count": 1} and st["shares_merged"] == 1
+    q = node.learners.q[0, 0]
+    np.testing.assert_allclose(q[:2], before[:2] + 0.25 * (-5.0 - before[:2]))  # weight 1/1 capped at 0.25
+    np.testing.assert_array_equal(q[2:], before[2:])
+    assert not node._parts  # merged or refused shares are not kept
