@@ -163,20 +163,8 @@ def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg
     """The swarm agent's receive side (agents.agent_process_federated): a share with an out-of-range value or a
     count no run could make is refused whole and counted; one of an older round is stale; a good one moves the
     agent's entries at most federated.max_weight of the way, and only in its rows."""
-    import threading
-    from types import SimpleNamespace
-
-    from agents.agent_process_federated import FederatedShares
-    from agents.qlearning import QLearners
-    from agents.state import StateEncoder
-
-    cfg = small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 1, "max_weight": 0.25})
-    node = FederatedShares()
-    node.cfg, node.opts = cfg, SimpleNamespace(uav=0, run="r", train=True, lockstep=False)
-    node.encoder = StateEncoder(cfg)
-    node.learners = QLearners(cfg.learner, node.encoder.n_states, [np.random.default_rng(0)], 1, 1)
-    node._lock, node._gone = threading.Lock(), set()
-    node._init_federated()
+    node = _stub_node(small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 1, "max_weight": 0.25}))
+    cfg = node.cfg
     before = node.learners.q[0, 0].copy()
     node._round = 3  # this agent shared after episode 3
     T = cfg.scenario.steps_per_episode
@@ -191,3 +179,87 @@ def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg
     np.testing.assert_allclose(q[:2], before[:2] + 0.25 * (-5.0 - before[:2]))  # weight 1/1 capped at 0.25
     np.testing.assert_array_equal(q[2:], before[2:])
     assert not node._parts  # merged or refused shares are not kept
+
+
+def _stub_node(cfg):
+    """An agent node's federated part alone (agents.agent_process_federated), on no bus."""
+    import threading
+    from types import SimpleNamespace
+
+    from agents.agent_process_federated import FederatedShares
+    from agents.qlearning import QLearners
+    from agents.state import StateEncoder
+    node = FederatedShares()
+    node.cfg, node.opts = cfg, SimpleNamespace(uav=0, run="r", train=True, lockstep=False)
+    node.encoder = StateEncoder(cfg)
+    node.learners = QLearners(cfg.learner, node.encoder.n_states, [np.random.default_rng(0)], 1, 1)
+    node._lock, node._gone = threading.Lock(), set()
+    node._init_federated()
+    return node
+
+
+def test_a_share_split_over_parts_is_merged_whole_or_not_at_all(small_cfg):
+    """A share of more rows than one message holds crosses the bus in parts: merged once every part came, as
+    the unsplit share would be; with a part missing, not at all."""
+    from truav.bus import schema
+    cfg = small_cfg.replace(scenario={"n_uavs": 3}, learner={"grid_cells": 20}, federated={"every": 1})
+    rng = np.random.default_rng(1)
+    n = schema.MAX_QSHARE_ROWS + 80
+    states = rng.choice(cfg_states := _stub_node(cfg).encoder.n_states, n, replace=False)
+    share = Share(1, 0, states, rng.integers(1, 10, n), rng.normal(size=(n, A)))
+    parts = split_share(share, schema.MAX_QSHARE_ROWS)
+    assert len(parts) == 2 and cfg_states > n
+    msgs = [_qshare(uav=1, tick=9, episode=0, part=k, parts=2, states=p.states, counts=p.counts, q=p.q.ravel())
+            for k, p in enumerate(parts)]
+    node = _stub_node(cfg)
+    node._round = 0
+    node._on_qshare("k", msgs[1], None, 0)
+    node._merge_ready()
+    assert node.fed_stats["shares_merged"] == 0  # one part of two: nothing merged yet
+    node._on_qshare("k", msgs[0], None, 0)
+    expected = node.learners.q[0, 0].copy()
+    merge(expected, node.visits, [share], cfg.federated.max_weight)
+    node._merge_ready()
+    assert node.fed_stats["shares_merged"] == 1
+    np.testing.assert_array_equal(node.learners.q[0, 0], expected)
+
+
+def _fed_swarm(tmp, name, cfg, plan_toml, *extra):
+    import sys
+
+    from conftest import run_to_end
+    from test_lockstep import SEED
+    from truav.config import to_toml
+    (tmp / f"{name}.toml").write_text(to_toml(cfg))
+    (tmp / f"{name}-plan.toml").write_text(plan_toml)
+    out = tmp / name
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+           "--episodes", str(cfg.learner.episodes), "--scenario", str(tmp / f"{name}.toml"), "--out", str(out),
+           "--fault-plan", str(tmp / f"{name}-plan.toml"), "--quiet", "--no-plot", *extra]
+    return run_to_end(cmd, tmp / f"{name}.log", 180.0, term_wait_s=30), out
+
+
+FED_CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": 3},
+                           roads={"warmup_steps": 10}, learner={"episodes": 3}, federated={"every": 1})
+
+
+def test_link_faults_reach_the_shares_delayed_ones_are_waited_for_lost_ones_counted(tmp_path):
+    """A fault plan's latency and loss apply to `qshare` as to any message: in lock-step a delayed share is
+    waited for (the tables still equal the federated trainer's), a lost one is waited out (--lockstep-wait),
+    counted, and the run says it is no longer exact."""
+    import json
+
+    from test_lockstep import SEED, agent_tables
+    expected = run_chunk("truav", FED_CFG, [SEED], FED_CFG.learner.episodes).q[0]
+    latency = '[[fault]]\nkind = "latency"\nstart = 0.0\nfixed_ms = 300.0\nkeys = "uav/*/qshare/*"\n'
+    rc, out = _fed_swarm(tmp_path, "late", FED_CFG, latency)
+    assert rc == 0, (tmp_path / "late.log").read_text(errors="replace")
+    assert np.array_equal(agent_tables(out, FED_CFG)[0], expected)
+    loss = '[[fault]]\nkind = "loss"\nstart = 0.0\nprobability = 1.0\nkeys = "uav/*/qshare/*"\ndst = "uav/0"\n'
+    rc, out = _fed_swarm(tmp_path, "lost", FED_CFG, loss, "--lockstep-wait", "1")
+    summary = json.loads((out / "summary.json").read_text())
+    assert rc == 1 and summary["outcome"]["lockstep"]["exact"] is False
+    fed0 = json.loads((out / "agent0.json").read_text())["federated"]
+    assert fed0["shares_merged"] == 0 and fed0["missing"] == 2 * FED_CFG.learner.episodes
+    fed1 = json.loads((out / "agent1.json").read_text())["federated"]
+    assert fed1["shares_merged"] == 2 * FED_CFG.learner.episodes and fed1["missing"] == 0
