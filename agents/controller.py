@@ -43,6 +43,15 @@ class TruavController:
         self.draws_in_kernel = True
         """run_episode's kernel makes the world's per-episode draws (in parallel over envs)."""
 
+    def __setstate__(self, state: dict) -> None:
+        """A controller pickled before federated TRUAV (a training checkpoint of an earlier version) gets
+        its visit counts, from zero: it never shared."""
+        self.__dict__.update(state)
+        if "visits" not in state:
+            self.visits = np.zeros(self.learners.q.shape[:3], np.int64)
+            self.visits_at_share = np.zeros_like(self.visits)
+            self._episode = 0
+
     def _features(self, obs: LocalObs):
         peers, heard = all_peers(obs.pos)
         nearest, overlap = neighbour_features(obs.pos, peers, heard, self.cfg.scenario.comm_range_m)
