@@ -87,7 +87,6 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
               subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_beacons_in_cells(run),
                          *([keys.all_beacon_batches(run)] if batch_group_size > 1 else []),
                          keys.all_control(run), keys.all_states(run), keys.all_commands(run),  # traffic measured for the summary
-                         keys.all_qshares(run),  # federated TRUAV: its traffic, measured for the summary
                          keys.all_health(run)),  # the agents' health reports, for `status`
               watch=(keys.all_alive(run),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),

@@ -54,7 +54,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "health": ("uav/i", "supervisor, status, recorder"),
     "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
     "rejection": ("world", "agent i only (under --secure no other identity may read it)"),
-    "qshare": ("uav/i", "all agents (federated TRUAV, federated.every > 0), supervisor"),
+    "qshare": ("uav/i", "all agents (federated TRUAV, federated.every > 0), recorder"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
