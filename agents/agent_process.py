@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.agent_decision import DONE_ACK_ACTION, TruavDecision, peer_arrays
+from agents.decision_state import decision_state
 from agents.agent_process_federated import FederatedShares
 from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
@@ -62,13 +64,11 @@ from truav.faults import load_plan
 from truav.options import opt
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
-from world.uavs import action_velocity
+from world.snapshot_messages import agent_snapshot, fits, snapshot_due, snapshot_every_option
 
 log = logging.getLogger("truav.agent")
 
 CONTROL_SHUTDOWN = "shutdown"
-DONE_ACK_ACTION = 0
-"""The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
 DELAY_ENV = "TRUAV_AGENT_DELAY_MS"
 """Testing only: ``UAV:MS[,UAV:MS...]`` makes those agents pause MS ms per observation (see debug_delay_s)."""
 
@@ -112,6 +112,9 @@ class AgentOptions:
     LOCKSTEP_JOIN_GRACE_S) before deciding without it, which the stats count: the run is then not exact."""
     train: bool = True
     """Learn online (epsilon-greedy + updates); False acts greedily and never updates."""
+    snapshot_every: int = snapshot_every_option()
+    """Lock-step: publish this agent's decision state (agents.decision_state) at the ticks the world
+    snapshots (divisible by this; 0: never)."""
     checkpoint: str | None = opt(None, flag="--checkpoint", metavar="FILE",
                                  help="Q-table checkpoint (.npz): resume from it, rewrite it")
     """Q-table checkpoint file (.npz): resumed from if it exists, rewritten every checkpoint_every steps."""
@@ -202,6 +205,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         """Observations dropped because their tick was not newer than one already answered (a delayed
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
+        self.decision = TruavDecision(cfg, opts.uav, self.learners, opts.train, self.encoder, self.reward)
+        self._snapshot_too_large = False  # said once
         self._steps_at_start = self.steps
         self._earlier_incarnations = self._read_earlier_incarnations()
         self._debug = Every(log)
@@ -217,9 +222,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
         self._t = 0
-        self._state = 0
-        self._action = 0
-        self._velocity = (0.0, 0.0)
+        self._action = 0  # the last action (schemes without a TruavDecision)
         self._init_lockstep()
         self._init_realtime()
         self._init_federated()
@@ -395,54 +398,53 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         self.checkpoint()
 
     def handle(self, obs: schema.Obs) -> None:
-        """One observation: beacon, state, learn, act (the trainer's cycle for one agent)."""
-        o, T = self.opts, self.cfg.scenario.steps_per_episode
+        """One observation: beacon, state, learn, act (the trainer's cycle for one agent: agents.agent_decision,
+        which the re-simulation of a recording runs too)."""
+        o, d = self.opts, self.decision
+        if snapshot_due(o.lockstep, o.snapshot_every, obs.tick):
+            self._publish_snapshot(obs.tick)
         self._send_beacon(obs)
         if o.debug_delay_s:
             self._stop.wait(o.debug_delay_s)
         peers, heard = self._peers(obs.tick)
-        pos = np.array([[obs.pos]], dtype=np.float64)
-        nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
-        state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
-                                    nearest, self.encoder.neighbour_sectors(pos, peers, heard),
-                                    np.array([[obs.densest_sector]]))
-        r = None
-        if obs.episode != self._episode:
-            self._episode, self._t = obs.episode, 0
-            self.learners.begin_episode(obs.episode, T, greedy=not o.train)
-        else:
-            r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
-                            np.array([[obs.energy_j]]), overlap)
+        s_prev = d.state  # the state the update below learns in: its visit is counted (federated TRUAV)
+        r = d.learn(obs, peers, heard)
+        if r is not None:
             if o.train:
-                self.learners.update(np.array([[self._state]]), np.array([[self._action]]), r, state, False)
-                self._count_visit(self._state)
-            self._t += 1
+                self._count_visit(s_prev)
             self.steps += 1
             if o.checkpoint and checkpoint_due(self.steps, o.uav, self.n_uavs, o.checkpoint_every):
                 self.checkpoint()
-        self._state = int(state[0, 0])
         if obs.done:
             self._federated_round(obs.episode, obs.tick)  # once learned from the episode's last step
             if o.lockstep:  # the acknowledgement the world waits for before the next tick (and the shutdown)
-                self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick,
-                                                                             action=DONE_ACK_ACTION))
+                self.bus.publish(keys.uav_action(o.run, o.uav), d.acknowledge(obs))
             return
         if not o.lockstep:  # real time: peers' shares of the last round, merged as they complete
             self._merge_ready()
-        self._action = int(self.learners.act(state, min(self._t, T - 1), pos)[0, 0])
-        self._velocity = tuple(action_velocity(np.array(self._action), obs.speed_max))
-        self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick, action=self._action))
+        self.bus.publish(keys.uav_action(o.run, o.uav), d.act(obs))
         if self._debug.due():
             log.debug("uav %d tick %d: received obs at (%.0f, %.0f) m, %d vehicles in range, %d packets queued, "
                       "beacons of %d peer(s) in range; decided state %d, reward %s, action %d (%s); sent it "
                       "(%d steps learned, %d stale observations skipped)", o.uav, obs.tick, *obs.pos,
-                      obs.vehicles_in_range, obs.queued_packets, len(peers[0, 0]), self._state,
-                      "-" if r is None else f"{float(r[0, 0]):.3f}", self._action,
+                      obs.vehicles_in_range, obs.queued_packets, len(peers[0, 0]), d.state,
+                      "-" if r is None else f"{float(r[0, 0]):.3f}", d.action,
                       "learning" if o.train else "greedy", self.steps, self.stale_obs_skipped)
+
+    def _publish_snapshot(self, tick: int) -> None:
+        """This agent's state before ``tick``'s observation, for `truav log resim --from`."""
+        state = decision_state(self.decision)
+        if not fits(state):
+            if not self._snapshot_too_large:
+                log.warning("uav %d: %d Q-table rows updated do not fit one snapshot message: not published",
+                            self.opts.uav, len(state["q_rows"]))
+            self._snapshot_too_large = True
+            return
+        self.bus.publish(keys.uav_snapshot(self.opts.run, self.opts.uav), agent_snapshot(self.opts.uav, tick, state))
 
     def _send_beacon(self, obs: schema.Obs) -> None:
         o = self.opts
-        beacon = schema.Beacon(uav=o.uav, tick=obs.tick, pos=obs.pos, vel=self._velocity)
+        beacon = self.decision.beacon(obs)
         key = self._beacon_key(obs)
         if o.lockstep:  # every agent waits for it, the last observation's included
             self._publish_beacon(key, beacon)
@@ -474,9 +476,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
         self._take_beacons()
         fresh = self._lockstep_beacons(tick) if self.opts.lockstep else self._realtime_beacons_in_range(tick)
-        ids = sorted(fresh)
-        peers = np.array([[[fresh[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
-        return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
+        return peer_arrays(fresh)
 
     def checkpoint(self) -> None:
         """Atomically write the Q-table, step count and generator state."""

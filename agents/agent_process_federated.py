@@ -159,6 +159,9 @@ class FederatedShares:
                 continue
             accepted.append(share)
         self.fed_stats["rows_changed"] += merge(self.learners.q[0, 0], self.visits, accepted, self.fed.max_weight)
+        decision = getattr(self, "decision", None)
+        if decision is not None:  # rows a merge changed belong in a snapshot of the table too (agents.decision_state)
+            decision.touched.update(int(s) for sh in accepted for s in sh.states)
         self.fed_stats["shares_merged"] += len(accepted)
 
     def federated_stats(self) -> dict:

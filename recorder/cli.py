@@ -3,14 +3,16 @@
 * :func:`add_log_commands` adds to ``truav``::
 
       truav log record --run RUN --out FILE [-e ENDPOINT] [--config-toml FILE]   # until Ctrl-C / SIGTERM
-      truav log play FILE [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused]
+      truav log play FILE... [--rate R] [--loop] [--topics PAT ...] [--start S] [--duration S] [--paused] [--lockstep]
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
       truav log record-ctl split|pause|resume|snapshot --run RUN   # a running recorder (recorder.cli_record_ctl)
+      truav log play-ctl --run RUN seek --tick K|rate R|pause|step|status ...   # a running play (truav.swarm.cli_replay)
       truav log cut IN OUT --from-tick A --to-tick B   # a window (recorder.cli_tools: cut, merge, info)
       truav log merge OUT IN...          # parts, cuts or runs as one
       truav log info FILE...             # per topic, sender and kind; gaps, faults, run metadata
+      truav log resim FILE [--from TICK --qtable RUN --greedy --set K=V]  # re-run a lock-step run, check it
 
   and ``truav report``, an alias of ``truav log report``;
 * :func:`add_swarm_commands` adds to ``truav-swarm`` the aliases ``truav-swarm
@@ -37,20 +39,14 @@ from typing import Any, Callable
 
 from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
+from recorder.cli_resim import add_resim_parser, cmd_resim
+from recorder.log_copy import damage_errors, not_mcap_reason
 from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_PROBLEMS = 1
 """`truav log check`: the recording is unfinished, damaged or has sequence anomalies (like diff/grep, 1 = found)."""
 
-
-def damage_errors() -> tuple[type[BaseException], ...]:
-    """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
-    import struct
-
-    import zstandard
-    from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
 
 Command = Callable[[argparse.Namespace], int]
 
@@ -62,21 +58,7 @@ def _fail(prog: str, message: str, code: int = EXIT_USAGE) -> int:
 
 def _mcap_file(path: str) -> str | None:
     """An error message when ``path`` is not a readable MCAP file, else None."""
-    from recorder.reader import probe
-
-    p = Path(path)
-    if not p.exists():
-        return f"{path}: no such file"
-    if not p.is_file():
-        return f"{path}: not a file"
-    try:
-        with open(p, "rb") as f:
-            probe(f)
-    except ValueError as exc:
-        return f"{path}: {exc}"
-    except OSError as exc:
-        return f"{path}: {exc.strerror or exc}"
-    return None
+    return not_mcap_reason(path)
 
 
 # --- truav log recover / check, truav report --------------------------------------------------
@@ -186,55 +168,65 @@ def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
 def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     import signal
 
-    from recorder.replay import (CONTROL_PART, KeyboardControl, Replayer, ReplayOptions, ReplayUsageError,
-                                 recording_info, replay_on_bus, split_patterns)
+    from recorder.replay import (CONTROL_PART, KEYS_HELP, KeyboardControl, Replayer, ReplayOptions,
+                                 ReplayUsageError, recording_info, split_patterns)
+    from recorder.replay_bus import replay_on_bus
     from truav.bus import keys
-    from truav.bus.transport import apply_creds, config_from_args
+    from truav.bus.transport import config_from_args
+    from truav.bus.zenoh_config import apply_replay_creds
 
-    problem = _mcap_file(args.file)
-    if problem:
-        return _fail(prog, problem)
+    for name in args.file:
+        problem = None if name.endswith(".parts.json") and Path(name).is_file() else _mcap_file(name)
+        if problem and not (len(args.file) == 1 and _parts_index_beside(name)):
+            return _fail(prog, problem)
     try:
+        apply_replay_creds(args, keys.SRC_REPLAY)  # under --creds: into <run>-replay, the only run it may use
         include, exclude = split_patterns(args.topics, args.exclude)
-        options = ReplayOptions(path=Path(args.file), run=args.run, rate=args.rate, loops=None if args.loop else 1,
-                                include=include, exclude=exclude, start_s=args.start, duration_s=args.duration,
-                                paused=args.paused, with_control=args.with_control)
-        apply_creds(args, keys.SRC_REPLAY)
+        options = ReplayOptions(path=tuple(Path(f) for f in args.file), run=args.run, rate=args.rate,
+                                loops=None if args.loop else 1, include=include, exclude=exclude,
+                                start_s=args.start, duration_s=args.duration, paused=args.paused,
+                                with_control=args.with_control, lockstep=args.lockstep,
+                                lockstep_wait_s=args.lockstep_wait)
         zconfig = config_from_args(args)
+        info = recording_info(options.path)  # the parts resolved: each is checked below
     except (ReplayUsageError, ValueError) as exc:
         return _fail(prog, str(exc))
     from recorder.check import check
-    audit = check(args.file)  # a damaged chunk would stop the replay halfway: say so first
-    if audit.corrupt_chunks or audit.read_error:
-        return _fail(prog, f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                                    f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+    for part in info.paths:
+        audit = check(part)  # a damaged chunk would stop the replay halfway: say so first
+        if audit.corrupt_chunks or audit.read_error:
+            return _fail(prog, f"{part}: damaged recording ({'; '.join(audit.problems[:3])}); "
+                               f"`truav log recover {part} FIXED.mcap` salvages the rest")
     try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
-        info = recording_info(options.path)
         target = Replayer(options, lambda _key, _payload: None, info).target_run
         if target is None:
-            return _fail(prog, f"{args.file}: no truav/<run>/ keys to replay")
+            return _fail(prog, f"{args.file[0]}: no truav/<run>/ keys to replay")
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except damage_errors() as exc:
-        return _fail(prog, f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); "
-                                    f"`truav log recover` salvages the rest")
+        return _fail(prog, f"{args.file[0]}: damaged recording ({type(exc).__name__}: {exc}); "
+                           f"`truav log recover` salvages the rest")
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet
 
-    def on_state(command: str) -> None:
+    def on_state(command: str) -> None:  # from several threads (keys, bus, the replay): one write per line
         if not quiet:
-            print(f"replay: {command}", file=sys.stderr, flush=True)
+            sys.stderr.write(f"replay: {command}\n")
+            sys.stderr.flush()
 
     previous = {}
     if threading.current_thread() is threading.main_thread():  # signal handlers only work there
         previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         if not quiet:
-            hint = "space pause/resume, s step, q quit; " if keyboard else ""
+            hint = f"keys: {KEYS_HELP}; " if keyboard else ""
             recorded = ", ".join(repr(r) for r in info.runs)
             runs = f"run {recorded}" if list(info.runs) == [target] else f"recorded run(s) {recorded} as {target!r}"
-            print(f"replay: {args.file} ({runs}){' (paused)' if args.paused else ''}; {hint}bus commands on "
+            files = args.file[0] if len(info.paths) == 1 else f"{len(info.paths)} parts of {args.file[0]}"
+            print(f"replay: {files} ({runs}){' (paused)' if args.paused else ''}"
+                  f"{' (lock-step with the live agents)' if args.lockstep else ''}; {hint}status on "
+                  f"{keys.replay_status(target)}; `truav-swarm replay-ctl --run {target} ...` or bus commands on "
                   f"{keys.control(target, CONTROL_PART)}", file=sys.stderr, flush=True)
         stats = replay_on_bus(options, zconfig, keyboard=keyboard, stop=stop, on_state=on_state)
     except ReplayUsageError as exc:
@@ -247,7 +239,16 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(stats.format())
+    if stats.lockstep_given_up:  # not paced by every live agent throughout: say so in the exit code too
+        return _fail(prog, f"--lockstep: {stats.lockstep_given_up} answer(s) of live agents not received within "
+                           f"--lockstep-wait {args.lockstep_wait:g} s", EXIT_FAILED)
     return EXIT_OK
+
+
+def _parts_index_beside(name: str) -> bool:
+    """``<stem>.mcap`` that a split recording never wrote, its ``<stem>.parts.json`` beside it."""
+    from recorder.replay_source import index_beside
+    return index_beside(Path(name)) is not None
 
 
 REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live agent drops replayed traffic "
@@ -286,15 +287,21 @@ def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
 
 def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentParser:
     """``play`` (``truav log``) or ``replay`` (``truav-swarm``): re-publish a recording."""
+    from recorder.replay import KEYS_HELP
     from truav.cli_args import add_transport_args
 
     rp = subparsers.add_parser(
         name, help=help,
-        description="Re-publish a recording's payloads unchanged, with the recorded timing. Keys: space "
-                    "pause/resume, s step, q quit (on a terminal). Bus: a control message on "
-                    "truav/<run>/control/replay with command pause|resume|toggle|step|quit. "
-                    f"{REPLAY_EXAMPLE}")
-    rp.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
+        description="Re-publish a recording's payloads unchanged, with the recorded timing. "
+                    f"Keys (on a terminal): {KEYS_HELP}. From another terminal: truav-swarm replay-ctl --run RUN "
+                    "seek --tick 40|rate 2|pause|resume|step|burst 5|status (over the queryable "
+                    "truav/<run>/replay/ctl), or a control message on truav/<run>/control/replay with command "
+                    "pause|resume|toggle|step|burst|next|seek|rate|quit. A seek (to a time, a tick, or back/forward "
+                    "by a time) first sends each channel's last message before that point. Status about 5 times a "
+                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}")
+    rp.add_argument("file", metavar="FILE", nargs="+",
+                    help="MCAP recording (finished or not); a split recording: its <stem>.parts.json, any part, "
+                         "or all its parts (played as one, in part order)")
     rp.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (default 1.0; 2 = twice as fast)")
     rp.add_argument("--loop", action="store_true", help="start over at the end, until q / Ctrl-C")
     rp.add_argument("--topics", nargs="+", default=[], metavar="PATTERN",
@@ -308,6 +315,13 @@ def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentP
     rp.add_argument("--with-control", action="store_true",
                     help="also replay recorded control messages (skipped by default: old stop/shutdown "
                          "commands would hit live processes)")
+    rp.add_argument("--lockstep", action="store_true",
+                    help="consumer-paced: send the recorded tick k only once the live agents sent an observation "
+                         "of tick k-1 answered it (their actions; recorded actions are not replayed), as fast as "
+                         "they answer")
+    rp.add_argument("--lockstep-wait", type=positive_float, default=60.0, metavar="S",
+                    help="--lockstep: how long to wait for a live agent's answer before going on without it "
+                         "(default 60)")
     rp.add_argument("--no-keys", action="store_true", help="ignore the keyboard even on a terminal")
     rp.add_argument("--quiet", action="store_true", help="print only the final summary")
     add_transport_args(rp)
@@ -344,18 +358,26 @@ def cmd_log_play(args: argparse.Namespace) -> int:
     return cmd_replay(args, prog="truav")
 
 
+def cmd_log_play_ctl(args: argparse.Namespace) -> int:
+    """``truav log play-ctl``: ``truav-swarm replay-ctl``'s command, its endpoints checked as there."""
+    from truav.swarm.cli_replay import cmd_replay_ctl
+    _check_endpoints(args)
+    return cmd_replay_ctl(args)
+
+
 # --- the command groups ---------------------------------------------------------------------------
 def add_log_commands(subparsers: Any) -> None:
-    """Add ``log record|play|report|check|recover|cut|merge|info`` to the ``truav`` CLI, and ``report``, an alias of
-    ``log report``."""
-    log = subparsers.add_parser("log", help="record, play, report on, check, repair, cut, merge and describe MCAP "
-                                            "recordings of swarm runs",
-                                description="Record, play, report on, check, repair, cut, merge and describe MCAP "
-                                            "recordings made by the TRUAV recorder.")
+    """Add ``log record|play|report|check|recover|cut|merge|info|resim`` (and the record-ctl / play-ctl
+    commands) to the ``truav`` CLI, and ``report``, an alias of ``log report``."""
+    log = subparsers.add_parser("log", help="record, play, report on, check, repair, cut, merge, describe and "
+                                            "re-simulate MCAP recordings of swarm runs",
+                                description="Record, play, report on, check, repair, cut, merge, describe and "
+                                            "re-simulate MCAP recordings made by the TRUAV recorder.")
     log_sub = log.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     add_record_parser(log_sub, RECORD_HELP).set_defaults(func=cmd_log_record)
     add_play_parser(log_sub, "play", PLAY_HELP).set_defaults(func=cmd_log_play)
     add_report_parser(log_sub, REPORT_HELP).set_defaults(func=cmd_report)
+    add_resim_parser(log_sub).set_defaults(func=cmd_resim)
 
     rec = log_sub.add_parser(
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",
@@ -383,6 +405,9 @@ def add_log_commands(subparsers: Any) -> None:
     add_tool_parsers(log_sub)
 
     add_record_ctl_parser(log_sub)
+    from truav.swarm.cli_replay import add_replay_ctl  # the same command as truav-swarm replay-ctl
+    add_replay_ctl(log_sub, "play-ctl", "truav log play-ctl", "steer a running play (seek, rate, pause, step by tick...) "
+                                                             "and print its status").set_defaults(func=cmd_log_play_ctl)
 
     add_report_parser(subparsers, alias_help("truav log report")).set_defaults(func=cmd_report)
 

@@ -13,6 +13,7 @@ not load mcap's reader, zstd and the recovery code.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 from pathlib import Path
@@ -50,7 +51,16 @@ def options_from_args(args: argparse.Namespace) -> RecorderOptions:
         if not path.is_file():
             raise RecorderUsageError(f"config file not found: {path}")
         toml_text = path.read_text(encoding="utf-8")
-    return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, compression=args.compression,
+    run_info = None
+    if args.run_info:
+        try:
+            run_info = json.loads(args.run_info)
+        except ValueError:
+            run_info = None
+        if not isinstance(run_info, dict):
+            raise RecorderUsageError(f"--run-info: not a JSON object: {args.run_info[:80]!r}")
+    return RecorderOptions(run=args.run, out=Path(args.out), config_toml=toml_text, run_info=run_info,
+                           compression=args.compression,
                            flush_interval_s=args.flush_ms / 1000.0, mirrors=not args.no_mirrors, fsync=args.fsync,
                            force=args.force, geo_origin=args.geo_origin, compact=not args.no_compact,
                            modes=cli_args.options_from(RecordModes, args)).validate()
@@ -69,6 +79,9 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--out", "-o", required=True, metavar="FILE", help="MCAP file to write")
     parser.add_argument("--config-toml", metavar="FILE",
                         help="the run's config (as `truav config show` prints) to store as MCAP metadata")
+    parser.add_argument("--run-info", metavar="JSON",
+                        help="how the run was started beyond its config (a JSON object: seed, lockstep, ...), "
+                             "stored as MCAP metadata for `truav log resim`")
     parser.add_argument("--compression", choices=sorted(COMPRESSIONS), default=DEFAULT_COMPRESSION,
                         help=f"chunk compression (default {DEFAULT_COMPRESSION})")
     parser.add_argument("--flush-ms", type=float, default=DEFAULT_FLUSH_INTERVAL_S * 1000, metavar="MS",

@@ -52,13 +52,12 @@ def _seconds(ns: Optional[int], origin: Optional[int]) -> str:
 
 
 def _split_patterns(topics: list[str], exclude: list[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``--topics`` entries starting with ``!`` are excludes, as replay's ``--topics`` (recorder.replay, which
-    loads Zenoh: not imported for this); returns (include, exclude)."""
-    include = tuple(t for t in topics if not t.startswith("!"))
-    excluded = tuple(t[1:] for t in topics if t.startswith("!")) + tuple(exclude)
-    if any(not p for p in include + excluded):
-        raise UserError("--topics/--exclude: empty topic pattern")
-    return include, excluded
+    """``--topics`` entries starting with ``!`` are excludes, as in replay's ``--topics``; returns (include, exclude)."""
+    from recorder.replay_setup import ReplayUsageError, split_patterns
+    try:
+        return split_patterns(topics, exclude)
+    except ReplayUsageError as exc:
+        raise UserError(f"--topics/--exclude: {exc}") from None
 
 
 # --- truav log cut ----------------------------------------------------------------------------------

@@ -14,6 +14,10 @@ CONFIG_METADATA = "truav.config"  # {"toml": <text>, "<section>.<key>": <JSON va
 CONFIG_TOML_KEY = "toml"
 RECORDING_METADATA = "truav.recording"  # run name, start time, host, recorder version
 SUMMARY_METADATA = "truav.recorder_summary"  # written when the recorder stops cleanly
+RUN_METADATA = "truav.run"
+"""How the swarm was run beyond its config (seed, lock-step, scheme, episodes, the agents' starting tables and
+whether they learn): {"<name>": <JSON value>, ...}. `truav-swarm up --record` writes it; the re-simulation of a
+recording (recorder.resim) needs it."""
 
 
 def config_metadata(toml_text: str) -> dict[str, str]:
@@ -37,3 +41,19 @@ def read_config_toml(source: Source | os.PathLike[str]) -> Optional[str]:
     """The run config TOML stored in a recording, or None."""
     meta = read_metadata(source).get(CONFIG_METADATA)
     return None if not meta else meta.get(CONFIG_TOML_KEY)
+
+
+def run_info_metadata(info: dict[str, Any]) -> dict[str, str]:
+    """A run's settings as an MCAP metadata map (every value JSON-encoded)."""
+    return {str(k): json.dumps(v) for k, v in info.items()}
+
+
+def read_run_info(source: Source | os.PathLike[str]) -> Optional[dict[str, Any]]:
+    """The run settings stored in a recording (RUN_METADATA), or None (a recording made without them)."""
+    meta = read_metadata(source).get(RUN_METADATA)
+    if not meta:
+        return None
+    try:
+        return {k: json.loads(v) for k, v in meta.items()}
+    except ValueError:
+        return None

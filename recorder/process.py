@@ -72,7 +72,8 @@ from recorder.mcap_log import (
 )
 from recorder.foxglove import DEFAULT_ORIGIN, FoxgloveMirror, Geometry
 from recorder.recover import compact
-from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA, config_metadata
+from recorder.metadata import (CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, SUMMARY_METADATA, config_metadata,
+                               run_info_metadata)
 from recorder.parts import PartedLog
 from recorder.pause import PauseLedger
 from recorder.record_modes import (MODE_FLAGS, PAUSE_METADATA, REASON_COMMAND, REASON_SIGNAL, RecordModes,
@@ -121,6 +122,7 @@ class RecorderOptions:
     run: str
     out: Path
     config_toml: Optional[str] = None  # the run's config as TOML text (stored as MCAP metadata)
+    run_info: Optional[dict] = None  # how the run was started beyond its config (seed, lock-step...: RUN_METADATA)
     compression: str = DEFAULT_COMPRESSION
     flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S
     chunk_bytes: int = DEFAULT_CHUNK_BYTES
@@ -224,6 +226,8 @@ class Recorder:
             })
             if opts.config_toml is not None:
                 self._log.set_metadata(CONFIG_METADATA, config_metadata(opts.config_toml))
+            if opts.run_info is not None:
+                self._log.set_metadata(RUN_METADATA, run_info_metadata(opts.run_info))
             self._bus = transport.Bus(keys.SRC_RECORDER, opts.run, self._zconfig)
             # Pulled by the writer thread itself: no per-message callback or hand-off.
             self._receiver = self._bus.receive_raw(keys.everything(opts.run))
@@ -522,12 +526,16 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
 def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] = (), *,
                   config_toml: str | os.PathLike[str] | None = None, force: bool = False,
                   geo_origin: tuple[float, float] | None = None, extra: Sequence[str] = (),
-                  modes: RecordModes | None = None, python: str = sys.executable) -> list[str]:
+                  modes: RecordModes | None = None, python: str = sys.executable,
+                  run_info: dict | None = None) -> list[str]:
     """The command line that runs the recorder as a subprocess (see the module docstring): the
     :class:`RecorderOptions` a supervisor sets, as the flags of :mod:`recorder.cli_process`
     (``config_toml`` here is the file; ``modes``: split or snapshot, their flags as declared in
-    :class:`recorder.record_modes.RecordModes`; ``extra``: more flags, e.g. credentials or ``-v``)."""
+    :class:`recorder.record_modes.RecordModes`; ``run_info``: the run's settings, RUN_METADATA; ``extra``:
+    more flags, e.g. credentials or ``-v``)."""
     argv = [python, "-m", ENTRY_MODULE, "--run", run, "--out", os.fspath(out)]
+    if run_info is not None:
+        argv += ["--run-info", json.dumps(run_info, sort_keys=True)]
     for endpoint in connect:
         argv += ["--connect", endpoint]
     if config_toml is not None:

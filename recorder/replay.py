@@ -12,14 +12,22 @@ What rosbag2 users expect, on the TRUAV bus:
   ``/``; ``!PATTERN`` in ``--topics`` excludes); ``--start``/``--duration``
   cut a window, in seconds from the first message of the recording;
 * ``--run NEW`` rewrites the key prefix ``truav/<old>/`` to ``truav/NEW/``;
-* ``--paused`` starts paused; then, on a terminal, *space* pauses/resumes,
-  *s* steps one message, *q* quits; on the bus, a ``control`` message on
-  ``truav/<run>/control/replay`` with command ``pause``, ``resume``,
-  ``toggle``, ``step`` (``args: {"n": k}`` for k messages) or ``quit``.
+* ``--paused`` starts paused; while it plays, :meth:`Replayer.command` (any thread: the keyboard,
+  a ``control`` message on ``truav/<run>/control/replay``, the ``truav/<run>/replay/ctl`` queryable
+  of :mod:`recorder.replay_bus`) pauses, resumes, sets the rate, steps one world tick (every message
+  up to the next world tick message: from a tick's start, that whole tick; paused in the middle of
+  one, the rest of it), bursts N ticks, steps N messages, or seeks to a
+  time (seconds from the recording's first message), to a tick, or by a time back or forward.
+  After a seek the last message of every replayed channel before the new position is sent again
+  first, so a subscriber that joined late sees the current state (rosbag2 #929); see
+  :data:`KEY_BINDINGS` and :data:`COMMANDS`;
+* several files, or a split recording's parts, play as one (:mod:`recorder.replay_source`).
 
 Recorded ``control`` keys are skipped unless ``--with-control`` (re-sending
 old ``stop``/``shutdown`` commands into a live run is rarely wanted), and
-``control/replay`` always is (a replay must not steer itself).
+``control/replay`` and a recorded replay's own ``replay/*`` always are (a replay
+must not steer itself). ``--lockstep`` leaves out the recorded actions: the live
+agents answer (:class:`LockstepGate`, :mod:`recorder.replay_bus`).
 
 Driving one live agent from a recorded world: replay only what the world
 sent to it, and let the live agent answer::
@@ -32,247 +40,286 @@ sent to it, and let the live agent answer::
 features are as recorded; ``[!3]*`` is fnmatch's "not starting with 3").
 
 :class:`Replayer` is the engine; it publishes through any callable, so it
-is tested without Zenoh too.
+is tested without Zenoh too. Its options and the checks made before it starts are
+:mod:`recorder.replay_setup`; the replay on the bus, :mod:`recorder.replay_bus`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 import select
 import sys
 import threading
 import time
-from array import array
-from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
 from fnmatch import fnmatchcase
-from pathlib import Path
 from typing import IO, Any, Optional
 
-from recorder.mcap_log import is_mirror_topic
-from recorder.reader import RecordedMessage, iter_messages, open_source, probe, read_schemas
-from truav.bus import keys, schema, transport
+from recorder.reader import RecordedMessage
+from recorder.replay_setup import (  # noqa: F401  (re-exported: what a replay is asked to do)
+    ACTION_PATTERN, CONTROL_PART, CONTROL_PATTERN, NS, SELF_CONTROL_PATTERN, SELF_STATUS_PATTERN, RecordingInfo,
+    ReplayOptions, ReplayStats, ReplayUsageError, effective_excludes, key_rewriter, recording_info, select_topics,
+    split_patterns)
+from recorder.replay_source import TICK_PATTERN, ReplaySource, Timeline, resolve_parts, tick_of
+from truav.bus import schema
 
-CONTROL_PART = "replay"  # commands arrive on keys.control(run, CONTROL_PART)
 CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_QUIT = "pause", "resume", "toggle", "step", "quit"
-COMMANDS = (CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_QUIT)
-KEY_BINDINGS = {" ": CMD_TOGGLE, "s": CMD_STEP, "q": CMD_QUIT}
+CMD_BURST, CMD_NEXT, CMD_SEEK, CMD_RATE, CMD_STATUS = "burst", "next", "seek", "rate", "status"
+COMMANDS = (CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_BURST, CMD_NEXT, CMD_SEEK, CMD_RATE, CMD_STATUS,
+            CMD_QUIT)
+"""What :meth:`Replayer.command` takes, with its arguments: ``step`` ``n`` ticks (default 1) and ``burst``
+``n`` ticks (both leave it paused; a tick ends where the next world tick message starts), ``next`` ``n``
+messages, ``seek`` with one of ``s`` (seconds from the recording's first message), ``tick`` or ``by``
+(seconds, negative: back), ``rate`` with ``rate`` (> 0) or ``factor`` (multiplies it), ``status``
+(nothing: the answer is the status)."""
+BURST_KEY_TICKS = 10
+SKIP_KEY_S = 5.0
+MIN_RATE, MAX_RATE = 1e-3, 1e3
+KEY_BINDINGS: dict[str, tuple[str, dict[str, Any]]] = {
+    " ": (CMD_TOGGLE, {}), "s": (CMD_STEP, {}), "n": (CMD_NEXT, {}), "b": (CMD_BURST, {"n": BURST_KEY_TICKS}),
+    "+": (CMD_RATE, {"factor": 2.0}), "=": (CMD_RATE, {"factor": 2.0}), "-": (CMD_RATE, {"factor": 0.5}),
+    ",": (CMD_SEEK, {"by": -SKIP_KEY_S}), ".": (CMD_SEEK, {"by": SKIP_KEY_S}), "0": (CMD_SEEK, {"s": 0.0}),
+    "q": (CMD_QUIT, {}),
+}
+ENTRY_KEYS = {"g": "tick", "t": "s"}
+"""Keys that start typing a seek target: g then a tick number, t then seconds from the start; Enter
+seeks, Esc (or any other key) cancels, Backspace deletes."""
+MAX_ENTRY_CHARS = 16
+KEYS_HELP = (f"space pause/resume, s step one tick, b burst {BURST_KEY_TICKS} ticks, n one message, + / - rate x2 / "
+             f"x0.5, , / . back / forward {SKIP_KEY_S:g} s, 0 to the start, g<tick>Enter go to a tick, "
+             f"t<seconds>Enter go to a time, q quit")
+"""The keys, as --help and the banner say them."""
 
-CONTROL_PATTERN = "truav/*/control/*"  # recorded control keys: skipped by default
-SELF_CONTROL_PATTERN = f"truav/*/control/{CONTROL_PART}"  # never replayed
-NS = 1_000_000_000
-MAX_LATENESS_SAMPLES = 1_000_000  # timing statistics keep every k-th sample beyond this
 KEY_POLL_S = 0.1  # keyboard thread wake-up (to notice the end)
 LINGER_S = 0.2  # after the last put, before closing the session: let Zenoh send it
 SPIN_S = 0.0005  # wait the last half millisecond by polling: Condition.wait overshoots ~0.1 ms
 
 
-class ReplayUsageError(ValueError):
-    """A user mistake (missing file, not an MCAP, a pattern matching nothing...)."""
+class LockstepGate:
+    """What ``--lockstep`` needs from the bus (:class:`recorder.replay_bus.AnswerGate`): told of every
+    message sent, it holds the next tick back until the live agents answered the last one."""
+
+    def published(self, key: str, payload: bytes) -> None:
+        """A message went out (a tick opens a round; an observation names a UAV to wait for)."""
+
+    def wait_answers(self, interrupted: Callable[[], bool]) -> None:
+        """Return once the open round is answered, given up on, or ``interrupted()``."""
 
 
-@dataclass(frozen=True)
-class ReplayOptions:
-    path: Path
-    run: Optional[str] = None  # publish under truav/<run>/ (default: the recorded run)
-    rate: float = 1.0
-    loops: Optional[int] = 1  # None: forever
-    include: tuple[str, ...] = ()  # empty: every key
-    exclude: tuple[str, ...] = ()
-    start_s: float = 0.0
-    duration_s: Optional[float] = None
-    paused: bool = False
-    with_control: bool = False
+def _count(args: dict[str, Any], name: str, default: int) -> int:
+    n = args.get(name, default)
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 1_000_000:
+        raise ValueError(f"{name} must be an integer in [1, 1000000], got {n!r}")
+    return n
 
 
-@dataclass
-class ReplayStats:
-    """What a replay did, and how well it kept time."""
-
-    published: int = 0
-    per_channel: Counter = field(default_factory=Counter)  # output key -> messages
-    loops: int = 0  # complete passes
-    wall_s: float = 0.0
-    quit_reason: str = "end"
-    lateness_ns: array = field(default_factory=lambda: array("q"))  # send time - due time, when not paused
-    _sample_every: int = 1
-
-    def add_lateness(self, late_ns: int) -> None:
-        if self.published % self._sample_every == 0:
-            self.lateness_ns.append(late_ns)
-            if len(self.lateness_ns) >= MAX_LATENESS_SAMPLES:
-                del self.lateness_ns[::2]
-                self._sample_every *= 2
-
-    def lateness_ms(self, q: float) -> float:
-        """Quantile ``q`` of the lateness, in ms (0 when nothing was timed)."""
-        if not self.lateness_ns:
-            return 0.0
-        ordered = sorted(self.lateness_ns)
-        return ordered[min(int(q * len(ordered)), len(ordered) - 1)] / 1e6
-
-    def format(self) -> str:
-        return (f"replay: {self.published} messages on {len(self.per_channel)} channels in {self.wall_s:.2f} s, "
-                f"{self.loops} complete pass(es), ended by {self.quit_reason}; timing: late by "
-                f"p50 {self.lateness_ms(0.5):.2f} ms, p99 {self.lateness_ms(0.99):.2f} ms, "
-                f"max {self.lateness_ms(1.0):.2f} ms")
-
-
-@dataclass(frozen=True)
-class RecordingInfo:
-    """What a replay needs to know before it starts."""
-
-    first_ns: int  # first receive time in the file (None-free: empty files are refused)
-    last_ns: int
-    topics: tuple[str, ...]  # bus keys (mirrors excluded)
-    runs: tuple[str, ...]  # the <run> of every truav/<run>/ key
-
-
-def recording_info(path: str | os.PathLike[str]) -> RecordingInfo:
-    """Span and keys of a recording; ReplayUsageError when it is missing, not MCAP or empty."""
-    path = Path(path)
-    if not path.is_file():
-        raise ReplayUsageError(f"{path}: no such file")
-    try:
-        with open_source(path) as stream:
-            probe(stream)
-        topics = tuple(sorted(t for t in read_schemas(path) if not is_mirror_topic(t)))
-        first = last = None
-        summary = _finished_summary(path)
-        if summary is not None and summary.statistics is not None and summary.statistics.message_count:
-            first, last = summary.statistics.message_start_time, summary.statistics.message_end_time
-        else:
-            for message in iter_messages(path):
-                first = message.log_time if first is None else min(first, message.log_time)
-                last = message.log_time if last is None else max(last, message.log_time)
-    except ValueError as exc:  # probe: "not an MCAP file"
-        raise ReplayUsageError(f"{path}: {exc}") from None
-    if first is None or last is None:
-        raise ReplayUsageError(f"{path}: the recording holds no messages")
-    runs = tuple(sorted({r for r in map(keys.parse_run, topics) if r is not None}))
-    return RecordingInfo(first_ns=first, last_ns=last, topics=topics, runs=runs)
-
-
-def _finished_summary(path: Path) -> Any:
-    from mcap.reader import make_reader
-
-    with open(path, "rb") as f:
-        if not probe(f).finished:
-            return None
-        f.seek(0)
-        try:
-            return make_reader(f).get_summary()
-        except Exception:  # a damaged summary: fall back to scanning
-            return None
-
-
-def split_patterns(topics: Sequence[str], exclude: Sequence[str] = ()) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``--topics`` entries starting with ``!`` are excludes; returns (include, exclude)."""
-    include = tuple(t for t in topics if not t.startswith("!"))
-    excluded = tuple(t[1:] for t in topics if t.startswith("!")) + tuple(exclude)
-    for pattern in include + excluded:
-        if not pattern:
-            raise ReplayUsageError("empty topic pattern")
-    return include, excluded
-
-
-def effective_excludes(options: ReplayOptions) -> tuple[str, ...]:
-    base = (SELF_CONTROL_PATTERN,) if options.with_control else (CONTROL_PATTERN,)
-    return base + tuple(options.exclude)
-
-
-def select_topics(info: RecordingInfo, options: ReplayOptions) -> list[str]:
-    """Recorded keys the options keep; ReplayUsageError if a pattern selects nothing."""
-    excludes = effective_excludes(options)
-    for pattern in options.include:
-        if not any(fnmatchcase(t, pattern) for t in info.topics):
-            raise ReplayUsageError(f"--topics {pattern!r} matches no recorded key; keys are: "
-                                   + ", ".join(info.topics[:20]) + (" ..." if len(info.topics) > 20 else ""))
-    kept = [t for t in info.topics
-            if (not options.include or any(fnmatchcase(t, p) for p in options.include))
-            and not any(fnmatchcase(t, p) for p in excludes)]
-    if not kept:
-        raise ReplayUsageError("the topic filters leave nothing to replay (recorded control keys are skipped "
-                               "unless --with-control)")
-    return kept
-
-
-def key_rewriter(target_run: Optional[str]) -> Callable[[str], Optional[str]]:
-    """Key in the file -> key to publish (None: not a TRUAV key, skipped)."""
-    if target_run is not None:
-        try:
-            keys.validate_run(target_run)
-        except ValueError as exc:
-            raise ReplayUsageError(f"--run: {exc}") from None
-
-    def rewrite(key: str) -> Optional[str]:
-        run = keys.parse_run(key)
-        if run is None:
-            return None
-        if target_run is None:
-            return key
-        return f"{keys.prefix(target_run)}{key[len(keys.ROOT) + 1 + len(run):]}"
-
-    return rewrite
+def _number(args: dict[str, Any], name: str) -> float:
+    v = args[name]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or v in (float("inf"), float("-inf")):
+        raise ValueError(f"{name} must be a finite number, got {v!r}")
+    return float(v)
 
 
 class Replayer:
-    """Publishes a recording with its timing; pause/resume/step/quit from any thread."""
+    """Publishes a recording with its timing; every command of :data:`COMMANDS` from any thread.
+
+    Positions count the messages of the replayed stream (:class:`recorder.replay_source.Timeline`):
+    ``_pos`` is the next one to send. A seek takes effect in the loop (:meth:`run`'s thread): it moves
+    the stream there, sends each channel's last message before it, and plays on from it at once."""
 
     def __init__(self, options: ReplayOptions, publish: Callable[[str, bytes], None],
                  info: Optional[RecordingInfo] = None, clock: Callable[[], int] = time.monotonic_ns,
-                 on_state: Callable[[str], None] = lambda _state: None) -> None:
+                 on_state: Callable[[str], None] = lambda _state: None, gate: Optional[LockstepGate] = None) -> None:
         if not options.rate > 0:
             raise ReplayUsageError(f"--rate must be positive, got {options.rate}")
         if options.start_s < 0 or (options.duration_s is not None and options.duration_s <= 0):
             raise ReplayUsageError("--start must be >= 0 and --duration > 0")
         if options.loops is not None and options.loops < 1:
             raise ReplayUsageError("loops must be at least 1")
+        if not options.lockstep_wait_s > 0:
+            raise ReplayUsageError(f"--lockstep-wait must be positive, got {options.lockstep_wait_s}")
         self.options = options
         self.info = info if info is not None else recording_info(options.path)
         if options.run is None and len(self.info.runs) > 1:
-            raise ReplayUsageError(f"{options.path} holds runs {', '.join(self.info.runs)}: pick one with --run")
+            raise ReplayUsageError(f"{self._name()} holds runs {', '.join(self.info.runs)}: pick one with --run")
         span_s = (self.info.last_ns - self.info.first_ns) / NS
         if options.start_s > span_s:
             raise ReplayUsageError(f"--start {options.start_s:g} s is past the end of the recording ({span_s:.3f} s)")
         self.topics = select_topics(self.info, options)
+        self._send = frozenset(self.topics)
+        ticks = [t for t in self.info.topics if fnmatchcase(t, TICK_PATTERN)]
+        self._scan = sorted(self._send | set(ticks))  # tick keys are read for step/seek even when not sent
+        self.source = ReplaySource(self.info.paths or tuple(resolve_parts(options.path)))
         self.target_run = options.run or (self.info.runs[0] if self.info.runs else None)
         self._rewrite = key_rewriter(options.run)
         self._publish = publish
         self._clock = clock
         self._on_state = on_state
+        self._gate = gate
         self._cond = threading.Condition()
+        self._timeline: Optional[Timeline] = None
         self._paused = options.paused
-        self._steps = 0
+        self._rate = float(options.rate)
         self._quit: Optional[str] = None
-        self._resumed = False  # set when leaving a pause: re-anchor the timing
+        self._pos = 0  # the next message of the stream to send
+        self._until = 0  # paused: send on while _pos < _until (step, burst, next)
+        self._seek: Optional[int] = None  # a position to move to, taken by the loop
+        self._anchor: Optional[tuple[int, int]] = None  # (monotonic ns, log time ns) that are due together
+        self._last_log: Optional[int] = None  # receive time of the last message sent
+        self._tick = -1  # the last world tick sent
+        self._waiting = False  # --lockstep: for the agents' answers
+        self._ended = False
+        self._entry: Optional[tuple[str, str]] = None  # a seek target being typed: (argument, text so far)
+        self._last: dict[str, RecordedMessage] = {}  # each channel's last message up to _pos
         self.stats = ReplayStats()
 
-    # -- commands (any thread) --
+    def _name(self) -> str:
+        paths = self.info.paths
+        return str(paths[0]) if len(paths) == 1 else f"{len(paths)} files" if paths else str(self.options.path)
+
+    # -- where it stands --
     @property
     def paused(self) -> bool:
         return self._paused
 
-    def command(self, name: str, n: int = 1) -> None:
-        """Apply one of :data:`COMMANDS`; ValueError for anything else."""
+    @property
+    def rate(self) -> float:
+        return self._rate
+
+    @property
+    def timeline(self) -> Timeline:
+        """Every message's receive time and where each tick starts (one read of the window, on first use)."""
+        with self._cond:
+            if self._timeline is None:
+                start, end = self.window()
+                self._timeline = Timeline.scan(self.source.messages(self._scan, start, end),
+                                               lambda key: fnmatchcase(key, TICK_PATTERN))
+            return self._timeline
+
+    def status(self) -> schema.ReplayStatus:
+        """Where it stands, as the status message says it (unstamped)."""
+        with self._cond:
+            state = (schema.REPLAY_ENDED if self._ended or self._quit else schema.REPLAY_WAITING if self._waiting
+                     else schema.REPLAY_PAUSED if self._paused else schema.REPLAY_PLAYING)
+            last = self._last_log if self._last_log is not None else self.window()[0]
+            return schema.ReplayStatus(
+                state=state, position_s=max(last - self.info.first_ns, 0) / NS,
+                span_s=(self.info.last_ns - self.info.first_ns) / NS, tick=self._tick, rate=self._rate,
+                paused=self._paused, sent=self.stats.published, restored=self.stats.restored, loop=self.stats.loops)
+
+    def describe(self) -> str:
+        """The status in one line."""
+        s = self.status()
+        tick = f", tick {s.tick}" if s.tick >= 0 else ""
+        return (f"{s.state} at {s.position_s:.3f}/{s.span_s:.3f} s{tick}, rate {s.rate:g}, {s.sent} sent"
+                + (f", {s.restored} restored" if s.restored else ""))
+
+    # -- commands (any thread) --
+    def key(self, char: str) -> bool:
+        """Apply the command bound to a key (:data:`KEY_BINDINGS`), or type a seek target
+        (:data:`ENTRY_KEYS`); False for an unbound key. ValueError (one line) for a refused seek."""
+        if self._entry is not None:
+            return self._type(char)
+        if char in ENTRY_KEYS:
+            self._entry = (ENTRY_KEYS[char], "")
+            self._on_state(f"go to {'tick' if char == 'g' else 'time (s)'}: type it, then Enter (Esc cancels)")
+            return True
+        binding = KEY_BINDINGS.get(char.lower() if char.isalpha() else char)
+        if binding is None:
+            return False
+        self.command(binding[0], **binding[1])
+        return True
+
+    def _type(self, char: str) -> bool:
+        assert self._entry is not None
+        what, text = self._entry
+        if char in ("\r", "\n"):
+            self._entry = None
+            try:
+                value: Any = int(text) if what == "tick" else float(text)
+            except ValueError:
+                raise ValueError(f"not a {'tick number' if what == 'tick' else 'time in seconds'}: {text!r}") from None
+            self.command(CMD_SEEK, **{what: value})
+        elif char in ("\x7f", "\b"):
+            self._entry = (what, text[:-1])
+        elif (char.isdigit() or (char == "." and what == "s")) and len(text) < MAX_ENTRY_CHARS:
+            self._entry = (what, text + char)
+        else:  # Esc or anything else: no seek
+            self._entry = None
+            self._on_state("seek cancelled")
+        return True
+
+    def command(self, name: str, **args: Any) -> None:
+        """Apply one of :data:`COMMANDS`; ValueError (one line) for an unknown command or a bad argument."""
+        if name not in COMMANDS:
+            raise ValueError(f"unknown replay command {name!r}; known: {', '.join(COMMANDS)}")
+        timeline = self.timeline if name in (CMD_STEP, CMD_BURST, CMD_NEXT, CMD_SEEK) else None
         with self._cond:
             if name == CMD_PAUSE or (name == CMD_TOGGLE and not self._paused):
                 self._paused = True
-            elif name == CMD_RESUME or name == CMD_TOGGLE:
+            elif name in (CMD_RESUME, CMD_TOGGLE):
                 if self._paused:
-                    self._paused, self._resumed = False, True
-            elif name == CMD_STEP:
+                    self._paused, self._anchor = False, None
+            elif name in (CMD_STEP, CMD_BURST):
+                n = _count(args, "n", 1)
+                end = max(self._next_position(), self._until)
+                for _ in range(n):
+                    end = timeline.next_tick_start(end)
+                self._paused, self._until = True, end
+            elif name == CMD_NEXT:
                 self._paused = True
-                self._steps += max(int(n), 1)
+                self._until = min(max(self._next_position(), self._until) + _count(args, "n", 1), len(timeline))
+            elif name == CMD_SEEK:
+                self._seek = self._seek_position(timeline, args)
+                self._until = self._seek
+            elif name == CMD_RATE:
+                self._set_rate(args)
             elif name == CMD_QUIT:
                 self._quit = self._quit or "quit command"
-            else:
-                raise ValueError(f"unknown replay command {name!r}; known: {', '.join(COMMANDS)}")
             self._cond.notify_all()
-            state = "quitting" if self._quit else ("paused" if self._paused else "playing")
-        self._on_state(f"{state} ({name}, {self.stats.published} sent)")
+        self._on_state(f"{name}{_args_text(args)}: {self.describe()}")
+
+    def _next_position(self) -> int:
+        return self._seek if self._seek is not None else self._pos
+
+    def _seek_position(self, timeline: Timeline, args: dict[str, Any]) -> int:
+        given = [k for k in ("s", "tick", "by") if k in args]
+        if len(given) != 1:
+            raise ValueError("seek takes one of s (seconds from the start), tick, or by (seconds, negative: back)")
+        if given[0] == "tick":
+            tick = args["tick"]
+            if isinstance(tick, bool) or not isinstance(tick, int):
+                raise ValueError(f"tick must be an integer, got {tick!r}")
+            return timeline.position_of_tick(tick)
+        span_s = (self.info.last_ns - self.info.first_ns) / NS
+        if given[0] == "s":
+            at = _number(args, "s")
+            if not 0 <= at <= span_s:
+                raise ValueError(f"s={at:g} is outside the recording (0 to {span_s:.3f} s)")
+            return timeline.position_at(self.info.first_ns + round(at * NS))
+        here = self._last_log if self._last_log is not None else self.window()[0]
+        return timeline.position_at(here + round(_number(args, "by") * NS))
+
+    def _set_rate(self, args: dict[str, Any]) -> None:
+        rate = self._rate * _number(args, "factor") if "factor" in args else _number(args, "rate") if "rate" in args \
+            else None
+        if rate is None or not MIN_RATE <= rate <= MAX_RATE:
+            raise ValueError(f"rate takes rate (or factor) giving a speed in [{MIN_RATE:g}, {MAX_RATE:g}]"
+                             + ("" if rate is None else f", got {rate:g}"))
+        if self._anchor is not None and not self._paused:  # the recorded time reached so far stays reached
+            now = self._clock()
+            mono, log = self._anchor
+            self._anchor = (now, log + round((now - mono) * self._rate))
+        self._rate = rate
+
+    def seeking(self) -> bool:
+        """A seek is waiting for the loop to take it."""
+        with self._cond:
+            return self._seek is not None and self._quit is None and not self._ended
+
+    def report(self, line: str) -> None:
+        """A line for the console (a refused key, a lock-step warning)."""
+        self._on_state(line)
 
     def quit(self, reason: str = "quit") -> None:
         with self._cond:
@@ -287,13 +334,15 @@ class Replayer:
         return start, end
 
     def messages(self) -> Iterator[RecordedMessage]:
+        """The replayed stream: the kept keys, and the world's ticks (read, sent only if kept)."""
         start, end = self.window()
-        return iter_messages(self.options.path, include=self.topics, start_ns=start, end_ns=end)
+        return self.source.messages(self._scan, start, end)
 
     def run(self) -> ReplayStats:
         """Replay until the end (of every loop) or quit; returns the statistics."""
         stats = self.stats
         began = self._clock()
+        self.timeline  # read the window once before the first message goes out
         loop = 0
         while self.options.loops is None or loop < self.options.loops:
             if not self._run_once():
@@ -302,45 +351,48 @@ class Replayer:
             stats.loops = loop
         with self._cond:
             stats.quit_reason = self._quit or "end"
+            self._ended = True
         stats.wall_s = (self._clock() - began) / NS
+        self._on_state(f"ended: {self.describe()}")
         return stats
 
     def _run_once(self) -> bool:
         """One pass over the window; False when quit.
 
-        Message i is due at ``anchor_mono + (log_time_i - anchor_log) / rate``.
-        The anchor is the first message of the pass, and moves when a pause
-        ends (to the last message sent, so the recorded gap to the next one is
-        kept) or a message is stepped (to that message).
-        """
-        anchor_mono: Optional[int] = None
-        anchor_log = 0
-        last_log: Optional[int] = None  # receive time of the last message sent
-        scale = 1.0 / self.options.rate
+        A message is due at ``anchor_mono + (log_time - anchor_log) / rate``. The anchor is the first
+        message of the pass, and moves when a pause ends (to the last message sent, so the recorded gap
+        to the next one is kept), a message is stepped or a seek lands (to that message), or the rate
+        changes (to the recorded time reached then)."""
         clock = self._clock
-        for message in self.messages():
-            out_key = self._rewrite(message.key)
-            if out_key is None:
-                continue
-            if anchor_mono is None:
-                anchor_mono, anchor_log = clock(), message.log_time
+        with self._cond:
+            # a step asked for before the first pass began stays asked for
+            self._pos, self._anchor, self._last = 0, None, {}
+            self._until = self._until if self._seek is None and not self.stats.loops else 0
+            self._last_log, self._tick = None, -1
+        stream = self.messages()
+        current = next(stream, None)
+        while True:
             stepped = False
             with self._cond:
                 while True:
                     if self._quit:
                         return False
+                    if self._seek is not None:
+                        break
                     if self._paused:
-                        if self._steps:
-                            self._steps -= 1
+                        if current is not None and self._pos < self._until:
                             stepped = True
                             break
                         self._cond.wait()
                         continue
-                    if self._resumed:
-                        self._resumed = False
-                        anchor_mono = clock()
-                        anchor_log = message.log_time if last_log is None else last_log
-                    left = anchor_mono + round((message.log_time - anchor_log) * scale) - clock()
+                    if current is None:
+                        return True
+                    if current.key not in self._send or (self.options.lockstep and self._gate is not None):
+                        break  # not sent (a tick key kept for stepping), or as fast as the agents answer
+                    if self._anchor is None:
+                        self._anchor = (clock(), current.log_time if self._last_log is None else self._last_log)
+                    mono, log = self._anchor
+                    left = mono + round((current.log_time - log) / self._rate) - clock()
                     if left <= 0:
                         break
                     if left > SPIN_S * NS:
@@ -353,21 +405,101 @@ class Replayer:
                                 pass
                         finally:
                             self._cond.acquire()
-            now = clock()
-            self._publish(out_key, message.payload)
+                seek = self._seek
+            if seek is not None:
+                stream, current = self._move(stream, current, seek)
+                continue
+            assert current is not None
+            if current.key in self._send and not self._hold_for_answers(current):
+                continue  # a seek or quit came while waiting: look again
+            self._send_message(current, restored=False, timed=not stepped)
             if stepped:
-                anchor_mono, anchor_log = now, message.log_time
-            else:
-                self.stats.add_lateness(now - anchor_mono - round((message.log_time - anchor_log) * scale))
-            last_log = message.log_time
+                with self._cond:
+                    self._anchor = (clock(), current.log_time)
+            with self._cond:
+                self._pos += 1
+            current = next(stream, None)
+
+    def _hold_for_answers(self, message: RecordedMessage) -> bool:
+        """--lockstep: before a tick goes out, wait for the answers to the last one; False if interrupted."""
+        if self._gate is None or not fnmatchcase(message.key, TICK_PATTERN):
+            return True
+        with self._cond:
+            self._waiting = True
+        try:
+            self._gate.wait_answers(lambda: self._quit is not None or self._seek is not None)
+        finally:
+            with self._cond:
+                self._waiting = False
+        return self._quit is None and self._seek is None
+
+    def _send_message(self, message: RecordedMessage, restored: bool, timed: bool = False) -> None:
+        """Publish one message; ``timed``: it went out at its due time (its lateness is counted)."""
+        out_key = self._rewrite(message.key)
+        if fnmatchcase(message.key, TICK_PATTERN):
+            tick = tick_of(message.payload)
+            if tick is not None:
+                self._tick = tick
+        if out_key is None or message.key not in self._send:
+            return
+        now = self._clock()
+        self._publish(out_key, message.payload)
+        if self._gate is not None:
+            self._gate.published(out_key, message.payload)
+        with self._cond:
+            self._last_log = message.log_time
+            self._last[message.key] = message
+            if restored:
+                self.stats.restored += 1
+                return
             self.stats.published += 1
             self.stats.per_channel[out_key] += 1
-        return True
+            if timed and self._anchor is not None and not self.options.lockstep:
+                mono, log = self._anchor
+                self.stats.add_lateness(now - mono - round((message.log_time - log) / self._rate))
+
+    def _move(self, stream: Iterator[RecordedMessage], current: Optional[RecordedMessage],
+              target: int) -> tuple[Iterator[RecordedMessage], Optional[RecordedMessage]]:
+        """Go to position ``target``: read forward (from the start when going back) keeping each channel's
+        last message, send those again in their recorded order, and play on from ``target`` at once."""
+        with self._cond:
+            pos = self._pos
+            if target < pos:
+                stream, pos, self._last = self.messages(), 0, {}
+                current = next(stream, None)
+            last = self._last
+        tick = -1 if pos == 0 else self._tick
+        while current is not None and pos < target:
+            if current.key in self._send:
+                last[current.key] = current
+            if fnmatchcase(current.key, TICK_PATTERN):
+                number = tick_of(current.payload)
+                tick = tick if number is None else number
+            pos += 1
+            current = next(stream, None)
+        self._tick = tick
+        with self._cond:
+            self._last_log = None  # the position is now the restored messages' (none: the start)
+        for message in sorted(last.values(), key=lambda m: m.log_time):
+            self._send_message(message, restored=True)
+        with self._cond:
+            self._pos = pos
+            self._anchor = None if current is None else (self._clock(), current.log_time)  # on at once
+            if self._seek == target:
+                self._seek = None
+            self._until = max(self._until, pos)
+            self.stats.seeks += 1
+        self._on_state(f"at position {pos}: {self.describe()}")
+        return stream, current
+
+
+def _args_text(args: dict[str, Any]) -> str:
+    return "".join(f" {k}={v}" for k, v in args.items())
 
 
 # --- keyboard -------------------------------------------------------------------------------
 class KeyboardControl:
-    """Single keys on a terminal (cbreak mode, restored on exit): space, s, q."""
+    """Single keys on a terminal (cbreak mode, restored on exit): :data:`KEY_BINDINGS`."""
 
     def __init__(self, replayer: Replayer, stream: IO[str] = sys.stdin) -> None:
         self._replayer = replayer
@@ -415,39 +547,9 @@ class KeyboardControl:
             if not ready:
                 continue
             char = os.read(fd, 1).decode(errors="ignore")
-            command = KEY_BINDINGS.get(char.lower())
-            if command is not None:
-                self._replayer.command(command)
-
-
-# --- running it on the bus -------------------------------------------------------------------
-def replay_on_bus(options: ReplayOptions, zenoh_config: Any = None, *, keyboard: bool = False,
-                  stop: Optional[threading.Event] = None,
-                  on_state: Callable[[str], None] = lambda _state: None) -> ReplayStats:
-    """Replay through a ``replay`` Bus, obeying bus commands (and the keyboard if asked).
-    ``stop`` (optional) ends the replay from another thread (e.g. a signal handler)."""
-    info = recording_info(options.path)
-    probe_replayer = Replayer(options, lambda k, p: None, info)  # validates options before opening Zenoh
-    run = probe_replayer.target_run
-    if run is None:
-        raise ReplayUsageError(f"{options.path}: no truav/<run>/ keys to replay")
-    with transport.Bus(keys.SRC_REPLAY, run, zenoh_config) as bus:
-        replayer = Replayer(options, bus.publish_raw, info, on_state=on_state)
-
-        def on_control(key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
-            if isinstance(msg, schema.Control) and msg.command in COMMANDS:
-                n = msg.args.get("n", 1)
-                replayer.command(msg.command, n if isinstance(n, int) and not isinstance(n, bool) else 1)
-
-        bus.subscribe(keys.control(run, CONTROL_PART), on_control)
-        watcher = None
-        if stop is not None:
-            watcher = threading.Thread(target=lambda: (stop.wait(), replayer.quit("interrupted")), daemon=True)
-            watcher.start()
-        context = KeyboardControl(replayer) if keyboard else contextlib.nullcontext()
-        with context:
-            stats = replayer.run()
-        if stop is not None:
-            stop.set()  # release the watcher
-        time.sleep(LINGER_S)
-    return stats
+            if not char:  # a byte of a multi-byte character: no key of ours
+                continue
+            try:
+                self._replayer.key(char)
+            except ValueError as exc:  # e.g. a seek past the end: say it, keep playing
+                self._replayer.report(f"key {char!r}: {exc}")

@@ -20,7 +20,7 @@ import msgpack
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
-         "beacons", "rejection", "qshare")
+         "beacons", "rejection", "replay_status", "world_snapshot", "agent_snapshot", "qshare")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -95,6 +95,9 @@ _ENVELOPE_PROPS = {
     "t": {**_INT, "description": "sender wall clock when stamped, ns since the Unix epoch"},
     "inc": {**_INT, "description": "sender incarnation (random per process start): seq restarts from 0 with a new one"},
 }
+_SNAPSHOT_ARRAYS = {"type": "object", "description": "a lock-step snapshot's state: name -> [dtype, shape, "
+                    "little-endian bytes] (truav log resim --from restores it)",
+                    "additionalProperties": {"type": "array", "minItems": 3, "maxItems": 3}}
 _BODY_PROPS: dict[str, dict[str, Any]] = {
     "tick": {"tick": _INT, "episode": _INT, "sim_time": _NUM, "deadline_ms": _NUM, "n_uavs": _INT},
     "obs": {
@@ -144,6 +147,12 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
                   "detail": {**_STR, "description": "what was wrong, at most 160 characters"},
                   "counts": {"type": "object", "additionalProperties": _INT,
                              "description": "everything refused of this UAV since the last rejection, by reason"}},
+    "replay_status": {"state": {"enum": ["playing", "paused", "waiting", "ended"]},
+                      "position_s": {**_NUM, "description": "s from the recording's first message"},
+                      "span_s": _NUM, "tick": {**_INT, "description": "last tick sent, -1 none yet"}, "rate": _NUM,
+                      "paused": {"type": "boolean"}, "sent": _INT, "restored": _INT, "loop": _INT},
+    "world_snapshot": {"tick": _INT, "episode": _INT, "arrays": _SNAPSHOT_ARRAYS},
+    "agent_snapshot": {"uav": _INT, "tick": _INT, "arrays": _SNAPSHOT_ARRAYS},
 }
 
 

@@ -16,6 +16,17 @@ from truav.bus.transport import Bus
 from truav.config import Config
 
 
+LONG_FIRST = ("tests/test_readme_commands.py", "tests/test_cold_start.py", "tests/test_nemesis.py",
+              "tests/test_healing.py", "tests/test_shared_parts.py", "tests/test_experiments.py")
+"""Modules of the longest tests (a minute or more each), started first: on two workers (`pytest -n 2`)
+a long test started last would keep one worker busy alone at the end."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    rank = {module: i for i, module in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(LONG_FIRST)))  # stable: else as collected
+
+
 def wait_until(pred: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
     """Poll ``pred`` until it holds or ``timeout_s`` passes; its last value."""
     deadline = time.monotonic() + timeout_s

@@ -96,7 +96,7 @@ def nothing_starts(monkeypatch, tmp_path):
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
     import recorder.cli_process
-    import recorder.replay
+    import recorder.replay_bus
     import truav.experiments.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
@@ -112,7 +112,7 @@ def nothing_starts(monkeypatch, tmp_path):
                          (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
                          (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.swarm.cli_ops, "Bus"),
                          (truav.swarm.cli_processes, "run_router"), (recorder.cli_process, "cmd_record"),
-                         (recorder.replay, "replay_on_bus"),
+                         (recorder.replay_bus, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)
 
@@ -218,6 +218,8 @@ ROWS = [
     ("world-seed-negative", "swarm", "world --seed -1", 2, "--seed"),
     ("agent-id-negative", "swarm", "agent --id -1", 2, "--id"),
     ("up-lockstep-wait-real-time", "swarm", "up --lockstep-wait 5", 2, "--lockstep-wait"),
+    ("up-snapshots-unrecorded", "swarm", "up --lockstep --snapshot-every 5", 2, "--snapshot-every"),
+    ("up-snapshots-negative", "swarm", "up --snapshot-every -1", 2, "--snapshot-every"),
     ("agent-lockstep-wait-real-time", "swarm", "agent --id 0 --lockstep-wait 5", 2, "--lockstep-wait"),
     ("world-lockstep-wait-zero", "swarm", "world --lockstep --lockstep-wait 0", 2, "--lockstep-wait"),
     ("agent-checkpoint-empty", "swarm", "agent --id 0 --checkpoint {empty_npz}", 2, "--checkpoint"),
@@ -231,6 +233,14 @@ ROWS = [
     ("replay-connect-garbage", "swarm", "replay {good_mcap} -e garbage", 2, "-e/--connect"),
     ("replay-topics-match-nothing", "swarm", "replay {good_mcap} --topics truav/*/world/nothing", 2, "--topics"),
     ("replay-corrupt-mcap", "swarm", "replay {corrupt_mcap}", 2, "corrupt.mcap"),
+    ("replay-lockstep-wait-zero", "swarm", "replay {good_mcap} --lockstep --lockstep-wait 0", 2, "--lockstep-wait"),
+    ("replay-same-file-twice", "swarm", "replay {good_mcap} {good_mcap}", 2, "named twice"),
+    ("replay-ctl-rate-zero", "swarm", "replay-ctl rate 0", 2, "R"),
+    ("replay-ctl-seek-nowhere", "swarm", "replay-ctl seek", 2, "--tick"),
+    ("replay-ctl-seek-twice", "swarm", "replay-ctl seek --tick 3 --time 1", 2, "--time"),
+    ("replay-ctl-seek-tick-negative", "swarm", "replay-ctl seek --tick -1", 2, "--tick"),
+    ("replay-ctl-bad-run", "swarm", "replay-ctl --run a.b status", 2, "--run"),
+    ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
 ]
 
 

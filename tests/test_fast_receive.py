@@ -153,6 +153,9 @@ class ReferenceGuard(Guard):
         elif isinstance(msg, schema.Command):
             if src != keys.SRC_CONTROLLER:
                 return R_SENDER, f"command from {src}"
+        elif isinstance(msg, schema.ReplayStatus):
+            if src != keys.SRC_REPLAY:
+                return R_SENDER, f"replay status from {src}"
         uav = getattr(msg, "uav", None)
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"
@@ -197,7 +200,8 @@ class ReferenceGuard(Guard):
 # --- a corpus -------------------------------------------------------------------------------------------
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
-             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3", schema.KIND_REJECTION: "world"}
+             schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3", schema.KIND_REJECTION: "world",
+             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY, schema.KIND_WORLD_SNAPSHOT: "world"}
 
 
 def samples() -> list[Message]:
@@ -224,6 +228,12 @@ def samples() -> list[Message]:
         schema.Rejection(uav=3, at_tick=7, reason="out_of_range", refused_kind="action",
                          key="truav/r/uav/3/action", detail="action.action=99 outside [-1, 15]",
                          counts={"out_of_range": 2, "bad_type": 1}),
+        schema.ReplayStatus(state=schema.REPLAY_PLAYING, position_s=1.5, span_s=9.0, tick=7, rate=1.0, paused=False,
+                            sent=40, restored=0, loop=0),
+        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
+                                                        "uav_pos": ("<f8", (1, 2, 2), bytes(32))}),
+        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16)),
+                                                    "rng": ("<u8", (6,), bytes(48))}),
     ]
 
 

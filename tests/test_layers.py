@@ -75,9 +75,14 @@ LAYERS: list[tuple[str, int]] = [
     ("agents.central_process",          PROCESS),
     ("recorder.process",                PROCESS),
     ("recorder.replay",                 PROCESS),
+    ("recorder.replay_bus",             PROCESS),   # the replay on the bus: commands, queryable, status, lock-step
     ("truav.swarm.view",                PROCESS),
     ("truav.swarm.monitor",             PROCESS),
     ("truav.swarm.fault_control",       PROCESS),
+    ("world.world_messages",            WIRE),       # the world's observation messages, from the model
+    ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
+    ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
+    ("agents.decision_state",           ANALYSIS),   # that cycle's state captured and restored (snapshots)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
     ("world.*",                         MODEL),
     ("agents.*",                        MODEL),
@@ -100,6 +105,8 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.plots",               ANALYSIS),
     ("recorder.mcap_log",               ANALYSIS),
     ("recorder.reader",                 ANALYSIS),
+    ("recorder.replay_source",          ANALYSIS),  # what a replay reads: parts resolved, the seek timeline
+    ("recorder.replay_setup",           ANALYSIS),  # a replay's options, checked before it starts
     ("recorder.mcap_writer",            ANALYSIS),
     ("recorder.mcap_chunk",             ANALYSIS),
     ("recorder.mirror_channels",        ANALYSIS),
@@ -111,6 +118,8 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.recover",                ANALYSIS),
     ("recorder.report",                 ANALYSIS),
     ("recorder.metadata",               ANALYSIS),
+    ("recorder.resim",                  ANALYSIS),
+    ("recorder.resim_*",                ANALYSIS),
     ("recorder.schemas",                ANALYSIS),
     ("recorder.foxglove",               ANALYSIS),
     ("recorder.record_modes",           ANALYSIS),

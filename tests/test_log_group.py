@@ -26,7 +26,8 @@ from truav.swarm.cli import build_parser as swarm_parser
 from truav.swarm.cli import main as swarm_main
 
 REPO = Path(__file__).resolve().parents[1]
-LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info")
+LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info", "play-ctl",
+               "resim")
 ALIASES = {  # (program, alias) -> the truav log action it names
     ("truav", "report"): "report",
     ("truav-swarm", "record"): "record",
@@ -189,3 +190,15 @@ def test_readme_names_the_log_group_and_its_aliases() -> None:
     assert {c[2] for c in log_commands} == set(LOG_ACTIONS)
     for argv in log_commands:  # each parses with the real parser
         truav_parser().parse_args(argv[1:])
+
+
+def test_replay_ctl_is_play_ctl() -> None:
+    """`truav-swarm replay-ctl` and `truav log play-ctl` are one parser and one command (its actions are
+    subcommands, which the flag comparison above cannot hold side by side)."""
+    from truav.swarm.cli import build_parser as swarm_parser
+
+    for argv in (["seek", "--tick", "40"], ["rate", "2"], ["step"], ["burst", "5"], ["status"], ["seek", "--by", "-5"]):
+        old = vars(swarm_parser().parse_args(["replay-ctl", "--run", "r", *argv]))
+        new = vars(truav_parser().parse_args(["log", "play-ctl", "--run", "r", *argv]))
+        assert {k: v for k, v in old.items() if k not in ("func", "ctl_prog", "command")} == \
+            {k: v for k, v in new.items() if k not in ("func", "ctl_prog", "command", "log_command")}

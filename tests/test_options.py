@@ -14,8 +14,9 @@ from world.world_process import WorldOptions
 EXAMPLES = {
     AgentOptions: {"checkpoint": "a.npz", "checkpoint_every": 7, "qtable": "runs/t", "qtable_index": 2,
                    "stats_out": "a.json", "command_hold_s": 0.5, "beacon_every": 10, "beacon_cell_m": 250.0,
-                   "beacon_slots": 4},
-    WorldOptions: {"episodes": 3, "rate_hz": 20.0, "wait_agents_s": 5.0, "stats_out": "w.json", "max_missed_share": 0.25},
+                   "beacon_slots": 4, "snapshot_every": 0},
+    WorldOptions: {"episodes": 3, "rate_hz": 20.0, "wait_agents_s": 5.0, "stats_out": "w.json", "max_missed_share": 0.25,
+                   "snapshot_every": 7},
     ControllerOptions: {"policy": "runs/c", "policy_index": 1, "stats_out": "c.json"},
 }
 

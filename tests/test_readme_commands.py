@@ -70,6 +70,9 @@ RUN: dict[str, list[str]] = {
         [*VELOCITY, "--episodes-for", "patrol_ctrl=2"],
     "truav-swarm up --record runs/demo.mcap --out runs/swarm-record": SWARM,
     "truav log check runs/demo.mcap": [],
+    "truav-swarm up --lockstep --record runs/lockstep.mcap --out runs/swarm-lockstep-rec": SWARM,
+    "truav log resim runs/lockstep.mcap": [],
+    "truav log resim runs/lockstep.mcap --from 150 --greedy": ["--from", "3"],  # the tiny run has 6 ticks
     "truav report runs/demo.mcap": [],
     "truav log report runs/demo.mcap --out runs/demo-report": [],
     "truav log info runs/demo.mcap": [],
@@ -98,13 +101,14 @@ SETUP = "the environment the check runs in was set up so (the quick start's inst
 OTHER_TERMINAL = "needs a swarm running in another terminal; the parts it talks to are tested in tests/test_swarm*.py"
 OTHER_HOST = "a part for another host (ROUTER, ~/truav-creds are the user's); tests/test_multihost.py runs them"
 LONG = "an experiment of minutes (many swarm runs); its code runs small in tests/test_fault_sweep.py, test_scheme_faults.py"
+REPLAY_RUNNING = "needs a replay running in another terminal; tests/test_replay_ctl.py runs replay-ctl against one"
 BENCH = "a benchmark: minutes, and it measures the host (bench/ is run by hand)"
 CHECKED: dict[str, str] = {
     "python3 -m venv .venv": SETUP,
     ". .venv/bin/activate": SETUP,
     "pip install -e '.[dev]'": SETUP,
     "pip install -e '.[central]'": SETUP + " ([dev] includes PyTorch)",
-    "python -m pytest -q": "the test suite this test is part of",
+    "python -m pytest -q -n 2": "the test suite this test is part of",
     "truav-swarm status": OTHER_TERMINAL,
     "truav-swarm down --run demo": OTHER_TERMINAL,
     "truav-swarm router -l tcp/0.0.0.0:7447": "listens on every interface until stopped (a router for other hosts); "
@@ -122,6 +126,14 @@ CHECKED: dict[str, str] = {
     "truav-swarm replay runs/demo.mcap --rate 2 --topics 'truav/*/uav/1/obs' --paused":
         "starts paused, waiting for keys or bus commands; replay is tested in tests/test_replay.py",
     "truav-swarm record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav-swarm replay-ctl --run demo seek --tick 40": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo seek --by -5": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo rate 4": REPLAY_RUNNING,
+    "truav log play runs/parts.parts.json --rate 4 --paused":
+        "starts paused, waiting for keys or bus commands; tests/test_replay_seek.py plays parts as one",
+    "truav log play-ctl --run demo status": REPLAY_RUNNING,
+    "truav-swarm replay runs/demo.mcap --lockstep --topics 'truav/*/world/tick' 'truav/*/uav/1/obs' "
+    "-e tcp/127.0.0.1:7447": "needs a live agent answering in another terminal; tests/test_replay_ctl.py runs one",
     "truav log play runs/demo.mcap --rate 2 --paused":
         "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/test_log_group.py)",
     "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,

@@ -63,6 +63,11 @@ def samples() -> list[schema.Message]:
         schema.Rejection(uav=3, at_tick=7, reason="out_of_range", refused_kind="action",
                          key="truav/r/uav/3/action", detail="action.action=99 outside [-1, 15]",
                          counts={"out_of_range": 2, "bad_type": 1}),
+        schema.ReplayStatus(state=schema.REPLAY_PAUSED, position_s=12.5, span_s=60.0, tick=40, rate=2.0, paused=True,
+                            sent=1234, restored=17, loop=0),
+        schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
+                                                        "pos": ("<f8", (1, 2, 2), bytes(32))}),
+        schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16))}),
         schema.QShare(uav=3, tick=7, episode=2, part=0, parts=2, states=np.array([5, 17]), counts=np.array([4, 1]),
                       q=np.linspace(-1.0, 2.5, 32)),
     ]
@@ -212,7 +217,7 @@ def nested(depth: int) -> dict[str, Any]:
 
 # --- decode rejections -----------------------------------------------------------------
 def valid_wire() -> dict[str, Any]:
-    return wire(Sequencer("uav/3", clock=fake_clock()).stamp(Action(uav=3, tick=9, action=4)))
+    return wire(Sequencer("uav/3", clock=fake_clock(), incarnation=7).stamp(Action(uav=3, tick=9, action=4)))  # fixed: ids stay equal across pytest -n workers
 
 
 def with_(**changes: Any) -> bytes:

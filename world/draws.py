@@ -94,6 +94,29 @@ def set_pcg64_state(rng: np.random.Generator, words: np.ndarray) -> None:
     rng.bit_generator.state = st
 
 
+RNG_WORDS = 6
+"""Words of rng_words: PCG64 state (hi, lo), increment (hi, lo), has_uint32, uinteger."""
+
+
+def rng_words(rng: np.random.Generator) -> np.ndarray:
+    """rng's whole PCG64 state as RNG_WORDS uint64 (its buffered 32-bit half included), for a snapshot;
+    ValueError if its bit generator is not PCG64."""
+    st = rng.bit_generator.state
+    if st.get("bit_generator") != "PCG64":
+        raise ValueError(f"only PCG64 generators are captured, not {st.get('bit_generator')}")
+    s, inc, m = st["state"]["state"], st["state"]["inc"], (1 << 64) - 1
+    return np.array([s >> 64, s & m, inc >> 64, inc & m, st["has_uint32"], st["uinteger"]], np.uint64)
+
+
+def rng_from_words(words: np.ndarray) -> np.random.Generator:
+    """A PCG64 generator in the state rng_words captured."""
+    hi, lo, inc_hi, inc_lo, has32, u32 = (int(w) for w in np.asarray(words, np.uint64).reshape(RNG_WORDS))
+    bits = np.random.PCG64()
+    bits.state = {"bit_generator": "PCG64", "state": {"state": hi << 64 | lo, "inc": inc_hi << 64 | inc_lo},
+                  "has_uint32": has32, "uinteger": u32}
+    return np.random.Generator(bits)
+
+
 @intrinsic
 def _mul_64x64(typingctx, a, b):
     """The full 128-bit product of two uint64, (hi, lo): one native multiply

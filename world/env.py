@@ -24,7 +24,8 @@ import numpy as np
 
 from truav.config import Config
 from world import network, uavs
-from world.draws import POISSON_MULT_MAX_LAM, pcg64_state, poisson_into, set_pcg64_state, uniform_into
+from world.draws import (POISSON_MULT_MAX_LAM, pcg64_state, poisson_into, rng_words, set_pcg64_state,
+                         uniform_into)
 from world.network import (COVERED, DENSEST, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
                            E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
@@ -159,6 +160,8 @@ class World:
         """How start_episode maps its per-env draws: a thread pool's map draws
         envs in parallel (each env has its own generator, so nothing changes)."""
         self._deployed: np.ndarray | None = None
+        self.episode_rng_words: np.ndarray | None = None
+        """(B, 6) uint64: each env's generator (draws.rng_words) before the current episode's draws."""
         self._rng_state: np.ndarray | None = None
         """(B, 4) uint64 PCG64 states while an episode's draws are deferred (start_episode)."""
 
@@ -225,12 +228,9 @@ class World:
                 start = np.full((U, 2), sc.area_m / 2.0)
             if defer:
                 return start
-            poisson_into(rng, lam, arrivals[:, b])  # = rng.poisson(lam, (T, N)), in place
-            uniform_into(rng, turns[:, b])  # = rng.random((T, N, 2))
-            if self.cfg.roads.hotspot_move_prob > 0.0:  # drawn only then: fixed-hotspot streams unchanged
-                moves = rng.random((len(self.grid.majors), 2))
-                if not first:  # env b's rows only, so the envs may be drawn on threads
-                    self.grid.move_hotspots(self.vehicles, b, self.hotspots[b], moves)
+            moves = self.episode_blocks(rng, b)
+            if moves is not None and not first:  # env b's rows only, so the envs may be drawn on threads
+                self.grid.move_hotspots(self.vehicles, b, self.hotspots[b], moves)
             return start
 
         # The last episode's arrays are refilled: fresh ones cost page faults on
@@ -239,6 +239,9 @@ class World:
             self._draws = _EpisodeDraws(np.empty((T, self.batch, N), np.int64), np.empty((T, self.batch, N, 2)),
                                         np.empty((self.batch, U, 2)))
         arrivals, turns = self._draws.arrivals, self._draws.turn_u
+        # Each env's generator before this episode's draws: a snapshot (world.world_state) redraws them from it.
+        self.episode_rng_words = np.stack([rng_words(rng) for rng in self.rngs]) if all(
+            type(rng.bit_generator) is np.random.PCG64 for rng in self.rngs) else None
         starts = list((map if defer else self.draw_map)(draw, range(self.batch)))
         if defer:  # each env's stream after its UAV start, for the kernel
             self._rng_state = np.stack([pcg64_state(rng) for rng in self.rngs])
@@ -262,6 +265,17 @@ class World:
             self._xy[:] = self._trace[self._row0]
         self._run_relay(self._no_arrivals, serve_packets=False)
         return self._observe(np.zeros((self.batch, U)))
+
+    def episode_blocks(self, rng: np.random.Generator, b: int) -> np.ndarray | None:
+        """Env b's episode draws after its UAV start, from ``rng``: its arrivals and turn uniforms into this
+        episode's arrays, and the uniforms (K, 2) of its hotspot moves (None when hotspots are fixed: not
+        drawn then, so fixed-hotspot streams stay unchanged)."""
+        lam = self.cfg.traffic.packet_rate_hz * self.cfg.scenario.step_s
+        poisson_into(rng, lam, self._draws.arrivals[:, b])  # = rng.poisson(lam, (T, N)), in place
+        uniform_into(rng, self._draws.turn_u[:, b])  # = rng.random((T, N, 2))
+        if self.cfg.roads.hotspot_move_prob > 0.0:
+            return rng.random((len(self.grid.majors), 2))
+        return None
 
     def deferred_draws(self):
         """What a kernel needs to make the draws start_episode(defer_draws=True)

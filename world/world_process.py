@@ -41,6 +41,9 @@ from truav.bus.rejection_notices import RejectionNotices
 from truav.bus.rejections import rejection_metrics
 from world.env import World
 from truav.sumo_traffic import make_world
+from world.snapshot_messages import fits, snapshot_due, snapshot_every_option, world_snapshot
+from world.world_state import world_state
+from world.world_messages import observation_messages
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 from world.uavs import HOVER
 
@@ -79,6 +82,9 @@ class WorldOptions:
     run is no longer exact: counted in WorldStats.lockstep_missed), and marked silent: later rounds do not
     wait for it until an action or acknowledgement of it (for any tick) comes again. So a live agent that
     answers nothing costs one such wait, not one per tick."""
+    snapshot_every: int = snapshot_every_option()
+    """Lock-step: publish the world's whole state (world.world_state) before every tick divisible by this
+    (0: never); the supervisor passes 0 unless the run is recorded."""
     rate_hz: float = opt(10.0, flag="--rate", type="positive_float")
     """Real-time tick rate."""
     deadline_frac: float = 0.8
@@ -136,17 +142,8 @@ def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick:
         tick=tick, episode=episode, sim_time=tick * sc.step_s,
         deadline_ms=opts.lockstep_wait_s * 1e3 if lockstep else opts.deadline_frac * period_ms,
         n_uavs=n_uavs))
-    # Every column converted once (tolist: the same Python ints and floats as int()/float() per element), and
-    # the keys made once per run: at 100 UAVs the per-element numpy reads were most of a round's cost.
-    pos, in_range, queued = obs.pos[0].tolist(), obs.vehicles_in_range[0].tolist(), obs.queued[0].tolist()
-    relayed, covered, energy = obs.relayed[0].tolist(), obs.covered[0].tolist(), obs.energy_j[0].tolist()
-    densest = obs.densest_sector[0].tolist()
-    for i, key in enumerate(_obs_keys(run, n_uavs)):
-        bus.publish(key, schema.Obs(
-            tick=tick, episode=episode, uav=i, pos=(float(pos[i][0]), float(pos[i][1])),
-            vehicles_in_range=int(in_range[i]), queued_packets=int(queued[i]), relayed=int(relayed[i]),
-            covered=int(covered[i]), energy_j=float(energy[i]), speed_max=sc.uav_speed_mps, done=done,
-            densest_sector=int(densest[i])))
+    for key, msg in zip(_obs_keys(run, n_uavs), observation_messages(cfg, tick, episode, obs, done)):
+        bus.publish(key, msg)
     if tick % POSITIONS_EVERY_TICKS == 0:
         vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
         vehicles = vehicles[np.isfinite(vehicles).all(axis=1)]  # a replayed trace's vehicles not on the road
@@ -175,6 +172,7 @@ class WorldNode:
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
+        self._snapshot_too_large = False  # said once
         self._round = -1  # the latest tick published (its round may have closed: self._tick is then -1)
         self._answered = [-1] * self.n_uavs  # per UAV: the newest tick it answered
         self._alive: set[int] = set()
@@ -415,6 +413,17 @@ class WorldNode:
                 return
             self._stop.wait(min(left, 0.05))
 
+    def _publish_snapshot(self, tick: int, episode: int, obs) -> None:
+        """The world's state before ``tick``'s round, for `truav log resim --from` (once per snapshot tick)."""
+        state = world_state(self.world, obs)
+        if not fits(state):
+            if not self._snapshot_too_large:
+                log.warning("world state of %d bytes does not fit one snapshot message (%d): not published",
+                            sum(a.nbytes for a in state.values()), schema.MAX_SNAPSHOT_BYTES)
+            self._snapshot_too_large = True
+            return
+        self.bus.publish(keys.world_snapshot(self.opts.run), world_snapshot(tick, episode, state))
+
     def _tick_round(self, tick: int, episode: int, obs, done: bool, deadline: float | None) -> np.ndarray:
         """Publish tick + observations; return the actions (B=1, U), HOVER where missing.
 
@@ -428,6 +437,8 @@ class WorldNode:
             # One who joins later never saw this tick's observation; one marked silent is not waited for.
             expected = set(self._alive) - self._silent
             alive = set(self._alive)
+        if snapshot_due(lockstep, self.opts.snapshot_every, tick):
+            self._publish_snapshot(tick, episode, obs)
         publish_round(self.bus, self.cfg, self.opts, self.world, tick, episode, obs, done)
         actions = np.full((1, self.n_uavs), HOVER, np.int64)
         if done and not lockstep:

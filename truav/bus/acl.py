@@ -45,6 +45,10 @@ class Grant:
     """Liveliness tokens it may declare."""
     watch: tuple[str, ...] = ()
     """Liveliness key expressions it may watch or query."""
+    serve: tuple[str, ...] = ()
+    """Keys it may declare a queryable on and answer (a replay's ``replay/ctl``)."""
+    ask: tuple[str, ...] = ()
+    """Keys it may query (and get the answers of)."""
 
 
 
@@ -83,22 +87,26 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
         Grant(RECORDER, subscribe=(keys.everything(run),), tokens=(keys.alive_recorder(run),),
               watch=(keys.all_alive(run),)),
         Grant(SUPERVISOR,
-              put=(keys.all_control(run), keys.all_faults(run)),
+              put=(keys.all_control(run), keys.all_faults(run), keys.control(replay_run(run), "replay")),
               subscribe=(keys.all_metrics(run), f"{p}/world/*", keys.all_beacons(run), keys.all_beacons_in_cells(run),
                          *([keys.all_beacon_batches(run)] if batch_group_size > 1 else []),
                          keys.all_control(run), keys.all_states(run), keys.all_commands(run),  # traffic measured for the summary
-                         keys.all_health(run)),  # the agents' health reports, for `status`
-              watch=(keys.all_alive(run),)),
+                         keys.all_health(run),  # the agents' health reports, for `status`
+                         keys.replay_status(replay_run(run))),  # a replay's position (replay-ctl)
+              watch=(keys.all_alive(run),), ask=(keys.replay_ctl(replay_run(run)),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),
-        Grant(REPLAY, put=(f"{r}/**",), subscribe=(keys.control(replay_run(run), "replay"),),
-              tokens=(), watch=()),
+        # The replay publishes into its own run; it takes commands there (control/replay, the ctl queryable)
+        # and, under --lockstep, hears the live agents' answers and tokens of that run.
+        Grant(REPLAY, put=(f"{r}/**",),
+              subscribe=(keys.control(replay_run(run), "replay"), keys.all_actions(replay_run(run))),
+              tokens=(), watch=(keys.all_alive_uavs(replay_run(run)),), serve=(keys.replay_ctl(replay_run(run)),)),
     ]
     batches = {first: keys.group_beacons(run, first, last) for first, last in batch_groups(n_uavs, batch_group_size)}
     for i in range(n_uavs):
         table.append(Grant(
             keys.uav_identity(i),
             put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
-                 keys.uav_health(run, i), keys.uav_qshares(run, i), *([batches[i]] if i in batches else [])),
+                 keys.uav_health(run, i), keys.uav_snapshot(run, i), keys.uav_qshares(run, i), *([batches[i]] if i in batches else [])),
             subscribe=(keys.uav_obs(run, i), keys.uav_rejected(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
                        keys.all_control(run), keys.controller_cmd(run, i), keys.all_qshares(run),
                        *([keys.all_beacon_batches(run)] if batches else [])),
@@ -154,10 +162,15 @@ def acl_config(table: Sequence[Grant], peer_routers: Sequence[str] = ()) -> dict
         add("token", ("liveliness_token",), "ingress", g.tokens)
         add("watch", ("declare_liveliness_subscriber", "liveliness_query"), "ingress", g.watch)
         add("watch-receive", ("liveliness_token", "reply"), "egress", g.watch)
+        add("serve", ("declare_queryable", "reply"), "ingress", g.serve)
+        add("serve-query", ("query",), "egress", g.serve)
+        add("ask", ("query",), "ingress", g.ask)
+        add("ask-reply", ("reply", "declare_queryable"), "egress", g.ask)
         if mine:
             policies.append({"id": sid, "rules": mine, "subjects": [sid]})
     if peer_routers:
-        spaces = sorted({_run_of(e) for g in table for e in (*g.put, *g.subscribe, *g.tokens, *g.watch)})
+        spaces = sorted({_run_of(e) for g in table for e in (*g.put, *g.subscribe, *g.tokens, *g.watch, *g.serve,
+                                                             *g.ask)})
         subjects.append({"id": PEER_ROUTERS, "cert_common_names": sorted(peer_routers)})
         rules.append({"id": f"{PEER_ROUTERS}-relay", "messages": list(ALL_MESSAGES), "flows": ["ingress", "egress"],
                       "permission": "allow", "key_exprs": spaces})
@@ -190,12 +203,16 @@ def explain(table: Sequence[Grant], identity: str | None = None, key: str | None
             continue
         if key is not None:
             verbs = [verb for verb, exprs in (("put", g.put), ("subscribe", g.subscribe), ("declare token", g.tokens),
-                                              ("watch", g.watch)) if any(_matches(key, e) for e in exprs)]
+                                              ("watch", g.watch), ("serve queries", g.serve), ("query", g.ask))
+                     if any(_matches(key, e) for e in exprs)]
             out.append(f"{g.identity:<11} {key}: " + (", ".join(f"may {v}" for v in verbs) if verbs else "DENIED"))
             continue
         out.append(f"{g.identity}  (certificate CN={g.identity!r})")
         for verb, exprs in (("put", g.put), ("subscribe", g.subscribe), ("token", g.tokens), ("watch", g.watch)):
             out.append(f"  {verb:<9} " + (", ".join(exprs) if exprs else "- (denied)"))
+        for verb, exprs in (("serve", g.serve), ("query", g.ask)):
+            if exprs:
+                out.append(f"  {verb:<9} " + ", ".join(exprs))
     if peer_routers and identity is None:
         out.append(f"{', '.join(sorted(peer_routers))} (the other routers): relay everything of the run both ways; "
                    f"each router enforces the grants of the clients connected to it")

@@ -6,7 +6,7 @@ a process installs on its Bus:
 
 * **who may send it**: ticks, observations, positions, metrics and rejections only from
   ``world``; beacons, actions, state uploads, Q shares and health reports only from ``uav/<i>`` about UAV ``i``;
-  commands only from ``controller``;
+  commands only from ``controller``; a replay's status only from ``replay``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
   fault announcements only from the supervisor.  Without ``--secure`` the
   ``src`` field can be forged, so this stops mistakes and naive forgeries;
@@ -207,6 +207,9 @@ class Guard:
         elif isinstance(msg, schema.Command):
             if src != keys.SRC_CONTROLLER:
                 return R_SENDER, f"command from {src}"
+        elif isinstance(msg, schema.ReplayStatus):
+            if src != keys.SRC_REPLAY:
+                return R_SENDER, f"replay status from {src}"
         uav = getattr(msg, "uav", None)
         if uav is not None and uav >= b.n_uavs:
             return R_IMPLAUSIBLE, f"uav {uav} >= n_uavs {b.n_uavs}"

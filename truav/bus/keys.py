@@ -65,6 +65,9 @@ METRICS_ROOT = "metrics"  # metrics(run, scope) builds its keys
 FAULT_ROOT = "fault"
 CONTROL_ROOT = "control"
 GROUP = "group"  # group/<first>-<last>/beacons: the beacons of one process's UAVs first..last, batched
+REPLAY_ROOT = "replay"  # replay/status (a replay's position, ~5 Hz) and replay/ctl (its queryable)
+REPLAY_STATUS = "status"
+REPLAY_CTL = "ctl"
 
 # Last chunks of the per-UAV keys.
 OBS = "obs"
@@ -73,6 +76,7 @@ ACTION = "action"
 STATE = "state"
 HEALTH = "health"
 REJECTED = "rejected"
+SNAPSHOT = "snapshot"  # world/snapshot and uav/<i>/snapshot: a lock-step recording's state snapshots
 QSHARE = "qshare"
 BEACONS = "beacons"  # last chunk of a group's batch key
 CONTROLLER = "controller"
@@ -168,6 +172,16 @@ def all_qshares(run: str) -> str:
 def uav_health(run: str, i: int) -> str:
     """``truav/<run>/uav/<i>/health``: agent i's own statistics (what it refused), about once a second."""
     return f"{uav_prefix(run, i)}/{HEALTH}"
+
+
+def world_snapshot(run: str) -> str:
+    """``truav/<run>/world/snapshot``: the world's whole state every --snapshot-every ticks (lock-step)."""
+    return f"{prefix(run)}/{WORLD}/{SNAPSHOT}"
+
+
+def uav_snapshot(run: str, i: int) -> str:
+    """``truav/<run>/uav/<i>/snapshot``: agent i's learner state at the world's snapshot ticks."""
+    return f"{uav_prefix(run, i)}/{SNAPSHOT}"
 
 
 def all_health(run: str) -> str:
@@ -289,6 +303,16 @@ def control(run: str, *parts: str) -> str:
 
 def all_control(run: str) -> str:
     return f"{prefix(run)}/{CONTROL_ROOT}/**"
+
+
+def replay_status(run: str) -> str:
+    """``truav/<run>/replay/status``: where a replay publishing into ``run`` stands (about 5 Hz)."""
+    return f"{prefix(run)}/{REPLAY_ROOT}/{REPLAY_STATUS}"
+
+
+def replay_ctl(run: str) -> str:
+    """``truav/<run>/replay/ctl``: the queryable that takes a replay's commands and answers its status."""
+    return f"{prefix(run)}/{REPLAY_ROOT}/{REPLAY_CTL}"
 
 
 # --- liveliness tokens --------------------------------------------------------

@@ -18,11 +18,14 @@ from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _ch
 from truav.bus.keys import MAX_UAVS
 from truav.bus.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
-    KIND_OBS, KIND_POSITIONS, KIND_QSHARE, KIND_REJECTION, KIND_STATE, KIND_TICK, MAX_QSHARE_PARTS, MAX_QSHARE_PAYLOAD_BYTES,
-    MAX_QSHARE_ROWS, INT64_MAX, MAX_ARGS_NODES, MAX_DETAIL_LEN, MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
+    KIND_OBS, KIND_POSITIONS, KIND_QSHARE, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
+    MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES, MAX_QSHARE_PARTS, MAX_QSHARE_PAYLOAD_BYTES,
+    MAX_QSHARE_ROWS, INT64_MAX,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
-    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, SCOPES,
+    MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, REPLAY_STATES, SCOPES,
     SchemaError)
+from truav.bus.schema_names import (KIND_AGENT_SNAPSHOT, KIND_WORLD_SNAPSHOT, MAX_SNAPSHOT_ARRAYS,
+                                    MAX_SNAPSHOT_BYTES, MAX_SNAPSHOT_DIMS, R_OUT_OF_RANGE, SNAPSHOT_DTYPES)
 
 # --- message classes ------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
@@ -364,6 +367,108 @@ class Beacons(Envelope):
     """(uav, tick, pos, vel) per beacon."""
 
 
+REPLAY_STATUS_PERIOD_S = 0.2
+"""How often a replay publishes its ReplayStatus while it runs (and at each change)."""
+
+
+@dataclass(frozen=True)
+class ReplayStatus(Envelope):
+    """Replay -> operator, recorder: where a replay stands, every REPLAY_STATUS_PERIOD_S and after each
+    command (also the answer of its ``replay/ctl`` queryable)."""
+
+    KIND: ClassVar[str] = KIND_REPLAY_STATUS
+    PLACE: ClassVar[tuple[str, ...]] = (keys.REPLAY_ROOT,)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "state": _choice(REPLAY_STATES),
+            "position_s": _nonneg,
+            "span_s": _nonneg,
+            "tick": _int(-1, (1 << 63) - 1),
+            "rate": _positive,
+            "paused": _bool,
+            "sent": _uint63,
+            "restored": _uint63,
+            "loop": _uint63,
+        }
+    )
+    state: str
+    position_s: float
+    """Receive time of the last message sent, in seconds from the recording's first message."""
+    span_s: float
+    """The recording's length in seconds (first to last message)."""
+    tick: int
+    """The last world tick sent (-1: none yet)."""
+    rate: float
+    paused: bool
+    sent: int
+    """Recorded messages sent so far (a message sent again after a seek back counts again)."""
+    restored: int
+    """Messages re-sent after seeks to restore each channel's last value."""
+    loop: int
+    """Complete passes so far (--loop)."""
+
+
+# --- snapshots: a lock-step recording's periodic state (truav log resim --from TICK restores it) ---------
+SnapshotArrays = dict[str, tuple[str, tuple[int, ...], bytes]]
+
+
+def _snapshot_arrays(name: str, v: Any) -> SnapshotArrays:
+    """Named arrays, each ``[dtype, shape, data]``: a name as metric names are, a dtype of SNAPSHOT_DTYPES,
+    at most MAX_SNAPSHOT_DIMS lengths, data exactly their product times 8 bytes; at most MAX_SNAPSHOT_ARRAYS."""
+    if not isinstance(v, dict) or len(v) > MAX_SNAPSHOT_ARRAYS:
+        raise SchemaError(R_BAD_TYPE, f"{name} must be a map of at most {MAX_SNAPSHOT_ARRAYS} arrays")
+    out = {}
+    for key, entry in v.items():
+        where = f"{name}[{key!r}]"
+        key = _name(f"{name} key", key)
+        if not isinstance(entry, (list, tuple)) or len(entry) != 3:
+            raise SchemaError(R_BAD_TYPE, f"{where} must be [dtype, shape, data]")
+        dtype, shape, data = entry
+        if dtype not in SNAPSHOT_DTYPES:
+            raise SchemaError(R_OUT_OF_RANGE, f"{where} dtype must be one of {', '.join(SNAPSHOT_DTYPES)}")
+        if not isinstance(shape, (list, tuple)) or len(shape) > MAX_SNAPSHOT_DIMS:
+            raise SchemaError(R_BAD_TYPE, f"{where} shape must be at most {MAX_SNAPSHOT_DIMS} lengths")
+        shape = tuple(_int(0, MAX_SNAPSHOT_BYTES)(f"{where}.shape", n) for n in shape)
+        if not isinstance(data, (bytes, bytearray)):
+            raise SchemaError(R_BAD_TYPE, f"{where} data must be bytes")
+        count = 1
+        for n in shape:
+            count *= n
+        if len(data) != 8 * count:
+            raise SchemaError(R_OUT_OF_RANGE, f"{where} holds {len(data)} bytes, its shape {list(shape)} "
+                                              f"needs {8 * count}")
+        out[key] = (dtype, shape, bytes(data))
+    return out
+
+
+@dataclass(frozen=True)
+class WorldSnapshot(Envelope):
+    """World -> recorder (lock-step, ``--snapshot-every``): its whole state before tick ``tick``
+    (world.world_state names the arrays)."""
+
+    KIND: ClassVar[str] = KIND_WORLD_SNAPSHOT
+    PLACE: ClassVar[tuple[str, ...]] = (keys.WORLD, keys.SNAPSHOT)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"tick": _uint63, "episode": _uint63, "arrays": _snapshot_arrays})
+    tick: int
+    episode: int
+    arrays: SnapshotArrays
+
+
+@dataclass(frozen=True)
+class AgentSnapshot(Envelope):
+    """Agent ``uav`` -> recorder (lock-step, ``--snapshot-every``): its learner and decision state before
+    tick ``tick``, the Q-table's updated rows only (agents.decision_state names the arrays)."""
+
+    KIND: ClassVar[str] = KIND_AGENT_SNAPSHOT
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.SNAPSHOT)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "tick": _uint63, "arrays": _snapshot_arrays})
+    uav: int
+    tick: int
+    arrays: SnapshotArrays
+
+
 @dataclass(frozen=True, eq=False)
 class QShare(Envelope):
     """Agent ``uav`` -> all (federated TRUAV): part ``part`` of ``parts`` of the Q rows it shares after episode
@@ -406,7 +511,7 @@ class QShare(Envelope):
 
 
 Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, QShare]
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -415,7 +520,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
     for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, QShare):
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -439,6 +544,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
     {
         kind: MAX_PAYLOAD_BYTES
         if kind == KIND_POSITIONS
+        else MAX_SNAPSHOT_BYTES
+        if kind in (KIND_WORLD_SNAPSHOT, KIND_AGENT_SNAPSHOT)
         else MAX_BATCH_PAYLOAD_BYTES
         if kind == KIND_BEACONS
         else MAX_CONTROL_PAYLOAD_BYTES
@@ -470,6 +577,9 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_BEACONS: {**_SMALL_LIMITS, "max_array_len": MAX_BATCH_ENTRIES},
     KIND_REJECTION: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, 18), "max_array_len": 0,
                      "max_str_len": max(MAX_TARGET_LEN, MAX_DETAIL_LEN)},
+    KIND_REPLAY_STATUS: {**_SMALL_LIMITS, "max_array_len": 0},
+    **{kind: {**_SMALL_LIMITS, "max_map_len": max(MAX_SNAPSHOT_ARRAYS, 18), "max_array_len": 3,
+              "max_bin_len": MAX_SNAPSHOT_BYTES} for kind in (KIND_WORLD_SNAPSHOT, KIND_AGENT_SNAPSHOT)},
     KIND_QSHARE: {**_SMALL_LIMITS, "max_array_len": MAX_QSHARE_ROWS * 16},
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(

@@ -54,6 +54,9 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "health": ("uav/i", "supervisor, status, recorder"),
     "beacons": ("uav/<first> of the group", "all agents (--batch-beacons)"),
     "rejection": ("world", "agent i only (under --secure no other identity may read it)"),
+    "replay_status": ("replay", "operator (`truav-swarm replay-ctl`), recorder"),
+    "world_snapshot": ("world", "recorder (lock-step, --snapshot-every)"),
+    "agent_snapshot": ("uav/i", "recorder (lock-step, --snapshot-every)"),
     "qshare": ("uav/i", "all agents (federated TRUAV, federated.every > 0), recorder"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
@@ -64,6 +67,7 @@ KEY_TAILS: Mapping[str, str] = {
     keys.CONTROL_ROOT: "<part>[/<part>...]",
     keys.CONTROLLER: f"{keys.COMMAND}/<i>",
     "group": "<first>-<last>/beacons",  # --batch-beacons: one process's UAVs first..last
+    keys.REPLAY_ROOT: keys.REPLAY_STATUS,  # replay/ctl is a queryable, not a put
 }
 """The key chunks after a one-chunk ``PLACE`` (the rest of the key names the instance)."""
 
@@ -183,6 +187,17 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "counts": ("", "every message of this UAV refused since the last rejection, by reason (the first "
                        "included): a flood is summed here, not answered one by one"),
     },
+    "replay_status": {
+        "state": ("", "playing, paused, waiting (--lockstep: for the live agents' answers) or ended"),
+        "position_s": ("s", "receive time of the last message sent, from the recording's first message"),
+        "span_s": ("s", "the recording's length, first to last message"),
+        "tick": ("", "the last world tick sent (-1: none yet)"),
+        "rate": ("", "speed factor (2: twice as fast as recorded)"),
+        "paused": ("", "true while paused (a step or burst leaves it paused)"),
+        "sent": ("messages", "recorded messages sent so far (again after a seek back)"),
+        "restored": ("messages", "messages re-sent after seeks: each channel's last value before the new position"),
+        "loop": ("", "complete passes so far (--loop)"),
+    },
     "qshare": {
         "uav": ("", _UAV_NOTE),
         "tick": ("", f"the tick of the episode's last observation it was made at; {_TICK}"),
@@ -201,6 +216,18 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
     "beacons": {
         "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
                               "beacon's meaning and bounds; only the UAVs first..last of the key, each once"),
+    },
+    "world_snapshot": {
+        "tick": ("", "the state is the world's before this tick's round (what `truav log resim --from` restores)"),
+        "episode": ("", "the episode of that tick"),
+        "arrays": ("", "the world's whole state, named arrays (world/world_state.py): vehicles, queues, UAVs, "
+                       "totals, generators now and before the episode's draws"),
+    },
+    "agent_snapshot": {
+        "uav": ("", _UAV_NOTE),
+        "tick": ("", "the state is the agent's before this tick's observation"),
+        "arrays": ("", "its decision state (agents/decision_state.py): the Q-table rows it updated (q_rows, "
+                       "q_values), its generator, the episode's exploration draws"),
     },
 }
 
@@ -284,6 +311,11 @@ def describe(check: Any) -> tuple[str, str]:
         return "map (JSON-like: nil, bool, int, float64, str, array, map)", (
             f"nesting <= {schema_names.MAX_ARGS_DEPTH}, <= {schema_names.MAX_ARGS_NODES} values, strings <= "
             f"{schema_names.MAX_ARGS_STR_LEN} characters, map keys str <= {schema_names.MAX_NAME_LEN}")
+    if name == "_snapshot_arrays":  # a snapshot's named state arrays (--snapshot-every)
+        return "map of str: [dtype, shape, bin]", (
+            f"<= {schema_names.MAX_SNAPSHOT_ARRAYS} arrays, names as metric names; dtype one of "
+            f"{', '.join(schema_names.SNAPSHOT_DTYPES)}; shape <= {schema_names.MAX_SNAPSHOT_DIMS} lengths; "
+            f"data exactly 8 bytes per element")
     if name == "_ints.<locals>.check":
         return "array of int", f"at most {v['max_n']} values, each in [{_big(v['lo'])}, {_big(v['hi'])}]"
     if name == "_floats.<locals>.check":

@@ -21,6 +21,9 @@ KIND_STATE = "state"
 KIND_COMMAND = "command"
 KIND_HEALTH = "health"
 KIND_REJECTION = "rejection"
+KIND_REPLAY_STATUS = "replay_status"
+KIND_WORLD_SNAPSHOT = "world_snapshot"
+KIND_AGENT_SNAPSHOT = "agent_snapshot"
 KIND_QSHARE = "qshare"
 
 # --- enumerated string values ------------------------------------------------
@@ -31,6 +34,12 @@ SCOPES = (SCOPE_STEP, SCOPE_EPISODE)
 PHASE_START = "start"
 PHASE_END = "end"
 PHASES = (PHASE_START, PHASE_END)
+
+REPLAY_PLAYING = "playing"
+REPLAY_PAUSED = "paused"
+REPLAY_WAITING = "waiting"  # --lockstep: for the live agents' answers
+REPLAY_ENDED = "ended"
+REPLAY_STATES = (REPLAY_PLAYING, REPLAY_PAUSED, REPLAY_WAITING, REPLAY_ENDED)
 
 FAULT_LOSS = "loss"
 FAULT_LATENCY = "latency"
@@ -57,6 +66,12 @@ MAX_ARGS_STR_LEN = 64 << 10
 MAX_HEALTH_REASONS = 32  # rejection reasons in a health message (there are about 20)
 MAX_HEALTH_SENDERS = 8  # the senders most refused, in a health message
 MAX_DETAIL_LEN = 160  # a rejection's detail text (cut to this)
+# Snapshots (a lock-step recording's periodic state: world_snapshot, agent_snapshot), named arrays each
+# [dtype, shape, raw little-endian bytes]; a state that does not fit one message is not published.
+MAX_SNAPSHOT_BYTES = MAX_PAYLOAD_BYTES
+MAX_SNAPSHOT_ARRAYS = 40  # a world snapshot has 28
+MAX_SNAPSHOT_DIMS = 3
+SNAPSHOT_DTYPES = ("<f8", "<i8", "<u8")
 MAX_QSHARE_ROWS = 320  # Q rows in one qshare message (16 float64 each: ~47 KB of values)
 MAX_QSHARE_PARTS = 64  # messages one share may be split over: 20,480 rows, more than any table has
 MAX_QSHARE_PAYLOAD_BYTES = 64 << 10  # MAX_QSHARE_ROWS rows of ~150 bytes, and the envelope

@@ -64,6 +64,7 @@ from truav.bus.bus_types import (  # noqa: F401  (re-exported)
 from truav.bus.delivery import MAX_LOG_ONCE_TAGS, Delivery  # noqa: F401
 from truav.bus.guard import Guard, Rejections
 from truav.bus.liveliness import ALIVE_EMPTY_RETRY_S, DEFAULT_ALIVE_TIMEOUT_S, Liveliness  # noqa: F401
+from truav.bus.queries import Queries, QueryRefused  # noqa: F401
 from truav.bus.placement import (  # noqa: F401
     DROPPABLE_KINDS, R_KEY_MISMATCH, check_placement, congestion_control, expected_kind)
 from truav.bus.publishing import MAX_CACHED_PUBLISHERS, REPLAY_TAG, Publishing  # noqa: F401
@@ -81,7 +82,7 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_PENDING = 100_000
 
 
-class Bus(Publishing, Receiving, Delivery, Liveliness):
+class Bus(Publishing, Receiving, Delivery, Liveliness, Queries):
     """A Zenoh session owned by one sender identity; a context manager.
 
     ``identity`` is the ``src`` stamped on every message (``world``,

@@ -15,7 +15,7 @@ from typing import Any
 
 import zenoh
 
-from truav.bus.acl import CredentialsError
+from truav.bus.acl import CredentialsError, replay_run
 from truav.bus.certs import load as load_credentials
 from truav.bus.secure_configs import TLS_FILE_KEYS
 
@@ -106,6 +106,24 @@ def apply_creds(args: Any, identity: str) -> None:
         raise CredentialsError("pass either --creds or -c/--config, not both")
     run = getattr(args, "run", None)
     creds = load_credentials(creds_dir, run if isinstance(run, str) else None)
+    args.config = str(creds.config_file(identity))
+
+
+def apply_replay_creds(args: Any, identity: str) -> None:
+    """:func:`apply_creds` for a replay (``replay``) and its operator (``supervisor``): under ``--creds`` a
+    replay may publish only into its own run, ``<run>-replay`` (:func:`truav.bus.acl.replay_run`), so
+    ``args.run`` becomes that run when it is None or the live run; another run is a CredentialsError."""
+    creds_dir = getattr(args, "creds", None)
+    if not creds_dir:
+        return
+    if getattr(args, "config", None):
+        raise CredentialsError("pass either --creds or -c/--config, not both")
+    creds = load_credentials(creds_dir)
+    target = replay_run(creds.run)
+    if args.run not in (None, creds.run, target):
+        raise CredentialsError(f"--run {args.run!r}: with --creds {creds_dir} (made for run {creds.run!r}) a replay "
+                               f"publishes into {target!r}")
+    args.run = target
     args.config = str(creds.config_file(identity))
 
 

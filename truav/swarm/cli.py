@@ -30,6 +30,7 @@ from truav.cli_args import OneLineParser, UserError, run_main
 from truav.swarm.checks import check_central_sizes, check_policy, check_transport  # noqa: F401 - check_*: truav.experiments.faults
 from truav.swarm.cli_ops import add_ops_commands
 from truav.swarm.cli_processes import add_process_commands
+from truav.swarm.cli_replay import add_replay_ctl
 from truav.swarm.cli_schema import add_schema_commands
 from truav.swarm.cli_up import add_up_commands
 from truav.swarm.secure_cli import add_security_commands
@@ -43,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_process_commands(sub)
     add_security_commands(sub)
     add_schema_commands(sub)
+    add_replay_ctl(sub)
 
     try:
         from recorder.cli import add_swarm_commands

@@ -154,7 +154,7 @@ def add_process_commands(sub) -> None:
     add_scenario_args(wo)
     add_options(wo, WorldOptions, ["episodes"])
     add_lockstep_args(wo)
-    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out", "max_missed_share"])
+    add_options(wo, WorldOptions, ["rate_hz", "wait_agents_s", "stats_out", "max_missed_share", "snapshot_every"])
     add_scheme_arg(wo)
     add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)
@@ -174,7 +174,8 @@ def add_process_commands(sub) -> None:
     add_lockstep_args(ag)
     ag.add_argument("--rate", type=positive_float, default=10.0, help="the world's tick rate in Hz (paces beacons)")
     ag.add_argument("--greedy", action="store_true", help="act greedily, do not learn")
-    add_options(ag, AgentOptions, ["checkpoint", "checkpoint_every", "qtable", "qtable_index", "stats_out"])
+    add_options(ag, AgentOptions, ["checkpoint", "checkpoint_every", "qtable", "qtable_index", "stats_out",
+                                   "snapshot_every"])
     add_scheme_arg(ag)
     add_command_hold_arg(ag)
     add_swarm_process_args(ag, "the agent")

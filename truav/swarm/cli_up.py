@@ -99,6 +99,9 @@ def swarm_options(args):
     if args.share_beacons and args.agents_per_process == 1:
         raise UsageError("--share-beacons: shares one beacon subscription among the agents of a process; "
                          "give --agents-per-process K > 1 too")
+    if args.snapshot_every != WorldOptions.snapshot_every and not (args.lockstep and args.record):
+        raise UsageError(f"--snapshot-every {args.snapshot_every}: snapshots are taken in recorded lock-step runs "
+                         f"only; add --lockstep and --record FILE, or drop it")
     if args.batch_beacons and (args.agents_per_process == 1 or not args.lockstep or args.scheme != "truav"):
         raise UsageError("--batch-beacons: sends the beacons of a process's agents of a tick as one message; "
                          "only with --lockstep, --scheme truav and --agents-per-process K > 1")
@@ -124,6 +127,7 @@ def swarm_options(args):
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
                         beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process,
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
+                        snapshot_every=args.snapshot_every,
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
     if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
@@ -237,7 +241,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help="continue the run in --out (agents resume from its checkpoints; same scenario only)")
     up.add_argument("--force", action="store_true",
                     help="delete an earlier run's files in --out (and overwrite --record) instead of refusing")
-    add_options(up, WorldOptions, ["max_missed_share"])
+    add_options(up, WorldOptions, ["max_missed_share", "snapshot_every"])
     up.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
                     help=f"world and agents stop this long after losing their router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
     up.add_argument("-v", "--verbose", action="store_true",

@@ -92,6 +92,15 @@ class _Interrupts:
         raise KeyboardInterrupt
 
 
+def run_info(opts: SwarmOptions) -> dict:
+    """How this run is started beyond its config, for the recording (recorder.metadata.RUN_METADATA): what the
+    re-simulation of a lock-step recording needs to re-run it (`truav log resim`)."""
+    return {"seed": opts.seed, "lockstep": opts.lockstep, "scheme": opts.scheme, "episodes": opts.episodes,
+            "qtable": str(Path(opts.qtable).resolve()) if opts.qtable else None, "qtable_index": 0,
+            "greedy": opts.greedy, "resume": opts.resume, "external": list(opts.external),
+            "fault_plan": str(Path(opts.fault_plan).resolve()) if opts.fault_plan else None}
+
+
 def _python_module(*args: str) -> list[str]:
     return [sys.executable, "-m", *args]
 
@@ -226,7 +235,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
             self.children.start("recorder", recorder_argv(
                 opts.run, opts.record, [ep], config_toml=scenario, force=opts.force, geo_origin=opts.geo_origin,
                 modes=opts.record_modes,
-                extra=[*self.creds_args, *(["-v"] if opts.verbose else [])]))
+                extra=[*self.creds_args, *(["-v"] if opts.verbose else [])], run_info=run_info(opts)))
         if opts.foxglove_port is not None:
             self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
@@ -250,20 +259,25 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 self.children.start("controller", _python_module(
                     "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
                     *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
+            # Snapshots only where a recording keeps them and a re-simulation can use them.
+            snapshot_every = opts.snapshot_every if opts.record and opts.lockstep and opts.scheme == "truav" else 0
             # The supervisor's bounded wait for external UAVs decides (with its progress lines); the world's is longer.
             world = WorldOptions(episodes=opts.episodes, rate_hz=opts.rate_hz, stats_out=str(out / "world.json"),
                                  wait_agents_s=opts.wait_agents_s + (opts.external_wait_s if opts.external else 0.0),
-                                 max_missed_share=1.0)  # up judges the missed share itself (summary, chaos)
+                                 max_missed_share=1.0,  # up judges the missed share itself (summary, chaos)
+                                 snapshot_every=snapshot_every)
             self.children.start("world", _python_module(
                 "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
-                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share"])))
+                *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share",
+                                 "snapshot_every"])))
             for ids in self.groups:
                 name = "{id}" if len(ids) > 1 else str(ids[0])  # the agent process fills in each UAV's id
                 agent = AgentOptions(checkpoint=str(out / f"agent{name}.npz"), stats_out=str(out / f"agent{name}.json"),
                                      checkpoint_every=opts.checkpoint_every, qtable=opts.qtable or None,
                                      command_hold_s=opts.command_hold_s, beacon_every=opts.beacon_every,
-                                     beacon_cell_m=opts.beacon_cell_m, beacon_slots=opts.beacon_slots)
-                extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every"]), *scheme,
+                                     beacon_cell_m=opts.beacon_cell_m, beacon_slots=opts.beacon_slots,
+                                     snapshot_every=snapshot_every)
+                extra = [*to_argv(agent, ["checkpoint", "stats_out", "checkpoint_every", "snapshot_every"]), *scheme,
                          *to_argv(agent, ["qtable"])]
                 extra += ["--greedy"] if opts.greedy else []
                 extra += to_argv(agent, ["command_hold_s"]) if self.central else []

@@ -92,6 +92,8 @@ class SwarmOptions:
     policy_index: int = ControllerOptions.policy_index
     command_hold_s: float = AgentOptions.command_hold_s
     """Scheme central: how long a UAV keeps its last command once commands stop, then hovers."""
+    snapshot_every: int = WorldOptions.snapshot_every
+    """Recorded lock-step runs: the world and every agent publish their state every this many ticks (0: never)."""
     beacon_every: int = AgentOptions.beacon_every
     """Real time: agents beacon every this many ticks (10 at 10 Hz: 1 Hz, the Remote ID rate)."""
     beacon_cell_m: float | None = AgentOptions.beacon_cell_m

@@ -1,0 +1,89 @@
+"""One TRUAV agent's cycle over wire messages, without the bus: beacon, state, learn, act.
+
+An agent process (agents.agent_process.AgentNode) runs it for its UAV and publishes what it returns; the
+re-simulation of a recording (recorder.resim) runs one per UAV in process and compares what they return with
+what was recorded. So a re-simulated beacon or action is what the process would have sent, field for field:
+one algorithm, two drivers (and the trainer's arithmetic: StateEncoder, Reward, QLearners with B = U = 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.qlearning import QLearners
+from agents.reward import Reward
+from agents.state import StateEncoder, neighbour_features
+from truav.bus import schema
+from truav.config import Config
+from world.uavs import action_velocity
+
+DONE_ACK_ACTION = 0
+"""The action field of a lock-step `done` observation's answer, an acknowledgement: the world ignores it."""
+
+
+def peer_arrays(beacons: dict[int, schema.Beacon]) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbour positions (1, 1, P, 2) from beacons, in UAV-id order (as the trainer sums them), and their
+    heard mask (all True)."""
+    ids = sorted(beacons)
+    peers = np.array([[[beacons[j].pos for j in ids]]], dtype=np.float64).reshape(1, 1, len(ids), 2)
+    return peers, np.ones((1, 1, len(ids)), dtype=np.bool_)
+
+
+class TruavDecision:
+    """The decision state of one agent: the episode, its step, the last state and action, its velocity."""
+
+    def __init__(self, cfg: Config, uav: int, learners: QLearners | None, train: bool = True,
+                 encoder: StateEncoder | None = None, reward: Reward | None = None):
+        self.cfg, self.uav, self.learners, self.train = cfg, uav, learners, train
+        self.encoder = encoder if encoder is not None else StateEncoder(cfg)
+        self.reward = reward if reward is not None else Reward(cfg)
+        self.episode = -1
+        self.t = 0
+        self.state = 0
+        self.action = 0
+        self.velocity = (0.0, 0.0)
+        self._encoded = np.zeros((1, 1), np.int64)  # the state as the encoder returned it (act's input)
+        self.touched: set[int] = set()
+        """Q-table rows updated so far: a snapshot (agents.decision_state) carries only these."""
+
+    def beacon(self, obs: schema.Obs) -> schema.Beacon:
+        """This UAV's beacon for the tick of ``obs`` (its velocity: that of its last action)."""
+        return schema.Beacon(uav=self.uav, tick=obs.tick, pos=obs.pos, vel=self.velocity)
+
+    def learn(self, obs: schema.Obs, peers: np.ndarray, heard: np.ndarray) -> np.ndarray | None:
+        """Encode the state of ``obs`` with the peers' positions; at an episode's first observation start
+        the episode, else learn from the last step. The reward (1, 1), or None at an episode's start (no
+        step was taken, nothing learned)."""
+        pos = np.array([[obs.pos]], dtype=np.float64)
+        nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
+        state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
+                                    nearest, self.encoder.neighbour_sectors(pos, peers, heard),
+                                    np.array([[obs.densest_sector]]))
+        r = None
+        if obs.episode != self.episode:
+            self.episode, self.t = obs.episode, 0
+            self.learners.begin_episode(obs.episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
+        else:
+            r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
+                            np.array([[obs.energy_j]]), overlap)
+            if self.train:
+                self.touched.add(self.state)
+                self.learners.update(np.array([[self.state]]), np.array([[self.action]]), r, state, False)
+            self.t += 1
+        self.state, self._encoded = int(state[0, 0]), state
+        return r
+
+    def act(self, obs: schema.Obs) -> schema.Action:
+        """The action for a (not `done`) observation already learned from."""
+        T = self.cfg.scenario.steps_per_episode
+        pos = np.array([[obs.pos]], dtype=np.float64)
+        self.action = int(self.learners.act(self._encoded, min(self.t, T - 1), pos)[0, 0])
+        self.velocity = tuple(action_velocity(np.array(self.action), obs.speed_max))
+        return schema.Action(uav=self.uav, tick=obs.tick, action=self.action)
+
+    def acknowledge(self, obs: schema.Obs) -> schema.Action:
+        """Lock-step: the answer to a `done` observation (learned from; no action taken)."""
+        return schema.Action(uav=self.uav, tick=obs.tick, action=DONE_ACK_ACTION)
+
+
+__all__ = ["DONE_ACK_ACTION", "TruavDecision", "peer_arrays"]

@@ -1,0 +1,224 @@
+"""Deterministic re-simulation of a lock-step swarm run, in process, from its recorded seed and config.
+
+A lock-step swarm is exact by protocol (docs/architecture.md, "Lock-step is exact by protocol"): each tick
+the world publishes every observation, every agent sends its beacon, waits for its peers' beacons of the
+same tick, learns and answers; the world steps once every action is in. :class:`Resimulation` runs that
+same sequence without a bus: the world's ``World`` stepped as `world/world_process.py` steps it, one
+agents.agent_decision.TruavDecision per UAV (the code an agent process runs), and the messages built by
+the processes' own builders (world.world_messages, TruavDecision.beacon/act/acknowledge). So each
+re-simulated observation, beacon and action is what the processes would have sent for it, field for
+field; recorder.resim_verify compares them with the recording.
+
+What a recording must hold (else :func:`load_run` raises UserError: one line, exit 2): the run config
+(recorder.metadata CONFIG_METADATA) and the run's settings (RUN_METADATA, written by `truav-swarm up
+--record`: seed, lock-step, scheme...), lock-step, scheme truav, not resumed, no outside agents.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+import numpy as np
+
+from agents.agent_decision import TruavDecision, peer_arrays
+from agents.decision_state import decision_state, restore_decision
+from agents.qlearning import QLearners, geofence
+from agents.reward import Reward
+from agents.state import StateEncoder
+from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_info
+from recorder.reader import read_metadata
+from truav import seeding
+from truav.bus import schema
+from truav.config import Config, ConfigError, config_from_dict
+from truav.errors import UserError
+from truav.runio import read_qtables
+from world.env import World
+from world.world_messages import observation_messages
+from world.world_state import restore_world, world_state
+
+
+@dataclass(frozen=True)
+class RecordedRun:
+    """What a lock-step recording says about how to re-run it."""
+
+    cfg: Config
+    run: str
+    """The run's name (its keys are under truav/<run>/)."""
+    seed: int
+    episodes: int
+    greedy: bool
+    qtable: str | None
+    qtable_index: int
+    info: dict = field(default_factory=dict)
+    """The run settings as recorded (RUN_METADATA)."""
+
+
+def load_run(path: str | os.PathLike[str]) -> RecordedRun:
+    """The config and run settings of the lock-step TRUAV recording at ``path``; UserError (one line) when it
+    is not one, or cannot be re-run."""
+    name = os.fspath(path)
+    toml_text = read_config_toml(path)
+    info = read_run_info(path)
+    if toml_text is None or info is None:
+        missing = "run config" if toml_text is None else "run settings (seed, lock-step)"
+        raise UserError(f"{name}: not a lock-step TRUAV run recording: it holds no {missing} (record one with "
+                        f"`truav-swarm up --lockstep --record FILE`)")
+    if not info.get("lockstep"):
+        raise UserError(f"{name}: a real-time run (not --lockstep): its timing decided which actions and beacons "
+                        f"counted, so it cannot be re-simulated")
+    if info.get("scheme", "truav") != "truav":
+        raise UserError(f"{name}: a --scheme {info.get('scheme')} run; only the TRUAV agents are re-simulated")
+    if info.get("resume"):
+        raise UserError(f"{name}: a --resume run: its agents started from checkpoints the recording does not hold")
+    if info.get("external"):
+        raise UserError(f"{name}: UAV(s) {info['external']} were flown by outside agents (--external): their "
+                        f"decisions cannot be re-run")
+    try:
+        cfg = config_from_dict(tomllib.loads(toml_text))
+        seed, episodes = int(info["seed"]), int(info["episodes"])
+    except (tomllib.TOMLDecodeError, ConfigError, KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"{name}: its recorded run config or settings are unreadable ({exc})") from None
+    run = read_metadata(path).get(RECORDING_METADATA, {}).get("run")
+    if not run:
+        raise UserError(f"{name}: not a TRUAV recording: it names no run")
+    return RecordedRun(cfg=cfg, run=run, seed=seed, episodes=episodes, greedy=bool(info.get("greedy")),
+                       qtable=info.get("qtable") or None, qtable_index=int(info.get("qtable_index") or 0), info=info)
+
+
+def start_tables(qtable: str | None, index: int, n_uavs: int) -> list[np.ndarray | None]:
+    """Each UAV's starting Q-table: none (fresh, from its generator) or table ``index`` of a trained run, as
+    the agent process loads it (AgentNode._make_learners); UserError when the run cannot give them."""
+    if qtable is None:
+        return [None] * n_uavs
+    _, tables = read_qtables(qtable)  # RunDirError (a UserError) names the file
+    if index >= tables.shape[0] or tables.shape[1] < n_uavs:
+        raise UserError(f"{qtable}: holds {tables.shape[0]} seed(s) x {tables.shape[1]} UAV(s); table {index} "
+                        f"for {n_uavs} UAVs is not there")
+    return [tables[index, i][None, None] for i in range(n_uavs)]
+
+
+@dataclass
+class Round:
+    """One tick as the processes would have sent it."""
+
+    tick: int
+    episode: int
+    done: bool
+    obs: list[schema.Obs]
+    beacons: list[schema.Beacon]
+    actions: list[schema.Action]
+    """The actions (for a `done` tick: the acknowledgements), in UAV order."""
+    summary: dict[str, float] | None = None
+    """At a `done` tick: the episode's metrics, as the world publishes them (metrics/episode)."""
+
+
+class Resimulation:
+    """The world and every agent of a lock-step run, stepped in process (see the module docstring)."""
+
+    def __init__(self, cfg: Config, seed: int, episodes: int, tables: list[np.ndarray | None] | None = None,
+                 train: bool = True):
+        self.cfg, self.seed, self.episodes = cfg, seed, episodes
+        n = cfg.scenario.n_uavs
+        tables = tables if tables is not None else [None] * n
+        self.world = World(cfg, 1)
+        encoder = StateEncoder(cfg)
+        self.agents = [
+            TruavDecision(cfg, i, QLearners(cfg.learner, encoder.n_states, [seeding.agent_rng(seed, i)], 1, 1,
+                                            q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg))
+            for i in range(n)]
+        self.tick = 0
+        self.episode = 0
+        self._obs = self.world.reset([seeding.world_rng(seed)])
+        self._done = False  # the next round is the episode's `done` observation
+
+    @property
+    def total_ticks(self) -> int:
+        """Ticks of the whole run: every step of every episode and each episode's `done` tick."""
+        return self.episodes * (self.cfg.scenario.steps_per_episode + 1)
+
+    def rounds(self) -> Iterator[Round]:
+        """Every tick from the current one to the run's end, each stepped once its round is taken."""
+        while self.episode < self.episodes:
+            yield self.step()
+
+    def step(self) -> Round:
+        """The next tick: the world's observations, every agent's beacon and answer, then the world's step (or,
+        at a `done` tick, the episode's end and the next episode's start), as world_process.WorldNode.run."""
+        tick, episode, done = self.tick, self.episode, self._done
+        obs = observation_messages(self.cfg, tick, episode, self._obs, done)
+        beacons = [agent.beacon(o) for agent, o in zip(self.agents, obs)]
+        by_uav = {b.uav: b for b in beacons}
+        actions = []
+        for agent, o in zip(self.agents, obs):
+            peers, heard = peer_arrays({j: b for j, b in by_uav.items() if j != agent.uav})
+            agent.learn(o, peers, heard)
+            actions.append(agent.acknowledge(o) if done else agent.act(o))
+        summary = None
+        self.tick += 1
+        if done:
+            summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
+            self._done = False
+            self.episode += 1
+            if self.episode < self.episodes:
+                self._obs = self.world.start_episode()
+        else:
+            chosen = np.array([[a.action for a in actions]], np.int64)
+            self._obs, _, self._done = self.world.step(chosen)
+        return Round(tick, episode, done, obs, beacons, actions, summary)
+
+    # -- snapshots ----------------------------------------------------------------------------------------
+    def snapshot(self) -> tuple[int, dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
+        """The state before the next tick, as a lock-step run's snapshot holds it: (tick, the world's state,
+        each agent's state)."""
+        return self.tick, world_state(self.world, self._obs), [decision_state(a) for a in self.agents]
+
+    def restore(self, tick: int, world: dict[str, np.ndarray], agents: list[dict[str, np.ndarray]]) -> None:
+        """Continue from a snapshot (see :meth:`snapshot`) of this run: the agents' learners must hold the
+        tables the run started with (only the rows they updated are in a snapshot). ValueError when the
+        snapshot does not fit this run."""
+        if len(agents) != len(self.agents):
+            raise ValueError(f"a snapshot of {len(agents)} agent(s), the run has {len(self.agents)}")
+        self.world, self._obs = restore_world(self.cfg, world)
+        self.episode = self.world.episode
+        self._done = self.world.t >= self.cfg.scenario.steps_per_episode
+        for agent, state in zip(self.agents, agents):
+            restore_decision(agent, state)
+        self.tick = tick
+
+    # -- what a branch changes ------------------------------------------------------------------------
+    def set_tables(self, tables: list[np.ndarray]) -> None:
+        """Replace every agent's Q-table (a branch flying another run's tables)."""
+        for agent, q in zip(self.agents, tables):
+            agent.learners.q[...] = q
+
+    def set_greedy(self) -> None:
+        """From now on every agent acts greedily and learns nothing (exploration off at once, not only from the
+        next episode as QLearners.begin_episode would)."""
+        for agent in self.agents:
+            agent.train = False
+            agent.learners.epsilon = 0.0
+
+    def set_learner(self, cfg: Config) -> None:
+        """Use ``cfg``'s learner settings (rates, reward weights, geofence) from now on, its exploration schedule
+        from the next episode (an episode's exploration is drawn at its start); the state encoding stays
+        (recorder.resim_branch refuses settings that change it)."""
+        self.cfg = cfg
+        for agent in self.agents:
+            agent.cfg = cfg
+            agent.reward = Reward(cfg)
+            agent.learners.lc = cfg.learner
+            agent.learners.fence = geofence(cfg)
+
+
+def payload_fields(msg: Any) -> dict[str, Any]:
+    """A message's payload fields: everything but the envelope (sender, sequence, time stamp, incarnation)."""
+    return {name: getattr(msg, name) for name in type(msg).__dataclass_fields__ if name not in _ENVELOPE}
+
+
+_ENVELOPE = frozenset(schema.Envelope.__dataclass_fields__)
+
+
+__all__ = ["RecordedRun", "Resimulation", "Round", "load_run", "payload_fields", "start_tables"]
