@@ -46,6 +46,7 @@ import numpy as np
 
 from agents.agent_decision import DONE_ACK_ACTION, TruavDecision, peer_arrays
 from agents.decision_state import decision_state
+from agents.agent_process_federated import FederatedShares
 from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
@@ -176,7 +177,7 @@ class AgentOptions:
         return max(REALTIME_BEACON_MAX_AGE_TICKS, 2 * self.beacon_every)
 
 
-class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
+class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares):
     """One agent: the bus wiring, the main loop and the TRUAV decision; the lock-step and real-time halves
     and the reports are its parts (agents.agent_process_lockstep, agents.agent_process_realtime,
     agents.agent_process_reports)."""
@@ -224,6 +225,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         self._action = 0  # the last action (schemes without a TruavDecision)
         self._init_lockstep()
         self._init_realtime()
+        self._init_federated()
+        self._resume_visits()
         self._warm_up()
         run, me = opts.run, opts.uav
         bus.guard = guard.for_config(cfg)  # senders, value ranges, beacon ticks near the current one
@@ -253,6 +256,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         bus.prepare(*([keys.uav_beacon(run, me)] if self._cells is None else []), keys.uav_action(run, me),
                     keys.uav_health(run, me))
         self._setup_scheme(bus)
+        self._setup_federated(bus)
         # Start-up objects (numpy, numba, zenoh) never become garbage: keep the cyclic collector off
         # them, or its occasional older-generation pass stalls this process 10-25 ms mid-run.
         gc.freeze()
@@ -279,6 +283,14 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         probe.act(np.zeros((1, 1), np.int64), 0, pos)
         probe.update(np.zeros((1, 1), np.int64), np.zeros((1, 1), np.int64), r, np.zeros((1, 1), np.int64), False)
         del state
+
+    def _resume_visits(self) -> None:
+        """A resumed agent's visit counts (federated TRUAV's weights), from its checkpoint."""
+        if self.resumed and self.opts.checkpoint:
+            with np.load(self.opts.checkpoint) as ck:
+                if "visits" in ck.files and ck["visits"].shape == self.visits.shape:
+                    self.visits[...] = ck["visits"]
+                    self.visits_at_share[...] = ck["visits_at_share"]
 
     def _make_learners(self) -> QLearners:
         o = self.opts
@@ -395,15 +407,21 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         if o.debug_delay_s:
             self._stop.wait(o.debug_delay_s)
         peers, heard = self._peers(obs.tick)
+        s_prev = d.state  # the state the update below learns in: its visit is counted (federated TRUAV)
         r = d.learn(obs, peers, heard)
         if r is not None:
+            if o.train:
+                self._count_visit(s_prev)
             self.steps += 1
             if o.checkpoint and checkpoint_due(self.steps, o.uav, self.n_uavs, o.checkpoint_every):
                 self.checkpoint()
         if obs.done:
+            self._federated_round(obs.episode, obs.tick)  # once learned from the episode's last step
             if o.lockstep:  # the acknowledgement the world waits for before the next tick (and the shutdown)
                 self.bus.publish(keys.uav_action(o.run, o.uav), d.acknowledge(obs))
             return
+        if not o.lockstep:  # real time: peers' shares of the last round, merged as they complete
+            self._merge_ready()
         self.bus.publish(keys.uav_action(o.run, o.uav), d.act(obs))
         if self._debug.due():
             log.debug("uav %d tick %d: received obs at (%.0f, %.0f) m, %d vehicles in range, %d packets queued, "
@@ -467,7 +485,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         path = Path(self.opts.checkpoint)
         tmp = path.with_name(path.name + ".tmp.npz")
         state = json.dumps(self.learners.rngs[0].bit_generator.state)
-        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state)
+        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
+                 visits_at_share=self.visits_at_share)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

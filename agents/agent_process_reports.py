@@ -112,6 +112,8 @@ class AgentReports:
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
                     "scheme": self.opts.scheme, **self.scheme_stats()}
+            if getattr(self, "fed", None) is not None and self.fed.every > 0:
+                data["federated"] = self.federated_stats()
             # what this process sent, to compare with a recording's (uav/<i>, kind, incarnation) streams
             me = {"inc": f"{self.bus.incarnation:016x}", "steps_from": self._steps_at_start, "steps_to": self.steps,
                   "sent": self.sent()}

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.federated import federate, share_due
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, all_peers, neighbour_features
@@ -32,10 +33,24 @@ class TruavController:
         self.action = np.zeros((len(seeds), U), np.int64)
         self._reward_sum = np.zeros(len(seeds))
         self._steps = 0
+        self._episode = 0
+        self.visits = np.zeros((len(seeds), U, self.encoder.n_states), np.int64)
+        """Each agent's updates per state (federated TRUAV weighs shared rows by them: agents.federated)."""
+        self.visits_at_share = np.zeros_like(self.visits)
+        """visits at the agents' last share: a share holds the rows visited since."""
         self.fused = True
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
         self.draws_in_kernel = True
         """run_episode's kernel makes the world's per-episode draws (in parallel over envs)."""
+
+    def __setstate__(self, state: dict) -> None:
+        """A controller pickled before federated TRUAV (a training checkpoint of an earlier version) gets
+        its visit counts, from zero: it never shared."""
+        self.__dict__.update(state)
+        if "visits" not in state:
+            self.visits = np.zeros(self.learners.q.shape[:3], np.int64)
+            self.visits_at_share = np.zeros_like(self.visits)
+            self._episode = 0
 
     def _features(self, obs: LocalObs):
         peers, heard = all_peers(obs.pos)
@@ -49,12 +64,19 @@ class TruavController:
         self.pos = obs.pos
         self._reward_sum[:] = 0.0
         self._steps = 0
+        self._episode = episode
 
     def run_episode(self, world) -> None:
         """Steps 0..T-1 of the world's current episode in one compiled kernel
         (agents.fused): the same numbers as act/observe through World.step."""
         from agents.fused import run_episode
         run_episode(world, self)
+        self._end_episode()
+
+    def _end_episode(self) -> None:
+        """Federated TRUAV: the agents share and merge their tables after the episodes of a share round."""
+        if self.train and share_due(self._episode, self.cfg.federated):
+            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated)
 
     def act(self, t: int) -> np.ndarray:
         self.action = self.learners.act(self.state, t, self.pos)
@@ -65,10 +87,14 @@ class TruavController:
         r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap)
         if self.train:
             self.learners.update(self.state, self.action, r, next_state, False)
+            b, u = np.indices(self.state.shape)
+            self.visits[b, u, self.state] += 1
         self._reward_sum += r.mean(axis=1)
         self._steps += 1
         self.state = next_state
         self.pos = obs.pos
+        if done:
+            self._end_episode()
 
     def episode_stats(self) -> dict[str, np.ndarray]:
         n = len(self._reward_sum)

@@ -46,7 +46,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
                   draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0, slots,
-                  total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum):
+                  total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum, visits):
     """Run steps 0..T-1 of the current episode for every env b, in place.
 
     draw: first make env b's deferred draws of the episode (World.deferred_draws:
@@ -61,7 +61,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
     (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
     as in `step.env_step`, with a leading B (trace and row0 as in
     `step.world_step`); reward_sum (B,) adds each step's
-    mean reward over UAVs."""
+    mean reward over UAVs; visits (B, U, S) counts each agent's updates per
+    state (federated TRUAV weighs shared rows by them, agents.federated)."""
     n_env, n_uav = state.shape
     n_steps = turn_u.shape[0]
     for b in prange(n_env):
@@ -96,6 +97,7 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                 rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy_b[u], overlap, rp_reward)
                 if train:
                     q_update_one(q_b[u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)
+                    visits[b, u, state[b, u]] += 1
                 state[b, u] = s_next
             reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
 
@@ -195,7 +197,7 @@ def run_episode(world, controller) -> None:
                   bool(controller.train),
                   float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
                   controller.encoder.params, controller.reward.params,
-                  *_draw_args(world, deferred), *_world_args(world), controller._reward_sum)
+                  *_draw_args(world, deferred), *_world_args(world), controller._reward_sum, controller.visits)
     if deferred is not None:
         world.end_deferred_draws()
     steps = world._draws.turn_u.shape[0]

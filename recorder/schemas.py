@@ -20,7 +20,7 @@ import msgpack
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
-         "beacons", "rejection", "replay_status", "world_snapshot", "agent_snapshot")
+         "beacons", "rejection", "replay_status", "world_snapshot", "agent_snapshot", "qshare")
 UNKNOWN_KIND = "unknown"  # a key whose first payload had no usable kind
 MIRRORED_KINDS = ("metrics",)  # beacons and positions: the Foxglove mirror (recorder.foxglove) shows them
 
@@ -131,6 +131,13 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
                "stale_obs_skipped": _INT,
                "rejected": {"type": "object", "additionalProperties": _INT, "description": "refused messages by reason"},
                "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"}},
+    "qshare": {"uav": _INT, "tick": _INT,
+               "episode": {**_INT, "description": "the episode the share was made after (its round)"},
+               "part": {**_INT, "description": "this part's index, also the key's last chunk"},
+               "parts": {**_INT, "description": "parts of the share"},
+               "states": {"type": "array", "items": _INT, "description": "states of the rows"},
+               "counts": {"type": "array", "items": _INT, "description": "visit counts of those states"},
+               "q": {"type": "array", "items": _NUM, "description": "the rows, 16 values per state, row-major"}},
     "rejection": {"uav": _INT,
                   "at_tick": {**_INT, "description": "the refused action's tick (late/stale), else the world's "
                                                      "latest tick; -1 before tick 0"},

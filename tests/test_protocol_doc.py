@@ -89,7 +89,7 @@ def test_envelope_is_documented() -> None:
 def _concrete(key: str) -> str:
     """A documented key with its placeholders filled in."""
     return "truav/r/" + key.replace("<i>", "2").replace("<scope>", "step").replace("<fault>", "loss") \
-        .replace("<part>[/<part>...]", "shutdown").replace("<cx>_<cy>", "3_4").replace("<first>-<last>", "0-1")
+        .replace("<part>[/<part>...]", "shutdown").replace("<cx>_<cy>", "3_4").replace("<first>-<last>", "0-1").replace("<n>", "0")
 
 
 def test_documented_keys_are_where_the_bus_expects_each_kind() -> None:

@@ -12,6 +12,7 @@ import zenoh
 
 from tests.conftest import free_port
 from truav.bus import keys, security
+from truav.bus.rate_caps import MIN_CAP_HZ
 from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 from truav.swarm.supervisor import SwarmOptions
 
@@ -34,19 +35,22 @@ def test_router_config_caps_every_key_of_a_realtime_run(tmp_path) -> None:
     caps = _caps_in(tmp_path / "creds" / security.ROUTER_CONFIG)
     tick = RATE_HZ * M
     expected = {keys.world_tick(RUN): tick, keys.world_positions(RUN): tick, keys.metrics_step(RUN): tick,
-                keys.metrics_episode(RUN): tick}
+                keys.metrics_episode(RUN): tick, keys.world_snapshot(RUN): M * MIN_CAP_HZ}
     for i in range(N):
         expected |= {keys.uav_obs(RUN, i): tick, keys.uav_action(RUN, i): tick, keys.uav_state(RUN, i): tick,
                      keys.controller_cmd(RUN, i): tick, f"{keys.uav_beacon(RUN, i)}/**": RATE_HZ / 10 * M,
-                     keys.uav_health(RUN, i): M / HEALTH_PERIOD_S, keys.uav_rejected(RUN, i): M / REJECTION_PERIOD_S}
+                     keys.uav_health(RUN, i): M / HEALTH_PERIOD_S, keys.uav_rejected(RUN, i): M / REJECTION_PERIOD_S,
+                     keys.uav_qshares(RUN, i): M * MIN_CAP_HZ, keys.uav_snapshot(RUN, i): M * MIN_CAP_HZ}
     assert caps == expected
     # Every key a run sends is capped (by exactly one rule), but the supervisor's control and faults
     # (rare and bursty) and the replay's own run; and each put pattern of the ACL stands for some of them.
-    sent = [keys.world_tick(RUN), keys.world_positions(RUN), keys.metrics_step(RUN), keys.metrics_episode(RUN)]
+    sent = [keys.world_tick(RUN), keys.world_positions(RUN), keys.metrics_step(RUN), keys.metrics_episode(RUN),
+            keys.world_snapshot(RUN)]
     for i in range(N):
         sent += [keys.uav_obs(RUN, i), keys.uav_beacon(RUN, i), keys.uav_beacon_in_cell(RUN, i, (2, 3)),
                  keys.uav_action(RUN, i), keys.uav_state(RUN, i), keys.uav_health(RUN, i), keys.controller_cmd(RUN, i),
-                 keys.uav_rejected(RUN, i)]
+                 keys.uav_rejected(RUN, i), keys.uav_qshare(RUN, i, 0), keys.uav_qshare(RUN, i, 2),
+                 keys.uav_snapshot(RUN, i)]
     for key in sent:
         assert sum(security._matches(key, rule) for rule in caps) == 1, key
     uncapped = {keys.all_control(RUN), keys.all_faults(RUN), keys.control(RUN, "shutdown")}

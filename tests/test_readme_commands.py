@@ -48,6 +48,7 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
         [*SWARM, "--agents", "20"],
     "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": SWARM,
+    "truav-swarm up --lockstep --set federated.every=1 --out runs/swarm-fed": SWARM,
     "truav-swarm up --secure --out runs/swarm-secure": SWARM,
     "truav-swarm acl explain --identity uav/1": [],
     "truav-swarm certs --deployment deploy/three-hosts.toml --out creds": [],

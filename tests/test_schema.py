@@ -68,6 +68,8 @@ def samples() -> list[schema.Message]:
         schema.WorldSnapshot(tick=7, episode=0, arrays={"t": ("<i8", (), bytes(8)),
                                                         "pos": ("<f8", (1, 2, 2), bytes(32))}),
         schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16))}),
+        schema.QShare(uav=3, tick=7, episode=2, part=0, parts=2, states=np.array([5, 17]), counts=np.array([4, 1]),
+                      q=np.linspace(-1.0, 2.5, 32)),
     ]
 
 

@@ -383,6 +383,34 @@ class SumoConfig:
 
 
 @dataclass(frozen=True)
+class FederatedConfig:
+    """Federated TRUAV (issue 32; the paper's future work: UAVs that "periodically
+    share distilled policy information"): every `every` episodes each UAV
+    shares the Q rows of the states it visited since its last share, with its
+    visit counts, and merges its peers' rows by visit-weighted averaging
+    (agents/federated.py), bounded so a peer's table can move an entry only so
+    far. Who hears whom: all-to-all (every UAV's share reaches every other
+    UAV, as the lock-step beacons do)."""
+
+    every: int = param(0, 0, 1_000_000)
+    """Episodes between shares (0: off, independent learners as in the paper).
+    A share happens after episode e when (e + 1) % every == 0."""
+    max_weight: float = param(0.5, 0.0, 1.0)
+    """Largest fraction of the way from its own value to a peer's value that
+    one peer's row may move an entry in one merge (the visit-weighted
+    average's weight of that peer is capped at this): a hostile or confused
+    peer claiming huge counts moves a table at most this far."""
+    max_rows: int = param(960, 1, 1_000_000)
+    """Rows a UAV shares at most per share: the most visited of the states it
+    visited since its last share (ties: lower state first); the bus splits
+    them over messages of at most truav.bus.schema_names.MAX_QSHARE_ROWS rows."""
+    q_bound: float = param(1e4, 0.0, 1e12)
+    """A share holding a Q value of magnitude above this (or NaN, inf) is
+    refused whole: no reward of the scenario's reward design comes near it
+    (per-step rewards are O(1) and discount < 1 bounds Q by r_max / (1 - discount))."""
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole effective configuration of a run."""
 
@@ -396,6 +424,7 @@ class Config:
     patrol: PatrolConfig = field(default_factory=PatrolConfig)
     central: CentralConfig = field(default_factory=CentralConfig)
     sumo: SumoConfig = field(default_factory=SumoConfig)
+    federated: FederatedConfig = field(default_factory=FederatedConfig)
 
     def replace(self, **sections: Mapping[str, Any]) -> "Config":
         """A copy with some keys changed, validated: replace(scenario={"n_uavs": 3})."""

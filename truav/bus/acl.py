@@ -106,9 +106,9 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
         table.append(Grant(
             keys.uav_identity(i),
             put=(keys.uav_beacon(run, i), f"{keys.uav_beacon(run, i)}/*", keys.uav_action(run, i), keys.uav_state(run, i),
-                 keys.uav_health(run, i), keys.uav_snapshot(run, i), *([batches[i]] if i in batches else [])),
+                 keys.uav_health(run, i), keys.uav_snapshot(run, i), keys.uav_qshares(run, i), *([batches[i]] if i in batches else [])),
             subscribe=(keys.uav_obs(run, i), keys.uav_rejected(run, i), keys.all_beacons(run), keys.all_beacons_in_cells(run), keys.world_tick(run),
-                       keys.all_control(run), keys.controller_cmd(run, i),
+                       keys.all_control(run), keys.controller_cmd(run, i), keys.all_qshares(run),
                        *([keys.all_beacon_batches(run)] if batches else [])),
             tokens=(keys.alive_uav(run, i),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))))
     return tuple(table)

@@ -11,6 +11,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import msgpack
+import numpy as np
 
 from truav.bus.field_checks import Check, _src, _uint63
 from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _SIZE_LIMIT, _UNPACK_LIMITS,
@@ -30,7 +31,8 @@ def encode(msg: Message) -> bytes:
     wire: dict[str, Any] = {"v": SCHEMA_VERSION, "kind": kind, "src": msg.src, "seq": msg.seq, "t": msg.t,
                             "inc": msg.inc}
     for name in _BODY_FIELDS[kind]:
-        wire[name] = getattr(msg, name)
+        value = getattr(msg, name)
+        wire[name] = value.tolist() if type(value) is np.ndarray else value  # qshare's rows and counts
     try:
         data = msgpack.packb(wire, use_bin_type=True)
     except Exception as exc:  # only reachable if a caller mutated a message's dict fields

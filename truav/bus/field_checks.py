@@ -164,6 +164,51 @@ def _points(max_n: int) -> Check:
     return check
 
 
+def _ints(max_n: int, lo: int, hi: int) -> Check:
+    """A list of at most ``max_n`` ints, each in ``[lo, hi]``; numpy integer arrays accepted (a numpy int64 array
+    out: federated Q shares carry hundreds)."""
+
+    def check(name: str, v: Any) -> np.ndarray:
+        if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "iu":
+            arr = v.astype(np.int64)
+        elif isinstance(v, (list, tuple)) and all(type(x) is int for x in v):
+            if any(not -(1 << 63) <= x <= INT64_MAX for x in v):
+                raise SchemaError(R_OUT_OF_RANGE, f"{name} has values outside [{lo}, {hi}]")
+            arr = np.array(v, np.int64)
+        else:
+            raise SchemaError(R_BAD_TYPE, f"{name} must be a list of ints")
+        if len(arr) > max_n:
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(arr)} values, cap is {max_n}")
+        if len(arr) and (arr.min() < lo or arr.max() > hi):
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has values outside [{lo}, {hi}]")
+        return arr
+
+    return check
+
+
+def _floats(max_n: int) -> Check:
+    """A list of at most ``max_n`` finite float64 (ints accepted); numpy float arrays accepted (a numpy float64
+    array out)."""
+
+    def check(name: str, v: Any) -> np.ndarray:
+        if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "iuf":
+            arr = v.astype(np.float64)
+        elif isinstance(v, (list, tuple)) and all(type(x) is float or type(x) is int for x in v):
+            try:
+                arr = np.array(v, np.float64)
+            except OverflowError:
+                raise SchemaError(R_OUT_OF_RANGE, f"{name} has values outside float64") from None
+        else:
+            raise SchemaError(R_BAD_TYPE, f"{name} must be a list of numbers")
+        if len(arr) > max_n:
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(arr)} values, cap is {max_n}")
+        if not np.isfinite(arr).all():
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has non-finite values")
+        return arr
+
+    return check
+
+
 def _str_map(max_entries: int, value_check: Check) -> Check:
     """A map of names to checked values, at most ``max_entries``."""
 

@@ -5,7 +5,7 @@ and msgpack lengths before parsing) is further checked by the :class:`Guard`
 a process installs on its Bus:
 
 * **who may send it**: ticks, observations, positions, metrics and rejections only from
-  ``world``; beacons, actions, state uploads and health reports only from ``uav/<i>`` about UAV ``i``;
+  ``world``; beacons, actions, state uploads, Q shares and health reports only from ``uav/<i>`` about UAV ``i``;
   commands only from ``controller``; a replay's status only from ``replay``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
   fault announcements only from the supervisor.  Without ``--secure`` the
@@ -316,6 +316,17 @@ class Guard:
             return R_IMPLAUSIBLE, f"state of uav {msg.uav}: values the world cannot produce"
         return None
 
+    def _check_qshare(self, msg: schema.QShare) -> tuple[str, str] | None:
+        """A federated Q share's part: from its UAV, near the current tick, its arrays of one length (the
+        receiver's merge rule, agents.federated.check_share, bounds the values against its own table)."""
+        refused = self._uav_message(msg)
+        if refused is not None:
+            return refused
+        if msg.part >= msg.parts or len(msg.counts) != len(msg.states) or len(msg.q) != 16 * len(msg.states):
+            return R_IMPLAUSIBLE, (f"qshare of uav {msg.uav}: part {msg.part} of {msg.parts}, {len(msg.states)} states, "
+                                   f"{len(msg.counts)} counts, {len(msg.q)} values")
+        return None
+
     def _check_health(self, msg: schema.Health) -> tuple[str, str] | None:
         return self._uav_sender_and_id(msg)
 
@@ -373,7 +384,7 @@ def _uav_src(uav: int) -> str:
 
 _BY_TYPE = {schema.Beacon: Guard._check_beacon, schema.Action: Guard._check_action, schema.State: Guard._check_state,
             schema.Health: Guard._check_health, schema.Command: Guard._check_command, schema.Obs: Guard._check_obs,
-            schema.Tick: Guard._check_tick}
+            schema.Tick: Guard._check_tick, schema.QShare: Guard._check_qshare}
 
 
 def for_config(cfg) -> Guard:

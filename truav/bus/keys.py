@@ -13,6 +13,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.bus.sche
 ``uav/<i>/action``              agent i -> world    ``action``
 ``uav/<i>/state``               agent i -> ctrl     ``state`` (scheme central: the state upload)
 ``uav/<i>/rejected``            world -> agent i    ``rejection`` (what the world refused of agent i)
+``uav/<i>/qshare/<part>``       agent i -> all      ``qshare`` (federated TRUAV: part of its Q rows)
 ``controller/cmd/<i>``          ctrl -> agent i     ``command`` (scheme central)
 ``group/<a>-<b>/beacons``       agents a..b -> all  ``beacons`` (``--batch-beacons``: one process's UAVs a..b)
 ``metrics/step``                world -> recorder   ``metrics`` (scope "step")
@@ -76,6 +77,7 @@ STATE = "state"
 HEALTH = "health"
 REJECTED = "rejected"
 SNAPSHOT = "snapshot"  # world/snapshot and uav/<i>/snapshot: a lock-step recording's state snapshots
+QSHARE = "qshare"
 BEACONS = "beacons"  # last chunk of a group's batch key
 CONTROLLER = "controller"
 COMMAND = "cmd"
@@ -151,6 +153,20 @@ def uav_state(run: str, i: int) -> str:
 
 def all_states(run: str) -> str:
     return f"{prefix(run)}/{UAV}/*/{STATE}"
+
+
+def uav_qshare(run: str, i: int, part: int) -> str:
+    """``truav/<run>/uav/<i>/qshare/<part>``: part ``part`` of agent i's federated Q share (one key per part, so
+    a share's parts, sent together, pass a per-key rate cap)."""
+    return f"{uav_prefix(run, i)}/{QSHARE}/{int(part)}"
+
+
+def uav_qshares(run: str, i: int) -> str:
+    return f"{uav_prefix(run, i)}/{QSHARE}/*"
+
+
+def all_qshares(run: str) -> str:
+    return f"{prefix(run)}/{UAV}/*/{QSHARE}/*"
 
 
 def uav_health(run: str, i: int) -> str:

@@ -9,15 +9,18 @@ from dataclasses import dataclass, fields
 from types import MappingProxyType
 from typing import Any, ClassVar, TypeVar, Union
 
+import numpy as _np
+
 from truav.bus import keys
-from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _finite, _int,
+from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _finite, _floats, _int, _ints,
                                     _json_like, _n_uavs, _name, _nonneg, _pad, _param_value, _points, _positive,
                                     _printable_src, _sector, _src, _str_map, _text, _uav_id, _uint63, _uint64, _vec2)
 from truav.bus.keys import MAX_UAVS
 from truav.bus.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
-    KIND_OBS, KIND_POSITIONS, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
-    MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES,
+    KIND_OBS, KIND_POSITIONS, KIND_QSHARE, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
+    MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES, MAX_QSHARE_PARTS, MAX_QSHARE_PAYLOAD_BYTES,
+    MAX_QSHARE_ROWS, INT64_MAX,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
     MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, MAX_TARGET_LEN, MAX_VEHICLE_POSITIONS, PHASES, R_BAD_TYPE, REPLAY_STATES, SCOPES,
     SchemaError)
@@ -466,8 +469,49 @@ class AgentSnapshot(Envelope):
     arrays: SnapshotArrays
 
 
+@dataclass(frozen=True, eq=False)
+class QShare(Envelope):
+    """Agent ``uav`` -> all (federated TRUAV): part ``part`` of ``parts`` of the Q rows it shares after episode
+    ``episode``: the rows of the states it visited since its last share, with its visit counts
+    (agents.federated). Receivers merge a whole share (every part of one episode) or nothing, bounded."""
+
+    KIND: ClassVar[str] = KIND_QSHARE
+    PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.QSHARE)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {
+            "uav": _uav_id,
+            "tick": _uint63,
+            "episode": _uint63,
+            "part": _int(0, MAX_QSHARE_PARTS - 1),
+            "parts": _int(1, MAX_QSHARE_PARTS),
+            "states": _ints(MAX_QSHARE_ROWS, 0, INT64_MAX),
+            "counts": _ints(MAX_QSHARE_ROWS, 1, INT64_MAX),
+            "q": _floats(MAX_QSHARE_ROWS * 16),
+        }
+    )
+    uav: int
+    tick: int
+    episode: int
+    part: int
+    parts: int
+    states: Any
+    """numpy int64 array (a list of ints on the wire)"""
+    counts: Any
+    """numpy int64 array"""
+    q: Any
+    """numpy float64 array of 16 values per state, row-major"""
+
+    def __eq__(self, other: object) -> bool:  # numpy arrays: compared entry for entry
+        if type(other) is not QShare:
+            return NotImplemented
+        return all(_np.array_equal(a, b) if isinstance(a, _np.ndarray) else a == b
+                   for a, b in ((getattr(self, f.name), getattr(other, f.name)) for f in fields(self)))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot]
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -476,7 +520,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
     for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot):
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -506,6 +550,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
         if kind == KIND_BEACONS
         else MAX_CONTROL_PAYLOAD_BYTES
         if kind == KIND_CONTROL
+        else MAX_QSHARE_PAYLOAD_BYTES
+        if kind == KIND_QSHARE
         else MAX_SMALL_PAYLOAD_BYTES
         for kind in KINDS
     }
@@ -534,6 +580,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_REPLAY_STATUS: {**_SMALL_LIMITS, "max_array_len": 0},
     **{kind: {**_SMALL_LIMITS, "max_map_len": max(MAX_SNAPSHOT_ARRAYS, 18), "max_array_len": 3,
               "max_bin_len": MAX_SNAPSHOT_BYTES} for kind in (KIND_WORLD_SNAPSHOT, KIND_AGENT_SNAPSHOT)},
+    KIND_QSHARE: {**_SMALL_LIMITS, "max_array_len": MAX_QSHARE_ROWS * 16},
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
     {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})

@@ -44,6 +44,8 @@ def expected_kind(key: str) -> str | None:
     if rest[0] == keys.UAV:
         if len(rest) == 4 and rest[2] == keys.BEACON:  # a range-limited beacon under its map cell
             return schema.KIND_BEACON
+        if len(rest) == 4 and rest[2] == keys.QSHARE:  # one part of a federated Q share
+            return schema.KIND_QSHARE if rest[3].isdigit() else None
         return KIND_BY_KEY.get((keys.UAV, rest[2])) if len(rest) == 3 else None
     if rest[0] == keys.WORLD:
         return KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None
@@ -86,6 +88,8 @@ def check_placed(facts: KeyFacts, key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
     if kind == _COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+    if kind == schema.KIND_QSHARE and isinstance(msg, schema.QShare) and last != str(msg.part):
+        raise SchemaError(R_KEY_MISMATCH, f"qshare part {msg.part} on {key}", src=msg.src)
 
 
 def _check_batch(key: str, msg: "schema.Beacons") -> None:

@@ -57,6 +57,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "replay_status": ("replay", "operator (`truav-swarm replay-ctl`), recorder"),
     "world_snapshot": ("world", "recorder (lock-step, --snapshot-every)"),
     "agent_snapshot": ("uav/i", "recorder (lock-step, --snapshot-every)"),
+    "qshare": ("uav/i", "all agents (federated TRUAV, federated.every > 0), recorder"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
@@ -197,6 +198,21 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "restored": ("messages", "messages re-sent after seeks: each channel's last value before the new position"),
         "loop": ("", "complete passes so far (--loop)"),
     },
+    "qshare": {
+        "uav": ("", _UAV_NOTE),
+        "tick": ("", f"the tick of the episode's last observation it was made at; {_TICK}"),
+        "episode": ("", "the episode it was made after: its share round ((episode + 1) % federated.every == 0); "
+                        "receivers refuse another round's share (stale_round)"),
+        "part": ("", "which part of the share, also the key's last chunk `<n>`"),
+        "parts": ("", "how many parts the share has; a receiver merges a share once it has every part, else not "
+                      "at all"),
+        "states": ("", "the states of the rows, distinct, each < the receiver's number of states "
+                       "(learner state design): the states the UAV visited since its last share, most visited first"),
+        "counts": ("updates", "per state, how many Q updates the UAV made in it so far (its visit count), "
+                              "<= (episode + 1) x steps_per_episode"),
+        "q": ("", "the rows, row-major: 16 values per state (action order of Action numbering); each finite, "
+                  "|value| <= federated.q_bound, else the whole share is refused"),
+    },
     "beacons": {
         "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
                               "beacon's meaning and bounds; only the UAVs first..last of the key, each once"),
@@ -300,6 +316,10 @@ def describe(check: Any) -> tuple[str, str]:
             f"<= {schema_names.MAX_SNAPSHOT_ARRAYS} arrays, names as metric names; dtype one of "
             f"{', '.join(schema_names.SNAPSHOT_DTYPES)}; shape <= {schema_names.MAX_SNAPSHOT_DIMS} lengths; "
             f"data exactly 8 bytes per element")
+    if name == "_ints.<locals>.check":
+        return "array of int", f"at most {v['max_n']} values, each in [{_big(v['lo'])}, {_big(v['hi'])}]"
+    if name == "_floats.<locals>.check":
+        return "array of float64 (ints accepted)", f"at most {v['max_n']} values, each finite"
     if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)
         return "array of [int, int, [x, y], [vx, vy]]", (f"1..{keys.MAX_UAVS} entries: uav [0, {keys.MAX_UAVS - 1}], "
                                                           f"tick [0, 2^63-1], finite float64 pairs")
@@ -336,6 +356,8 @@ def envelope_table() -> str:
 def key_of(kind: str) -> str:
     """The key a kind is published on, after ``truav/<run>/``."""
     place = MESSAGE_CLASSES[kind].PLACE
+    if kind == schema_names.KIND_QSHARE:  # one key per part of a share
+        return f"{keys.UAV}/<i>/{keys.QSHARE}/<n>"
     if place[0] == keys.UAV:
         return f"{keys.UAV}/<i>/{'/'.join(place[1:])}"
     if len(place) == 1:
@@ -421,6 +443,9 @@ def constants_table() -> str:
                                                           "often (s)"),
         ("DEFAULT_LOCKSTEP_WAIT_S", f"{DEFAULT_LOCKSTEP_WAIT_S:g}", "lock-step: how long the world waits for a "
                                                                     "live agent's answer, an agent for a peer's beacon (s)"),
+        ("MAX_QSHARE_ROWS", str(schema_names.MAX_QSHARE_ROWS), "Q rows in one qshare message (a share of more "
+                                                               "rows is split over parts)"),
+        ("MAX_QSHARE_PARTS", str(schema_names.MAX_QSHARE_PARTS), "parts one share may be split over"),
         ("LOCKSTEP_JOIN_GRACE_S", f"{LOCKSTEP_JOIN_GRACE_S:g}", "lock-step: how long an agent waits for a peer "
                                                                 "not heard from since it joined (s); past 100 UAVs "
                                                                 "times n_uavs / 100 (a round of 1,000 takes seconds)"),

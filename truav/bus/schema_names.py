@@ -24,6 +24,7 @@ KIND_REJECTION = "rejection"
 KIND_REPLAY_STATUS = "replay_status"
 KIND_WORLD_SNAPSHOT = "world_snapshot"
 KIND_AGENT_SNAPSHOT = "agent_snapshot"
+KIND_QSHARE = "qshare"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -71,6 +72,9 @@ MAX_SNAPSHOT_BYTES = MAX_PAYLOAD_BYTES
 MAX_SNAPSHOT_ARRAYS = 40  # a world snapshot has 28
 MAX_SNAPSHOT_DIMS = 3
 SNAPSHOT_DTYPES = ("<f8", "<i8", "<u8")
+MAX_QSHARE_ROWS = 320  # Q rows in one qshare message (16 float64 each: ~47 KB of values)
+MAX_QSHARE_PARTS = 64  # messages one share may be split over: 20,480 rows, more than any table has
+MAX_QSHARE_PAYLOAD_BYTES = 64 << 10  # MAX_QSHARE_ROWS rows of ~150 bytes, and the envelope
 INT64_MAX = (1 << 63) - 1
 UINT64_MAX = (1 << 64) - 1
 

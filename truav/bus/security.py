@@ -54,14 +54,16 @@ from truav.bus.secure_configs import (  # noqa: F401
 from truav.bus.zenoh_config import make_config
 
 
-def secure_setup(out: Path, opts, n_uavs: int, endpoint: str):
+def secure_setup(out: Path, opts, n_uavs: int, endpoint: str, share_every_ticks: int = 0):
     """For `truav-swarm up --secure`: fresh credentials in ``out/creds``; returns the router's
-    arguments, the children's extra arguments and the supervisor's zenoh config."""
+    arguments, the children's extra arguments and the supervisor's zenoh config. ``share_every_ticks``:
+    federated TRUAV's share period in ticks (0: no sharing), for its rate caps."""
     d = Path(out) / "creds"
     shutil.rmtree(d, ignore_errors=True)  # a new CA per run: an old run's certificates open nothing
     # Real time: each key capped at the rate it needs (with a margin); lock-step ticks as fast as the
     # processes answer, so no rate is known and nothing is capped.
-    caps = () if opts.lockstep else rate_caps(opts.run, n_uavs, opts.rate_hz, opts.beacon_every)
+    caps = () if opts.lockstep else rate_caps(opts.run, n_uavs, opts.rate_hz, opts.beacon_every,
+                                                 share_every_ticks)
     batch = opts.agents_per_process if getattr(opts, "batch_beacons", False) else 1
     creds = load(issue(d, opts.run, n_uavs, endpoint, caps=caps, batch_group_size=batch), opts.run)
     sup = make_config(None, [creds.endpoint], config_file=creds.config_file(SUPERVISOR), connect_timeout_ms=5000)

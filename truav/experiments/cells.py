@@ -29,6 +29,9 @@ UNUSED_SECTIONS = {"truav": ("patrol", "central"), "patrol": ("learner", "centra
                    "random": ("learner", "patrol", "central"), "hover": ("learner", "patrol", "central")}
 """Config sections a scheme never reads: left out of its cells' keys, so that
 changing, say, the SAC settings does not re-run finished TRUAV cells."""
+KEYED_ONLY_IF_CHANGED = ("federated",)
+"""Sections added after cells were run, left out of a cell's key while at their defaults (which change no
+number), so that the cells of earlier runs keep their keys (--report-only and resuming still find them)."""
 
 
 @dataclass(frozen=True)
@@ -50,7 +53,9 @@ class Cell:
 
     def key(self, base: Config) -> str:
         cfg = self.config(base)
-        used = {k: v for k, v in to_dict(cfg).items() if k not in UNUSED_SECTIONS.get(self.scheme, ())}
+        defaults = to_dict(Config())
+        used = {k: v for k, v in to_dict(cfg).items() if k not in UNUSED_SECTIONS.get(self.scheme, ())
+                and not (k in KEYED_ONLY_IF_CHANGED and v == defaults[k])}
         digest = hashlib.sha256(f"{used!r}|{self.eval_episodes}".encode()).hexdigest()[:10]
         sc = cfg.scenario
         return (f"{self.scheme}_v{self.speed:g}_u{sc.n_uavs}_n{sc.n_vehicles}_s{self.seeds[0]}-{self.seeds[-1]}"

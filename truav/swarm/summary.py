@@ -129,7 +129,7 @@ class SwarmEnd:
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         (out / SUMMARY_FILE).write_text(json.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
-            "control_plane": cp, "elapsed_s": elapsed,
+            "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
@@ -197,8 +197,35 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
               f"{cp['beacon_bytes_per_s_total'] / 1e3:.1f} kB/s in total; a centralized critic would upload "
               f"{n} x {CENTRAL_STATE_VALUES} values x {opts.rate_hz:g} Hz = {central:,.0f} values/s "
               f"({central * CENTRAL_VALUE_BYTES / 1e3:.1f} kB/s of float32) to one controller")
+    fed = federated_traffic(cfg, world, agents, opts.rate_hz)
+    if fed is not None:
+        central = central_model_bytes_per_s(cfg, opts.rate_hz)
+        print(f"federated TRUAV (every {cfg.federated.every} episode(s)): {fed['shares_sent']} shares in "
+              f"{fed['messages_sent']} messages, {fed['rows_sent']} Q rows, {fed['bytes_sent']:,} B sent = "
+              f"{fed['bytes_per_uav_per_s']:.1f} B/s per UAV at {opts.rate_hz:g} ticks/s ({fed['ticks']} ticks), "
+              f"beside the centralized control plane's {central / cfg.scenario.n_uavs:,.0f} B/s per UAV "
+              f"({central / 1e3:.1f} kB/s for {cfg.scenario.n_uavs} UAVs, modelled); merged {fed['shares_merged']} "
+              f"peer shares, refused {sum(fed['refused'].values())}, waited out {fed['missing']}")
     for t, kind, phase in events:
         print(f"fault {kind} {phase} at {t:.1f} s")
+
+
+def federated_traffic(cfg: Config, world, agents, rate_hz: float) -> dict | None:
+    """Federated TRUAV's Q-share traffic summed over the agents' stats files, and per UAV per second at
+    ``rate_hz`` ticks a second (the world's ticks / rate_hz: as the centralized control plane's bytes per
+    second are counted; in lock-step a nominal rate); None without sharing."""
+    stats = [a["federated"] for a in agents if a and a.get("federated")]
+    if not stats:
+        return None
+    total = {k: sum(s[k] for s in stats) for k in ("shares_sent", "messages_sent", "bytes_sent", "rows_sent",
+                                                    "shares_merged", "missing")}
+    refused: dict[str, int] = {}
+    for s in stats:
+        for reason, n in s["refused"].items():
+            refused[reason] = refused.get(reason, 0) + n
+    ticks = (world or {}).get("ticks") or 0
+    per_uav = total["bytes_sent"] / cfg.scenario.n_uavs / (ticks / rate_hz) if ticks else float("nan")
+    return {**total, "refused": refused, "ticks": ticks, "rate_hz": rate_hz, "bytes_per_uav_per_s": per_uav}
 
 
 def lockstep_exactness(world, agents, controller) -> dict:
