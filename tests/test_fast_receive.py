@@ -17,6 +17,7 @@ from collections import Counter
 from typing import Any
 
 import msgpack
+import numpy as np
 import pytest
 import zenoh
 
@@ -141,7 +142,8 @@ class ReferenceGuard(Guard):
         if isinstance(msg, (schema.Tick, schema.Obs, schema.Positions, schema.Metrics, schema.Rejection)):
             if src != keys.SRC_WORLD:
                 return R_SENDER, f"{msg.KIND} from {src}"
-        elif isinstance(msg, (schema.Beacon, schema.Action, schema.State, schema.Health)):
+        elif isinstance(msg, (schema.Beacon, schema.Action, schema.State, schema.Health, schema.QShare)):
+            # (schema.QShare added since, with the kind: a federated share comes from its own UAV)
             if src != f"uav/{msg.uav}":
                 return R_SENDER, f"{msg.KIND} of uav {msg.uav} from {src}"
         elif isinstance(msg, schema.Control):
@@ -191,6 +193,10 @@ class ReferenceGuard(Guard):
                 # An older tick's action is an answer delayed behind a newer one, not malformed: passed on,
                 # the world counts it as stale (world.world_process).
                 self._last_action[msg.uav] = max(self._last_action[msg.uav], msg.tick)
+        elif isinstance(msg, schema.QShare):  # (added since, with the kind)
+            if msg.part >= msg.parts or len(msg.counts) != len(msg.states) or len(msg.q) != 16 * len(msg.states):
+                return R_IMPLAUSIBLE, (f"qshare of uav {msg.uav}: part {msg.part} of {msg.parts}, {len(msg.states)} "
+                                       f"states, {len(msg.counts)} counts, {len(msg.q)} values")
         elif isinstance(msg, schema.Positions):
             if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
                 return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"
@@ -234,6 +240,8 @@ def samples() -> list[Message]:
                                                         "uav_pos": ("<f8", (1, 2, 2), bytes(32))}),
         schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16)),
                                                     "rng": ("<u8", (6,), bytes(48))}),
+        schema.QShare(uav=3, tick=7, episode=2, part=0, parts=1, states=np.array([5, 17]), counts=np.array([4, 1]),
+                      q=np.arange(32, dtype=np.float64)),
     ]
 
 
