@@ -48,6 +48,7 @@ from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
 from agents.qlearning import QLearners, geofence
+from agents.prediction import new_maps, predict_batch, predict_params
 from agents.reward import Reward
 from agents.shared_beacons import SampleLog
 from agents.state import StateEncoder, neighbour_features
@@ -191,6 +192,11 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         truav.fault_filter.SharedPlan) its bus's link filter is that plan's, whose listener is shared."""
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
+        self.predict = predict_params(cfg)
+        self._density_map = new_maps(self.predict, 1, 1)
+        """This UAV's decayed density map (agents/prediction.py), in its checkpoint; no cells when off."""
+        self._prev_in_range = 0.0
+        """Vehicles in range at the last observation (the shaping's phi(s))."""
         self.n_uavs = cfg.scenario.n_uavs
         self.steps = 0
         self.resumed = False  # started from its checkpoint: a restart within the same run
@@ -268,8 +274,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         nearest, overlap = neighbour_features(pos, np.zeros((1, 1, 0, 2)), np.ones((1, 1, 0), np.bool_), 1.0)
         state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest,
                                     self.encoder.neighbour_sectors(pos, np.zeros((1, 1, 1, 2)), np.ones((1, 1, 1), np.bool_)),
-                                    np.zeros((1, 1), np.int64))
-        r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap)
+                                    np.zeros((1, 1), np.int64),
+                                    predict_batch(new_maps(self.predict, 1, 1), pos, np.zeros((1, 1)), self.predict))
+        r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap, np.zeros((1, 1)),
+                        np.zeros((1, 1)), np.zeros((1, 1)))
         probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)),
                           fence=geofence(self.cfg))
         probe.begin_episode(0, 1)
@@ -290,6 +298,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
                 learners.q[0, 0] = ck["q"]
                 self.steps = int(ck["steps"])
                 rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+                if "density_map" in ck.files and ck["density_map"].shape == self._density_map.shape[2:]:
+                    self._density_map[0, 0] = ck["density_map"]
             self.resumed = True
             log.info("uav %d resumed from checkpoint %s at step %d", o.uav, o.checkpoint, self.steps)
         else:
@@ -390,17 +400,20 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
             self._stop.wait(o.debug_delay_s)
         peers, heard = self._peers(obs.tick)
         pos = np.array([[obs.pos]], dtype=np.float64)
+        in_range = np.array([[obs.vehicles_in_range]], dtype=np.float64)
         nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
+        predicted = predict_batch(self._density_map, pos, in_range, self.predict)
         state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
                                     nearest, self.encoder.neighbour_sectors(pos, peers, heard),
-                                    np.array([[obs.densest_sector]]))
+                                    np.array([[obs.densest_sector]]), predicted)
         r = None
         if obs.episode != self._episode:
             self._episode, self._t = obs.episode, 0
             self.learners.begin_episode(obs.episode, T, greedy=not o.train)
         else:
             r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
-                            np.array([[obs.energy_j]]), overlap)
+                            np.array([[obs.energy_j]]), overlap, np.array([[obs.exclusive]]), in_range,
+                            np.array([[self._prev_in_range]]))
             if o.train:
                 self.learners.update(np.array([[self._state]]), np.array([[self._action]]), r, state, False)
             self._t += 1
@@ -408,6 +421,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
             if o.checkpoint and checkpoint_due(self.steps, o.uav, self.n_uavs, o.checkpoint_every):
                 self.checkpoint()
         self._state = int(state[0, 0])
+        self._prev_in_range = float(obs.vehicles_in_range)
         if obs.done:
             if o.lockstep:  # the acknowledgement the world waits for before the next tick (and the shutdown)
                 self.bus.publish(keys.uav_action(o.run, o.uav), schema.Action(uav=o.uav, tick=obs.tick,
@@ -469,7 +483,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports):
         path = Path(self.opts.checkpoint)
         tmp = path.with_name(path.name + ".tmp.npz")
         state = json.dumps(self.learners.rngs[0].bit_generator.state)
-        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state)
+        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, density_map=self._density_map[0, 0])
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -140,13 +140,13 @@ def publish_round(bus: Bus, cfg: Config, opts: WorldOptions, world: World, tick:
     # the keys made once per run: at 100 UAVs the per-element numpy reads were most of a round's cost.
     pos, in_range, queued = obs.pos[0].tolist(), obs.vehicles_in_range[0].tolist(), obs.queued[0].tolist()
     relayed, covered, energy = obs.relayed[0].tolist(), obs.covered[0].tolist(), obs.energy_j[0].tolist()
-    densest = obs.densest_sector[0].tolist()
+    densest, exclusive = obs.densest_sector[0].tolist(), obs.exclusive[0].tolist()
     for i, key in enumerate(_obs_keys(run, n_uavs)):
         bus.publish(key, schema.Obs(
             tick=tick, episode=episode, uav=i, pos=(float(pos[i][0]), float(pos[i][1])),
             vehicles_in_range=int(in_range[i]), queued_packets=int(queued[i]), relayed=int(relayed[i]),
             covered=int(covered[i]), energy_j=float(energy[i]), speed_max=sc.uav_speed_mps, done=done,
-            densest_sector=int(densest[i])))
+            densest_sector=int(densest[i]), exclusive=int(exclusive[i])))
     if tick % POSITIONS_EVERY_TICKS == 0:
         vehicles = np.round(world.vehicle_xy()[0] / POSITIONS_GRID_M) * POSITIONS_GRID_M
         vehicles = vehicles[np.isfinite(vehicles).all(axis=1)]  # a replayed trace's vehicles not on the road

@@ -81,6 +81,7 @@ class Obs(Envelope):
             "speed_max": _nonneg,
             "done": _bool,
             "densest_sector": _sector,
+            "exclusive": _uint63,
         }
     )
     tick: int
@@ -96,6 +97,8 @@ class Obs(Envelope):
     done: bool
     densest_sector: int = 0
     """Sensing of denser areas (learner.sense_range_m): 1 + the densest direction sector, 0 none / off."""
+    exclusive: int = 0
+    """Vehicles in this UAV's range and no other UAV's (world.network.EXCLUSIVE; the difference reward)."""
 
 
 @dataclass(frozen=True)
