@@ -410,8 +410,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
 
 # msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
 # of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
-# (max_map_len 18: an obs, 6 envelope keys + 12 fields.)
-_SMALL_LIMITS = {"max_map_len": 18, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+# (max_map_len 19: an obs, 6 envelope keys + 13 fields.)
+_SMALL_LIMITS = {"max_map_len": 19, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
                  "max_ext_len": 0}
 _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,
