@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.prediction import new_maps, predict_batch, predict_params
 from agents.qlearning import QLearners
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
@@ -33,10 +34,17 @@ class TruavDecision:
     """The decision state of one agent: the episode, its step, the last state and action, its velocity."""
 
     def __init__(self, cfg: Config, uav: int, learners: QLearners | None, train: bool = True,
-                 encoder: StateEncoder | None = None, reward: Reward | None = None):
+                 encoder: StateEncoder | None = None, reward: Reward | None = None,
+                 density_map: np.ndarray | None = None):
         self.cfg, self.uav, self.learners, self.train = cfg, uav, learners, train
         self.encoder = encoder if encoder is not None else StateEncoder(cfg)
         self.reward = reward if reward is not None else Reward(cfg)
+        self.predict = predict_params(cfg)
+        self.density_map = density_map if density_map is not None else new_maps(self.predict, 1, 1)
+        """This UAV's decayed density map (1, 1, cells...; agents/prediction.py; no cells when prediction is off),
+        updated in place by each observation."""
+        self.prev_in_range = 0.0
+        """Vehicles in range at the last observation (the shaping's phi(s))."""
         self.episode = -1
         self.t = 0
         self.state = 0
@@ -55,22 +63,26 @@ class TruavDecision:
         the episode, else learn from the last step. The reward (1, 1), or None at an episode's start (no
         step was taken, nothing learned)."""
         pos = np.array([[obs.pos]], dtype=np.float64)
+        in_range = np.array([[obs.vehicles_in_range]], dtype=np.float64)
         nearest, overlap = neighbour_features(pos, peers, heard, self.cfg.scenario.comm_range_m)
+        predicted = predict_batch(self.density_map, pos, in_range, self.predict)
         state = self.encoder.encode(pos, np.array([[obs.vehicles_in_range]]), np.array([[obs.queued_packets]]),
                                     nearest, self.encoder.neighbour_sectors(pos, peers, heard),
-                                    np.array([[obs.densest_sector]]))
+                                    np.array([[obs.densest_sector]]), predicted)
         r = None
         if obs.episode != self.episode:
             self.episode, self.t = obs.episode, 0
             self.learners.begin_episode(obs.episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
         else:
             r = self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]),
-                            np.array([[obs.energy_j]]), overlap)
+                            np.array([[obs.energy_j]]), overlap, np.array([[obs.exclusive]]), in_range,
+                            np.array([[self.prev_in_range]]))
             if self.train:
                 self.touched.add(self.state)
                 self.learners.update(np.array([[self.state]]), np.array([[self.action]]), r, state, False)
             self.t += 1
         self.state, self._encoded = int(state[0, 0]), state
+        self.prev_in_range = float(obs.vehicles_in_range)
         return r
 
     def act(self, obs: schema.Obs) -> schema.Action:

@@ -51,6 +51,7 @@ from agents.agent_process_lockstep import Inexact, LockstepBeacons
 from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS, RealtimeBeacons, realtime_inbox_capacity
 from agents.agent_process_reports import HEALTH_PERIOD_S, MAX_INCARNATIONS_KEPT, SENT_KINDS, AgentReports
 from agents.qlearning import QLearners, geofence
+from agents.prediction import new_maps, predict_batch, predict_params
 from agents.reward import Reward
 from agents.shared_beacons import SampleLog
 from agents.state import StateEncoder, neighbour_features
@@ -195,6 +196,9 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         truav.fault_filter.SharedPlan) its bus's link filter is that plan's, whose listener is shared."""
         self.cfg, self.opts, self.bus = cfg, opts, bus
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
+        self.predict = predict_params(cfg)
+        self._density_map = new_maps(self.predict, 1, 1)
+        """This UAV's decayed density map (agents/prediction.py), its decision's, in its checkpoint; no cells when off."""
         self.n_uavs = cfg.scenario.n_uavs
         self.steps = 0
         self.resumed = False  # started from its checkpoint: a restart within the same run
@@ -205,7 +209,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         """Observations dropped because their tick was not newer than one already answered (a delayed
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
-        self.decision = TruavDecision(cfg, opts.uav, self.learners, opts.train, self.encoder, self.reward)
+        self.decision = TruavDecision(cfg, opts.uav, self.learners, opts.train, self.encoder, self.reward,
+                                      self._density_map)
         self._snapshot_too_large = False  # said once
         self._steps_at_start = self.steps
         self._earlier_incarnations = self._read_earlier_incarnations()
@@ -275,8 +280,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         nearest, overlap = neighbour_features(pos, np.zeros((1, 1, 0, 2)), np.ones((1, 1, 0), np.bool_), 1.0)
         state = self.encoder.encode(pos, np.zeros((1, 1)), np.zeros((1, 1)), nearest,
                                     self.encoder.neighbour_sectors(pos, np.zeros((1, 1, 1, 2)), np.ones((1, 1, 1), np.bool_)),
-                                    np.zeros((1, 1), np.int64))
-        r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap)
+                                    np.zeros((1, 1), np.int64),
+                                    predict_batch(new_maps(self.predict, 1, 1), pos, np.zeros((1, 1)), self.predict))
+        r = self.reward(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), overlap, np.zeros((1, 1)),
+                        np.zeros((1, 1)), np.zeros((1, 1)))
         probe = QLearners(self.cfg.learner, 1, [np.random.default_rng(0)], 1, 1, q=np.zeros((1, 1, 1, 16)),
                           fence=geofence(self.cfg))
         probe.begin_episode(0, 1)
@@ -305,6 +312,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
                 learners.q[0, 0] = ck["q"]
                 self.steps = int(ck["steps"])
                 rng.bit_generator.state = json.loads(str(ck["rng_state"]))
+                if "density_map" in ck.files and ck["density_map"].shape == self._density_map.shape[2:]:
+                    self._density_map[0, 0] = ck["density_map"]
             self.resumed = True
             log.info("uav %d resumed from checkpoint %s at step %d", o.uav, o.checkpoint, self.steps)
         else:
@@ -486,7 +495,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         tmp = path.with_name(path.name + ".tmp.npz")
         state = json.dumps(self.learners.rngs[0].bit_generator.state)
         np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
-                 visits_at_share=self.visits_at_share)
+                 visits_at_share=self.visits_at_share, density_map=self.decision.density_map[0, 0])
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

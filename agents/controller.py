@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from agents.federated import federate, share_due
+from agents.prediction import new_maps, predict_batch, predict_params
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder, all_peers, neighbour_features
@@ -38,6 +39,11 @@ class TruavController:
         """Each agent's updates per state (federated TRUAV weighs shared rows by them: agents.federated)."""
         self.visits_at_share = np.zeros_like(self.visits)
         """visits at the agents' last share: a share holds the rows visited since."""
+        self.predict = predict_params(cfg)
+        self.maps = new_maps(self.predict, len(seeds), U)
+        """Each agent's decayed density map (agents/prediction.py; no cells with prediction off)."""
+        self.prev_in_range = np.zeros((len(seeds), U))
+        """Vehicles in range at each agent's last observation (the shaping's phi(s))."""
         self.fused = True
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
         self.draws_in_kernel = True
@@ -55,13 +61,17 @@ class TruavController:
     def _features(self, obs: LocalObs):
         peers, heard = all_peers(obs.pos)
         nearest, overlap = neighbour_features(obs.pos, peers, heard, self.cfg.scenario.comm_range_m)
+        predicted = predict_batch(self.maps, np.ascontiguousarray(obs.pos, np.float64),
+                                  np.asarray(obs.vehicles_in_range, np.float64), self.predict)
         return self.encoder.encode(obs.pos, obs.vehicles_in_range, obs.queued, nearest,
-                                   self.encoder.neighbour_sectors(obs.pos, peers, heard), obs.densest_sector), overlap
+                                   self.encoder.neighbour_sectors(obs.pos, peers, heard), obs.densest_sector,
+                                   predicted), overlap
 
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
         self.learners.begin_episode(episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
         self.state, _ = self._features(obs)
         self.pos = obs.pos
+        self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()
         self._reward_sum[:] = 0.0
         self._steps = 0
         self._episode = episode
@@ -84,7 +94,9 @@ class TruavController:
 
     def observe(self, obs: LocalObs, done: bool) -> None:
         next_state, overlap = self._features(obs)
-        r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap)
+        r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap, obs.exclusive, obs.vehicles_in_range,
+                        self.prev_in_range)
+        self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()
         if self.train:
             self.learners.update(self.state, self.action, r, next_state, False)
             b, u = np.indices(self.state.shape)

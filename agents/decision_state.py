@@ -6,7 +6,8 @@ indices. A restore starts from the table the run started with (fresh from the ag
 trained run's) and writes those rows back, so a 14,400 x 16 table of a UAV that visited a few hundred
 states costs a few hundred rows. The rest: the exploration generator, this episode's exploration draws
 (one uniform and one random action per step, drawn at its start), epsilon, and the decision's
-episode, step, last state, last action and velocity.
+episode, step, last state, last action and velocity, its density map (prediction) and its last count of
+vehicles in range (shaping).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ def decision_state(d: TruavDecision) -> dict[str, np.ndarray]:
         "rng": rng_words(lr.rngs[0]), "explore_u": np.array(lr._explore_u[:, 0, 0], np.float64),
         "random_a": np.array(lr._random_a[:, 0, 0], np.int64),
         "q_rows": rows, "q_values": lr.q[0, 0, rows].copy(),
+        "density_map": d.density_map[0, 0].copy(), "prev_in_range": np.array(d.prev_in_range, np.float64),
     }
 
 
@@ -38,7 +40,8 @@ def decision_state_spec(n_states: int) -> dict[str, tuple[np.dtype, tuple[int, .
     f8, i8 = np.dtype(np.float64), np.dtype(np.int64)
     return {"episode": (i8, ()), "t": (i8, ()), "state": (i8, ()), "action": (i8, ()), "velocity": (f8, (2,)),
             "epsilon": (f8, ()), "rng": (np.dtype(np.uint64), (RNG_WORDS,)), "explore_u": (f8, (-1,)),
-            "random_a": (i8, (-1,)), "q_rows": (i8, (-1,)), "q_values": (f8, (-1, N_ACTIONS))}
+            "random_a": (i8, (-1,)), "q_rows": (i8, (-1,)), "q_values": (f8, (-1, N_ACTIONS)),
+            "density_map": (f8, (-1,)), "prev_in_range": (f8, ())}
 
 
 def restore_decision(d: TruavDecision, state: dict[str, np.ndarray]) -> None:
@@ -58,6 +61,10 @@ def restore_decision(d: TruavDecision, state: dict[str, np.ndarray]) -> None:
         raise ValueError("state or action out of range")
     if not np.all(np.isfinite(values)) or not np.all(np.isfinite(state["velocity"])):
         raise ValueError("q_values and velocity must be finite")
+    if state["density_map"].shape != d.density_map.shape[2:] or not np.all(np.isfinite(state["density_map"])) \
+            or not np.isfinite(state["prev_in_range"]):
+        raise ValueError(f"density_map must be {d.density_map.shape[2:]} finite values (the run's prediction "
+                         "settings), prev_in_range finite")
     lr.q[0, 0, rows] = values
     lr.rngs[0] = rng_from_words(state["rng"])
     lr.epsilon = float(state["epsilon"])
@@ -68,6 +75,8 @@ def restore_decision(d: TruavDecision, state: dict[str, np.ndarray]) -> None:
     d.velocity = tuple(float(v) for v in state["velocity"])
     d._encoded = np.array([[d.state]], np.int64)
     d.touched = set(int(r) for r in rows)
+    d.density_map[0, 0] = state["density_map"]
+    d.prev_in_range = float(state["prev_in_range"])
 
 
 __all__ = ["decision_state", "decision_state_spec", "restore_decision"]

@@ -7,7 +7,8 @@ Per env and step it does what the step-by-step driver does through
 `World.step` and `TruavController.act/observe`, by calling the same compiled
 functions: each agent's epsilon-greedy action (`qlearning.act_one`), the
 world's `step.env_step`, each agent's neighbour features, state and reward
-(`state.neighbour_one`, `state.nearest_sector_one`, `state.encode_one`, `reward.reward_one`) and its Q
+(`state.neighbour_one`, `state.nearest_sector_one`, `prediction.predict_one`, `state.encode_one`,
+`reward.full_one`) and its Q
 update (`qlearning.q_update_one`). Environments share nothing, so running
 them on threads changes no number; tests/test_fused.py checks the two paths
 agree entry by entry. The world's per-episode draws after the UAV start
@@ -25,11 +26,12 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from agents.prediction import predict_one
 from agents.qlearning import act_one, q_update_one
-from agents.reward import reward_one
+from agents.reward import full_one
 from agents.state import encode_one, nearest_sector_one, neighbour_one
 from world.draws import pcg64_episode_draws
-from world.network import COVERED, DENSEST, IN_RANGE, QUEUED, RELAYED
+from world.network import COVERED, DENSEST, EXCLUSIVE, IN_RANGE, QUEUED, RELAYED
 from world.roads import mobility_scratch, move_hotspots_env
 from world.step import env_step, pairwise_sum, replayed_row
 
@@ -44,7 +46,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 @njit(parallel=True, nogil=True, cache=True)
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
-                  draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
+                  maps, prev_in_range, pp, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0, slots,
                   total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum, visits):
     """Run steps 0..T-1 of the current episode for every env b, in place.
@@ -56,7 +58,10 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
 
     q (B, U, S, 16); state (B, U) the agents' states at the episode start,
     left at the last step's; explore_u, random_a (T, B, U) exploration draws;
-    fence the agents' geofence (qlearning.Fence);
+    fence the agents' geofence (qlearning.Fence); maps (B, U, C) the agents'
+    density maps and pp their agents.prediction.PredictParams; prev_in_range (B, U)
+    the vehicles in range at each agent's last observation (the shaping's phi), both
+    left as the last step leaves them;
     others (U, U) which peers each UAV hears (all but itself); turn_u
     (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
     as in `step.env_step`, with a leading B (trace and row0 as in
@@ -93,8 +98,12 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                 nearest, overlap = neighbour_one(x, y, pos_b, others[u], comm_range)
                 nb_sector = nearest_sector_one(x, y, pos_b, others[u], sp.neighbour_sectors) \
                     if sp.neighbour_sectors > 0 else 0
-                s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, nb_sector, int(o[u, DENSEST]), sp)
-                rewards[u] = reward_one(o[u, RELAYED], o[u, COVERED], energy_b[u], overlap, rp_reward)
+                predicted = predict_one(maps[b, u], x, y, o[u, IN_RANGE], pp)
+                s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, nb_sector, int(o[u, DENSEST]),
+                                    predicted, sp)
+                rewards[u] = full_one(o[u, RELAYED], o[u, COVERED], energy_b[u], overlap, o[u, EXCLUSIVE],
+                                      o[u, IN_RANGE], prev_in_range[b, u], rp_reward)
+                prev_in_range[b, u] = o[u, IN_RANGE]
                 if train:
                     q_update_one(q_b[u], state[b, u], actions[u], rewards[u], s_next, False, lr, discount)
                     visits[b, u, state[b, u]] += 1
@@ -196,7 +205,8 @@ def run_episode(world, controller) -> None:
     truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), ln.fence,
                   bool(controller.train),
                   float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
-                  controller.encoder.params, controller.reward.params,
+                  controller.encoder.params, controller.reward.params, controller.maps, controller.prev_in_range,
+                  controller.predict,
                   *_draw_args(world, deferred), *_world_args(world), controller._reward_sum, controller.visits)
     if deferred is not None:
         world.end_deferred_draws()

@@ -13,7 +13,9 @@ exactly the five factors above):
 
 - direction of the nearest neighbour in `neighbour_sectors` sectors,
 - the densest direction beyond comm range, sensed by the world
-  (`sense_range_m`, `sense_sectors`; world.network.DENSEST).
+  (`sense_range_m`, `sense_sectors`; world.network.DENSEST);
+- (issue 32) the direction of the densest cell of the UAV's own decayed
+  density map, where it expects traffic (`predict_sectors`; agents/prediction.py).
 
 A level is the number of edges <= the value, so k edges give k+1 levels.
 Everything here uses only what one UAV senses itself or hears in beacons.
@@ -115,6 +117,7 @@ class StateParams(NamedTuple):
     rsu: np.ndarray  # (K, 2)
     neighbour_sectors: int  # 0: no direction factor
     sense_levels: int  # 1: no sensing factor, else sense_sectors + 1
+    predict_levels: int  # 1: no prediction factor, else predict_sectors + 1
 
 
 @njit(cache=True)
@@ -127,7 +130,8 @@ def _level(edges, value):
 
 
 @njit(cache=True)
-def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector, p):
+def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector,
+               predicted_sector, p):
     """One agent's state index from its position and features; the sector
     arguments are ignored (may be 0) when their factor is off."""
     cx = min(max(int(x // p.cell_m), 0), p.cells - 1)
@@ -144,18 +148,22 @@ def encode_one(x, y, vehicles_in_range, queued, nearest_neighbour_m, neighbour_s
         index = index * p.neighbour_sectors + min(max(neighbour_sector, 0), p.neighbour_sectors - 1)
     if p.sense_levels > 1:
         index = index * p.sense_levels + min(max(densest_sector, 0), p.sense_levels - 1)
+    if p.predict_levels > 1:
+        index = index * p.predict_levels + min(max(predicted_sector, 0), p.predict_levels - 1)
     return index
 
 
 @njit(cache=True)
-def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector, p):
+def encode_states(pos, vehicles_in_range, queued, nearest_neighbour_m, neighbour_sector, densest_sector,
+                  predicted_sector, p):
     """State indices (B, U) from own position (B, U, 2) and (B, U) features."""
     n_env, n_uav = vehicles_in_range.shape
     out = np.empty((n_env, n_uav), np.int64)
     for b in range(n_env):
         for u in range(n_uav):
             out[b, u] = encode_one(pos[b, u, 0], pos[b, u, 1], vehicles_in_range[b, u], queued[b, u],
-                                   nearest_neighbour_m[b, u], neighbour_sector[b, u], densest_sector[b, u], p)
+                                   nearest_neighbour_m[b, u], neighbour_sector[b, u], densest_sector[b, u],
+                                   predicted_sector[b, u], p)
     return out
 
 
@@ -168,11 +176,11 @@ class StateEncoder:
         self.params = StateParams(lc.grid_cells, sc.area_m / lc.grid_cells, np.array(lc.density_edges),
                                   np.array(lc.queue_edges), np.array(lc.neighbour_edges_m),
                                   np.array(lc.rsu_edges_m), rsu_positions(cfg), int(lc.neighbour_sectors),
-                                  int(sense_levels))
+                                  int(sense_levels), int(lc.predict_sectors) + 1)
         p = self.params
         self.levels = (p.cells * p.cells, p.density_edges.size + 1, p.queue_edges.size + 1,
                        p.neighbour_edges.size + 1, p.rsu_edges.size + 1, max(p.neighbour_sectors, 1),
-                       p.sense_levels)
+                       p.sense_levels, p.predict_levels)
         self.n_states = int(np.prod(self.levels))
 
     def neighbour_sectors(self, own: np.ndarray, peers: np.ndarray, heard: np.ndarray) -> np.ndarray:
@@ -184,7 +192,7 @@ class StateEncoder:
 
     def encode(self, pos: np.ndarray, vehicles_in_range: np.ndarray, queued: np.ndarray,
                nearest_neighbour_m: np.ndarray, neighbour_sector: np.ndarray | None = None,
-               densest_sector: np.ndarray | None = None) -> np.ndarray:
+               densest_sector: np.ndarray | None = None, predicted_sector: np.ndarray | None = None) -> np.ndarray:
         """State indices (B, U) from own position (B, U, 2) and (B, U) features
         (the sectors may be omitted when their factors are off)."""
         shape = np.shape(vehicles_in_range)
@@ -193,4 +201,6 @@ class StateEncoder:
                              np.asarray(vehicles_in_range, np.float64), np.asarray(queued, np.float64),
                              np.asarray(nearest_neighbour_m, np.float64),
                              zeros if neighbour_sector is None else np.asarray(neighbour_sector, np.int64),
-                             zeros if densest_sector is None else np.asarray(densest_sector, np.int64), self.params)
+                             zeros if densest_sector is None else np.asarray(densest_sector, np.int64),
+                             zeros if predicted_sector is None else np.asarray(predicted_sector, np.int64),
+                             self.params)

@@ -21,6 +21,10 @@ def _run(cfg, seeds, fused, train=True, q=None, episodes=3):
     ({"n_uavs": 1, "uav_speed_mps": 25.0}, {}),
     # the selectable state refinements: neighbour direction and sensed densest direction
     ({"n_uavs": 4}, {"neighbour_sectors": 4, "sense_range_m": 900.0, "sense_sectors": 8, "grid_cells": 4}),
+    # issue 32's designs: difference reward, potential-based shaping, the prediction map's direction
+    ({"n_uavs": 4, "uav_start": "persist"}, {"w_coverage": 0.0, "w_overlap": 0.0, "w_difference": 0.25,
+                                             "w_shaping": 0.5, "predict_sectors": 4, "predict_cells": 5,
+                                             "grid_cells": 2}),
 ])
 def test_fused_episode_equals_the_step_path(small_cfg, scenario, learner):
     cfg = small_cfg.replace(scenario=scenario, learner=learner)

@@ -94,3 +94,20 @@ def test_lockstep_swarm_learns_the_trainers_tables_with_the_state_refinements(tm
     runio.write_qtables(tmp_path, [SEED], expected.q)  # what `truav train` writes: compared as it is, no cast
     with np.load(tmp_path / runio.QTABLE_FILE) as saved:
         assert saved["q"].dtype == q.dtype and np.array_equal(q, saved["q"][0])
+
+
+def test_lockstep_swarm_learns_the_trainers_tables_with_the_reward_designs(tmp_path):
+    """Issue 32's designs reach the swarm agents: the difference reward (from the world's
+    Obs.exclusive), potential-based shaping and the prediction map's direction; persistent
+    UAVs, so a map and the shaping's last density carry over episodes. Same tables as the
+    fused trainer, entry for entry."""
+    cfg = CFG.replace(scenario={"n_uavs": 3, "uav_start": "persist"},
+                      learner={"episodes": 8, "grid_cells": 3, "w_coverage": 0.0, "w_overlap": 0.0,
+                               "w_difference": 0.25, "w_shaping": 0.5, "predict_sectors": 4, "predict_cells": 5})
+    expected = run_chunk("truav", cfg, [SEED], cfg.learner.episodes)
+    out = run_swarm(tmp_path, "designs", cfg=cfg)
+    q, steps = agent_tables(out, cfg)
+    assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * cfg.scenario.n_uavs
+    assert q.shape[1] == 9 * 4 * 4 * 3 * 3 * 5  # the grid, the paper's four factors, the predicted direction
+    differing = [int(np.sum(q[i] != expected.q[0][i])) for i in range(len(q))]
+    assert differing == [0] * len(q), f"entries differing from the trainer, per agent: {differing}"

@@ -258,6 +258,31 @@ class LearnerConfig:
     sense_sectors: int = param(4, 1, 16)
     """Direction sectors of the sensing above (counter-clockwise from east;
     4: E, N, W, S quadrants); the factor has sense_sectors + 1 levels."""
+    w_difference: float = param(0.0, -100.0, 100.0)
+    """Weight of the difference reward's coverage term: the vehicles in the
+    UAV's range that no other UAV covers (world.network.EXCLUSIVE, what the
+    swarm's coverage would lose without this UAV: G(z) - G(z without i) for
+    coverage), over the fair share n_vehicles / n_uavs. 0 (the default) leaves
+    the paper's reward; the difference design sets it (e.g. 0.25) with
+    w_coverage and w_overlap at 0, replacing the local coverage term and the
+    overlap penalty that approximates what it subtracts (agents/reward.py)."""
+    w_shaping: float = param(0.0, -100.0, 100.0)
+    """Potential-based shaping (Ng, Harada & Russell 1999): the reward gets
+    F = discount phi(s') - phi(s), phi = w_shaping x vehicles in range / the
+    fair share, which leaves the optimal policy unchanged and pays a move
+    towards denser traffic at once. 0 (the default): no shaping."""
+    predict_sectors: int = param(0, 0, 16)
+    """Prediction: each UAV keeps a decayed map of the vehicle density it has
+    seen (predict_cells x predict_cells cells; each observation multiplies it
+    by predict_decay and adds the vehicles in range to the UAV's cell), and
+    the state gets the direction, in this many sectors, of the map's densest
+    cell where it expects traffic (or "here / nothing seen yet"): a factor of
+    predict_sectors + 1 levels. 0 (the default): off (agents/prediction.py)."""
+    predict_cells: int = param(10, 1, 100)
+    """Cells per side of the prediction map (10: 500 m cells, one comm range)."""
+    predict_decay: float = param(0.99, 0.0, 1.0)
+    """Per-observation decay of the prediction map (0.99: a half-life of 69
+    steps, about the 200 s a hotspot dwells under `--preset paper`)."""
 
 
 PATROL_ASSIGNMENTS = ("nearest", "fixed")

@@ -68,6 +68,7 @@ class TruavParallelEnv(ParallelEnv):
         self._rsu = network.rsu_positions(self.cfg)
         self._world: World | None = None
         self._t = 0
+        self._prev_in_range = np.zeros(self.cfg.scenario.n_uavs)  # the shaping's phi(s) (learner.w_shaping)
 
     @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Box:
@@ -100,6 +101,7 @@ class TruavParallelEnv(ParallelEnv):
             obs = self._world.start_episode()
         self.agents = list(self.possible_agents)
         self._t = 0
+        self._prev_in_range = obs.vehicles_in_range[0].astype(np.float64)
         observations, _ = self._observations(obs)
         return observations, {a: self._info(obs, i) for i, a in enumerate(self.agents)}
 
@@ -113,7 +115,9 @@ class TruavParallelEnv(ParallelEnv):
         obs, _, done = self._world.step(a)
         self._t += 1
         observations, overlap = self._observations(obs)
-        r = self._reward(obs.relayed, obs.covered, obs.energy_j, overlap)[0]
+        r = self._reward(obs.relayed, obs.covered, obs.energy_j, overlap, obs.exclusive, obs.vehicles_in_range,
+                         self._prev_in_range[None])[0]
+        self._prev_in_range = obs.vehicles_in_range[0].astype(np.float64)
         rewards = {ag: float(r[i]) for i, ag in enumerate(self.agents)}
         terminations = {ag: False for ag in self.agents}
         truncations = {ag: bool(done) for ag in self.agents}

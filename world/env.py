@@ -26,7 +26,7 @@ from truav.config import Config
 from world import network, uavs
 from world.draws import (POISSON_MULT_MAX_LAM, pcg64_state, poisson_into, rng_words, set_pcg64_state,
                          uniform_into)
-from world.network import (COVERED, DENSEST, E_COVERED, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
+from world.network import (COVERED, DENSEST, E_COVERED, EXCLUSIVE, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
                            E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
                            UAV_COLUMNS)
 from world.packets import Queues
@@ -57,6 +57,10 @@ class LocalObs:
     or sensing is off (world.network.DENSEST). The world always fills it; None
     where an observation is rebuilt from messages without it (the central
     controller process, whose state does not use it)."""
+    exclusive: np.ndarray | None = None
+    """Vehicles within this UAV's comm range and no other UAV's (int): what the
+    swarm's coverage would lose without it (world.network.EXCLUSIVE; the
+    difference reward, learner.w_difference). None as densest_sector."""
 
 
 @dataclass
@@ -361,7 +365,7 @@ class World:
         o = self._out_uav
         return LocalObs(self.uav_pos.copy(), o[:, :, IN_RANGE].astype(np.int64), o[:, :, QUEUED].astype(np.int64),
                         o[:, :, RELAYED].astype(np.int64), o[:, :, COVERED].astype(np.int64), energy,
-                        o[:, :, DENSEST].astype(np.int64))
+                        o[:, :, DENSEST].astype(np.int64), o[:, :, EXCLUSIVE].astype(np.int64))
 
     # -- episode summary -------------------------------------------------------
     def episode_summary(self) -> dict[str, np.ndarray]:

@@ -31,12 +31,17 @@ from world import packets
 from world.channel import SPEED_OF_LIGHT, ChannelParams, a2a_rate, a2g_rate
 
 # Columns of the per-UAV output (B, U, UAV_COLUMNS).
-IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST = range(6)
-UAV_COLUMNS = 6
+IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST, EXCLUSIVE = range(7)
+UAV_COLUMNS = 7
 """DENSEST: with sensing on (learner.sense_range_m > 0), 1 + the direction
 sector (counter-clockwise from east, learner.sense_sectors of them) holding
 the most vehicles beyond comm range and within the sensing radius, the first
-such sector on ties; 0 if none is sensed. Always 0 with sensing off."""
+such sector on ties; 0 if none is sensed. Always 0 with sensing off.
+EXCLUSIVE: vehicles within this UAV's comm range and no other UAV's: the
+coverage the swarm would lose without it (the difference reward's term,
+agents/reward.py). A UAV can count it itself from the position beacons (CAMs)
+of the vehicles in its range and its neighbours' beacon positions; the world
+counts it in the loop that counts the vehicles in range."""
 # Columns of the per-env output (B, ENV_COLUMNS).
 E_COVERED, E_GENERATED, E_OVERFLOW, E_DELIVERED, E_EXPIRED, E_DELAY_S, E_WAIT_STEPS = range(7)
 ENV_COLUMNS = 7
@@ -173,14 +178,18 @@ def _relay_env(xy, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, bus
     for i in range(n):
         x, y = xy[i, 0], xy[i, 1]
         best = np.inf
+        in_ranges = 0
         for u in range(n_uav):
             d2 = (x - uav_pos[u, 0]) ** 2 + (y - uav_pos[u, 1]) ** 2
             if d2 <= r2:
                 out_uav[u, IN_RANGE] += 1.0
+                in_ranges += 1
                 if d2 < best:
                     best, nearest[i] = d2, u
             elif sensing and d2 <= sense2:
                 sensed[u, sector(x - uav_pos[u, 0], y - uav_pos[u, 1], p.sense_sectors)] += 1.0
+        if in_ranges == 1:
+            out_uav[nearest[i], EXCLUSIVE] += 1.0
         if nearest[i] >= 0:
             dist[i] = np.sqrt(best)
             out_uav[nearest[i], COVERED] += 1.0
@@ -257,7 +266,7 @@ def relay_step(xy, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, bus
     (B, N); xy (B, N, 2) vehicle positions; arrivals (B, N). With serve_packets False only senses (association,
     queues) - used at the start of an episode. busy0 (B, U): seconds of each
     UAV's radio time already used this step (e.g. by control-plane traffic).
-    Fills out_uav (B, U, 5) and out_env (B, 7), see the column constants."""
+    Fills out_uav (B, U, UAV_COLUMNS) and out_env (B, 7), see the column constants."""
     work_f, work_i = np.empty(2 * xy.shape[1]), np.empty(2 * xy.shape[1], np.int64)
     for b in range(xy.shape[0]):
         _relay_env(xy[b], uav_pos[b], slots[b], total[b], arrivals[b], t,

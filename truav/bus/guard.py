@@ -220,7 +220,7 @@ class Guard:
         if isinstance(msg, schema.Obs):
             if not b.in_area(msg.pos):
                 return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
-            if max(msg.vehicles_in_range, msg.covered) > b.max_count \
+            if max(msg.vehicles_in_range, msg.covered, msg.exclusive) > b.max_count \
                     or max(msg.queued_packets, msg.relayed) > b.max_packets:
                 return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
             if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:
@@ -352,7 +352,7 @@ class Guard:
             return R_TICK, f"tick {tick}, current {self._tick}"
         if not b.in_area(msg.pos):
             return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
-        if max(msg.vehicles_in_range, msg.covered) > b.max_count \
+        if max(msg.vehicles_in_range, msg.covered, msg.exclusive) > b.max_count \
                 or max(msg.queued_packets, msg.relayed) > b.max_packets:
             return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
         if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:

@@ -87,6 +87,7 @@ class Obs(Envelope):
             "speed_max": _nonneg,
             "done": _bool,
             "densest_sector": _sector,
+            "exclusive": _uint63,
         }
     )
     tick: int
@@ -102,6 +103,8 @@ class Obs(Envelope):
     done: bool
     densest_sector: int = 0
     """Sensing of denser areas (learner.sense_range_m): 1 + the densest direction sector, 0 none / off."""
+    exclusive: int = 0
+    """Vehicles in this UAV's range and no other UAV's (world.network.EXCLUSIVE; the difference reward)."""
 
 
 @dataclass(frozen=True)
@@ -560,8 +563,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
 
 # msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
 # of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
-# (max_map_len 18: an obs, 6 envelope keys + 12 fields.)
-_SMALL_LIMITS = {"max_map_len": 18, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+# (max_map_len 19: an obs, 6 envelope keys + 13 fields.)
+_SMALL_LIMITS = {"max_map_len": 19, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
                  "max_ext_len": 0}
 _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,

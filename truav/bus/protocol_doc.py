@@ -119,6 +119,8 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "densest_sector": ("", "with sensing on (learner.sense_range_m > 0): 1 + the direction sector holding "
                                "the most vehicles beyond comm range and within the sensing radius (see "
                                "densest_sector); 0: none sensed, or sensing off"),
+        "exclusive": ("vehicles", "vehicles within this UAV's comm range and no other UAV's: the coverage the "
+                              f"swarm would lose without it (the difference reward, learner.w_difference); {_COUNT}"),
     },
     "beacon": {
         "uav": ("", _UAV_NOTE),
