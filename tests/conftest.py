@@ -35,6 +35,19 @@ def wait_until(pred: Callable[[], bool], timeout_s: float, poll_s: float = 0.01)
     return pred()
 
 
+def wait_matched(sender, key: str, timeout_s: float = 30.0) -> bool:
+    """Wait until ``sender`` (a zenoh Session or a Bus) knows of a subscriber to ``key``: the subscription
+    has reached the router and the router has told the sender. A fixed sleep for that (0.3 s) was too
+    short on a loaded machine, and a put before it is dropped."""
+    if isinstance(sender, Bus):
+        return sender.await_subscribers(key, timeout_s)
+    pub = sender.declare_publisher(key)
+    try:
+        return wait_until(lambda: pub.matching_status.matching, timeout_s, poll_s=0.02)
+    finally:
+        pub.undeclare()
+
+
 def free_port() -> int:
     """A free TCP port on loopback (bound once, then released)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

@@ -7,7 +7,7 @@ import time
 
 import zenoh
 
-from conftest import wait_until
+from conftest import wait_matched, wait_until
 from truav.bus import keys, schema, transport
 
 RUN = "ring"
@@ -32,7 +32,7 @@ def _flood_while_stalled(bus_factory, endpoint: str, ring: int | None, junk: int
     reader.subscribe(keys.uav_action(RUN, 0), on_action)
     agent = bus_factory("uav/0")
     agent.prepare(keys.uav_action(RUN, 0))
-    time.sleep(0.3)  # the subscription reached the router
+    assert wait_matched(agent, keys.uav_action(RUN, 0))  # the subscription reached the router
     agent.publish(keys.uav_action(RUN, 0), _action(1))
     assert wait_until(lambda: delivered == [1], 10)
     attacker = zenoh.open(transport.make_config("client", connect=[endpoint]))

@@ -14,6 +14,7 @@ from agents.agent_process import AgentNode
 from truav.bus import guard, keys, schema
 from truav.bus.rejection_notices import RejectionNotices
 from truav.bus.schema_names import MAX_DETAIL_LEN
+from conftest import wait_matched
 
 RUN = "told"
 KEY = keys.uav_action(RUN, 1)
@@ -70,7 +71,7 @@ def test_poll_subscribe_delivers_valid_rejections_without_a_thread_and_refuses_f
     threads_before = threading.active_count()
     drain = agent.poll_subscribe(keys.uav_rejected(RUN, 1), lambda key, msg, raw, t: got.append(msg), capacity=8)
     assert threading.active_count() == threads_before  # no thread of its own
-    time.sleep(0.3)  # the subscription reaches the router
+    assert wait_matched(mallory, keys.uav_rejected(RUN, 1)) and wait_matched(world, keys.uav_rejected(RUN, 1))
     msg = schema.Rejection(uav=1, at_tick=3, reason="out_of_range", refused_kind="action", key=KEY, detail="d",
                            counts={"out_of_range": 1})
     mallory.publish(keys.uav_rejected(RUN, 1), msg)  # from the supervisor: refused (forbidden_sender)

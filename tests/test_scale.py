@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import up_to_end
+from conftest import up_to_end, wait_matched
 from agents.beacon_cells import BeaconCells, CellFollower, feature_range_m, subscription_radius_m
 from agents.beacon_schedule import sends_beacon
 from agents.state import StateEncoder, neighbour_features
@@ -111,7 +111,7 @@ def test_a_cell_beacon_reaches_only_subscribers_of_its_cell(bus_factory):
     far_box = far.inbox(keys.beacons_in_cell(RUN, (5, 4)))
     every = far.inbox(keys.all_beacons_in_cells(RUN))
     assert transport.expected_kind(keys.uav_beacon_in_cell(RUN, 1, (3, 4))) == schema.KIND_BEACON
-    time.sleep(0.3)  # subscriptions reach the router
+    assert wait_matched(sender, keys.uav_beacon_in_cell(RUN, 1, (3, 4)))  # subscriptions reach the router
     sender.publish(keys.uav_beacon_in_cell(RUN, 1, (3, 4)), schema.Beacon(uav=1, tick=5, pos=(1700.0, 2100.0),
                                                                           vel=(0.0, 0.0)))
     deadline = time.monotonic() + 5

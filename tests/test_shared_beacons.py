@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from agents.shared_beacons import SharedBeacons, split_batch
-from conftest import up_to_end
+from conftest import up_to_end, wait_matched
 from truav.bus import acl, guard, keys, schema
 from truav.bus.placement import R_KEY_MISMATCH, check_placement
 from truav.config import Config
@@ -102,8 +102,8 @@ def test_a_batch_is_split_filtered_per_link_and_a_foreign_uav_refused(bus_factor
     for bus in (rx2, rx3):
         bus.guard = guard.for_config(cfg)
         views[bus.identity] = feed(bus)
-    time.sleep(0.5)  # the subscriptions reach the router
     key = keys.group_beacons(RUN, 0, 1)
+    assert wait_matched(sender, key)  # the subscriptions reach the router
     sender.publish(key, schema.Beacons(entries=((0, 3, (10.0, 20.0), (0.0, 0.0)), (1, 3, (30.0, 40.0), (0.0, 0.0)))))
     got2, got3 = _drain_until(views["uav/2"], 1), _drain_until(views["uav/3"], 2)
     assert [(r.msg.uav, r.msg.pos, r.key) for r in got3] == [(0, (10.0, 20.0), keys.uav_beacon(RUN, 0)),

@@ -17,7 +17,7 @@ import msgpack
 import pytest
 
 import conftest
-from conftest import free_port
+from conftest import free_port, wait_matched
 import zenoh
 
 from truav import cli_args
@@ -358,8 +358,8 @@ def test_router_drops_oversized_puts_before_any_subscriber_sees_them(endpoint) -
     with zenoh.open(conf) as attacker, zenoh.open(transport.make_config("client", connect=[endpoint])) as victim:
         got: list[tuple[str, int]] = []
         victim.declare_subscriber(f"truav/{RUN}/**", lambda s: got.append((str(s.key_expr), len(s.payload))))
-        time.sleep(0.3)  # the subscription reaches the router
         obs_key, pos_key = keys.uav_obs(RUN, 0), keys.world_positions(RUN)
+        assert wait_matched(attacker, obs_key) and wait_matched(attacker, pos_key)  # the subscription is known
         attacker.put(obs_key, b"x" * (small_limit + 2048))  # too big for an observation
         attacker.put(pos_key, b"x" * (small_limit + 2048))  # fine for positions (up to 1 MiB)
         attacker.put(pos_key, b"x" * (schema.MAX_PAYLOAD_BYTES + 4096))  # too big for anything
