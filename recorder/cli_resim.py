@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from recorder.log_copy import damage_errors, not_mcap_reason
 from truav.cli_args import non_negative_int
 
 RESIM_HELP = "re-run a lock-step recording in process and check every observation, beacon and action bit for bit"
@@ -54,32 +55,6 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
     return code
 
 
-def _mcap_file(path: str) -> str | None:
-    """An error message when ``path`` is not a readable MCAP file, else None."""
-    from recorder.reader import probe
-
-    p = Path(path)
-    if not p.is_file():
-        return f"{path}: {'not a file' if p.exists() else 'no such file'}"
-    try:
-        with open(p, "rb") as f:
-            probe(f)
-    except ValueError as exc:
-        return f"{path}: {exc}"
-    except OSError as exc:
-        return f"{path}: {exc.strerror or exc}"
-    return None
-
-
-def damage_errors() -> tuple[type[BaseException], ...]:
-    """What mcap's reader raises on a damaged file (bad chunk, framing, compression)."""
-    import struct
-
-    import zstandard
-    from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
-
-
 def cmd_resim(args: argparse.Namespace) -> int:
     from recorder.resim import Resimulation, load_run, start_tables
     from recorder.resim_branch import branch_config
@@ -87,7 +62,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     from truav.cli_config import parse_sets
     from truav.errors import UserError
 
-    problem = _mcap_file(args.file)
+    problem = not_mcap_reason(args.file)
     if problem:
         return _fail(problem)
     branch = args.from_tick is not None
