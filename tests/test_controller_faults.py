@@ -49,10 +49,13 @@ def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
     assert len(world["episodes"]) == 1 and world["ticks"] == STEPS + 1  # the world ran its episode to the end
     assert len(world["controller_losses"]) == 1
     commands = [a["commands"] for a in summary["agents"]]
-    # Before the crash commands (fresh in their round, or on a loaded host late and held for the next
-    # round: real time promises no deadline there), after it at most one held tick (hold 1 s = one 1 s
-    # step), then hovering: every UAV hovers once the controller is gone.
-    assert all(c["fresh"] + c["held"] > 0 and c["hovered"] > 0 for c in commands), commands
+    # Before the crash commands (fresh in their round, or late and held for the next), after it at most
+    # one held tick (hold 1 s = one 1 s step), then hovering. Real time promises none of the commands
+    # before the crash: on a loaded host (two test workers) the world's first ticks came 1.5 s apart and
+    # the crash, 1.5 s after the first, fell before any command landed. Every UAV hovers once it is gone,
+    # and every decision is counted as one of the three.
+    assert all(c["hovered"] > 0 for c in commands), commands
+    assert all(c["fresh"] + c["held"] + c["hovered"] <= STEPS for c in commands), commands
     assert 0 < world["hover_answers"] <= sum(c["hovered"] for c in commands)  # some late, under load
     assert [(kind, phase) for _, kind, phase in summary["fault_events"]] == [("crash", "start")]
 
