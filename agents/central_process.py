@@ -78,6 +78,24 @@ class ControllerOptions:
     accept_replay: bool = False
 
 
+def warm_up_learning(cfg: Config) -> None:
+    """Compile (or load from the cache) every kernel an online-learning controller runs (joint state, reward,
+    sampled actions, replay store, an update) on a throwaway tiny learner with its own generator, before
+    joining: on a cold cache that takes most of a second, which would otherwise make the first ticks' commands
+    late. numba specialises on dtypes and ranks, not sizes, so the real learner then compiles nothing."""
+    tiny = cfg.replace(central={"hidden": 4, "batch_size": 2, "buffer_size": 2, "learning_starts": 0,
+                                "update_every": 1})
+    probe = make_controller("central", tiny, [0], True, None)
+    U = cfg.scenario.n_uavs
+    obs = LocalObs(pos=np.zeros((1, U, 2)), vehicles_in_range=np.zeros((1, U), np.int64),
+                   queued=np.zeros((1, U), np.int64), relayed=np.zeros((1, U), np.int64),
+                   covered=np.zeros((1, U), np.int64), energy_j=np.zeros((1, U)))
+    probe.begin_episode(0, obs)
+    probe.act(0)
+    probe.observe(obs, False)
+    probe.act(1)
+
+
 class ControllerNode:
     def __init__(self, cfg: Config, opts: ControllerOptions, bus: Bus):
         self._debug = Every(log)
@@ -87,6 +105,8 @@ class ControllerNode:
         self.central = make_controller("central", cfg, [opts.seed], params is None, params)
         # torch's first forward pass (cold: most of a second) before joining, not in tick 0; greedy draws nothing.
         self.central.sac.act(np.zeros((1, self.central.critic_input_dim)), greedy=True)
+        if params is None:
+            warm_up_learning(cfg)
         self._cond = threading.Condition()
         self._by_tick: dict[int, dict[int, schema.State]] = {}
         self._first_at: dict[int, float] = {}

@@ -111,10 +111,13 @@ class WorldOptions:
     they happen on the simulated radio, which loopback messages do not cross."""
 
 
-def warm_up_kernels(cfg: Config) -> None:
-    """Compile (or load from the cache) every kernel a world step runs, on a throwaway two-step
-    world, before joining: on a cold cache that takes seconds, which would otherwise land in
-    tick 0 and make the first ticks late and their actions missed."""
+def warm_up_kernels(cfg: Config, central: bool = False) -> None:
+    """Compile (or load from the cache) every kernel a world step runs (and, under the central scheme,
+    the control-plane model's), on a throwaway two-step world, before joining: on a cold cache that
+    takes seconds, which would otherwise land in tick 0 and make the first ticks late and their
+    actions missed."""
+    if central:
+        ControlCounters(cfg, 1).round(np.zeros((1, cfg.scenario.n_uavs, 2)))
     # The grid's own mobility even for a replayed trace: the same kernels compile (one step function for both).
     small = cfg.replace(scenario={"n_vehicles": min(cfg.scenario.n_vehicles, 20), "steps_per_episode": 2,
                                   "mobility": "builtin"},
@@ -158,7 +161,7 @@ class WorldNode:
         self.cfg, self.opts, self.bus, self.clock = cfg, opts, bus, clock
         self.n_uavs = cfg.scenario.n_uavs
         self.world = make_world(cfg, 1)
-        warm_up_kernels(cfg)
+        warm_up_kernels(cfg, central=opts.scheme == "central")
         self.stats = WorldStats()
         self._debug = Every(log)
         self._missing: list[int] = []  # the last acting tick's UAVs without an answer (debug lines)

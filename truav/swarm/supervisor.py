@@ -215,7 +215,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         opts, out, ep = self.opts, self.out, self.endpoint
         # Asked before any child starts to fill the cache: a cold one costs the first start most of a minute.
         self.cold_note = kernel_cache.cold_start_note(kernel_cache.SWARM_KERNELS
-                                                      + (["agents/sac_kernels.py"] if self.central else []))
+                                                      + (["agents/sac_kernels.py", "agents/central.py"] if self.central else []))
         write_run_file(out, {"run": opts.run, "endpoint": ep, "supervisor_pid": os.getpid(), "agents": self.n,
                              **({"external": list(opts.external)} if opts.external else {})})
         if opts.external:  # first, so the user can start them while the rest comes up
