@@ -151,6 +151,19 @@ def test_scheme_comparison_keeps_coinciding_series_visible(tmp_path, figures):
     assert sizes == sorted(sizes, reverse=True) and len(set(sizes)) == 3 and widths == sorted(widths, reverse=True)
 
 
+def test_scheme_comparison_of_all_five_schemes_draws_every_series(tmp_path, figures):
+    from truav.experiments.scheme_faults import SCHEMES, metric_figure
+    rows = [{"scheme": s, "kind": k, "level": x, "coverage_pct": 20.0}  # every scheme on the same points
+            for s in SCHEMES for k in ("loss", "latency", "crash") for x in (0.0, 0.5)]
+    metric_figure(rows, SCHEMES, "coverage_pct", "coverage (%)", 1.0, tmp_path / "c.png", "t")
+    lines = figures[-1].axes[0].get_lines()
+    assert len(lines) == len(SCHEMES)
+    assert all(line.get_markersize() >= 4 and line.get_linewidth() >= 0.8 for line in lines)
+    assert len({(line.get_linestyle(), line.get_marker(), line.get_color()) for line in lines}) == len(SCHEMES)
+    labels = [t.get_text() for t in figures[-1].axes[0].get_legend().get_texts()]
+    assert labels == list(SCHEMES)
+
+
 def _recording(n_uavs: int):
     from recorder.report import MapConfig, Recording, Series
     rng = np.random.default_rng(1)

@@ -11,6 +11,7 @@ from truav.cli_args import check_out_dir, positive_float, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
 from truav.config import ConfigError, read_toml
 from truav.experiments import fault_sweep
+from truav.experiments.scheme_faults import SCHEMES
 from truav.experiments.cli_executor import add_executor_args, check_executor
 
 
@@ -24,9 +25,11 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
-    p.add_argument("--schemes", nargs="+", choices=("truav", "central", "patrol"),
+    p.add_argument("--schemes", nargs="+", choices=SCHEMES,
                    help="compare these schemes under the same link loss, latency and process crash levels "
                         "(truav.experiments.scheme_faults: comparison.csv, comparison-<metric>.png); "
+                        "federated and truav_online fly the TRUAV table learning online, with and without "
+                        "Q-sharing (federated.every, 1 unless set); "
                         "default: the TRUAV beacon sweep (faults.csv, faults.png)")
     p.add_argument("--policy", metavar="RUN", help="with --schemes central: the controller's trained actor "
                                                    "(`truav train --scheme central`; default: train one first)")

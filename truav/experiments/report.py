@@ -49,7 +49,9 @@ def _band(name: str, m: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarr
 SCHEME_STYLE = {"truav": ("TRUAV (distributed Q-learning)", "C0", "o"),
                 "central": ("Centralized MA-SAC", "C3", "s"),
                 "patrol": ("Trajectory-knowledge patrol", "C2", "^"),
-                "patrol_ctrl": ("Patrol + centralized control plane", "C7", "v")}
+                "patrol_ctrl": ("Patrol + centralized control plane", "C7", "v"),
+                "federated": ("Federated TRUAV (learning, Q-sharing)", "C1", "D"),
+                "truav_online": ("TRUAV learning online, no sharing", "C4", "P")}
 
 
 def _pyplot():

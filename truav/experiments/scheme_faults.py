@@ -15,6 +15,12 @@ One plan per level serves every scheme (a fault on another scheme's links
 matches nothing), so the schemes meet the same faults with the same seeds. The
 policies: truav flies a greedy Q-table and central a greedy trained actor, each
 trained in process first (or given: --qtable, --policy); the patrol needs none.
+Two learning variants of TRUAV start from the same Q-table and go on learning
+online over ``learn_episodes`` episodes: ``federated`` shares Q rows after every
+episode (``federated.every``, 1 unless the config sets it; the shares on
+``uav/*/qshare/*`` are one of the links the faults hit), ``truav_online``
+shares nothing (the federated one's counterpart: what the beacon faults alone
+cost a learning swarm).
 Writes comparison.csv (tidy: scheme, kind, level and the metrics) and one figure
 per metric, comparison-<metric>.png (panels loss, latency, crash; a line per scheme).
 """
@@ -33,15 +39,20 @@ import numpy as np
 
 from truav.config import Config
 
-SCHEMES = ("truav", "central", "patrol")
+SCHEMES = ("truav", "central", "patrol", "federated", "truav_online")
+LEARNING = ("federated", "truav_online")
+"""The schemes that fly the TRUAV table learning online (not greedy) over CompareSize.learn_episodes."""
 KINDS = (("loss", "link loss (%)", 100.0), ("latency", "link latency (ms)", 1.0),
          ("crash", "process down (% of the run)", 100.0))
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0), ("delay_ms", "relay delay (ms)", 1.0),
            ("energy_j", "energy (kJ/UAV/episode)", 1e-3), ("missed_actions", "missed actions (% of UAV-ticks)", 100.0))
 CRASH_AT = 0.2
 """Share of the run after which the crash fault kills its process."""
-LINK_KEYS = ("uav/*/beacon", "uav/*/state", "controller/cmd/*")
-"""The schemes' radio links: TRUAV's (and the patrol's deployment) beacons, central's uplink and downlink."""
+LINK_KEYS = ("uav/*/beacon", "uav/*/state", "controller/cmd/*", "uav/*/qshare/*")
+"""The schemes' radio links: TRUAV's (and the patrol's deployment) beacons, central's uplink and downlink,
+federated TRUAV's Q shares."""
+FEDERATED_COLUMNS = ("shares_sent", "shares_merged", "shares_refused", "shares_missing")
+"""Federated TRUAV's share counts in every row (0 for the schemes that share nothing)."""
 
 
 @dataclass(frozen=True)
@@ -52,18 +63,25 @@ class CompareSize:
     episodes: int
     steps: int
     train_episodes: dict[str, int]
+    learn_episodes: int
+    """Episodes of the learning schemes' runs: several, so that shares after the first ones are merged and
+    flown (a share comes after an episode)."""
 
 
 SIZES = {
-    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 1, 60, {"truav": 200, "central": 150}),
+    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 1, 60, {"truav": 200, "central": 150}, 3),
     "full": CompareSize((0.0, 0.1, 0.3, 0.5), (0.0, 100.0, 300.0, 500.0), (0.0, 0.2, 0.4, 0.8), 2, 100,
-                        {"truav": 2000, "central": 500}),
+                        {"truav": 2000, "central": 500}, 4),
 }
 
 
-def run_seconds(size: CompareSize, rate_hz: float) -> float:
+def episodes_of(size: CompareSize, scheme: str) -> int:
+    return size.learn_episodes if scheme in LEARNING else size.episodes
+
+
+def run_seconds(size: CompareSize, rate_hz: float, scheme: str = "truav") -> float:
     """Wall time of one run's ticks: every step and every episode's `done` tick."""
-    return size.episodes * (size.steps + 1) / rate_hz
+    return episodes_of(size, scheme) * (size.steps + 1) / rate_hz
 
 
 def plan_text(scheme: str, kind: str, level: float, run_s: float) -> str:
@@ -111,16 +129,20 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
     name = f"{scheme}-{kind}-{level:g}"
     done = out / name / "summary.json"
     if not done.is_file():
-        text = plan_text(scheme, kind, level, run_seconds(size, rate_hz))
+        text = plan_text(scheme, kind, level, run_seconds(size, rate_hz, scheme))
         plan = None
         if text:
             plan = out / f"{name}.toml"
             plan.write_text(text)
         print(f"[{n + 1}/{total}] {scheme}: {kind} {level:g}", flush=True)
+        learning = scheme in LEARNING
+        if learning:
+            cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0})
         rc = run_swarm(cfg, SwarmOptions(
-            run=f"cmp{n}", seed=seed, episodes=size.episodes, rate_hz=rate_hz, out=str(out / name), plot=False,
-            quiet=True, fault_plan=str(plan) if plan else None, force=True, scheme=scheme,
-            qtable=policies["truav"] if scheme == "truav" else None, greedy=scheme == "truav",
+            run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
+            plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True,
+            scheme="truav" if learning else scheme,
+            qtable=policies["truav"] if scheme == "truav" or learning else None, greedy=scheme == "truav",
             policy=policies["central"] if scheme == "central" else None,
             max_missed_share=1.0))  # a point whose actions went missing is a result here, not a failure
         if rc:
@@ -141,6 +163,9 @@ def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> 
     # an autopilot's hover without commands, or a held stale command (central).
     missed = world.get("deadline_misses", 0) + world.get("hover_answers", 0) + held
     row["missed_actions"] = missed / (acting * n_uavs) if acting > 0 else math.nan
+    fed = [a["federated"] for a in summary.get("agents") or [] if a and a.get("federated")]
+    for column, key in zip(FEDERATED_COLUMNS, ("shares_sent", "shares_merged", "refused", "missing")):
+        row[column] = sum(sum(f[key].values()) if key == "refused" else f[key] for f in fed)
     return row
 
 
@@ -152,7 +177,7 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
     if not keep_steps:
         cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
     policies: dict[str, str | None] = {"truav": qtable, "central": policy}
-    if "truav" in schemes and qtable is None:
+    if ("truav" in schemes or set(LEARNING) & set(schemes)) and qtable is None:
         from truav.experiments.fault_sweep import train_policy
         n = size.train_episodes["truav"]
         print(f"training TRUAV in process ({n} episodes) for the swarm to fly", flush=True)
@@ -204,8 +229,9 @@ def metric_figure(rows: list[dict], schemes, key: str, label: str, scale: float,
             _, color, marker = SCHEME_STYLE.get(scheme, (scheme, f"C{c}", "o"))
             # Schemes often coincide (0 missed actions): each drawn smaller, dashed differently and on
             # top of the one before, so a series under another still shows around it.
-            ax.plot(x, y, marker=marker, ms=10 - 2.5 * c, mfc="none" if c == 0 else color, mew=1.4, color=color,
-                    ls=LINE_STYLES[c % len(LINE_STYLES)], lw=2.6 - 0.7 * c, label=scheme, zorder=2 + c)
+            ax.plot(x, y, marker=marker, ms=max(10 - 2 * c, 4), mfc="none" if c == 0 else color, mew=1.4,
+                    color=color, ls=LINE_STYLES[c % len(LINE_STYLES)], lw=max(2.6 - 0.5 * c, 0.8), label=scheme,
+                    zorder=2 + c)
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(label)
