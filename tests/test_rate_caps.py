@@ -10,7 +10,7 @@ import time
 
 import zenoh
 
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_matched
 from truav.bus import keys, security
 from truav.bus.rate_caps import MIN_CAP_HZ
 from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
@@ -89,7 +89,7 @@ def test_router_drops_a_flood_beyond_the_cap_and_passes_paced_traffic(tmp_path) 
 
         recorder.declare_subscriber(keys.uav_beacon(RUN, 1), heard("beacon"))
         recorder.declare_subscriber(keys.uav_action(RUN, 0), heard("action"))
-        time.sleep(0.5)  # the subscriptions reach the router
+        assert wait_matched(agent0, keys.uav_action(RUN, 0)) and wait_matched(agent1, keys.uav_beacon(RUN, 1))
         paced = threading.Thread(target=lambda: [(agent0.put(keys.uav_action(RUN, 0), b"a"), time.sleep(1 / RATE_HZ))
                                                  for _ in range(10)])
         paced.start()

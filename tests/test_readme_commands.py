@@ -145,6 +145,7 @@ CHECKED: dict[str, str] = {
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
     "truav-swarm faults --run demo --plan my.toml -e tcp/127.0.0.1:7447": OTHER_TERMINAL + " (my.toml: the user's plan)",
     "truav experiment faults --quick --schemes truav central patrol --rate 5 --out runs/faults-schemes": LONG,
+    "truav experiment faults --quick --schemes federated truav_online --rate 5 --out runs/faults-federated": LONG,
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
     **{c: BENCH for c in (

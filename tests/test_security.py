@@ -23,7 +23,7 @@ import pytest
 import zenoh
 
 from bench.hostile import flood, forged, live_keys
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_matched
 from agents.agent_process import DELAY_ENV
 from truav.bus import guard, keys, schema, security, transport
 from truav.config import Config
@@ -140,7 +140,7 @@ def test_router_denies_agent1_puts_outside_its_own_keys(creds) -> None:
     try:
         got: list[str] = []
         recorder.declare_subscriber(keys.everything(RUN), lambda s: got.append(str(s.key_expr)))
-        time.sleep(0.3)  # the subscription reaches the router
+        assert wait_matched(agent1, keys.uav_beacon(RUN, 1))  # the subscription reached the router
         denied = [keys.uav_beacon(RUN, 2), keys.uav_action(RUN, 2), keys.uav_obs(RUN, 2), keys.world_tick(RUN),
                   keys.world_positions(RUN), keys.control(RUN, "shutdown"), keys.control(RUN, "faults"),
                   keys.metrics_step(RUN), keys.fault(RUN, "loss")]
@@ -168,7 +168,7 @@ def test_router_does_not_forward_to_identities_what_they_may_not_read(creds) -> 
         agent1.declare_subscriber(keys.all_obs(RUN), lambda s: wide.append(str(s.key_expr)))  # denied
         agent1.declare_subscriber(keys.uav_obs(RUN, 1), lambda s: own.append(str(s.key_expr)))
         rec.declare_subscriber(keys.everything(RUN), lambda s: heard.append(str(s.key_expr)))
-        time.sleep(0.3)
+        assert wait_matched(world, keys.uav_obs(RUN, 2)) and wait_matched(world, keys.uav_obs(RUN, 1))
         world.put(keys.uav_obs(RUN, 2), b"obs")
         world.put(keys.uav_obs(RUN, 1), b"obs")
         replay.put(keys.uav_action(RUN, 0), b"replayed")
@@ -194,7 +194,7 @@ def test_only_uav_i_reads_the_rejections_of_uav_i(creds) -> None:
         agent2.declare_subscriber(keys.uav_rejected(RUN, 1), lambda s: other.append(1))  # denied by the router
         agent2.declare_subscriber(keys.all_rejected(RUN), lambda s: wide.append(str(s.key_expr)))
         rec.declare_subscriber(keys.all_rejected(RUN), lambda s: heard.append(s.payload.to_bytes()))
-        time.sleep(0.3)
+        assert wait_matched(world, keys.uav_rejected(RUN, 1))
         agent0.put(keys.uav_rejected(RUN, 1), b"forged")  # denied: only the world tells
         agent0.put(keys.uav_rejected(RUN, 0), b"forged")  # even on its own key
         world.put(keys.uav_rejected(RUN, 1), b"told")
@@ -229,7 +229,11 @@ def test_a_credentials_config_loads_with_plain_zenoh_from_any_directory(creds, t
     try:
         got: list[str] = []
         rec.declare_subscriber(keys.all_beacons(RUN), lambda s: got.append(str(s.key_expr)))
-        time.sleep(0.3)
+        uav1 = client(creds, "uav/1")
+        try:
+            assert wait_matched(uav1, keys.uav_beacon(RUN, 1))  # the recorder's subscription reached the router
+        finally:
+            uav1.close()
         done = subprocess.run([sys.executable, "-c", PLAIN_ZENOH_CLIENT, str(alone / "uav-1.json5"),
                                keys.uav_beacon(RUN, 1)], cwd=cwd, capture_output=True, text=True, timeout=60)
         assert done.returncode == 0, done.stderr[-2000:]
