@@ -66,6 +66,9 @@ def test_the_learning_variants_fly_the_truav_table_online_with_and_without_shari
     assert not fed.greedy and not online.greedy and greedy.greedy
     assert fed.episodes == online.episodes == size.learn_episodes > greedy.episodes == size.episodes
     assert fed_cfg.federated.every == 1 and online_cfg.federated.every == 0 and greedy_cfg.federated.every == 0
+    # going on from the trained table, exploring as its training ended (episode 0 of a swarm is not the table's)
+    assert fed_cfg.learner.epsilon_start == online_cfg.learner.epsilon_end == Config().learner.epsilon_end
+    assert greedy_cfg.learner.epsilon_start == Config().learner.epsilon_start
     crash = tomllib.loads((tmp_path / "federated-crash-0.4.toml").read_text())["fault"][0]
     assert crash["restart_after"] == pytest.approx(0.4 * cmp.run_seconds(size, 10.0, "federated"))
     every3 = Config().replace(federated={"every": 3})

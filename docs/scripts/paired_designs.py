@@ -2,9 +2,9 @@
 
     python docs/scripts/paired_designs.py runs/abl3/paper_best runs/abl3/paper_diff ...
 
-The first run is the reference; for each other run, per seed, the difference of the greedy
-evaluation's coverage (mean over the evaluation episodes) from the reference's on the same
-seed, then the mean ± 95% Student-t interval of those differences over the seeds.
+The first run is the reference; for each other run, per speed and seed, the difference of the greedy
+evaluation's coverage (mean over the evaluation episodes) from the reference's on the same speed and
+seed, then the mean ± 95% Student-t interval of those differences over the seeds (a row per speed).
 """
 
 from __future__ import annotations
@@ -17,10 +17,11 @@ import numpy as np
 from truav.stats import mean_ci
 
 
-def per_seed(run: Path, key: str = "coverage_pct") -> dict[int, float]:
-    """{seed: mean over evaluation episodes} of every finished cell of ``run``."""
-    out: dict[int, float] = {}
+def per_seed(run: Path, key: str = "coverage_pct") -> dict[tuple[float, int], float]:
+    """{(speed, seed): mean over evaluation episodes} of every finished cell of ``run``."""
+    out: dict[tuple[float, int], float] = {}
     for f in sorted((run / "cells").glob("*.npz")):
+        speed = float(next(p for p in f.stem.split("_") if p.startswith("v"))[1:])
         with np.load(f) as d:
             seeds = [int(s) for s in d["meta/seeds"]] if "meta/seeds" in d.files else None
             values = np.nanmean(d[f"eval/{key}"], axis=0)
@@ -28,22 +29,25 @@ def per_seed(run: Path, key: str = "coverage_pct") -> dict[int, float]:
             part = next(p for p in f.stem.split("_") if p.startswith("s") and "-" in p)
             first, last = (int(x) for x in part[1:].split("-"))
             seeds = list(range(first, last + 1))
-        out.update(zip(seeds, values.tolist()))
+        out.update(zip([(speed, s) for s in seeds], values.tolist()))
     return out
 
 
 def main(runs: list[str]) -> None:
     ref = per_seed(Path(runs[0]))
-    print(f"| design | seeds | coverage % | minus {Path(runs[0]).name}, paired, points | better on seeds |")
-    print("|---|---|---|---|---|")
+    print(f"| design | speed m/s | seeds | coverage % | minus {Path(runs[0]).name}, paired, points | better on seeds |")
+    print("|---|---|---|---|---|---|")
     for r in runs:
         got = per_seed(Path(r))
-        seeds = sorted(set(ref) & set(got))
-        diff = np.array([got[s] - ref[s] for s in seeds])
-        m, h = mean_ci(np.array([got[s] for s in seeds]))
-        dm, dh = mean_ci(diff)
-        print(f"| {Path(r).name} | {len(seeds)} | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} "
-              f"| {int(np.sum(diff > 0))} of {len(seeds)} |")
+        for speed in sorted({v for v, _ in got}):
+            seeds = sorted(s for v, s in set(ref) & set(got) if v == speed)
+            if not seeds:
+                continue
+            diff = np.array([got[speed, s] - ref[speed, s] for s in seeds])
+            m, h = mean_ci(np.array([got[speed, s] for s in seeds]))
+            dm, dh = mean_ci(diff)
+            print(f"| {Path(r).name} | {speed:g} | {len(seeds)} | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} "
+                  f"| {int(np.sum(diff > 0))} of {len(seeds)} |")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,9 @@ matches nothing), so the schemes meet the same faults with the same seeds. The
 policies: truav flies a greedy Q-table and central a greedy trained actor, each
 trained in process first (or given: --qtable, --policy); the patrol needs none.
 Two learning variants of TRUAV start from the same Q-table and go on learning
-online over ``learn_episodes`` episodes: ``federated`` shares Q rows after every
+online over ``learn_episodes`` episodes, exploring at ``learner.epsilon_end`` (where the
+training ended; a swarm's episodes count from 0, and epsilon_start would fly them at random):
+``federated`` shares Q rows after every
 episode (``federated.every``, 1 unless the config sets it; the shares on
 ``uav/*/qshare/*`` are one of the links the faults hit), ``truav_online``
 shares nothing (the federated one's counterpart: what the beacon faults alone
@@ -136,8 +138,9 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
             plan.write_text(text)
         print(f"[{n + 1}/{total}] {scheme}: {kind} {level:g}", flush=True)
         learning = scheme in LEARNING
-        if learning:
-            cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0})
+        if learning:  # going on from the trained table: exploring as its training ended, not from epsilon_start
+            cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0},
+                              learner={"epsilon_start": cfg.learner.epsilon_end})
         rc = run_swarm(cfg, SwarmOptions(
             run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
             plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True,
