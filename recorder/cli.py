@@ -41,7 +41,9 @@ from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
 from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
-from truav.cli_args import check_out_dir, check_out_file, non_negative_float, non_negative_int, positive_float
+from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
+                             positive_float)
+from truav.errors import UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_PROBLEMS = 1
@@ -74,6 +76,7 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
         return _fail("truav", f"{args.output} exists; use --force to overwrite it")
     try:
         check_out_file("OUT", args.output)
+        make_dir("OUT", Path(args.output).parent)  # a new directory, as cut and merge make it
     except ValueError as exc:
         return _fail("truav", str(exc))
     try:
@@ -154,6 +157,8 @@ def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
             return _fail(prog, f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
     try:
         check_out_file("--out", args.out)
+        if args.summary_json is not None:
+            _check_summary_json(args.summary_json, args.out)
     except ValueError as exc:
         return _fail(prog, str(exc))
     if args.config_toml is not None:
@@ -163,6 +168,17 @@ def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
         except ConfigError as exc:
             return _fail(prog, str(exc))
     return run_record(args)
+
+
+def _check_summary_json(path: str, out: str) -> None:
+    """--summary-json: a file that can be written at the end (found out now, not after the recording),
+    and none of the recording's own files, which it would overwrite."""
+    from recorder.record_modes import parts_index_path
+
+    check_out_file("--summary-json", path)
+    if Path(path).resolve() in (Path(out).resolve(), parts_index_path(Path(out)).resolve()):
+        raise UserError(f"--summary-json {path}: is a file of the recording itself (--out {out}); give another "
+                        f"name, such as {Path(out).with_suffix('.summary.json')}")
 
 
 def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:

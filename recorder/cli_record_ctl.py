@@ -3,7 +3,8 @@
 Publishes a ``Control`` message with that command on ``truav/<run>/control/recorder`` as the
 ``supervisor`` identity (under ``--secure`` the router lets only that identity put there:
 ``--creds DIR`` takes its certificate).  Exit 0 once sent to a listening recorder; 1 when no
-recorder of the run listens within the wait; 2 for a user mistake.
+session opens (no router there) or no recorder of the run listens within the wait; 2 for a user
+mistake.
 """
 
 from __future__ import annotations
@@ -46,7 +47,13 @@ def cmd_record_ctl(args: argparse.Namespace) -> int:
         transport.apply_creds(args, CONTROL_IDENTITY)
     except ValueError as exc:
         raise cli_args.UserError(f"--creds: {exc}") from None
-    with transport.Bus(CONTROL_IDENTITY, args.run, transport.config_from_args(args)) as bus:
+    try:
+        bus = transport.Bus(CONTROL_IDENTITY, args.run, transport.config_from_args(args))
+    except Exception as exc:  # zenoh.ZError: no router there (the endpoint's form was checked before)
+        from recorder.process import short_error
+        print(f"truav log record-ctl: error: cannot open a session: {short_error(exc)}", file=sys.stderr)
+        return 1
+    with bus:
         key = keys.control(args.run, CONTROL_PART)
         if not bus.await_subscribers(key, args.wait):
             print(f"truav log record-ctl: error: no recorder of run {args.run} listens on {key} "

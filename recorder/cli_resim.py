@@ -58,6 +58,7 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
 def cmd_resim(args: argparse.Namespace) -> int:
     from recorder.resim import Resimulation, load_run, start_tables
     from recorder.resim_branch import branch_config
+    from recorder.resim_verify import holds_ticks
     from truav.checks import check_out_dir
     from truav.cli_config import parse_sets
     from truav.errors import UserError
@@ -72,6 +73,10 @@ def cmd_resim(args: argparse.Namespace) -> int:
         return _fail(f"{changes[0]} changes a what-if branch: give --from TICK")
     try:
         rec = load_run(args.file)
+        if not holds_ticks(args.file, rec.run):  # else "reproduced": of nothing
+            raise UserError(f"{args.file}: holds no observation, beacon or action of run {rec.run!r} (its run "
+                            f"stopped before tick 0, or the recorder died before its first flush); nothing to "
+                            f"re-simulate")
         n = rec.cfg.scenario.n_uavs
         sim = Resimulation(rec.cfg, rec.seed, rec.episodes, start_tables(rec.qtable, rec.qtable_index, n),
                            train=not rec.greedy)

@@ -87,7 +87,8 @@ def resolve_window(log: FinishedLog, spec: WindowSpec) -> Window:
     start = spec.start_ns if spec.start_s is None else first + round(spec.start_s * NS)
     end = spec.end_ns if spec.end_s is None else first + round(spec.end_s * NS)
     if start is not None and end is not None and end <= start:
-        raise UserError(f"--end: the window must end after it starts (start {start} ns, end {end} ns)")
+        raise UserError(f"--end: the window must end after it starts (start {(start - first) / NS:.3f} s, end "
+                        f"{(end - first) / NS:.3f} s from the first message)")
     return Window(start, end)
 
 
@@ -261,10 +262,12 @@ def _write_kept(writer, channels: OutputChannels, kept: Iterable[LogMessage], at
 def _window_text(window: Window, log: FinishedLog) -> str:
     first = log.first_log_time or 0
 
-    def s(ns: Optional[int]) -> str:
-        return "" if ns is None else f"{(ns - first) / NS:.3f}"
+    def s(ns: int) -> str:
+        return f"{(ns - first) / NS:.3f} s"
 
-    return f"[{s(window.start_ns)} s, {s(window.end_ns)} s)"
+    start = "first message" if window.start_ns is None else s(window.start_ns)
+    end = "last message]" if window.end_ns is None else s(window.end_ns) + ")"
+    return f"[{start}, {end}"
 
 
 def _cut_record(log: FinishedLog, window: Window, spec: WindowSpec, choice: ChannelChoice, report: CutReport,

@@ -28,6 +28,7 @@ from mcap.summary import Summary
 from recorder.mcap_writer import COMPACT_CHUNK_BYTES, COMPACT_CHUNK_SPAN_NS, McapWriter
 from recorder.reader import probe
 from recorder.recover import PART_SUFFIX
+from recorder.record_modes import PARTS_INDEX_SUFFIX
 from truav.errors import UserError
 
 __all__ = ["LogMessage", "FinishedLog", "open_finished", "OutputChannels", "written_atomically", "new_writer",
@@ -102,6 +103,9 @@ def not_mcap_reason(path: str | os.PathLike[str]) -> Optional[str]:
         return f"{p}: no such file"
     if not p.is_file():
         return f"{p}: not a file"
+    if p.name.endswith(PARTS_INDEX_SUFFIX):
+        return f"{p}: the parts index of a split recording, not an MCAP file; `truav log merge ALL.mcap {p}` " \
+               f"joins its parts into one"
     try:
         with open(p, "rb") as f:
             probe(f)

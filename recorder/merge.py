@@ -108,6 +108,10 @@ def expand_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
 def merge(out_path: str | os.PathLike[str], in_paths: Sequence[str | os.PathLike[str]]) -> MergeReport:
     """Merge ``in_paths`` (finished recordings, or parts indexes) into ``out_path``; UserError before
     anything is written for an input that is not a finished MCAP."""
+    named = [os.path.realpath(p) for p in in_paths]
+    twice = next((p for k, p in enumerate(in_paths) if named[k] in named[:k]), None)
+    if twice is not None:  # as replay refuses it: a slip of the command line, not a second input
+        raise UserError(f"IN {twice}: the same file is named twice")
     paths = expand_inputs(in_paths)
     if not paths:
         raise UserError("IN: give at least one recording")

@@ -251,7 +251,7 @@ class Recorder:
 
         modes = opts.modes
         if modes.split:
-            return PartedLog(opts.out, modes, make_log, repeat=(RECORDING_METADATA, CONFIG_METADATA))
+            return PartedLog(opts.out, modes, make_log, repeat=(RECORDING_METADATA, CONFIG_METADATA, RUN_METADATA))
         window = modes.window
         if window is not None:
             return SnapshotLog(opts.out, window[0], window[1], int(modes.snapshot_max_mb * MB), make_log)
@@ -515,6 +515,7 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
     print(summary.format(), flush=True)
     if summary_json:
         try:
+            Path(summary_json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before the start
             Path(summary_json).write_text(json.dumps(summary.to_json(), indent=1) + "\n")
         except OSError as exc:
             print(f"recorder: error: cannot write {summary_json}: {exc.strerror or exc}", file=sys.stderr)

@@ -11,7 +11,8 @@ field; recorder.resim_verify compares them with the recording.
 
 What a recording must hold (else :func:`load_run` raises UserError: one line, exit 2): the run config
 (recorder.metadata CONFIG_METADATA) and the run's settings (RUN_METADATA, written by `truav-swarm up
---record`: seed, lock-step, scheme...), lock-step, scheme truav, not resumed, no outside agents.
+--record`: seed, lock-step, scheme...), lock-step, scheme truav, not resumed, no outside agents; and not be one
+part of a split recording (its parts merged first).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from agents.reward import Reward
 from agents.state import StateEncoder
 from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_info
 from recorder.reader import read_metadata
+from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX, REASON_END
 from truav import seeding
 from truav.bus import schema
 from truav.config import Config, ConfigError, config_from_dict
@@ -60,6 +62,10 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
     """The config and run settings of the lock-step TRUAV recording at ``path``; UserError (one line) when it
     is not one, or cannot be re-run."""
     name = os.fspath(path)
+    part = read_metadata(path).get(PART_METADATA)
+    if part is not None and (part.get("part") != "1" or part.get("reason") != REASON_END):  # more parts follow
+        raise UserError(f"{name}: part {part.get('part')} of a split recording; `truav log merge ALL.mcap "
+                        f"<stem>{PARTS_INDEX_SUFFIX}` joins its parts, then re-simulate ALL.mcap")
     toml_text = read_config_toml(path)
     info = read_run_info(path)
     if toml_text is None or info is None:

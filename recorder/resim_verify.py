@@ -228,6 +228,11 @@ def compare_round(rnd: Round, recorded: dict[Slot, tuple[str, Any]], run: str, r
     return divergent
 
 
+def holds_ticks(path: str | os.PathLike[str], run: str) -> bool:
+    """Whether the recording holds any observation, beacon or action of run ``run`` (reads up to the first)."""
+    return not RecordedTicks(path, run, Verification()).ended_before(0)
+
+
 def verify(path: str | os.PathLike[str], run: str, sim: Resimulation, until_tick: int | None = None,
            on_round: Callable[[Round, int], None] | None = None, stop_at_first: bool = False,
            check_snapshots: bool = True) -> Verification:
@@ -277,4 +282,4 @@ def _check_snapshot(snap, sim: Resimulation, run: str, result: Verification) -> 
                                                  f"differs ({len(differing)} array(s) in all)"))
 
 
-__all__ = ["Divergence", "RecordedTicks", "Verification", "compare_round", "same", "verify"]
+__all__ = ["Divergence", "RecordedTicks", "Verification", "compare_round", "holds_ticks", "same", "verify"]

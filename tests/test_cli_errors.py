@@ -20,6 +20,9 @@ import numpy as np
 import pytest
 
 from recorder.mcap_log import McapLog
+from recorder.metadata import (CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, config_metadata,
+                               run_info_metadata)
+from recorder.record_modes import PART_METADATA
 from truav.cli import main as truav_main
 from truav.config import Config, to_toml
 from truav.swarm.cli import main as swarm_main
@@ -36,6 +39,20 @@ def _recording(path: Path) -> bytes:
             payload = msgpack.packb({"v": 1, "kind": "beacon", "src": f"uav/{u}", "seq": i // 3, "t": 10**18 + i})
             log.write(f"truav/r/uav/{u}/beacon", payload, 10**18 + i * 10**6)
     return path.read_bytes()
+
+
+def _lockstep_recording(path: Path, extra: dict[str, dict[str, str]]) -> None:
+    """A recording of a lock-step run as `truav-swarm up --lockstep --record` makes it, holding only health
+    messages (no tick), with the metadata records of ``extra`` too."""
+    import msgpack
+    with McapLog(path, mirrors=False) as log:
+        log.set_metadata(RECORDING_METADATA, {"run": "r"})
+        log.set_metadata(CONFIG_METADATA, config_metadata(to_toml(Config())))
+        log.set_metadata(RUN_METADATA, run_info_metadata({"seed": 0, "lockstep": True, "episodes": 1}))
+        for name, record in extra.items():
+            log.set_metadata(name, record)
+        log.write("truav/r/uav/0/health", msgpack.packb({"v": 1, "kind": "health", "src": "uav/0", "seq": 0,
+                                                        "t": 10**18}), 10**18)
 
 
 def _dead_pid() -> int:
@@ -76,6 +93,9 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "corrupt.mcap").write_bytes(bytes(corrupt))
     (d / "unfinished.mcap").write_bytes(data[: len(data) * 2 // 3])  # the recorder "died" two thirds in
     (d / "header_only.mcap").write_bytes(data[:40])
+    _lockstep_recording(d / "no_ticks.mcap", {})  # a lock-step run's recording that ended before tick 0
+    _lockstep_recording(d / "run_0002.mcap", {PART_METADATA: {"session": "s", "part": "2", "reason": "end"}})
+    (d / "run.parts.json").write_text(json.dumps({"version": 1, "parts": [{"part": 1, "path": "run_0002.mcap"}]}))
     for name, info in (("ended_run", {"supervisor_pid": os.getpid()}), ("dead_run", {"supervisor_pid": _dead_pid()}),
                        ("tls_run", {"supervisor_pid": os.getpid(), "endpoint": "tls/127.0.0.1:7447"})):
         (d / name).mkdir()
@@ -164,6 +184,20 @@ ROWS = [
     ("cut-tick-negative", "truav", "log cut {good_mcap} {dir}/cut.mcap --from-tick -1", 2, "--from-tick"),
     ("merge-corrupt", "truav", "log merge {dir}/merged.mcap {good_mcap} {corrupt_mcap}", 2, "corrupt.mcap"),
     ("info-random-bytes", "truav", "log info {good_mcap} {random_toml}", 2, "random.toml"),
+    ("info-parts-index", "truav", "log info {run_parts_json}", 2, "truav log merge ALL.mcap"),
+    ("cut-parts-index", "truav", "log cut {run_parts_json} {dir}/cut.mcap", 2, "parts index"),
+    ("cut-window-after-the-end", "truav", "log cut {good_mcap} {dir}/cut.mcap --start 1000", 2,
+     "the window [1000.000 s, last message] holds no message"),
+    ("cut-window-reversed", "truav", "log cut {good_mcap} {dir}/cut.mcap --start 0.5 --end 0.2", 2,
+     "(start 0.500 s, end 0.200 s from the first message)"),
+    ("merge-same-file-twice", "truav", "log merge {dir}/merged.mcap {good_mcap} {good_mcap}", 2, "named twice"),
+    ("resim-no-tick", "truav", "log resim {no_ticks_mcap}", 2, "nothing to re-simulate"),
+    ("resim-one-part", "truav", "log resim {run_0002_mcap}", 2, "part 2 of a split recording"),
+    ("resim-parts-index", "truav", "log resim {run_parts_json}", 2, "truav log merge ALL.mcap"),
+    ("record-summary-json-is-the-recording", "truav", "log record --run r --out {dir}/r.mcap --summary-json "
+     "{dir}/r.mcap", 2, "--summary-json"),
+    ("record-summary-json-a-directory", "swarm", "record --run r --out {dir}/r.mcap --summary-json {dir}", 2,
+     "--summary-json"),
     # truav-swarm up / chaos
     ("up-listen-garbage", "swarm", "up -l garbage", 2, "-l/--listen"),
     ("up-two-listens", "swarm", "up -l tcp/127.0.0.1:7447 -l tcp/127.0.0.1:7448", 2, "-l/--listen"),
@@ -302,6 +336,7 @@ def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:
     (["truav-swarm", "up", "-l", "garbage"], 2, "-l/--listen"),
     (["truav-swarm", "status", "--run", "a/b"], 2, "--run"),
     (["truav", "log", "check", "{unfinished_mcap}"], 1, "truav log recover"),
+    (["truav", "log", "record-ctl", "split", "-e", "tcp/127.0.0.1:1", "--wait", "0.5"], 1, "cannot open a session"),
 ])
 def test_real_entry_points(files, tmp_path, cmd, code, names) -> None:
     proc = _run([sys.executable, "-c", f"import sys; from {'truav.cli' if cmd[0] == 'truav' else 'truav.swarm.cli'} "
@@ -309,6 +344,13 @@ def test_real_entry_points(files, tmp_path, cmd, code, names) -> None:
     assert "Traceback" not in proc.stderr
     assert proc.returncode == code, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and names in proc.stderr
+
+
+def test_log_recover_into_a_new_directory(files, tmp_path, capsys) -> None:
+    """OUT's directory is made, as cut and merge make it (it was checked creatable, then the write failed)."""
+    out = tmp_path / "new" / "fixed.mcap"
+    assert truav_main(["log", "recover", files["unfinished_mcap"], str(out)]) == 0, capsys.readouterr().err
+    assert truav_main(["log", "check", str(out)]) == 0
 
 
 def test_log_check_into_a_closed_pipe_ends_quietly(files, tmp_path) -> None:

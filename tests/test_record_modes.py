@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from conftest import wait_until
 from recorder.check import check
 from recorder.mcap_log import McapLog, is_mirror_topic
-from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA
+from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, read_run_info
 from recorder.parts import PartedLog, read_parts_index
 from recorder.process import CONTROL_PART, spawn_recorder, stop_recorder, wait_until_recording
 from recorder.reader import iter_messages, probe, read_metadata
@@ -341,7 +341,9 @@ def test_split_on_bus_command_and_sighup_and_by_duration(tmp_path: Path, endpoin
                                                         children) -> None:
     out, config = tmp_path / "run.mcap", tmp_path / "run.toml"
     config.write_text(to_toml(Config()))
-    proc = start(children, endpoint, out, modes=RecordModes(split_on_command=True), config=config)
+    info = {"seed": 3, "lockstep": True}
+    proc = start(children, endpoint, out, "--run-info", json.dumps(info), modes=RecordModes(split_on_command=True),
+                 config=config)
     world, operator, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
     world.subscribe_raw(keys.everything(RUN), counter)
     ready(world, proc)
@@ -361,6 +363,7 @@ def test_split_on_bus_command_and_sighup_and_by_duration(tmp_path: Path, endpoin
     assert [row["reason"] for row in index["parts"]] == ["command", "signal", "end"]
     assert_valid_parts([part_path(out, n) for n in (1, 2, 3)], sent)
     assert all(read_metadata(part_path(out, n))[CONFIG_METADATA]["toml"] == config.read_text() for n in (1, 2, 3))
+    assert all(read_run_info(part_path(out, n)) == info for n in (1, 2, 3))  # each part says how its run ran
     assert not out.exists()
     for n in (1, 2, 3):  # `truav log check`, as a user runs it
         proc = subprocess.run([sys.executable, "-m", "truav.cli", "log", "check", str(part_path(out, n))],
