@@ -58,7 +58,7 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
 def cmd_resim(args: argparse.Namespace) -> int:
     from recorder.resim import Resimulation, load_run, start_tables
     from recorder.resim_branch import branch_config
-    from recorder.resim_verify import holds_ticks
+    from recorder.resim_verify import first_tick
     from truav.checks import check_out_dir
     from truav.cli_config import parse_sets
     from truav.errors import UserError
@@ -73,10 +73,15 @@ def cmd_resim(args: argparse.Namespace) -> int:
         return _fail(f"{changes[0]} changes a what-if branch: give --from TICK")
     try:
         rec = load_run(args.file)
-        if not holds_ticks(args.file, rec.run):  # else "reproduced": of nothing
+        first = first_tick(args.file, rec.run)
+        if first is None:  # else "reproduced": of nothing
             raise UserError(f"{args.file}: holds no observation, beacon or action of run {rec.run!r} (its run "
                             f"stopped before tick 0, or the recorder died before its first flush); nothing to "
                             f"re-simulate")
+        if first > 0 and not branch:  # else every earlier tick "diverges": not recorded
+            raise UserError(f"{args.file}: holds nothing of ticks 0-{first - 1} (a cut of its run): a "
+                            f"re-simulation checks every tick from 0; check the recording it was cut from, or "
+                            f"branch with --from TICK (restored from a state snapshot it holds)")
         n = rec.cfg.scenario.n_uavs
         sim = Resimulation(rec.cfg, rec.seed, rec.episodes, start_tables(rec.qtable, rec.qtable_index, n),
                            train=not rec.greedy)

@@ -130,6 +130,13 @@ class RecordedTicks:
             self._read_one()
         return self._done and not any(t >= tick for t in self._pending)
 
+    def lowest(self) -> int | None:
+        """The lowest tick held, once the ticks near the first one read are in (arrival order)."""
+        if not self._pending:
+            return None
+        self.ended_before(min(self._pending) + LOOKAHEAD_TICKS)
+        return min(self._pending)
+
     def leftover(self) -> int:
         """Recorded messages not taken: drains the rest of the file."""
         while not self._done:
@@ -228,9 +235,12 @@ def compare_round(rnd: Round, recorded: dict[Slot, tuple[str, Any]], run: str, r
     return divergent
 
 
-def holds_ticks(path: str | os.PathLike[str], run: str) -> bool:
-    """Whether the recording holds any observation, beacon or action of run ``run`` (reads up to the first)."""
-    return not RecordedTicks(path, run, Verification()).ended_before(0)
+def first_tick(path: str | os.PathLike[str], run: str) -> int | None:
+    """The first tick the recording holds observations, beacons or actions of run ``run`` of (reads the file's
+    first few ticks only); None when it holds none."""
+    ticks = RecordedTicks(path, run, Verification())
+    ticks.ended_before(0)
+    return ticks.lowest()
 
 
 def verify(path: str | os.PathLike[str], run: str, sim: Resimulation, until_tick: int | None = None,
@@ -282,4 +292,4 @@ def _check_snapshot(snap, sim: Resimulation, run: str, result: Verification) -> 
                                                  f"differs ({len(differing)} array(s) in all)"))
 
 
-__all__ = ["Divergence", "RecordedTicks", "Verification", "compare_round", "holds_ticks", "same", "verify"]
+__all__ = ["Divergence", "RecordedTicks", "Verification", "compare_round", "first_tick", "same", "verify"]

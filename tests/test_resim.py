@@ -218,6 +218,20 @@ def test_recordings_and_flags_it_cannot_use_are_one_line_errors(recording: Path,
         assert len(lines) == 1 and expected in lines[0] and "Traceback" not in err, (argv, err)
 
 
+def test_a_cut_from_mid_run_is_refused_a_check_from_tick_0_and_branches(recording: Path, tmp_path: Path,
+                                                                       capsys) -> None:
+    """A cut lacks the ticks before its window: checked from tick 0, every one of them would be reported as a
+    divergence (recorded 'not recorded'); it is refused in one line, and a branch restores from its snapshots."""
+    cut = tmp_path / "cut.mcap"
+    assert truav_main(["log", "cut", str(recording), str(cut), "--from-tick", "12"]) == 0
+    capsys.readouterr()
+    code, out, err = resim(capsys, cut)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "holds nothing of ticks 0-" in err, out + err
+    code, out, err = resim(capsys, cut, "--from", 13, "--out", tmp_path / "whatif")
+    assert code == 0, out + err
+    assert "the branch equals the recorded run from tick 13 on" in out
+
+
 def test_a_run_stopped_amid_a_tick_is_checked_up_to_its_end(recording: Path, tmp_path: Path, capsys) -> None:
     """A lock-step run stopped early (`truav-swarm down`) leaves a recording that ends amid a tick: what it
     holds is checked, what it lacks of that tick is not a divergence, and the summary says where it ends."""
