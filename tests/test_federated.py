@@ -181,6 +181,31 @@ def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg
     assert not node._parts  # merged or refused shares are not kept
 
 
+def test_shares_of_rounds_far_ahead_cannot_push_out_the_present_round(small_cfg):
+    """A hostile peer's shares of rounds far ahead (a few tiny messages) used to push the round an agent was about
+    to merge out of its bounded store: no share was merged all run, nothing refused. Now the nearest rounds are
+    kept, and a share further ahead, of no share round, of more parts than federated.max_rows needs, or (a
+    resumed agent) older than its current episode is refused and counted."""
+    from types import SimpleNamespace
+    node = _stub_node(small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 2, "max_rows": 640}))
+    node._round = 1  # shared after episode 1 (every 2: rounds 1, 3, 5, ...)
+    for ep in range(10**6 + 1, 10**6 + 12, 2):  # 6 far-ahead share rounds, as uav 1 and 3: 4 kept
+        node._on_qshare("k", _qshare(uav=1, episode=ep), None, 0)
+        node._on_qshare("k", _qshare(uav=3, episode=ep), None, 0)
+    node._on_qshare("k", _qshare(uav=3, episode=2), None, 0)  # no share round
+    node._on_qshare("k", _qshare(uav=3, episode=1, part=0, parts=3), None, 0)  # 640 rows need 2 parts
+    node._on_qshare("k", _qshare(uav=2, episode=1, q=np.full(32, -5.0)), None, 0)  # the present round's share
+    node._merge_ready()
+    st = node.fed_stats
+    assert st["shares_merged"] == 1 and st["refused"] == {"bad_round": 2 * 2 + 1, "bad_shape": 1}
+    assert {r for r, _ in node._parts} == {10**6 + 1, 10**6 + 3, 10**6 + 5}  # the 3 nearest after the merged one
+    resumed = _stub_node(node.cfg)
+    resumed.decision = SimpleNamespace(episode=50)  # resumed at episode 50, not shared yet
+    resumed._on_qshare("k", _qshare(uav=1, episode=3), None, 0)
+    resumed._on_qshare("k", _qshare(uav=1, episode=49), None, 0)
+    assert resumed.fed_stats["refused"] == {"stale_round": 1} and list(resumed._parts) == [(49, 1)]
+
+
 def _stub_node(cfg):
     """An agent node's federated part alone (agents.agent_process_federated), on no bus."""
     import threading
