@@ -80,6 +80,25 @@ def test_federated_config_is_checked():
         Config().replace(federated={"every_k": 1})
 
 
+def test_the_trainer_refuses_the_shares_a_swarm_agent_refuses():
+    """The in-process round (federate) checks each share as a swarm agent does: a UAV's share holding a value
+    beyond federated.q_bound (a legal setting, e.g. 0.05) moved its peers' tables in process and not on the bus,
+    so a lock-step swarm, "exact", learned other tables than `truav train` with the same seed and settings."""
+    from agents.federated import federate
+    fc = Config().federated.__class__(every=1, q_bound=0.5)
+    q = np.zeros((1, 3, S, A))
+    q[0, 1, 4] = 2.0  # uav 1's row of state 4: beyond q_bound, its whole share refused
+    q[0, 1, 5] = 0.25
+    q[0, 2, 6] = 0.25  # uav 2's share passes
+    visits = np.zeros((1, 3, S), np.int64)
+    visits[0, 1, [4, 5]] = 1
+    visits[0, 2, 6] = 1
+    federate(q, visits, np.zeros_like(visits), 0, fc, steps_per_episode=10)
+    assert not q[0, 0, [4, 5]].any() and not q[0, 2, [4, 5]].any()  # nothing of uav 1's share
+    np.testing.assert_allclose(q[0, 0, 6], 0.5 * 0.25)  # uav 2's: weight 1/1 capped at max_weight
+    np.testing.assert_allclose(q[0, 1, 6], 0.5 * 0.25)
+
+
 def _run(cfg, seeds, fused, episodes):
     ctrl = TruavController(cfg, seeds)
     ctrl.fused = fused
