@@ -132,6 +132,7 @@ def test_lockstep_federated_swarm_learns_the_federated_trainers_tables(tmp_path)
     out = run_swarm(tmp_path, "fed", cfg=cfg)
     q, steps = agent_tables(out, cfg)
     assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * 3
+    assert q.shape == expected.q[0].shape  # every entry of every table compared, none broadcast away
     differing = [int(np.sum(q[i] != expected.q[0, i])) for i in range(3)]
     assert differing == [0, 0, 0], f"entries differing from the federated trainer, per agent: {differing}"
     unshared = run_chunk("truav", cfg.replace(federated={"every": 0}), [SEED], cfg.learner.episodes)
