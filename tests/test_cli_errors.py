@@ -125,6 +125,10 @@ ROWS = [
     ("train-workers-0", "truav", "train --workers 0", 2, "--workers"),
     ("train-speed-nan", "truav", "train --speed nan", 2, "--speed"),
     ("train-out-under-file", "truav", "train --out {a_file}/run", 2, "--out"),
+    # federated.every with a scheme or agents that share nothing (was accepted; the summary said federated)
+    ("train-central-federated", "truav", "train --scheme central --set federated.every=1", 2, "federated.every"),
+    ("up-patrol-federated", "truav-swarm", "up --scheme patrol --set federated.every=2", 2, "federated.every"),
+    ("up-greedy-federated", "truav-swarm", "up --greedy --set federated.every=1", 2, "federated.every"),
     ("train-out-is-file", "truav", "train --out {a_file}", 2, "--out"),
     ("train-out-empty", "truav", ["train", "--out", ""], 2, "--out: empty path"),
     ("train-speed-contradicts-set", "truav", "train --speed 20 --set scenario.uav_speed_mps=10", 2, "--set"),
