@@ -10,8 +10,9 @@ beacons; deciding without one is counted in :class:`~agents.agent_process_lockst
 learns the in-process federated trainer's tables. Real time: it does not wait; a peer's share of its latest
 round is merged at its next decision once every part has come, a share of an older round is stale.
 
-Received parts are kept per (round, peer), bounded: only rounds not older than this agent's last, at most
-MAX_ROUNDS_KEPT rounds, each part of a peer's share once. Link faults (loss, latency, partition) reach
+Received parts are kept per (round, peer), bounded: only share rounds not older than this agent's last,
+the MAX_ROUNDS_KEPT nearest (a round further ahead is refused, bad_round: it cannot push out the present
+one), at most as many parts as a share of ``federated.max_rows`` rows has, each part of a peer's share once. Link faults (loss, latency, partition) reach
 the shares as any message: the receive side's link filter applies to their keys.
 
 :class:`FederatedShares` is a part of agents.agent_process.AgentNode; it uses the node's lock, stop event,
@@ -26,7 +27,8 @@ import time
 
 import numpy as np
 
-from agents.federated import Share, check_share, join_parts, make_share, max_count, merge, share_due, split_share
+from agents.federated import (R_AHEAD, R_ROUND, R_SHAPE, Share, check_share, join_parts, make_share, max_count,
+                              max_parts, merge, rounds_to_keep, share_due, split_share)
 from truav.bus import keys, schema
 
 log = logging.getLogger("truav.agent")
@@ -45,6 +47,7 @@ class FederatedShares:
         self.visits_at_share = np.zeros_like(self.visits)
         self._parts: dict[tuple[int, int], dict[int, schema.QShare]] = {}  # (round, peer) -> {part: message}
         self._round = -1  # the last round this agent shared in: older shares are stale
+        self._max_parts = max_parts(self.fed, schema.MAX_QSHARE_ROWS)
         self._parts_cond = threading.Condition(self._lock)
         self.fed_stats = {"shares_sent": 0, "messages_sent": 0, "bytes_sent": 0, "rows_sent": 0,
                           "shares_merged": 0, "rows_changed": 0, "refused": {}, "missing": 0}
@@ -61,16 +64,31 @@ class FederatedShares:
         if msg.uav == self.opts.uav:
             return
         with self._parts_cond:
-            if msg.episode < self._round or msg.uav in self._gone:
-                self._refuse("stale_round")
+            if msg.episode < self._oldest_round() or msg.uav in self._gone:
+                self._refuse(R_ROUND)
                 return
+            if msg.parts > self._max_parts:  # more parts than a share of federated.max_rows rows has
+                self._refuse(R_SHAPE)
+                return
+            # Bounded: the nearest rounds only, so a peer far ahead (or claiming so) cannot grow this nor push
+            # out the round this agent is about to merge.
+            keep = rounds_to_keep({r for r, _ in self._parts} | {msg.episode}, self._oldest_round(), self.fed,
+                                  MAX_ROUNDS_KEPT)
+            if msg.episode not in keep:
+                self._refuse(R_AHEAD)
+                return
+            for k in [k for k in self._parts if k[0] not in keep]:
+                del self._parts[k]
             parts = self._parts.setdefault((msg.episode, msg.uav), {})
             parts.setdefault(msg.part, msg)  # a duplicate part changes nothing
-            rounds = sorted({r for r, _ in self._parts})
-            for old in rounds[:-MAX_ROUNDS_KEPT]:  # bounded: a peer far ahead cannot grow this
-                for k in [k for k in self._parts if k[0] == old]:
-                    del self._parts[k]
             self._parts_cond.notify_all()
+
+    def _oldest_round(self) -> int:
+        """The oldest share round whose peers' shares are still wanted: this agent's last one, or (a resumed
+        agent, which has not shared since) the last before its current episode."""
+        decision = getattr(self, "decision", None)
+        now = decision.episode if decision is not None else -1
+        return max(self._round, now - self.fed.every)
 
     def _refuse(self, reason: str) -> None:
         refused = self.fed_stats["refused"]
@@ -149,7 +167,7 @@ class FederatedShares:
                 share = join_parts([Share(peer, m.episode, m.states, m.counts, m.q.reshape(-1, n_actions))
                                     for m in msgs])
             except ValueError:  # a part whose values are not whole rows (the guard checks this too)
-                self._refuse("bad_shape")
+                self._refuse(R_SHAPE)
                 continue
             why = check_share(share, n_states, n_actions, episode, most, self.fed.q_bound)
             if why is not None:

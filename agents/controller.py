@@ -86,7 +86,8 @@ class TruavController:
     def _end_episode(self) -> None:
         """Federated TRUAV: the agents share and merge their tables after the episodes of a share round."""
         if self.train and share_due(self._episode, self.cfg.federated):
-            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated)
+            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated,
+                     self.cfg.scenario.steps_per_episode)
 
     def act(self, t: int) -> np.ndarray:
         self.action = self.learners.act(self.state, t, self.pos)

@@ -35,7 +35,9 @@ R_STATE = "bad_state"
 R_COUNT = "bad_count"
 R_VALUE = "bad_value"
 R_ROUND = "stale_round"
-REFUSAL_REASONS = (R_SHAPE, R_STATE, R_COUNT, R_VALUE, R_ROUND)
+R_AHEAD = "bad_round"
+"""Not a share round, or further ahead than the rounds a receiver keeps (:func:`rounds_to_keep`)."""
+REFUSAL_REASONS = (R_SHAPE, R_STATE, R_COUNT, R_VALUE, R_ROUND, R_AHEAD)
 
 
 class Share(NamedTuple):
@@ -52,6 +54,17 @@ class Share(NamedTuple):
 def share_due(episode: int, fc: FederatedConfig) -> bool:
     """Whether the UAVs share after ``episode`` (0-based)."""
     return fc.every > 0 and (episode + 1) % fc.every == 0
+
+
+def max_parts(fc: FederatedConfig, rows_per_part: int) -> int:
+    """The most messages a share of at most ``fc.max_rows`` rows is split over (:func:`split_share`)."""
+    return max(1, -(-fc.max_rows // rows_per_part))
+
+
+def rounds_to_keep(rounds: set[int], oldest: int, fc: FederatedConfig, most: int) -> set[int]:
+    """Of the share ``rounds`` a receiver holds parts of, those it keeps: share rounds not older than ``oldest``,
+    the ``most`` nearest (a hostile peer's rounds far ahead are dropped, never the present one)."""
+    return set(sorted(r for r in rounds if r >= oldest and share_due(r, fc))[:most])
 
 
 def make_share(uav: int, episode: int, q: np.ndarray, visits: np.ndarray, since: np.ndarray,
@@ -111,12 +124,17 @@ def merge(q: np.ndarray, visits: np.ndarray, shares: list[Share], max_weight: fl
     return len(rows)
 
 
-def federate(q: np.ndarray, visits: np.ndarray, since: np.ndarray, episode: int, fc: FederatedConfig) -> None:
+def federate(q: np.ndarray, visits: np.ndarray, since: np.ndarray, episode: int, fc: FederatedConfig,
+             steps_per_episode: int) -> None:
     """The in-process round after ``episode``: in each environment b, every UAV shares (tables q (B, U, S, 16),
-    visits and since (B, U, S)), then every UAV merges all the others' shares (all-to-all); since := visits."""
-    batch, n_uavs = q.shape[:2]
+    visits and since (B, U, S)), then every UAV merges all the others' shares (all-to-all) that
+    :func:`check_share` passes, as a swarm agent does (a row beyond ``fc.q_bound`` refuses its share in
+    both); since := visits."""
+    batch, n_uavs, n_states, n_actions = q.shape
+    most = max_count(episode, steps_per_episode)
     for b in range(batch):
         shares = [make_share(u, episode, q[b, u], visits[b, u], since[b, u], fc.max_rows) for u in range(n_uavs)]
+        shares = [sh for sh in shares if check_share(sh, n_states, n_actions, episode, most, fc.q_bound) is None]
         for u in range(n_uavs):
             merge(q[b, u], visits[b, u], [sh for sh in shares if sh.uav != u], fc.max_weight)
     since[...] = visits

@@ -145,6 +145,10 @@ ROWS = [
     ("train-workers-0", "truav", "train --workers 0", 2, "--workers"),
     ("train-speed-nan", "truav", "train --speed nan", 2, "--speed"),
     ("train-out-under-file", "truav", "train --out {a_file}/run", 2, "--out"),
+    # federated.every with a scheme or agents that share nothing (was accepted; the summary said federated)
+    ("train-central-federated", "truav", "train --scheme central --set federated.every=1", 2, "federated.every"),
+    ("up-patrol-federated", "truav-swarm", "up --scheme patrol --set federated.every=2", 2, "federated.every"),
+    ("up-greedy-federated", "truav-swarm", "up --greedy --set federated.every=1", 2, "federated.every"),
     ("train-out-is-file", "truav", "train --out {a_file}", 2, "--out"),
     ("train-out-empty", "truav", ["train", "--out", ""], 2, "--out: empty path"),
     ("train-speed-contradicts-set", "truav", "train --speed 20 --set scenario.uav_speed_mps=10", 2, "--set"),
@@ -320,10 +324,36 @@ def test_fault_sweep_keeps_explicit_episode_length(tmp_path, monkeypatch) -> Non
     import truav.experiments.fault_sweep as sweep
     seen = []
     monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: seen.append((cfg, kw)) or out / "f.png")
-    for extra in ([], ["--set", "scenario.steps_per_episode=30"]):
-        assert truav_main(["experiment", "faults", "--quick", "--out", str(tmp_path), *extra]) == 0
+    for n, extra in enumerate(([], ["--set", "scenario.steps_per_episode=30"])):
+        assert truav_main(["experiment", "faults", "--quick", "--out", str(tmp_path / str(n)), *extra]) == 0
     assert [kw["keep_steps"] for _, kw in seen] == [False, True]
     assert seen[1][0].scenario.steps_per_episode == 30
+
+
+def test_fault_experiment_resumes_its_out_only_with_the_same_settings(tmp_path, monkeypatch, capsys) -> None:
+    """A re-run into --out keeps its finished points: with another seed or scenario it used to reuse them
+    silently (a 2-UAV comparison relabelled as seed 9 with 3 UAVs in 1.5 s, exit 0); now refused in one line
+    before anything runs, and the same options still resume."""
+    import truav.experiments.fault_sweep as sweep
+    import truav.experiments.scheme_faults as scheme_faults
+    runs = []
+    monkeypatch.setattr(scheme_faults, "run_comparison", lambda cfg, size, out, schemes, **kw: runs.append(kw) or [])
+    monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: runs.append(kw) or out / "f.png")
+    out = str(tmp_path / "cmp")
+    argv = ["experiment", "faults", "--quick", "--schemes", "patrol", "--out", out, "--set", "scenario.n_uavs=2"]
+    assert truav_main(argv) == 0
+    assert truav_main(argv + ["--schemes", "patrol", "central"]) == 0  # more schemes: the same points' settings
+    capsys.readouterr()
+    for other in (["--seed", "9"], ["--set", "scenario.n_uavs=3"], ["--rate", "20"]):
+        assert truav_main(argv + other) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--out" in err[0] and "other settings" in err[0], err
+    assert truav_main(["experiment", "faults", "--quick", "--out", out]) == 2  # the sweep's points are not these
+    assert len(runs) == 2
+    legacy = tmp_path / "legacy"
+    (legacy / "patrol-none-0").mkdir(parents=True)
+    (legacy / "patrol-none-0" / "summary.json").write_text("{}")  # a point, and no settings.json
+    assert truav_main(argv[:-4] + ["--out", str(legacy)]) == 2
 
 
 def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:

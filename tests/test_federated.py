@@ -80,6 +80,25 @@ def test_federated_config_is_checked():
         Config().replace(federated={"every_k": 1})
 
 
+def test_the_trainer_refuses_the_shares_a_swarm_agent_refuses():
+    """The in-process round (federate) checks each share as a swarm agent does: a UAV's share holding a value
+    beyond federated.q_bound (a legal setting, e.g. 0.05) moved its peers' tables in process and not on the bus,
+    so a lock-step swarm, "exact", learned other tables than `truav train` with the same seed and settings."""
+    from agents.federated import federate
+    fc = Config().federated.__class__(every=1, q_bound=0.5)
+    q = np.zeros((1, 3, S, A))
+    q[0, 1, 4] = 2.0  # uav 1's row of state 4: beyond q_bound, its whole share refused
+    q[0, 1, 5] = 0.25
+    q[0, 2, 6] = 0.25  # uav 2's share passes
+    visits = np.zeros((1, 3, S), np.int64)
+    visits[0, 1, [4, 5]] = 1
+    visits[0, 2, 6] = 1
+    federate(q, visits, np.zeros_like(visits), 0, fc, steps_per_episode=10)
+    assert not q[0, 0, [4, 5]].any() and not q[0, 2, [4, 5]].any()  # nothing of uav 1's share
+    np.testing.assert_allclose(q[0, 0, 6], 0.5 * 0.25)  # uav 2's: weight 1/1 capped at max_weight
+    np.testing.assert_allclose(q[0, 1, 6], 0.5 * 0.25)
+
+
 def _run(cfg, seeds, fused, episodes):
     ctrl = TruavController(cfg, seeds)
     ctrl.fused = fused
@@ -113,6 +132,7 @@ def test_lockstep_federated_swarm_learns_the_federated_trainers_tables(tmp_path)
     out = run_swarm(tmp_path, "fed", cfg=cfg)
     q, steps = agent_tables(out, cfg)
     assert steps == [cfg.learner.episodes * cfg.scenario.steps_per_episode] * 3
+    assert q.shape == expected.q[0].shape  # every entry of every table compared, none broadcast away
     differing = [int(np.sum(q[i] != expected.q[0, i])) for i in range(3)]
     assert differing == [0, 0, 0], f"entries differing from the federated trainer, per agent: {differing}"
     unshared = run_chunk("truav", cfg.replace(federated={"every": 0}), [SEED], cfg.learner.episodes)
@@ -179,6 +199,31 @@ def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg
     np.testing.assert_allclose(q[:2], before[:2] + 0.25 * (-5.0 - before[:2]))  # weight 1/1 capped at 0.25
     np.testing.assert_array_equal(q[2:], before[2:])
     assert not node._parts  # merged or refused shares are not kept
+
+
+def test_shares_of_rounds_far_ahead_cannot_push_out_the_present_round(small_cfg):
+    """A hostile peer's shares of rounds far ahead (a few tiny messages) used to push the round an agent was about
+    to merge out of its bounded store: no share was merged all run, nothing refused. Now the nearest rounds are
+    kept, and a share further ahead, of no share round, of more parts than federated.max_rows needs, or (a
+    resumed agent) older than its current episode is refused and counted."""
+    from types import SimpleNamespace
+    node = _stub_node(small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 2, "max_rows": 640}))
+    node._round = 1  # shared after episode 1 (every 2: rounds 1, 3, 5, ...)
+    for ep in range(10**6 + 1, 10**6 + 12, 2):  # 6 far-ahead share rounds, as uav 1 and 3: 4 kept
+        node._on_qshare("k", _qshare(uav=1, episode=ep), None, 0)
+        node._on_qshare("k", _qshare(uav=3, episode=ep), None, 0)
+    node._on_qshare("k", _qshare(uav=3, episode=2), None, 0)  # no share round
+    node._on_qshare("k", _qshare(uav=3, episode=1, part=0, parts=3), None, 0)  # 640 rows need 2 parts
+    node._on_qshare("k", _qshare(uav=2, episode=1, q=np.full(32, -5.0)), None, 0)  # the present round's share
+    node._merge_ready()
+    st = node.fed_stats
+    assert st["shares_merged"] == 1 and st["refused"] == {"bad_round": 2 * 2 + 1, "bad_shape": 1}
+    assert {r for r, _ in node._parts} == {10**6 + 1, 10**6 + 3, 10**6 + 5}  # the 3 nearest after the merged one
+    resumed = _stub_node(node.cfg)
+    resumed.decision = SimpleNamespace(episode=50)  # resumed at episode 50, not shared yet
+    resumed._on_qshare("k", _qshare(uav=1, episode=3), None, 0)
+    resumed._on_qshare("k", _qshare(uav=1, episode=49), None, 0)
+    assert resumed.fed_stats["refused"] == {"stale_round": 1} and list(resumed._parts) == [(49, 1)]
 
 
 def _stub_node(cfg):

@@ -98,3 +98,17 @@ def make_dir(flag: str, path: str | Path) -> Path:
     except OSError as exc:
         raise UserError(f"{flag} {path}: cannot create the directory ({exc.strerror or exc})") from None
     return p
+
+
+def check_federated(cfg, scheme: str, learns: bool) -> None:
+    """Q-sharing (``federated.every`` > 0) only where TRUAV agents learn: another scheme or greedy agents would
+    share nothing, while the run's summary still said federated."""
+    every = cfg.federated.every
+    if every <= 0:
+        return
+    if scheme != "truav":
+        raise UserError(f"federated.every = {every}: only --scheme truav agents share Q rows (this is --scheme "
+                        f"{scheme}); set it to 0 or drop it")
+    if not learns:
+        raise UserError(f"federated.every = {every}: --greedy agents do not learn, so share nothing; drop --greedy "
+                        f"or federated.every")

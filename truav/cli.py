@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from truav import runio
+from truav.checks import check_federated
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
 from truav.cli_config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
@@ -89,6 +90,7 @@ def cmd_train(args) -> int:
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav import sumo_traffic
         sumo_traffic.sumo_home()
+    check_federated(cfg, args.scheme, learns=True)
     seeds = seed_list(args)
     from truav.trainer import RESUMABLE, Checkpointing, split
     scheme = args.scheme

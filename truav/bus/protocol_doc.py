@@ -204,7 +204,8 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "uav": ("", _UAV_NOTE),
         "tick": ("", f"the tick of the episode's last observation it was made at; {_TICK}"),
         "episode": ("", "the episode it was made after: its share round ((episode + 1) % federated.every == 0); "
-                        "receivers refuse another round's share (stale_round)"),
+                        "receivers refuse an older round's share (stale_round), and one not of a share round or "
+                        "further ahead than the few nearest rounds they keep (bad_round)"),
         "part": ("", "which part of the share, also the key's last chunk `<n>`"),
         "parts": ("", "how many parts the share has; a receiver merges a share once it has every part, else not "
                       "at all"),

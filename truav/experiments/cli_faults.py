@@ -4,12 +4,13 @@ truav.experiments.fault_sweep, the scheme comparison truav.experiments.scheme_fa
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from truav import runio
 from truav.cli_args import check_out_dir, positive_float, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
-from truav.config import ConfigError, read_toml
+from truav.config import ConfigError, read_toml, to_dict
 from truav.experiments import fault_sweep
 from truav.experiments.scheme_faults import SCHEMES
 from truav.experiments.cli_executor import add_executor_args, check_executor
@@ -24,7 +25,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
-    p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running resumes")
+    p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running with the same "
+                                 "options resumes (other options are refused)")
     p.add_argument("--schemes", nargs="+", choices=SCHEMES,
                    help="compare these schemes under the same link loss, latency and process crash levels "
                         "(truav.experiments.scheme_faults: comparison.csv, comparison-<metric>.png); "
@@ -51,6 +53,9 @@ def cmd_fault_sweep(args) -> int:
     check_executor(args)
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
     keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
+    settings = {"mode": "schemes" if args.schemes else "sweep", "size": size, "seed": args.seed, "rate": args.rate,
+                "qtable": _resolved(args.qtable), "policy": _resolved(args.policy), "keep_steps": keep_steps,
+                "config": to_dict(cfg)}
     if args.schemes:
         from truav.experiments.scheme_faults import run_comparison
         schemes = tuple(dict.fromkeys(args.schemes))
@@ -62,6 +67,7 @@ def cmd_fault_sweep(args) -> int:
         if "central" in schemes:
             from truav.swarm.cli import check_central_sizes
             check_central_sizes(cfg)
+        check_settings(out, settings)
         paths = run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable, policy=args.policy,
                                rate_hz=args.rate, keep_steps=keep_steps, executor=args.executor,
                                address=args.address)
@@ -69,7 +75,38 @@ def cmd_fault_sweep(args) -> int:
         return 0
     if args.policy is not None:
         raise UsageError("--policy: only with --schemes central")
+    check_settings(out, settings)
     path = fault_sweep.run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate,
                                  keep_steps=keep_steps, executor=args.executor, address=args.address)
     print(f"\n{out / 'faults.csv'}\n{path}")
     return 0
+
+
+SETTINGS_FILE = "settings.json"
+"""In --out: the settings its points were run with (a re-run resumes only with the same ones)."""
+
+
+def _resolved(path: str | None) -> str | None:
+    return None if path is None else str(Path(path).resolve())
+
+
+def check_settings(out: Path, settings: dict) -> None:
+    """A re-run into ``out`` keeps its finished points, so it must run with their settings: the first run writes
+    them to SETTINGS_FILE, a later one with others is refused in one line (UsageError) before anything runs."""
+    path = out / SETTINGS_FILE
+    settings = json.loads(json.dumps(settings))  # tuples as lists, as read back
+    if path.is_file():
+        try:
+            before = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--out {out}: {path.name} is unreadable ({exc}); choose another --out") from None
+        differ = [k for k in settings if not isinstance(before, dict) or before.get(k) != settings[k]]
+        if differ:
+            raise UsageError(f"--out {out}: holds points run with other settings ({', '.join(differ)} differ from "
+                             f"{path}); use the same options to resume them, or another --out")
+        return
+    if any(out.glob("*/summary.json")):
+        raise UsageError(f"--out {out}: holds finished points with no {path.name} to tell their settings (an "
+                         f"earlier version's run); choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(settings, indent=1))

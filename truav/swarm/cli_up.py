@@ -11,7 +11,7 @@ import math
 import re
 
 from truav.bus.transport import DEFAULT_ENDPOINT
-from truav.checks import check_endpoint, check_out_dir, check_out_file
+from truav.checks import check_endpoint, check_federated, check_out_dir, check_out_file
 from truav.cli_config import UsageError, parse_sets
 from truav.config import MOBILITIES
 from agents.agent_process import AgentOptions
@@ -75,6 +75,7 @@ def swarm_options(args):
     if args.record is not None:
         check_out_file("--record", args.record)
     check_scheme_flags(args)
+    check_federated(cfg, args.scheme, learns=not getattr(args, "greedy", False))
     if args.qtable is not None:
         check_qtable("--qtable", args.qtable, cfg)
     if args.policy is not None:
