@@ -256,6 +256,7 @@ class WorldNode:
         the payload's word is not taken), told by _tell_rejections."""
         facts = facts_of(key)
         if facts.uav is not None:
+            self.accounts.note_refused(facts.uav, exc.reason)
             self.notices.note(facts.uav, exc.reason, facts.kind or "", key, self._round, exc.detail or exc.reason)
             self._notice_wake.set()
 
@@ -522,10 +523,10 @@ class WorldNode:
         acc = self.accounts
         with self._cond:
             mark = (self.stats.deadline_misses, self.stats.acks_missed, self.stats.late_actions,
-                    self.stats.stale_actions, self.bus.rejections.total())
+                    self.stats.stale_actions, acc.refused_total)
             if mark != self._uav_metrics_key:
                 self._uav_metrics_key = mark
-                self._uav_metrics = acc.worst_metrics(self.bus.rejections.as_dict() if mark[-1] else {})
+                self._uav_metrics = acc.worst_metrics()
             return self._uav_metrics
 
     def _publish_step(self, tick, episode, m, actions) -> None:
