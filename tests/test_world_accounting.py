@@ -190,3 +190,21 @@ def test_refusals_are_counted_for_the_uav_of_their_key_not_of_the_payload(bus_fa
     assert per[0]["rejected"] == {} and sum(per[1]["rejected"].values()) == 3, per
     assert set(node.accounts.worst_metrics()) == {"uav.1.rejected"}
     assert [n.uav for n in node.notices.due(1e9)] == [1]
+
+
+def test_a_liveliness_token_of_a_uav_outside_the_scenario_is_refused_not_waited_for(bus_factory):
+    """An agent started with --id 7 beside a 2-UAV world (or a plain session's forged token): counted as
+    refused and ignored. It was taken for a live agent: tick 0 came with one real agent missing, lock-step
+    waited for it, and the world crashed (IndexError) accounting its missed `done` acknowledgement."""
+    from truav.bus import guard, keys
+    from world.world_process import WorldNode, WorldOptions
+    bus = bus_factory("world")
+    node = WorldNode(CFG, WorldOptions(run=RUN, wait_agents_s=0.1), bus)
+    for uav in (7, N_UAVS):
+        node._on_join(keys.alive_uav(RUN, uav))
+        node._on_leave(keys.alive_uav(RUN, uav))
+        node._on_join(keys.alive_uav(RUN, uav))
+    node._on_join(keys.alive_uav(RUN, 0))
+    assert node.wait_for_agents() == 1 and node._alive == {0}
+    assert bus.rejections.as_dict() == {guard.R_IMPLAUSIBLE: {"uav/7": 3, f"uav/{N_UAVS}": 3}}
+    assert node.stats.joins == [keys.alive_uav(RUN, 0)] and node.stats.losses == []

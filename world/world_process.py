@@ -290,23 +290,35 @@ class WorldNode:
             log.info("shutdown requested by %s", msg.src)
             self.stop()
 
-    def _on_join(self, key: str) -> None:
+    def _scenario_uav(self, key: str) -> int | None:
+        """The UAV of a liveliness key, if the scenario has it; a token of another id (an agent started with
+        the wrong --id, or a forgery) is counted as refused and ignored: never waited for, never accounted."""
         uav = keys.parse_uav_id(key)
+        if uav is not None and uav >= self.n_uavs:
+            self.bus.rejections.add(guard.R_IMPLAUSIBLE, keys.uav_identity(uav), key,
+                                    f"liveliness token of uav {uav}, the scenario has {self.n_uavs} UAVs")
+            return None
+        return uav
+
+    def _on_join(self, key: str) -> None:
+        uav = self._scenario_uav(key)
+        if uav is None:
+            return
         with self._cond:
-            if uav is not None:
-                self._alive.add(uav)
-                self._silent.discard(uav)  # a (re)started agent is waited for again
-                self.stats.joins.append(key)
-                self._cond.notify_all()
+            self._alive.add(uav)
+            self._silent.discard(uav)  # a (re)started agent is waited for again
+            self.stats.joins.append(key)
+            self._cond.notify_all()
         log.info("agent joined: %s", key)
 
     def _on_leave(self, key: str) -> None:
-        uav = keys.parse_uav_id(key)
+        uav = self._scenario_uav(key)
+        if uav is None:
+            return
         with self._cond:
-            if uav is not None:
-                self._alive.discard(uav)
-                self.stats.losses.append(key)
-                self._cond.notify_all()
+            self._alive.discard(uav)
+            self.stats.losses.append(key)
+            self._cond.notify_all()
         log.warning("agent lost: %s", key)
 
     def _on_controller(self, up: bool) -> None:
