@@ -51,17 +51,21 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=3600.0, help="give up after this many seconds")
     ap.add_argument("--bad-action", type=int, help="(to see a rejection) send this action at the first tick")
     args = ap.parse_args()
-
-    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if args.connect or not args.config:
-        conf.insert_json5("connect/endpoints", json.dumps(args.connect or ["tcp/127.0.0.1:7447"]))
+    if args.id < 0:
+        ap.error(f"--id {args.id}: UAV ids start at 0")
+    try:  # a missing config, a bad endpoint, no router there: one line, not a traceback
+        conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        if args.connect or not args.config:
+            conf.insert_json5("connect/endpoints", json.dumps(args.connect or ["tcp/127.0.0.1:7447"]))
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        ap.error(f"-e/-c: no zenoh session ({str(exc).split(' at /')[0]}); is the swarm's router up?")
     base, me = f"truav/{args.run}", args.id
     rng = random.Random(args.seed * 1024 + me)
     inbox: queue.Queue = queue.Queue()
     answered = 0
-    session = zenoh.open(conf)
     try:
         out = Sender(session, me)
 

@@ -137,6 +137,17 @@ def test_example_uses_only_zenoh_and_msgpack() -> None:
     assert len(EXAMPLE.read_text().splitlines()) <= 130
 
 
+@pytest.mark.parametrize("args", [["--id", "-1"], ["--id", "0", "-e", "PORT"], ["--id", "0", "-e", "garbage"],
+                                  ["--id", "0", "-c", "nowhere.json5"]], ids=["id", "no-router", "endpoint", "config"])
+def test_example_mistakes_are_an_error_line_not_a_traceback(tmp_path, args) -> None:
+    """Started before the swarm's router, or with a mistyped endpoint or config: argparse's error, exit 2."""
+    args = [f"tcp/127.0.0.1:{free_port()}" if a == "PORT" else a for a in args]
+    done = subprocess.run([sys.executable, str(EXAMPLE), *args, "--timeout", "5"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=60)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith("outside_agent.py: error: "), done.stderr
+
+
 def test_outside_agent_flies_in_lockstep_reproducibly(tmp_path) -> None:
     first = fly(tmp_path / "first", lockstep=True, secure=False)
     check_every_action_applied(first, lockstep=True)

@@ -204,3 +204,25 @@ def test_schema_command_mistakes_are_one_line(tmp_path, capsys) -> None:
     assert "out of date" in capsys.readouterr().err
     assert swarm_cli.main(["schema", "--doc", str(stale)]) == 0 and stale.read_text() == DOC
     assert swarm_cli.main(["schema", "--doc", str(stale), "--check"]) == 0
+
+
+def test_schema_out_refuses_to_overwrite_without_force(tmp_path, capsys) -> None:
+    """A second `schema --out DIR`, or a DIR holding someone's index.json: one line, exit 2, nothing
+    written; --force overwrites. A --doc that is not UTF-8 text is one line too."""
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "index.json").write_text('{"mine": 1}')
+    out = tmp_path / "schemas"
+    assert swarm_cli.main(["schema", "--out", str(out)]) == 0
+    capsys.readouterr()
+    for argv in (["schema", "--out", str(out)], ["schema", "--out", str(theirs)], ["schema", "--force"]):
+        assert swarm_cli.main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and ("--force" in err or "--out" in err), (argv, err)
+    assert (theirs / "index.json").read_text() == '{"mine": 1}' and [p.name for p in theirs.iterdir()] == ["index.json"]
+    assert swarm_cli.main(["schema", "--out", str(theirs), "--force"]) == 0
+    assert "kinds" in json.loads((theirs / "index.json").read_text())
+    (tmp_path / "bin.md").write_bytes(b"\xb2\xff\x00 not text")
+    assert swarm_cli.main(["schema", "--doc", str(tmp_path / "bin.md")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not UTF-8 text" in err, err

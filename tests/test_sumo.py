@@ -16,6 +16,7 @@ import pytest
 
 from truav import seeding, sumo_traffic
 from truav.config import Config, to_toml
+from truav.errors import UserError
 from world import sumo_scenario
 from world.env import World
 from world.uavs import HOVER
@@ -203,3 +204,50 @@ def test_a_trace_is_keyed_by_what_shapes_it_and_refused_where_it_does_not_fit(ti
     args = sumo_scenario.netgenerate_args(cfg, "x.net.xml")
     assert args[args.index("--tls.set") + 1] == "1/1,3/3"
     assert args[args.index("--grid.number") + 1] == "5" and args[args.index("--grid.length") + 1] == "250.0"
+
+
+def _damaged(path, how: str) -> None:
+    good = path.read_bytes()
+    path.write_bytes({"empty": b"", "truncated": good[: len(good) // 2],
+                      "corrupt": good[: len(good) // 3] + b"X" * 32 + good[len(good) // 3 + 32:]}[how])
+
+
+@pytest.mark.parametrize("how", ["empty", "truncated", "corrupt"])
+def test_a_damaged_cached_trace_is_one_line_before_anything_starts(tiny, tmp_path, how):
+    """A cached trace.npz cut short or flipped (a full disk, a crash mid-copy): train, up and traffic build
+    name it in one line, exit 2, before --out is made or a process started (not a BadZipFile traceback
+    from the world or a worker)."""
+    import shutil
+    cfg, root, path = tiny
+    cache = tmp_path / "cache"
+    shutil.copytree(root, cache)
+    _damaged(cache / path.relative_to(root), how)
+    plain = Config().replace(**{**TINY, "scenario": {k: v for k, v in TINY["scenario"].items() if k != "mobility"}})
+    (tmp_path / "tiny.toml").write_text(to_toml(plain))
+    env = {**os.environ, "TRUAV_TRACE_CACHE": str(cache)}
+    for cmd in (["truav.cli", "train", "--mobility", "sumo", "--config", "tiny.toml", "--seeds", "1", "--episodes",
+                 "1", "--out", "runs/t"],
+                ["truav.swarm.cli", "up", "--mobility", "sumo", "--scenario", "tiny.toml", "--episodes", "1",
+                 "--out", "runs/u"],
+                ["truav.cli", "traffic", "build", "--config", "tiny.toml", "--set", "scenario.mobility=sumo"]):
+        done = subprocess.run([sys.executable, "-m", *cmd], capture_output=True, text=True, env=env, cwd=tmp_path,
+                              timeout=120)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and len(lines) == 1, (cmd, done.stderr[-2000:])
+        assert "trace.npz: not a readable trace" in lines[0] and "--force" in lines[0], lines
+        assert not (tmp_path / "runs").exists(), cmd
+
+
+def test_a_cache_that_cannot_hold_traces_or_a_trace_too_large_is_one_line(tiny, tmp_path):
+    cfg, _, _ = tiny
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UserError, match="SUMO trace cache .*cannot create the directory"):
+        sumo_traffic.build_trace(cfg, tmp_path / "file")
+    (tmp_path / "cache" / sumo_traffic.trace_dir(cfg, tmp_path / "cache").name / "trace.npz").mkdir(parents=True)
+    with pytest.raises(UserError, match="not a regular file"):
+        sumo_traffic.build_trace(cfg, tmp_path / "cache")
+    huge = cfg.replace(scenario={"steps_per_episode": 1_000_000}, sumo={"trace_episodes": 100_000})
+    with pytest.raises(UserError, match="more than half this machine's memory"):
+        sumo_traffic.build_trace(huge, tmp_path / "cache")  # at once, not after hours of randomTrips.py
+    done = _cli(["traffic", "build", "--cache", "file"], os.environ, tmp_path)
+    assert done.returncode == 2 and done.stderr.strip() == "truav: error: --cache file: exists and is not a directory"

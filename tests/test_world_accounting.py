@@ -165,6 +165,46 @@ def test_worst_metrics_bounded():
     acc = UavAccounts(1000)
     for i in range(0, 1000, 2):
         acc.missed[i] = i
-    values = acc.worst_metrics({"out_of_range": {"uav/3": 5, "router": 1}}, limit=20)
+    for _ in range(5):
+        acc.note_refused(3, "out_of_range")
+    acc.note_refused(1000, "out_of_range")  # no such UAV: not counted
+    values = acc.worst_metrics(limit=20)
     assert len(values) <= 4 * 20 and values["uav.998.missed"] == 998 and "uav.0.missed" not in values
-    assert acc.per_uav({"out_of_range": {"uav/3": 5}})[3]["rejected"] == {"out_of_range": 5}
+    assert acc.per_uav()[3]["rejected"] == {"out_of_range": 5} and acc.refused_total == 5
+
+
+def test_refusals_are_counted_for_the_uav_of_their_key_not_of_the_payload(bus_factory):
+    """A plain session's forgeries on uav/1's action key (another UAV's id and sender in the payload, the
+    world's sender, bytes that are no message at all): counted for UAV 1, as the rejection it is told,
+    never against UAV 0, whose name the payload borrowed."""
+    from truav.bus import keys, schema
+    from world.world_process import WorldNode, WorldOptions
+    bus = bus_factory("world")
+    node = WorldNode(CFG, WorldOptions(run=RUN), bus)
+    key = keys.uav_action(RUN, 1)
+    as_uav0 = schema.encode(schema.Sequencer("uav/0").stamp(schema.Action(uav=0, tick=0, action=3)))
+    as_world = schema.encode(schema.Sequencer("world").stamp(schema.Action(uav=1, tick=0, action=3)))
+    for raw in (as_uav0, as_world, b"\xffgarbage"):
+        assert bus._decode(key, raw) is None
+    per = node.accounts.per_uav()
+    assert per[0]["rejected"] == {} and sum(per[1]["rejected"].values()) == 3, per
+    assert set(node.accounts.worst_metrics()) == {"uav.1.rejected"}
+    assert [n.uav for n in node.notices.due(1e9)] == [1]
+
+
+def test_a_liveliness_token_of_a_uav_outside_the_scenario_is_refused_not_waited_for(bus_factory):
+    """An agent started with --id 7 beside a 2-UAV world (or a plain session's forged token): counted as
+    refused and ignored. It was taken for a live agent: tick 0 came with one real agent missing, lock-step
+    waited for it, and the world crashed (IndexError) accounting its missed `done` acknowledgement."""
+    from truav.bus import guard, keys
+    from world.world_process import WorldNode, WorldOptions
+    bus = bus_factory("world")
+    node = WorldNode(CFG, WorldOptions(run=RUN, wait_agents_s=0.1), bus)
+    for uav in (7, N_UAVS):
+        node._on_join(keys.alive_uav(RUN, uav))
+        node._on_leave(keys.alive_uav(RUN, uav))
+        node._on_join(keys.alive_uav(RUN, uav))
+    node._on_join(keys.alive_uav(RUN, 0))
+    assert node.wait_for_agents() == 1 and node._alive == {0}
+    assert bus.rejections.as_dict() == {guard.R_IMPLAUSIBLE: {"uav/7": 3, f"uav/{N_UAVS}": 3}}
+    assert node.stats.joins == [keys.alive_uav(RUN, 0)] and node.stats.losses == []

@@ -97,6 +97,9 @@ def cmd_train(args) -> int:
     episodes = cfg.learner.episodes
     out_arg = args.out if args.out is not None else f"runs/train-{cfg.scenario.uav_speed_mps:g}mps"
     chunks = _resume_chunks(args, out_arg, cfg, seeds) if args.resume else None
+    if cfg.scenario.mobility == "sumo":  # built once and cached (truav traffic build), read and checked before --out
+        path, _, _ = sumo_traffic.checked_trace(cfg, say=lambda line: print(line, flush=True))
+        print(f"SUMO traffic: {path}", flush=True)
     if chunks is None:
         if not args.force and runio.read_resume_info(Path(out_arg)) is not None:
             raise runio.RunDirError(f"--out {out_arg}: holds an interrupted training; pass --resume to continue it, "
@@ -122,9 +125,6 @@ def cmd_train(args) -> int:
                                         + (["agents/sac_kernels.py"] if scheme == "central" else []))
     if note:  # else the progress bar sits at 0 for most of a minute without a word
         print(note, flush=True)
-    if cfg.scenario.mobility == "sumo":  # built once and cached (truav traffic build), before the progress bar
-        path, _ = sumo_traffic.build_trace(cfg, say=lambda line: print(line, flush=True))
-        print(f"SUMO traffic: {path}", flush=True)
     t0 = time.perf_counter()
     try:
         result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,

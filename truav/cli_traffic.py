@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
+from truav.checks import check_out_dir
 from truav.cli_config import add_config_args, config_from
 
 
@@ -13,10 +13,9 @@ def cmd_traffic_build(args) -> int:
     from truav import sumo_traffic
     cfg = config_from(args)
     sumo_traffic.sumo_home()  # one line naming what to install, before anything starts
-    root = Path(args.cache) if args.cache else None
+    root = check_out_dir("--cache", args.cache) if args.cache is not None else None
     t0 = time.perf_counter()
-    path, built = sumo_traffic.build_trace(cfg, root, args.force, say=lambda line: print(line, flush=True))
-    trace = sumo_traffic.read_trace(path)
+    path, trace, built = sumo_traffic.checked_trace(cfg, root, args.force, say=lambda line: print(line, flush=True))
     rows, n = trace.positions.shape[:2]
     print(f"{'built' if built else 'cached'}: {path}")
     print(f"  {n} vehicles x {rows} rows of {trace.step_s:g} s ({trace.windows} episodes of "

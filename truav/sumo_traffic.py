@@ -22,11 +22,14 @@ import subprocess
 import sys
 import tempfile
 import time
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from truav.checks import make_dir
 from truav.config import Config
 from truav.errors import UserError
 from world import sumo_scenario
@@ -64,6 +67,23 @@ def cache_root() -> Path:
 
 def trace_dir(cfg: Config, root: Path | None = None) -> Path:
     return (root or cache_root()) / sumo_scenario.cache_key(cfg, sumo_version())
+
+
+def check_size(cfg: Config) -> None:
+    """A trace that fits in memory: its arrays (rows_needed x scenario.n_vehicles) are held whole by the builder
+    and by every world that replays it; one line naming the sizes if they could not be (before SUMO runs for
+    hours drawing the trips of such a run)."""
+    rows, n = rows_needed(cfg), cfg.scenario.n_vehicles
+    need = rows * n * (2 * 8 + 1)  # positions (float64 x 2) and active (bool) per vehicle and row
+    try:
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > memory // 2:
+        raise UserError(f"sumo.trace_episodes {cfg.sumo.trace_episodes} x scenario.steps_per_episode "
+                        f"{cfg.scenario.steps_per_episode} x scenario.n_vehicles {n}: the trace would hold {rows} rows "
+                        f"of {n} vehicles ({need / 1e9:.3g} GB), more than half this machine's memory "
+                        f"({memory / 1e9:.3g} GB); give fewer sumo.trace_episodes")
 
 
 def _run_tool(argv: list[str], what: str, cwd: Path) -> None:
@@ -135,12 +155,15 @@ def save_trace(trace: Trace, path: Path, meta: dict) -> None:
 
 
 def read_trace(path: Path) -> Trace:
+    """The trace in ``path``; one line naming it if it is empty, truncated, corrupt or not a trace."""
+    # What np.load raises on an empty, truncated or foreign file: a damaged cache entry, not a bug.
     try:
         with np.load(path) as z:
             return Trace(z["positions"], z["active"], float(z["step_s"]), int(z["steps_per_episode"]))
-    except (OSError, KeyError, ValueError) as exc:
-        raise UserError(f"{path}: not a readable trace ({exc}); build it again with `truav traffic build --force`") \
-            from None
+    except (OSError, EOFError, KeyError, ValueError, TypeError, AttributeError, zipfile.BadZipFile,
+            zlib.error) as exc:
+        raise UserError(f"{path}: not a readable trace ({type(exc).__name__}: {exc}); build it again with "
+                        f"`truav traffic build --force`") from None
 
 
 def build_trace(cfg: Config, root: Path | None = None, force: bool = False,
@@ -151,7 +174,10 @@ def build_trace(cfg: Config, root: Path | None = None, force: bool = False,
     path = out / TRACE_FILE
     if path.is_file() and not force:
         return path, False
-    out.mkdir(parents=True, exist_ok=True)
+    if path.exists() and not path.is_file():
+        raise UserError(f"{path}: in the SUMO trace cache but not a regular file; remove it")
+    check_size(cfg)
+    make_dir("SUMO trace cache (--cache, $TRUAV_TRACE_CACHE)", out)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=out) as tmp:
         work = Path(tmp)
@@ -169,16 +195,23 @@ def build_trace(cfg: Config, root: Path | None = None, force: bool = False,
     return path, True
 
 
-def trace_for(cfg: Config, say: Callable[[str], None] = lambda line: None) -> Trace | None:
-    """The trace a world of cfg replays (built and cached on first use), or None for the grid's own mobility."""
-    if cfg.scenario.mobility != "sumo":
-        return None
-    path, _ = build_trace(cfg, say=say)
+def checked_trace(cfg: Config, root: Path | None = None, force: bool = False,
+                  say: Callable[[str], None] = lambda line: None) -> tuple[Path, Trace, bool]:
+    """build_trace, then the trace read and held against cfg: (its path, the trace, whether it was built now);
+    a damaged or foreign cached file is one line naming it. The CLIs call it before anything starts."""
+    path, built = build_trace(cfg, root, force, say)
     trace = read_trace(path)
     problem = trace.mismatch(cfg)
     if problem:
         raise UserError(f"{path}: {problem}; build it again with `truav traffic build --force`")
-    return trace
+    return path, trace, built
+
+
+def trace_for(cfg: Config, say: Callable[[str], None] = lambda line: None) -> Trace | None:
+    """The trace a world of cfg replays (built and cached on first use), or None for the grid's own mobility."""
+    if cfg.scenario.mobility != "sumo":
+        return None
+    return checked_trace(cfg, say=say)[1]
 
 
 def make_world(cfg: Config, batch: int, say: Callable[[str], None] = lambda line: None):
@@ -187,4 +220,4 @@ def make_world(cfg: Config, batch: int, say: Callable[[str], None] = lambda line
     return World(cfg, batch, trace_for(cfg, say))
 
 
-__all__ = ["build_trace", "cache_root", "make_world", "read_trace", "trace_for", "INSTALL_HINT"]
+__all__ = ["build_trace", "cache_root", "checked_trace", "make_world", "read_trace", "trace_for", "INSTALL_HINT"]

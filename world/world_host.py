@@ -33,7 +33,7 @@ def host_world(cfg: Config, opts: WorldOptions, conf, router_timeout_s: float | 
             reasons.because("interrupted")
             stats = node.stats
         stats.rejected = bus.rejections.as_dict()
-        stats.per_uav = node.accounts.per_uav(stats.rejected)
+        stats.per_uav = node.accounts.per_uav()
         stats.silent_at_end = sorted(node.silent())
         node.close_rejections()  # what is still pending goes out before the session closes
         stats.rejections_sent = node.notices.sent

@@ -256,6 +256,7 @@ class WorldNode:
         the payload's word is not taken), told by _tell_rejections."""
         facts = facts_of(key)
         if facts.uav is not None:
+            self.accounts.note_refused(facts.uav, exc.reason)
             self.notices.note(facts.uav, exc.reason, facts.kind or "", key, self._round, exc.detail or exc.reason)
             self._notice_wake.set()
 
@@ -289,23 +290,35 @@ class WorldNode:
             log.info("shutdown requested by %s", msg.src)
             self.stop()
 
-    def _on_join(self, key: str) -> None:
+    def _scenario_uav(self, key: str) -> int | None:
+        """The UAV of a liveliness key, if the scenario has it; a token of another id (an agent started with
+        the wrong --id, or a forgery) is counted as refused and ignored: never waited for, never accounted."""
         uav = keys.parse_uav_id(key)
+        if uav is not None and uav >= self.n_uavs:
+            self.bus.rejections.add(guard.R_IMPLAUSIBLE, keys.uav_identity(uav), key,
+                                    f"liveliness token of uav {uav}, the scenario has {self.n_uavs} UAVs")
+            return None
+        return uav
+
+    def _on_join(self, key: str) -> None:
+        uav = self._scenario_uav(key)
+        if uav is None:
+            return
         with self._cond:
-            if uav is not None:
-                self._alive.add(uav)
-                self._silent.discard(uav)  # a (re)started agent is waited for again
-                self.stats.joins.append(key)
-                self._cond.notify_all()
+            self._alive.add(uav)
+            self._silent.discard(uav)  # a (re)started agent is waited for again
+            self.stats.joins.append(key)
+            self._cond.notify_all()
         log.info("agent joined: %s", key)
 
     def _on_leave(self, key: str) -> None:
-        uav = keys.parse_uav_id(key)
+        uav = self._scenario_uav(key)
+        if uav is None:
+            return
         with self._cond:
-            if uav is not None:
-                self._alive.discard(uav)
-                self.stats.losses.append(key)
-                self._cond.notify_all()
+            self._alive.discard(uav)
+            self.stats.losses.append(key)
+            self._cond.notify_all()
         log.warning("agent lost: %s", key)
 
     def _on_controller(self, up: bool) -> None:
@@ -522,10 +535,10 @@ class WorldNode:
         acc = self.accounts
         with self._cond:
             mark = (self.stats.deadline_misses, self.stats.acks_missed, self.stats.late_actions,
-                    self.stats.stale_actions, self.bus.rejections.total())
+                    self.stats.stale_actions, acc.refused_total)
             if mark != self._uav_metrics_key:
                 self._uav_metrics_key = mark
-                self._uav_metrics = acc.worst_metrics(self.bus.rejections.as_dict() if mark[-1] else {})
+                self._uav_metrics = acc.worst_metrics()
             return self._uav_metrics
 
     def _publish_step(self, tick, episode, m, actions) -> None:

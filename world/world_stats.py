@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -59,7 +60,8 @@ class WorldStats:
     per_uav: list[dict] = field(default_factory=list)
     """Per UAV id 0..n_uavs-1: {"uav", "received", "applied", "late", "stale", "missed", "rejected": {reason: n}}
     (UavAccounts.per_uav); received = applied + late + stale, missed = acting ticks it hovered without an
-    applied action + lock-step `done` acknowledgements the world went on without."""
+    applied action + lock-step `done` acknowledgements the world went on without, rejected = the messages refused
+    on that UAV's keys (the key's UAV, whatever the payload says)."""
 
 
 UAV_METRIC_PREFIX = "uav."
@@ -70,7 +72,8 @@ UAV_METRIC_COUNTS = ("missed", "late", "stale", "rejected")
 
 
 class UavAccounts:
-    """Per-UAV counts of the world's actions (pure: the world node updates it under its lock)."""
+    """Per-UAV counts of the world's actions (pure: the world node updates it under its lock) and of the
+    messages it refused on each UAV's keys (``note_refused``, under a lock of its own: the bus's thread)."""
 
     def __init__(self, n_uavs: int):
         self.n = n_uavs
@@ -78,28 +81,36 @@ class UavAccounts:
         self.late = [0] * n_uavs
         self.stale = [0] * n_uavs
         self.missed = [0] * n_uavs
+        self._refused: list[dict[str, int]] = [{} for _ in range(n_uavs)]
+        self._refused_lock = threading.Lock()
+        self.refused_total = 0
+        """Messages refused on the UAVs' keys so far (what ``refused`` sums to)."""
 
-    def rejected_by_uav(self, rejected: dict[str, dict[str, int]]) -> list[dict[str, int]]:
-        """Per UAV id, {reason: count} of the bus guard's refusals whose sender is ``uav/<i>``."""
-        out: list[dict[str, int]] = [{} for _ in range(self.n)]
-        for reason, senders in rejected.items():
-            for sender, count in senders.items():
-                uav = uav_of_sender(sender)
-                if uav is not None and uav < self.n:
-                    out[uav][reason] = out[uav].get(reason, 0) + count
-        return out
+    def note_refused(self, uav: int, reason: str) -> None:
+        """One message refused on a key of UAV ``uav`` (``truav/<run>/uav/<i>/...``): the UAV is the key's, never
+        the payload's word (a forged ``src`` would blame another UAV), as for the rejection it is told."""
+        if 0 <= uav < self.n:
+            with self._refused_lock:
+                counts = self._refused[uav]
+                counts[reason] = counts.get(reason, 0) + 1
+                self.refused_total += 1
 
-    def per_uav(self, rejected: dict[str, dict[str, int]]) -> list[dict]:
+    def refused(self) -> list[dict[str, int]]:
+        """Per UAV id, {reason: count} of the messages refused on its keys."""
+        with self._refused_lock:
+            return [dict(r) for r in self._refused]
+
+    def per_uav(self) -> list[dict]:
         """WorldStats.per_uav: one entry per UAV id, in order."""
-        refused = self.rejected_by_uav(rejected)
+        refused = self.refused()
         return [{"uav": i, "received": self.applied[i] + self.late[i] + self.stale[i], "applied": self.applied[i],
                  "late": self.late[i], "stale": self.stale[i], "missed": self.missed[i], "rejected": refused[i]}
                 for i in range(self.n)]
 
-    def worst_metrics(self, rejected: dict[str, dict[str, int]], limit: int = MAX_UAV_METRICS) -> dict[str, float]:
+    def worst_metrics(self, limit: int = MAX_UAV_METRICS) -> dict[str, float]:
         """Step-metrics values ``uav.<i>.<count>`` for at most ``limit`` UAVs with anything non-zero in missed,
         late, stale or rejected, the worst first (most of those four summed); zero counts left out."""
-        refused = [sum(r.values()) for r in self.rejected_by_uav(rejected)] if rejected else [0] * self.n
+        refused = [sum(r.values()) for r in self.refused()]
         rows = [(self.missed[i] + self.late[i] + self.stale[i] + refused[i], i) for i in range(self.n)]
         worst = sorted((r for r in rows if r[0]), key=lambda r: (-r[0], r[1]))[:limit]
         out: dict[str, float] = {}
@@ -117,12 +128,6 @@ def missed_share(world: dict, n_uavs: int) -> float | None:
     acting = int(world.get("ticks", 0)) - len(world.get("episodes") or [])
     expected = acting * n_uavs
     return 1.0 - int(world.get("actions_received", 0)) / expected if expected > 0 else None
-
-
-def uav_of_sender(sender: str) -> int | None:
-    """The UAV id of a sender identity ``uav/<i>``, else None."""
-    head, _, tail = sender.partition("/")
-    return int(tail) if head == "uav" and tail.isdigit() else None
 
 
 def uav_metrics(values: dict[str, float]) -> dict[int, dict[str, int]]:

@@ -153,7 +153,7 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
     if cfg.scenario.mobility == "sumo":  # each cell's trace built once here; the workers only load them
         from truav import sumo_traffic
         for cell in todo:  # cached after the first of a scenario
-            sumo_traffic.build_trace(cell.config(cfg), say=lambda line: print(line, flush=True))
+            sumo_traffic.checked_trace(cell.config(cfg), say=lambda line: print(line, flush=True))
     from tqdm import tqdm
     t0 = time.perf_counter()
     finished = [0]

@@ -169,7 +169,8 @@ def add_ops_commands(sub) -> None:
 
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
     st.add_argument("--run", type=run_name, help="only this run")
-    st.add_argument("--timeout", type=positive_float, default=1.0)
+    st.add_argument("--timeout", type=positive_float, default=1.0,
+                    help="seconds to wait for the swarm's liveliness tokens (default 1)")
     st.add_argument("--out", help="connect to the router of the run writing this directory (its swarm.json)")
     add_transport_args(st)
     st.set_defaults(func=cmd_status)

@@ -1,6 +1,6 @@
 """`truav-swarm schema`: the wire protocol on request, for authors of agents in other languages.
 
-    truav-swarm schema --out schemas            # one JSON Schema per message kind + index.json
+    truav-swarm schema --out schemas            # one JSON Schema per message kind + index.json (--force: again)
     truav-swarm schema --doc docs/protocol.md   # regenerate the document's tables from the schema
     truav-swarm schema --doc docs/protocol.md --check   # exit 1 if they are out of date
 
@@ -28,6 +28,20 @@ def schema_file(kind: str) -> str:
     return f"{kind}.schema.json"
 
 
+def output_names() -> list[str]:
+    """The files `schema --out DIR` writes into DIR."""
+    return [*(schema_file(kind) for kind in MESSAGE_CLASSES), INDEX_FILE]
+
+
+def check_fresh(flag: str, out: Path, force: bool) -> None:
+    """Without --force, DIR holds none of the files it would write (a second run, or another's index.json)."""
+    there = [name for name in output_names() if (out / name).exists()]
+    if there and not force:
+        more = f" and {len(there) - 1} more of its files" if len(there) > 1 else ""
+        raise UsageError(f"{flag} {out}: already holds {there[0]}{more}; choose another --out, or --force to "
+                         f"overwrite them")
+
+
 def write_schemas(out: Path) -> list[Path]:
     """Write one JSON Schema per kind and the index into ``out`` (which exists); the files written."""
     from recorder.schemas import SCHEMA_PREFIX, bus_schema
@@ -49,8 +63,12 @@ def cmd_schema(args) -> int:
         raise UsageError("give --out DIR (the JSON Schemas) or --doc FILE (docs/protocol.md's tables)")
     if args.check and args.doc is None:
         raise UsageError("--check: checks --doc FILE; add --doc docs/protocol.md")
+    if args.force and args.out is None:
+        raise UsageError("--force: overwrites the JSON Schemas of --out DIR; add --out DIR or drop it")
     if args.out is not None:
-        out = make_dir("--out", check_out_dir("--out", args.out))
+        out = check_out_dir("--out", args.out)
+        check_fresh("--out", out, args.force)
+        make_dir("--out", out)
         try:
             written = write_schemas(out)
         except OSError as exc:
@@ -58,7 +76,10 @@ def cmd_schema(args) -> int:
         print(f"{len(written) - 1} JSON Schemas and {INDEX_FILE} in {out}")
     if args.doc is not None:
         path = check_in_file("--doc", args.doc)
-        text = path.read_text()
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise UsageError(f"--doc {args.doc}: not UTF-8 text (give docs/protocol.md)") from None
         try:
             new = protocol_doc.render_into(text)
         except ValueError as exc:
@@ -85,4 +106,5 @@ def add_schema_commands(sub) -> None:
     sc.add_argument("--out", metavar="DIR", help="write one JSON Schema per message kind and index.json here")
     sc.add_argument("--doc", metavar="FILE", help="rewrite the generated tables of this document (docs/protocol.md)")
     sc.add_argument("--check", action="store_true", help="with --doc: only check, exit 1 if out of date")
+    sc.add_argument("--force", action="store_true", help="with --out: overwrite the files of an earlier run there")
     sc.set_defaults(func=cmd_schema)

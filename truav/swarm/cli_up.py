@@ -132,7 +132,7 @@ def swarm_options(args):
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
     if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
-        path, _ = sumo_traffic.build_trace(cfg, say=lambda line: None if args.quiet else print(line, flush=True))
+        path, _, _ = sumo_traffic.checked_trace(cfg, say=lambda line: None if args.quiet else print(line, flush=True))
         if not args.quiet:
             print(f"SUMO traffic: {path}", flush=True)
     return cfg, opts
