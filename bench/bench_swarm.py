@@ -348,6 +348,10 @@ def compared_run(code: Path, n: int, rate: float, ticks: int, mode: str, variant
           f"{r['missed_pct']:.2f}%, beacon p99 {r['beacon_p99']:.1f} ms, {r['msgs_per_s']:,.0f} msgs/s, "
           f"{r['cpu_cores_total']:.2f} cores, {r['cpu_us_per_msg']:.1f} us/msg (agents {r['agent_cpu_us_per_msg']:.1f}), "
           f"x{r['realtime_factor']:.2f} real time, exit {r['exit_code']}", flush=True)
+    by_thread = r.get("agent_us_per_tick_by_thread") or {}
+    if by_thread:
+        print("          agent CPU per agent and tick, by thread: " + ", ".join(
+            f"{k} {v:.0f} us" for k, v in by_thread.items()) + f" (all {sum(by_thread.values()):.0f} us)", flush=True)
     return r
 
 

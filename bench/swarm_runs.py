@@ -7,7 +7,9 @@ from the run's files that every version since 0cd7060 writes (``world.json``: ti
 lateness; ``agent<i>.json``: beacon latency samples, messages received). So both sides are measured the
 same way, whatever their benchmark code was.
 
-The ticking window (for rates and CPU) is the world's first to last tick when its stats say (8cffba7 on);
+The agents' CPU is also split by thread (main, other Python threads, Zenoh's rx/tx/app threads: what
+:func:`thread_class` says) and printed per agent and tick, to show where a one-process-per-agent swarm's
+cost goes. The ticking window (for rates and CPU) is the world's first to last tick when its stats say (8cffba7 on);
 otherwise the last ``ticks / rate`` seconds the world lived (real time only).
 """
 
@@ -27,6 +29,41 @@ import numpy as np
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 SAMPLE_S = 0.25
+THREAD_CLASSES = ("main", "python", "zenoh-rx", "zenoh-tx", "zenoh-app", "zenoh-other")
+"""Where an agent process's CPU goes, by thread: its main thread (decisions, draining beacons, publishing),
+its other Python threads (receive pumps, health; Python 3.11 names no OS thread, so they show as the
+interpreter), and Zenoh's runtime threads by their names (rx-N receive, tx-N send, app-N, the rest)."""
+
+
+def thread_class(pid: int, tid: int, comm: str) -> str:
+    """The :data:`THREAD_CLASSES` entry of thread ``tid`` (OS name ``comm``) of process ``pid``."""
+    if tid == pid:
+        return "main"
+    for prefix, name in (("rx-", "zenoh-rx"), ("tx-", "zenoh-tx"), ("app-", "zenoh-app")):
+        if comm.startswith(prefix):
+            return name
+    return "python" if comm.startswith("python") else "zenoh-other"
+
+
+def agent_thread_cpu(pids: set[int]) -> dict[str, float]:
+    """Cumulative CPU seconds of the agent processes ``pids``, by :func:`thread_class` (exited threads not
+    counted: an agent's threads live as long as it does)."""
+    out = dict.fromkeys(THREAD_CLASSES, 0.0)
+    for pid in pids:
+        try:
+            tids = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                    head, rest = f.read().rsplit(")", 1)
+            except OSError:
+                continue
+            fields = rest.split()
+            comm = head.split("(", 1)[1]
+            out[thread_class(pid, int(tid), comm)] += (int(fields[11]) + int(fields[12])) / CLK_TCK
+    return out
 
 
 def cli_module(code: Path) -> str:
@@ -66,6 +103,7 @@ class TreeSampler:
         self.root = root
         self.cpu: dict[int, tuple[str, float]] = {}  # pid -> (role, last cumulative CPU s)
         self.timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, {role: cumulative CPU s})
+        self.thread_timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, agents' {thread class: CPU s})
         self.world_alive: list[float] = []  # wall times the world process was seen
         self.agent_pids: set[int] = set()
         self._stop = threading.Event()
@@ -109,11 +147,13 @@ class TreeSampler:
             for role, cpu in self.cpu.values():
                 by_role[role] = by_role.get(role, 0.0) + cpu
             self.timeline.append((now, by_role))
+            self.thread_timeline.append((now, agent_thread_cpu(self.agent_pids)))
             self._stop.wait(SAMPLE_S)
 
-    def cores(self, t0: float, t1: float) -> dict[str, float]:
-        """Mean cores per role over [t0, t1] (from the samples nearest inside)."""
-        inside = [(t, c) for t, c in self.timeline if t0 <= t <= t1]
+    def cores(self, t0: float, t1: float, timeline: list | None = None) -> dict[str, float]:
+        """Mean cores per role (or, of ``thread_timeline``, per agent thread class) over [t0, t1] (from the
+        samples nearest inside)."""
+        inside = [(t, c) for t, c in (self.timeline if timeline is None else timeline) if t0 <= t <= t1]
         if len(inside) < 2 or inside[-1][0] <= inside[0][0]:
             return {}
         (ta, a), (tb, b) = inside[0], inside[-1]
@@ -171,6 +211,8 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
     first = np.array([min(v) for v in by_beacon.values()] or [np.nan])
     last = np.array([max(v) for v in by_beacon.values()] or [np.nan])
     cores = sampler.cores(t0, t1) if t0 and t1 else {}
+    threads = sampler.cores(t0, t1, sampler.thread_timeline) if t0 and t1 else {}
+    tick_rate = n_ticks / ticking if ticking > 0 else float("nan")
     msgs_per_s = received / ticking if ticking > 0 else float("nan")
     total = sum(cores.values()) if cores else float("nan")
     agent_cores = cores.get("agent", float("nan"))
@@ -196,6 +238,8 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
         "cpu_pct_per_agent": 100 * agent_cores / agents,
         "cpu_us_per_msg": 1e6 * total / msgs_per_s if msgs_per_s > 0 else float("nan"),
         "agent_cpu_us_per_msg": 1e6 * agent_cores / msgs_per_s if msgs_per_s > 0 else float("nan"),
+        "agent_us_per_tick_by_thread": {k: round(1e6 * v / agents / tick_rate, 1) for k, v in threads.items()}
+        if tick_rate > 0 else {},
     }
 
 
