@@ -352,6 +352,10 @@ def compared_run(code: Path, n: int, rate: float, ticks: int, mode: str, variant
     if by_thread:
         print("          agent CPU per agent and tick, by thread: " + ", ".join(
             f"{k} {v:.0f} us" for k, v in by_thread.items()) + f" (all {sum(by_thread.values()):.0f} us)", flush=True)
+    wakes = r.get("agent_wakes_per_tick_by_thread") or {}
+    if wakes:
+        print("          wake-ups per agent and tick, by thread: " + ", ".join(
+            f"{k} {v:.1f}" for k, v in wakes.items()), flush=True)
     return r
 
 

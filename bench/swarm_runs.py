@@ -8,8 +8,8 @@ lateness; ``agent<i>.json``: beacon latency samples, messages received). So both
 same way, whatever their benchmark code was.
 
 The agents' CPU is also split by thread (main, other Python threads, Zenoh's rx/tx/app threads: what
-:func:`thread_class` says) and printed per agent and tick, to show where a one-process-per-agent swarm's
-cost goes. The ticking window (for rates and CPU) is the world's first to last tick when its stats say (8cffba7 on);
+:func:`thread_class` says) and printed per agent and tick, with each class's wake-ups (voluntary context
+switches), to show where a one-process-per-agent swarm's cost goes. The ticking window (for rates and CPU) is the world's first to last tick when its stats say (8cffba7 on);
 otherwise the last ``ticks / rate`` seconds the world lived (real time only).
 """
 
@@ -48,7 +48,13 @@ def thread_class(pid: int, tid: int, comm: str) -> str:
 def agent_thread_cpu(pids: set[int]) -> dict[str, float]:
     """Cumulative CPU seconds of the agent processes ``pids``, by :func:`thread_class` (exited threads not
     counted: an agent's threads live as long as it does)."""
-    out = dict.fromkeys(THREAD_CLASSES, 0.0)
+    return agent_thread_totals(pids)[0]
+
+
+def agent_thread_totals(pids: set[int]) -> tuple[dict[str, float], dict[str, float]]:
+    """Cumulative CPU seconds and wake-ups (voluntary context switches: each time a thread blocked and was
+    woken again) of the agent processes ``pids``, by :func:`thread_class`."""
+    cpu, wakes = dict.fromkeys(THREAD_CLASSES, 0.0), dict.fromkeys(THREAD_CLASSES, 0.0)
     for pid in pids:
         try:
             tids = os.listdir(f"/proc/{pid}/task")
@@ -58,12 +64,23 @@ def agent_thread_cpu(pids: set[int]) -> dict[str, float]:
             try:
                 with open(f"/proc/{pid}/task/{tid}/stat") as f:
                     head, rest = f.read().rsplit(")", 1)
+                with open(f"/proc/{pid}/task/{tid}/status") as f:
+                    status = f.read()
             except OSError:
                 continue
             fields = rest.split()
-            comm = head.split("(", 1)[1]
-            out[thread_class(pid, int(tid), comm)] += (int(fields[11]) + int(fields[12])) / CLK_TCK
-    return out
+            cls = thread_class(pid, int(tid), head.split("(", 1)[1])
+            cpu[cls] += (int(fields[11]) + int(fields[12])) / CLK_TCK
+            wakes[cls] += _voluntary_switches(status)
+    return cpu, wakes
+
+
+def _voluntary_switches(status: str) -> int:
+    """``voluntary_ctxt_switches`` of a /proc task status text (0 if absent)."""
+    for line in status.splitlines():
+        if line.startswith("voluntary_ctxt_switches:"):
+            return int(line.split()[1])
+    return 0
 
 
 def cli_module(code: Path) -> str:
@@ -104,6 +121,7 @@ class TreeSampler:
         self.cpu: dict[int, tuple[str, float]] = {}  # pid -> (role, last cumulative CPU s)
         self.timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, {role: cumulative CPU s})
         self.thread_timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, agents' {thread class: CPU s})
+        self.wake_timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, agents' {thread class: wake-ups})
         self.world_alive: list[float] = []  # wall times the world process was seen
         self.agent_pids: set[int] = set()
         self._stop = threading.Event()
@@ -147,7 +165,9 @@ class TreeSampler:
             for role, cpu in self.cpu.values():
                 by_role[role] = by_role.get(role, 0.0) + cpu
             self.timeline.append((now, by_role))
-            self.thread_timeline.append((now, agent_thread_cpu(self.agent_pids)))
+            cpu, wakes = agent_thread_totals(self.agent_pids)
+            self.thread_timeline.append((now, cpu))
+            self.wake_timeline.append((now, wakes))
             self._stop.wait(SAMPLE_S)
 
     def cores(self, t0: float, t1: float, timeline: list | None = None) -> dict[str, float]:
@@ -212,6 +232,7 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
     last = np.array([max(v) for v in by_beacon.values()] or [np.nan])
     cores = sampler.cores(t0, t1) if t0 and t1 else {}
     threads = sampler.cores(t0, t1, sampler.thread_timeline) if t0 and t1 else {}
+    wakes = sampler.cores(t0, t1, sampler.wake_timeline) if t0 and t1 else {}  # wake-ups per second
     tick_rate = n_ticks / ticking if ticking > 0 else float("nan")
     msgs_per_s = received / ticking if ticking > 0 else float("nan")
     total = sum(cores.values()) if cores else float("nan")
@@ -239,6 +260,8 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
         "cpu_us_per_msg": 1e6 * total / msgs_per_s if msgs_per_s > 0 else float("nan"),
         "agent_cpu_us_per_msg": 1e6 * agent_cores / msgs_per_s if msgs_per_s > 0 else float("nan"),
         "agent_us_per_tick_by_thread": {k: round(1e6 * v / agents / tick_rate, 1) for k, v in threads.items()}
+        if tick_rate > 0 else {},
+        "agent_wakes_per_tick_by_thread": {k: round(v / agents / tick_rate, 2) for k, v in wakes.items()}
         if tick_rate > 0 else {},
     }
 

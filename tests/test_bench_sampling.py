@@ -45,3 +45,29 @@ def test_a_busy_python_thread_is_counted_as_python_not_main():
     assert during["python"] - before["python"] >= 0.2  # 0.3 s in 10 ms clock ticks
     assert during["main"] - before["main"] < 0.2  # the main thread waited
     assert swarm_runs.agent_thread_cpu({2**22 + 12345}) == dict.fromkeys(swarm_runs.THREAD_CLASSES, 0.0)  # no such pid
+
+
+def test_wake_ups_count_each_time_a_thread_blocked_and_woke():
+    woken = threading.Event()
+    rounds = 50
+
+    def sleeper() -> None:
+        for _ in range(rounds):  # blocks and is woken each time: one voluntary switch at least
+            time.sleep(0.001)
+        woken.set()
+        stay.wait(60)
+
+    stay = threading.Event()
+    _, before = swarm_runs.agent_thread_totals({os.getpid()})
+    worker = threading.Thread(target=sleeper)
+    worker.start()
+    try:
+        assert woken.wait(60)
+        cpu, during = swarm_runs.agent_thread_totals({os.getpid()})
+    finally:
+        stay.set()
+        worker.join()
+    assert set(during) == set(cpu) == set(swarm_runs.THREAD_CLASSES)
+    assert during["python"] - before["python"] >= rounds
+    assert swarm_runs._voluntary_switches("Name:\tx\nvoluntary_ctxt_switches:\t42\n") == 42
+    assert swarm_runs._voluntary_switches("Name:\tx\n") == 0
