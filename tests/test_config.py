@@ -32,6 +32,8 @@ def test_load_file_and_overrides(tmp_path):
 
 @pytest.mark.parametrize("data, fragment", [
     ({"scenario": {"n_uav": 3}}, "scenario.n_uav"),
+    ({"scenario": {"n_uav": 3}}, "did you mean 'scenario.n_uavs'?"),  # a typo: the key meant
+    ({"learner": {"gamma": 0.9}}, "known: learning_rate, discount,"),  # no near key: the section's keys
     ({"scenery": {}}, "scenery"),
     ({"scenario": {"n_uavs": 0}}, "scenario.n_uavs"),
     ({"scenario": {"n_uavs": 2.5}}, "scenario.n_uavs"),

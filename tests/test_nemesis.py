@@ -133,6 +133,19 @@ def test_the_checker_looks_for_missed_actions_only_after_the_heal(tmp_path):
     assert json.loads((tmp_path / "invariants.json").read_text())["held"] is False
 
 
+def test_after_the_heal_a_busy_hosts_sporadic_misses_are_not_a_fault_but_a_uav_that_never_recovers_is():
+    plan = plan_from_dict({"fault": [{"kind": "loss", "start": 5.0, "duration": 10.0, "probability": 0.5}]})
+    world = {"per_uav": [{"uav": i} for i in range(5)]}
+    hovering = [[t, 0.0] for t in range(600)]  # 10 Hz, 60 s: the last 22.5 s are checked (225 ticks x 5 UAVs)
+    hovering[590][1] = hovering[595][1] = 1.0  # two late actions on a loaded laptop
+    row = invariants._quiet_tail({"world": world, "timeline": {"hovering": hovering}}, plan, 10.0)
+    assert row.held and "2 UAV-tick(s) without an action" in row.detail and "at most 22 allowed" in row.detail, row
+    for tick in hovering[400:]:  # one UAV hovers on every tick after the heal: it did not recover
+        tick[1] += 1.0
+    row = invariants._quiet_tail({"world": world, "timeline": {"hovering": hovering}}, plan, 10.0)
+    assert not row.held, row
+
+
 # -- one short real soak --------------------------------------------------------------------
 SOAK_SEED = 22
 """With 3 agents over 60 s this seed crashes an agent, kills the router, pauses the recorder,

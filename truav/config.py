@@ -11,6 +11,7 @@ is and, where the paper is silent, which source the default comes from.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -529,7 +530,9 @@ def config_from_dict(data: Mapping[str, Any]) -> Config:
         fields = {f.name: f for f in dataclasses.fields(cls)}
         bad = set(values) - set(fields)
         if bad:
-            raise ConfigError(f"unknown key '{name}.{sorted(bad)[0]}'")
+            close = difflib.get_close_matches(sorted(bad)[0], list(fields), n=1)
+            hint = f"did you mean '{name}.{close[0]}'?" if close else f"known: {', '.join(fields)}"
+            raise ConfigError(f"unknown key '{name}.{sorted(bad)[0]}' ({hint})")
         built[name] = cls(**{k: _coerce(name, fields[k], v) for k, v in values.items()})
     cfg = Config(**built)
     _check_consistency(cfg)

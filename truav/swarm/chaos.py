@@ -112,7 +112,7 @@ def chaos_figure(base: dict, faulted: dict, plan_path: str, rate_hz: float, path
     return path
 
 
-BASELINE_MAX_MISSED_SHARE = 0.02
+BASELINE_MAX_MISSED_SHARE = invariants.HOST_LOAD_MISSED_SHARE
 """The no-fault baseline should miss (almost) no action: more than this and the host was too busy."""
 BASELINE_MAX_LATENESS_FRAC = 0.5
 """...nor start its ticks late by more than this fraction of the tick period (p99)."""

@@ -13,8 +13,9 @@ invariant below is checked from what the run left (summary.json, the logs,
 * every agent restarted (by the plan or the supervisor) resumed from its last
   checkpoint (its log: the step it resumed at is the step of the last
   checkpoint it wrote before it died);
-* no action was missed in the last :func:`quiet_window_s` seconds, all after
-  the plan's last fault ended;
+* no more actions were missed in the last :func:`quiet_window_s` seconds, all
+  after the plan's last fault ended, than a busy host misses without faults
+  (:data:`HOST_LOAD_MISSED_SHARE` of the UAV-ticks; none when the number of UAVs is unknown);
 * no process the supervisor started is left running;
 * no process's memory grew by more than :data:`MAX_RSS_GROWTH_MB` (from its first
   sample, a settled process, to its largest);
@@ -46,6 +47,10 @@ MAX_RSS_GROWTH_MB = 100.0
 RECONNECT_SLACK_S = 10.0
 """After a router restart, how long its clients may take to reconnect (Zenoh retries with a backoff)."""
 QUIET_WINDOW_S = 30.0
+HOST_LOAD_MISSED_SHARE = 0.02
+"""A busy host alone makes a real-time swarm miss a few actions, faults or not: up to this share of the
+UAV-ticks is the host's, not a fault's (a no-fault baseline that misses more ran on a host too busy to
+judge by; after the heal, a UAV that did not recover misses every tick, far above it)."""
 LOG_CHECK_TIMEOUT_S = 600.0
 PROCESS_GRACE_S = 5.0
 
@@ -231,8 +236,12 @@ def _quiet_tail(summary: dict, plan: FaultPlan, rate_hz: float) -> Invariant:
                          f"heal ({heal_time(plan):.1f} s)")
     ticks = [(t, h) for t, h in hovering if t / rate_hz >= end_tick / rate_hz - window]
     missed = sum(h for _, h in ticks)
-    return Invariant(name, missed == 0, f"{missed:g} UAV-tick(s) without an action in ticks {ticks[0][0]}-{end_tick}"
-                                        f" (the last fault ended at {heal_time(plan):.1f} s)")
+    n_uavs = len((summary.get("world") or {}).get("per_uav") or [])
+    allowed = math.floor(HOST_LOAD_MISSED_SHARE * n_uavs * len(ticks))
+    return Invariant(name, missed <= allowed,
+                     f"{missed:g} UAV-tick(s) without an action in ticks {ticks[0][0]}-{end_tick}, at most {allowed} "
+                     f"allowed ({100 * HOST_LOAD_MISSED_SHARE:g}% of {n_uavs} UAVs x {len(ticks)} ticks: a busy host's)"
+                     f" (the last fault ended at {heal_time(plan):.1f} s)")
 
 
 def _running(pid: int) -> bool:
