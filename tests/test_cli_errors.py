@@ -279,6 +279,7 @@ ROWS = [
     ("replay-ctl-seek-tick-negative", "swarm", "replay-ctl seek --tick -1", 2, "--tick"),
     ("replay-ctl-bad-run", "swarm", "replay-ctl --run a.b status", 2, "--run"),
     ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
+    ("certs-out-under-a-file", "swarm", "certs --out /dev/null/creds", 2, "--out"),
 ]
 
 

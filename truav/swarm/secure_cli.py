@@ -60,7 +60,9 @@ def cmd_certs(args) -> int:
         keys.validate_run(args.run)
         security.issue(out, args.run, args.agents, args.connect, hosts=[*security.DEFAULT_HOSTS, *args.host],
                        days=args.days)
-    except (ValueError, OSError) as exc:
+    except OSError as exc:  # the directory cannot be made or written
+        raise UsageError(f"--out {out}: cannot write the credentials there ({exc.strerror or exc})") from None
+    except ValueError as exc:
         raise UsageError(str(exc)) from None
     creds = security.load(out)
     print(f"credentials for run {creds.run!r} ({creds.n_uavs} agents, router at {creds.endpoint}) in {out}:")
