@@ -76,6 +76,9 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "empty.npz").write_bytes(b"")
     (d / "unclosed.json5").write_text('{"mode": "client"')
     (d / "bad_run_dir").mkdir()
+    (d / "earlier_run").mkdir()  # what a swarm run that ticked leaves
+    (d / "earlier_run" / "world.json").write_text('{"ticks": 200}')
+    (d / "earlier_run" / "agent0.npz").write_bytes(b"")
     (d / "bad_run_dir" / "swarm.json").write_text('{"endpoint": "garbage"}')
     cfg = to_toml(Config())
     for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):
@@ -127,7 +130,8 @@ def nothing_starts(monkeypatch, tmp_path):
     import world.world_host
     import truav.swarm.supervisor
     import truav.trainer
-    for module, name in ((truav.trainer, "run_parallel"), (truav.experiments.runner, "run_cells"),
+    import truav.sumo_traffic
+    for module, name in ((truav.trainer, "run_parallel"), (truav.sumo_traffic, "checked_trace"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
                          (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
                          (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.swarm.cli_ops, "Bus"),
@@ -280,6 +284,8 @@ ROWS = [
     ("replay-ctl-bad-run", "swarm", "replay-ctl --run a.b status", 2, "--run"),
     ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
     ("certs-out-under-a-file", "swarm", "certs --out /dev/null/creds", 2, "--out"),
+    # an --out mistake is told before the SUMO trace is built (minutes the first time), not after
+    ("up-sumo-out-holds-a-run", "swarm", "up --mobility sumo --out {earlier_run}", 2, "--out"),
 ]
 
 

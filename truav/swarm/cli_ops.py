@@ -26,7 +26,7 @@ from truav.swarm.cli_common import (add_geo_origin_arg, add_scenario_args, add_t
 from truav.swarm.children import stop_recorded_pids
 from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
 from truav.swarm.secure_cli import rejections_heard
-from truav.swarm.swarm_options import DOWN_IDENTITY
+from truav.swarm.swarm_options import DOWN_IDENTITY, default_out_dir
 
 log = logging.getLogger("truav.swarm")
 
@@ -104,7 +104,7 @@ DOWN_LISTENER_WAIT_S = 5.0
 def cmd_down(args) -> int:
     if args.out is not None:
         check_out_dir("--out", args.out)
-    out = Path(args.out) if args.out else Path("runs") / f"swarm-{args.run}"
+    out = Path(args.out) if args.out else default_out_dir(args.run)
     _endpoint_from_out(args, out, explicit=args.out is not None, need_run=True)
     part_creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:

@@ -25,6 +25,7 @@ from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, ad
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
+from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
 from recorder.record_modes import RecordModes
 from truav.cli_args import options_from
@@ -132,6 +133,10 @@ def swarm_options(args):
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
                         external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
     if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
+        try:  # a mistake in --out is told before the trace is built (minutes the first time), not after
+            check_swarm_dir(opts.out_dir, resume=opts.resume, force=opts.force)
+        except OutDirError as exc:
+            raise UsageError(str(exc)) from None
         path, _, _ = sumo_traffic.checked_trace(cfg, say=lambda line: None if args.quiet else print(line, flush=True))
         if not args.quiet:
             print(f"SUMO traffic: {path}", flush=True)

@@ -79,26 +79,33 @@ def _never_ran(out: Path) -> bool:
         return False
 
 
-def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: bool) -> None:
-    """Make ``out`` ready for a run: refuse, resume or clear as described above (raises OutDirError)."""
+def check_swarm_dir(out: Path, *, resume: bool, force: bool) -> None:
+    """The refusals of :func:`prepare_swarm_dir` that need no scenario, without touching ``out`` (raises
+    OutDirError): `up` says them before slow preparations (a SUMO trace) rather than after."""
     if resume and force:
         raise OutDirError("--resume and --force exclude each other (continue the run in --out, or replace it)")
     if out.exists() and not out.is_dir():
         raise OutDirError(f"--out {out} is a file, not a directory")
     if out.is_dir() and any(out.iterdir()):
+        if not (force or resume or _never_ran(out)):
+            raise OutDirError(f"--out {out} holds an earlier run; pass --resume to continue it, --force to replace "
+                              f"it, or choose another --out")
+    elif resume:
+        raise OutDirError(f"--resume: {out} holds no run to resume")
+
+
+def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: bool) -> None:
+    """Make ``out`` ready for a run: refuse, resume or clear as described above (raises OutDirError)."""
+    check_swarm_dir(out, resume=resume, force=force)
+    if out.is_dir() and any(out.iterdir()):
         if force or (not resume and _never_ran(out)):
             clear_swarm_files(out)
-        elif resume:
+        else:  # resume
             old = out / SCENARIO_FILE
             if old.is_file() and old.read_text() != scenario_toml:
                 raise OutDirError(f"--resume: {out} holds a run with another scenario (agents, steps or --set "
                                   f"differ from {old}); use the same options, or --force to start afresh")
             _remove(out, RESULT_PATTERNS)
-        else:
-            raise OutDirError(f"--out {out} holds an earlier run; pass --resume to continue it, --force to replace "
-                              f"it, or choose another --out")
-    elif resume:
-        raise OutDirError(f"--resume: {out} holds no run to resume")
     (out / LOG_DIR).mkdir(parents=True, exist_ok=True)
     (out / SCENARIO_FILE).write_text(scenario_toml)
 

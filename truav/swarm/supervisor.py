@@ -65,7 +65,7 @@ from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, OutDirError, check_reco
 from truav.swarm.summary import SwarmEnd, _print_central  # noqa: F401 - _print_central: tests
 from truav.swarm.swarm_options import (  # noqa: F401 - re-exported: `down`, bench and tests take them from here
     AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S, ROUTER_START_TIMEOUT_S, Outcome, SwarmOptions,
-    agent_groups, group_name, process_of)
+    agent_groups, default_out_dir, group_name, process_of)
 from truav.swarm.swarm_watch import SwarmWatch
 from world.world_process import WorldOptions
 
@@ -109,7 +109,7 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
     """Run a swarm to its end (or Ctrl-C, SIGTERM, SIGHUP), stop every process it started, summarise.
 
     Returns the exit code (see the module docstring)."""
-    out = Path(opts.out or f"runs/swarm-{opts.run}")
+    out = opts.out_dir
     try:  # every check that needs no process, before anything starts or any file is touched
         if opts.record:
             check_record_path(opts.record, opts.force)
@@ -298,7 +298,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
 
     def _announce(self) -> None:
         opts, ep = self.opts, self.endpoint
-        default_out = Path(f"runs/swarm-{opts.run}")
+        default_out = default_out_dir(opts.run)
         where = "" if self.out == default_out else f" --out {self.out}"
         external = ", ".join(f"uav/{i}" for i in opts.external)
         print(f"swarm '{opts.run}' ({opts.scheme}): router {ep}, world + {self.n - len(opts.external)} agents"

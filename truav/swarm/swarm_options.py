@@ -4,6 +4,7 @@ supervisor's timing constants and the names of its agent processes."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from agents.agent_process import AgentOptions
 from agents.central_process import ControllerOptions
@@ -57,6 +58,7 @@ class SwarmOptions:
     qtable: str | None = None
     greedy: bool = False
     out: str | None = None
+    """Where the run's files go; None: :attr:`out_dir`'s default, runs/swarm-<run>."""
     listen: str | None = None
     plot: bool = True
     quiet: bool = False
@@ -116,6 +118,11 @@ class SwarmOptions:
     external_wait_s: float = DEFAULT_EXTERNAL_WAIT_S
     """How long to wait for the external UAVs' liveliness tokens before tick 0; past it the run fails."""
 
+    @property
+    def out_dir(self) -> Path:
+        """The run's directory: ``out``, or runs/swarm-<run> by default."""
+        return Path(self.out) if self.out else default_out_dir(self.run)
+
 
 def agent_groups(n: int, per_process: int, external: tuple[int, ...] = ()) -> list[list[int]]:
     """UAV ids 0..n-1 in consecutive groups of ``per_process``, one process each; ``external`` UAVs
@@ -157,6 +164,11 @@ class Outcome:
 
     def exit_code(self) -> int:
         return 1 if self.failures else 130 if self.interrupted_by else 0
+
+
+def default_out_dir(run: str) -> Path:
+    """Where `truav-swarm up --run RUN` writes without --out."""
+    return Path(f"runs/swarm-{run}")
 
 
 def process_of(who) -> str:
