@@ -285,6 +285,8 @@ ROWS = [
     ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
     ("certs-out-under-a-file", "swarm", "certs --out /dev/null/creds", 2, "--out"),
     # an --out mistake is told before the SUMO trace is built (minutes the first time), not after
+    # a plan's process faults would be dropped by every receiver of `faults`: refused, not sent without them
+    ("faults-crash-plan", "swarm", "faults --run demo --plan {uav99_toml}", 2, "--plan"),
     ("up-sumo-out-holds-a-run", "swarm", "up --mobility sumo --out {earlier_run}", 2, "--out"),
 ]
 

@@ -123,14 +123,19 @@ def cmd_down(args) -> int:
 def cmd_faults(args) -> int:
     check_in_file("--plan", args.plan)
     plan = load_plan(args.plan)
+    on_processes = sorted({f.kind for f in plan.faults if f not in plan.link_faults})
+    if on_processes:  # sent along, they would be dropped by every receiver: the user would think them applied
+        raise UsageError(f"--plan {args.plan}: {' and '.join(on_processes)} faults act on processes, which only "
+                         f"`truav-swarm up --fault-plan` schedules; `faults` replaces a running swarm's link faults "
+                         f"(remove them from this plan)")
     part_creds(args, "supervisor")
     with Bus("supervisor", args.run, config_from_args(args)) as bus:
         key = keys.control(args.run, CONTROL_FAULTS)
         if not bus.await_subscribers(key, DOWN_LISTENER_WAIT_S):
             log.warning("no process of run %s listens for fault plans (yet); sending it anyway", args.run)
         bus.publish(key, schema.Control(command=CONTROL_FAULTS, args=plan.to_dict()))
-    print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run} "
-          f"(crashes and freezes are scheduled by `truav-swarm up --fault-plan`)")
+    print(f"sent a plan of {len(plan.link_faults)} link fault(s) to run {args.run}"
+          + (" (an empty plan: every link fault of the run is cleared)" if not plan.link_faults else ""))
     return 0
 
 
