@@ -141,6 +141,8 @@ def nothing_starts(monkeypatch, tmp_path):
         monkeypatch.setattr(module, name, trap)
 
 
+DEPLOYMENT = Path(__file__).resolve().parents[1] / "deploy" / "three-hosts.toml"
+
 # (id, main, argv, exit code, what stderr must name). {x} is a file of the `files` fixture.
 ROWS = [
     # truav train / config / evaluate
@@ -284,6 +286,7 @@ ROWS = [
     ("replay-ctl-bad-run", "swarm", "replay-ctl --run a.b status", 2, "--run"),
     ("replay-ctl-step-zero", "swarm", "replay-ctl step 0", 2, "N"),
     ("certs-out-under-a-file", "swarm", "certs --out /dev/null/creds", 2, "--out"),
+    ("deploy-configs-out-under-a-file", "swarm", f"deploy-configs {DEPLOYMENT} --out {{a_file}}/x", 2, "--out"),
     # an --out mistake is told before the SUMO trace is built (minutes the first time), not after
     # a plan's process faults would be dropped by every receiver of `faults`: refused, not sent without them
     ("faults-crash-plan", "swarm", "faults --run demo --plan {uav99_toml}", 2, "--plan"),

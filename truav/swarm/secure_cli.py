@@ -20,6 +20,7 @@ from pathlib import Path
 
 from truav.bus import keys, security
 from truav.bus.rejections import REJECTED_METRIC  # the world's step-metrics key, read back here
+from truav.checks import check_out_dir
 from truav.cli_config import UsageError
 from truav.cli_args import positive_int
 from world.world_stats import uav_metrics  # the world's per-UAV step-metrics values, read back here
@@ -41,9 +42,7 @@ def _table(args) -> tuple[tuple[security.Grant, ...], tuple[str, ...]]:
 
 
 def _empty_out(args) -> Path:
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} is a file, not a directory")
+    out = check_out_dir("--out", args.out)  # a directory that exists or can be made
     if out.exists() and any(out.iterdir()) and not args.force:
         raise UsageError(f"--out {out} is not empty; choose another directory or pass --force")
     return out
