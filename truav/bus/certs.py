@@ -71,13 +71,14 @@ def make_leaf(ca_key, ca_cert, cn: str, hosts: Sequence[str] = DEFAULT_HOSTS, *,
         except ValueError:
             sans.append(x509.DNSName(h))
     usage = [ExtendedKeyUsageOID.CLIENT_AUTH] + ([ExtendedKeyUsageOID.SERVER_AUTH] if server else [])
-    cert = (x509.CertificateBuilder().subject_name(_name(cn)).issuer_name(ca_cert.subject)
-            .public_key(key.public_key()).serial_number(x509.random_serial_number())
-            .not_valid_before(not_before or now - dt.timedelta(minutes=5))
-            .not_valid_after(not_after or ca_cert.not_valid_after_utc)
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(x509.SubjectAlternativeName(sans), critical=False)
-            .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
+    builder = (x509.CertificateBuilder().subject_name(_name(cn)).issuer_name(ca_cert.subject)
+               .public_key(key.public_key()).serial_number(x509.random_serial_number())
+               .not_valid_before(not_before or now - dt.timedelta(minutes=5))
+               .not_valid_after(not_after or ca_cert.not_valid_after_utc)
+               .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True))
+    if sans:  # a client certificate names no host; cryptography >= 51 refuses an empty SAN extension
+        builder = builder.add_extension(x509.SubjectAlternativeName(sans), critical=False)
+    cert = (builder.add_extension(x509.ExtendedKeyUsage(usage), critical=False)
             .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
             .sign(ca_key, hashes.SHA256()))
     return key, cert
