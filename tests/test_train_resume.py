@@ -33,7 +33,7 @@ class _SigintAfter:
     def __init__(self, n: int) -> None:
         self.n, self.seen, self.sent = n, 0, False
 
-    def __call__(self, total, desc, quiet):
+    def __call__(self, total, desc, quiet, initial=0):
         return self
 
     def __enter__(self):
@@ -65,7 +65,15 @@ def test_interrupted_then_resumed_training_equals_an_uninterrupted_one(tmp_path,
     # The same command is refused with a pointer to --resume, not silently restarted.
     assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(cut)]) == 2
     assert "--resume" in capsys.readouterr().err
-    assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(cut), "--resume"]) == 0
+    bar = _SigintAfter(10 ** 9)  # never fires: records where the resumed run's bar starts
+    starts = []
+    with monkeypatch.context() as m:
+        m.setattr(truav.cli, "progress_bar", lambda total, desc, quiet, initial=0: starts.append(initial) or bar)
+        assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(cut), "--resume"]) == 0
+    resumed_from = starts[0]  # env-episodes the checkpoints hold: the bar goes on from there, not from 0
+    assert len(starts) == 1 and 0 < resumed_from < 2 * 30 and bar.seen == 2 * 30 - resumed_from
+    out = capsys.readouterr().out
+    assert f"over the {2 * 30 - resumed_from:,} env-episodes after the resume" in out, out
     for name in ("metrics.csv", "qtables.npz"):
         assert (cut / name).read_bytes() == (whole / name).read_bytes(), name
     assert not (cut / "resume").exists()  # finished: nothing left to resume

@@ -52,16 +52,27 @@ def format_table(rows: dict[str, dict[str, np.ndarray]]) -> str:
     return "\n".join(lines)
 
 
-def progress_bar(total: int, desc: str, quiet: bool):
+def progress_bar(total: int, desc: str, quiet: bool, initial: int = 0):
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="ep", disable=quiet, dynamic_ncols=True,
+    return tqdm(total=total, initial=initial, desc=desc, unit="ep", disable=quiet, dynamic_ncols=True,
                 bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} env-episodes [{elapsed}<{remaining}{postfix}]")
 
 
+def _compile_first(extra_kernels: list[str] = ()) -> None:
+    """Compile the kernels before the progress bar (else it sits at 0 for a minute, its ETA counting the
+    compiler): the shared ones once per machine (truav.warmup), ``extra_kernels`` named if they are cold."""
+    from truav import kernel_cache, warmup  # here: they import numba, which `truav --help` does without
+    warmup.ensure_compiled(lambda line: print(line, flush=True))
+    note = kernel_cache.cold_start_note(list(extra_kernels)) if extra_kernels else None
+    if note:
+        print(note, flush=True)
+
+
 def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet, start_pos=None, ckpt=None,
-                      chunks=None):
+                      chunks=None, done=0):
+    """run_parallel under a progress bar; ``done``: env-episodes a resumed run had finished before."""
     from truav.trainer import run_parallel
-    with progress_bar(len(seeds) * episodes, desc, quiet) as bar:
+    with progress_bar(len(seeds) * episodes, desc, quiet, initial=done) as bar:
         def on_progress(n, live):
             bar.update(n)
             bar.set_postfix_str("cov {coverage_pct:.1f}% pdr {pdr:.3f} delay {delay_ms:.0f}ms "
@@ -113,22 +124,19 @@ def cmd_train(args) -> int:
     else:
         out = Path(out_arg)
     workers = len(chunks)
+    done_before = _resumed_episodes(out, chunks) if args.resume else 0
     ckpt = None if scheme not in RESUMABLE else Checkpointing(
-        save=lambda i, data: runio.write_chunk_state(out, i, data),
+        every_s=args.checkpoint_every, save=lambda i, data: runio.write_chunk_state(out, i, data),
         load=(lambda i: runio.read_chunk_state(out, i)) if args.resume else (lambda i: None))
     print(f"{'resuming' if args.resume else 'training'} {scheme}: {len(seeds)} seeds x {episodes} episodes x "
           f"{cfg.scenario.steps_per_episode} steps at {cfg.scenario.uav_speed_mps:g} m/s"
           + (" on SUMO traffic" if cfg.scenario.mobility == "sumo" else "") + f" on {workers} worker(s) "
           f"-> {out}", flush=True)
-    from truav import kernel_cache  # here: it imports numba, which `truav --help` does without
-    note = kernel_cache.cold_start_note(kernel_cache.TRAIN_KERNELS
-                                        + (["agents/sac_kernels.py"] if scheme == "central" else []))
-    if note:  # else the progress bar sits at 0 for most of a minute without a word
-        print(note, flush=True)
+    _compile_first(["agents/sac_kernels.py"] if scheme == "central" else [])
     t0 = time.perf_counter()
     try:
         result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
-                                   chunks=chunks)
+                                   chunks=chunks, done=done_before)
     except KeyboardInterrupt:
         if ckpt is not None:  # a second Ctrl-C: the checkpoints written so far stand
             raise
@@ -153,8 +161,9 @@ def cmd_train(args) -> int:
     window = min(500, episodes)
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
                        title=f"{'TRUAV' if scheme == 'truav' else 'centralized SAC'} at {cfg.scenario.uav_speed_mps:g} m/s")
-    steps = len(seeds) * episodes * cfg.scenario.steps_per_episode
-    print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s)")
+    steps = (len(seeds) * episodes - done_before) * cfg.scenario.steps_per_episode  # this run's own, not the resumed
+    print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s"
+          + (f" over the {len(seeds) * episodes - done_before:,} env-episodes after the resume)" if done_before else ")"))
     last = {k: np.nanmean(v[-window:], axis=0) for k, v in result.metrics.items()}
     print(f"last {window} episodes, mean ± 95% interval over seeds:")
     print(format_table({scheme: last}))
@@ -199,6 +208,16 @@ def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[li
     return chunks
 
 
+def _resumed_episodes(out: Path, chunks: list[list[int]]) -> int:
+    """Env-episodes (seeds x episodes) the checkpoints of a resumed training had finished."""
+    from truav.trainer import saved_episodes
+    total = 0
+    for index, chunk in enumerate(chunks):
+        saved = runio.read_chunk_state(out, index)
+        total += 0 if saved is None else saved_episodes(saved) * len(chunk)
+    return total
+
+
 def cmd_evaluate(args) -> int:
     run = Path(args.run)
     if not run.exists():  # not "its parent has no config.toml": the path the user gave
@@ -215,6 +234,7 @@ def cmd_evaluate(args) -> int:
     # A persist swarm goes on from its station, as in training; a fresh random
     # deployment would put its agents in states they never visited (docs/reproduction.md).
     start = runio.read_uav_positions(run) if cfg.scenario.uav_start == "persist" else None
+    _compile_first()
     rows = {}
     for kind in ["truav"] + list(args.against):
         result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
@@ -259,6 +279,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--resume", action="store_true",
                     help="continue the interrupted training in --out (Ctrl-C checkpoints it at the episodes' end) "
                          "exactly as if it had not stopped; same options only (scheme truav)")
+    tr.add_argument("--checkpoint-every", type=positive_float, default=runio.CHECKPOINT_EVERY_S, metavar="SECONDS",
+                    help="seconds between checkpoints of a running training (default %(default)g); Ctrl-C, "
+                         "SIGTERM and SIGHUP also checkpoint, at the episode's end")
     tr.add_argument("--quiet", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 

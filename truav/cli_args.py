@@ -15,12 +15,14 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
 from typing import Callable, NoReturn
 
 from truav.checks import (  # noqa: F401  (re-exported: the command lines take their checks from here)
     check_endpoint, check_in_file, check_out_dir, check_out_file, make_dir)
 from truav import options
+from truav.lifecycle import exit_code_for, forget_stop_signal, note_stop_signal, signal_name, signals_handled, stopped_by
 from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
 
 MAX_SEED = 2**63 - 1
@@ -34,24 +36,43 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _stop_as_ctrl_c(signum: int, frame) -> None:
+    """SIGTERM and SIGHUP stop a command as Ctrl-C does (schedulers send SIGTERM, a closed terminal SIGHUP):
+    the handler in force for SIGINT runs (the trainer's: checkpoint at the episode's end), else
+    KeyboardInterrupt."""
+    note_stop_signal(signum)
+    handler = signal.getsignal(signal.SIGINT)
+    if callable(handler) and handler is not signal.default_int_handler:
+        handler(signum, frame)
+    else:
+        raise KeyboardInterrupt
+
+
+def _signal_exit(code: int) -> int:
+    """130 (a stop) becomes the code of the signal that stopped the command: 143 for SIGTERM, 129 for SIGHUP."""
+    return exit_code_for(stopped_by()) if code == 130 and stopped_by() is not None else code
+
+
 def run_main(prog: str, body: Callable[[], int], say_interrupted: bool = True) -> int:
-    """Run a command: a UserError becomes one line + exit 2, Ctrl-C exit 130, and a closed
-    stdout (``| head``) ends quietly, as Unix tools do."""
-    try:
-        return body()
-    except UserError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        if say_interrupted:
-            print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:
-        # The reader went away: point stdout at /dev/null so the interpreter's final flush
-        # does not raise again (the recipe of the Python docs, "Note on SIGPIPE").
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return EXIT_BROKEN_PIPE
+    """Run a command: a UserError becomes one line + exit 2, Ctrl-C exit 130 (SIGTERM 143, SIGHUP 129),
+    and a closed stdout (``| head``) ends quietly, as Unix tools do."""
+    forget_stop_signal()
+    with signals_handled((signal.SIGTERM, signal.SIGHUP), _stop_as_ctrl_c):
+        try:
+            return _signal_exit(body())
+        except UserError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        except KeyboardInterrupt:
+            if say_interrupted:
+                print(f"{prog}: stopped by {signal_name(stopped_by() or signal.SIGINT)}", file=sys.stderr)
+            return _signal_exit(130)
+        except BrokenPipeError:
+            # The reader went away: point stdout at /dev/null so the interpreter's final flush
+            # does not raise again (the recipe of the Python docs, "Note on SIGPIPE").
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
 
 
 # -- argparse types ------------------------------------------------------------------

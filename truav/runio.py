@@ -26,6 +26,9 @@ import numpy as np
 from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
 
+CHECKPOINT_EVERY_S = 60.0
+"""Seconds between the checkpoints of a running `truav train` (its --checkpoint-every)."""
+
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
 QTABLE_FILE = "qtables.npz"

@@ -11,6 +11,7 @@ number.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import pickle
 import queue as queue_mod
 import signal
@@ -25,6 +26,8 @@ from agents.controller import TruavController
 from agents.policies import HoverController, RandomController
 from truav.config import Config
 from truav.driver import run_episodes
+from truav.runio import CHECKPOINT_EVERY_S
+from truav.lifecycle import STOP_SIGNALS, die_with_parent, note_stop_signal
 
 CONTROLLERS = ("truav", "random", "hover", "patrol", "central", "patrol_ctrl")
 LIVE_METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j")
@@ -63,7 +66,7 @@ class Checkpointing:
 
     save: Callable[[int, bytes], None]
     load: Callable[[int], bytes | None]
-    every_s: float = 60.0
+    every_s: float = CHECKPOINT_EVERY_S
     stop: Any = None
 
 
@@ -97,6 +100,11 @@ def _state_bytes(episode: int, world, controller, history: dict) -> bytes:
                             protocol=pickle.HIGHEST_PROTOCOL)
     finally:
         world.draw_map = draw_map
+
+
+def saved_episodes(saved: bytes) -> int:
+    """Episodes a chunk checkpoint (checked by :func:`check_saved_chunk`) had finished for each seed."""
+    return pickle.loads(saved)["episode"]
 
 
 def check_saved_chunk(saved: bytes, n_seeds: int) -> str | None:
@@ -162,10 +170,12 @@ def _live(summary: dict[str, np.ndarray]) -> dict[str, float]:
             for k in LIVE_METRICS}
 
 
-def _worker(index, kind, cfg, seeds, episodes, train, q, start_pos, out, ckpt=None):
+def _worker(parent_pid, index, kind, cfg, seeds, episodes, train, q, start_pos, out, ckpt=None):
+    die_with_parent(parent_pid)
     try:
-        if ckpt is not None:  # Ctrl-C reaches the whole process group: the parent sets ckpt.stop
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if ckpt is not None:  # Ctrl-C (systemd's and Slurm's SIGTERM too) reaches the whole group: the parent sets ckpt.stop
+            for sig in STOP_SIGNALS:
+                signal.signal(sig, signal.SIG_IGN)
         if kind == "truav":  # the cores are shared out as processes (run_parallel)
             from agents.fused import set_threads
             set_threads(1)
@@ -184,26 +194,29 @@ def split(seq: list, parts: int) -> list[list]:
 
 
 class _StopOnSigint:
-    """While a checkpointed run lasts, the first SIGINT sets ``stop`` (every chunk checkpoints at its
-    episode's end and ends); a second one interrupts at once, as usual."""
+    """While a checkpointed run lasts, the first SIGINT, SIGTERM or SIGHUP sets ``stop`` (every chunk
+    checkpoints at its episode's end and ends); a second one interrupts at once, as usual."""
 
     def __init__(self, stop) -> None:
-        self.stop, self.previous = stop, None
+        self.stop, self.previous = stop, {}
 
     def __enter__(self):
-        # Not in a thread, nor where SIGINT is ignored (started in the background, nohup): that stays so.
-        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-            self.previous = signal.signal(signal.SIGINT, self._on_sigint)
+        if threading.current_thread() is threading.main_thread():  # Python's handlers run there only
+            for sig in STOP_SIGNALS:
+                # SIGINT ignored (started in the background, nohup) stays ignored.
+                if sig != signal.SIGINT or signal.getsignal(sig) is not signal.SIG_IGN:
+                    self.previous[sig] = signal.signal(sig, self._on_signal)
         return self
 
-    def _on_sigint(self, signum, frame) -> None:
+    def _on_signal(self, signum, frame) -> None:
+        note_stop_signal(signum)
         if self.stop.is_set():
             raise KeyboardInterrupt
         self.stop.set()
 
     def __exit__(self, *exc) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGINT, self.previous)
+        for sig, previous in self.previous.items():
+            signal.signal(sig, previous)
 
 
 def _merge(seeds: list[int], ordered: list[RunResult]) -> RunResult:
@@ -267,7 +280,7 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
     out = ctx.Queue()
     bounds = np.cumsum([0] + [len(c) for c in chunks])
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi],
+                         args=(os.getpid(), i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi],
                                None if start_pos is None else start_pos[lo:hi], out, ckpt))
              for i, (c, lo, hi) in enumerate(zip(chunks, bounds[:-1], bounds[1:]))]
     for p in procs:

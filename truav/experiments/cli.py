@@ -154,6 +154,8 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
         from truav import sumo_traffic
         for cell in todo:  # cached after the first of a scenario
             sumo_traffic.checked_trace(cell.config(cfg), say=lambda line: print(line, flush=True))
+    from truav.warmup import ensure_compiled
+    ensure_compiled(lambda line: print(line, flush=True))  # before the bar: its ETA counts episodes, not the compiler
     from tqdm import tqdm
     t0 = time.perf_counter()
     finished = [0]

@@ -12,6 +12,7 @@ process, which writes the cell files.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import queue as queue_mod
 from pathlib import Path
 from typing import Callable
@@ -20,13 +21,15 @@ from truav.config import Config
 from truav.experiments.cells import (  # noqa: F401  (re-exported: the cell is named from here too)
     CELLS_DIR, UNUSED_SECTIONS, Cell, CellResult, cell_path, load_cell, run_cell, save_cell, single_threaded)
 from truav.experiments.ray_executor import run_cells_on_ray
+from truav.lifecycle import die_with_parent
 from truav.seeding import EVAL_SEED_OFFSET  # noqa: F401
 
 COST_ORDER = {"central": 0, "truav": 1, "patrol": 2, "patrol_ctrl": 3}
 """Expensive schemes start first, so the last cells running are the short ones."""
 
 
-def _worker(base: Config, out: Path, tasks, results) -> None:
+def _worker(parent_pid: int, base: Config, out: Path, tasks, results) -> None:
+    die_with_parent(parent_pid)
     single_threaded()
     while True:
         try:
@@ -75,7 +78,7 @@ def run_cells(base: Config, out: Path, cells: list[Cell], workers: int,
         tasks.put(cell)
     for _ in range(workers):
         tasks.put(None)
-    procs = [ctx.Process(target=_worker, args=(base, out, tasks, results), daemon=True) for _ in range(workers)]
+    procs = [ctx.Process(target=_worker, args=(os.getpid(), base, out, tasks, results), daemon=True) for _ in range(workers)]
     for p in procs:
         p.start()
     done = 0

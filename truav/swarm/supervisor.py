@@ -10,8 +10,8 @@ process it started, by PID, and prints a summary; it also draws
 gone and stop by themselves (:mod:`truav.lifecycle`).
 
 Honest outcomes.  The exit code is 0 only when the world ran all its
-episodes; 130 when the user stopped the run (Ctrl-C, SIGTERM, SIGHUP,
-`truav-swarm down`); 2 when it could not start because of a user mistake;
+episodes; 130 when the user stopped the run (Ctrl-C or
+`truav-swarm down`; 143 for SIGTERM, 129 for SIGHUP); 2 when it could not start because of a user mistake;
 1 when something went wrong: an agent or the world could not start, the
 router died and could not be restarted (or died with ``--restart never``), the
 recorder died, a process died more than ``--restart-limit`` times, the recorder
@@ -47,6 +47,7 @@ from agents.agent_process import AgentOptions
 from agents.central_process import ControllerOptions
 from recorder.process import recorder_argv
 from truav import kernel_cache
+from truav.warmup import ensure_compiled
 from truav.bus import guard, transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
@@ -124,6 +125,11 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         return 2
     interrupts = _Interrupts()
     with signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), interrupts):
+        try:  # before any process starts: else the world and every agent compile the same kernels side by side
+            ensure_compiled(lambda line: print(line, flush=True))
+        except KeyboardInterrupt:
+            print(f"interrupted ({interrupts.by or 'Ctrl-C'}) while compiling; nothing was started", flush=True)
+            return Outcome(interrupted_by=interrupts.by or "Ctrl-C").exit_code()
         return _Swarm(cfg, opts, out, plan, interrupts).run()
 
 

@@ -3,6 +3,7 @@ supervisor's timing constants and the names of its agent processes."""
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from agents.central_process import ControllerOptions
 from truav.bus import keys
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.faults import FaultPlan
-from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, exit_code_for
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
 from recorder.record_modes import RecordModes
@@ -163,7 +164,11 @@ class Outcome:
         return "failed" if self.failures else "interrupted" if self.interrupted_by else "ok"
 
     def exit_code(self) -> int:
-        return 1 if self.failures else 130 if self.interrupted_by else 0
+        if self.failures:
+            return 1
+        if not self.interrupted_by:
+            return 0
+        return {"SIGTERM": exit_code_for(signal.SIGTERM), "SIGHUP": exit_code_for(signal.SIGHUP)}.get(self.interrupted_by, 130)
 
 
 def default_out_dir(run: str) -> Path:
