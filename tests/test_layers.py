@@ -49,6 +49,7 @@ LAYERS: list[tuple[str, int]] = [
     ("world",                           BASE),
     ("recorder",                        BASE),
     ("truav.errors",                    BASE),
+    ("truav.stopping",                  BASE),
     ("truav.actions",                   BASE),
     ("truav.checks",                    BASE),
     ("truav.seeding",                   BASE),
@@ -98,6 +99,7 @@ LAYERS: list[tuple[str, int]] = [
     # -- 4 analysis / drivers: pure or file I/O, no zenoh --------------------------------------
     ("truav.driver",                    ANALYSIS),
     ("truav.trainer",                   ANALYSIS),
+    ("truav.warmup",                    ANALYSIS),
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
     ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces

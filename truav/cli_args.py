@@ -22,7 +22,8 @@ from typing import Callable, NoReturn
 from truav.checks import (  # noqa: F401  (re-exported: the command lines take their checks from here)
     check_endpoint, check_in_file, check_out_dir, check_out_file, make_dir)
 from truav import options
-from truav.lifecycle import exit_code_for, forget_stop_signal, note_stop_signal, signal_name, signals_handled, stopped_by
+from truav.lifecycle import signals_handled
+from truav.stopping import exit_code_for, forget_stop_signal, note_stop_signal, signal_name, stopped_by
 from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
 
 MAX_SEED = 2**63 - 1

@@ -27,7 +27,7 @@ from agents.policies import HoverController, RandomController
 from truav.config import Config
 from truav.driver import run_episodes
 from truav.runio import CHECKPOINT_EVERY_S
-from truav.lifecycle import STOP_SIGNALS, die_with_parent, note_stop_signal
+from truav.stopping import STOP_SIGNALS, die_with_parent, note_stop_signal
 
 CONTROLLERS = ("truav", "random", "hover", "patrol", "central", "patrol_ctrl")
 LIVE_METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j")

@@ -21,7 +21,7 @@ from truav.config import Config
 from truav.experiments.cells import (  # noqa: F401  (re-exported: the cell is named from here too)
     CELLS_DIR, UNUSED_SECTIONS, Cell, CellResult, cell_path, load_cell, run_cell, save_cell, single_threaded)
 from truav.experiments.ray_executor import run_cells_on_ray
-from truav.lifecycle import die_with_parent
+from truav.stopping import die_with_parent
 from truav.seeding import EVAL_SEED_OFFSET  # noqa: F401
 
 COST_ORDER = {"central": 0, "truav": 1, "patrol": 2, "patrol_ctrl": 3}

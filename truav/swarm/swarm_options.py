@@ -12,7 +12,8 @@ from agents.central_process import ControllerOptions
 from truav.bus import keys
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from truav.faults import FaultPlan
-from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S, exit_code_for
+from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.stopping import exit_code_for
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
 from recorder.record_modes import RecordModes
