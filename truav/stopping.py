@@ -48,7 +48,12 @@ def die_with_parent(parent_pid: int) -> None:
     """Have the kernel SIGKILL this process when its parent dies, however the parent dies (SIGKILL and the
     OOM killer included): a worker must not go on training and writing checkpoints for no one. Call it
     first thing in a forked worker, with the parent's PID read before the fork. Linux only; elsewhere
-    the parent's own cleanup stays the only guard."""
+    the parent's own cleanup stays the only guard.
+
+    It also gives SIGTERM and SIGHUP back their default action: a forked worker inherits the parent's
+    Python handlers (stop as on Ctrl-C), and the parent ends its workers with SIGTERM."""
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)

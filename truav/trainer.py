@@ -303,7 +303,7 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
                 raise RuntimeError(f"worker {msg[1]} failed: {msg[2]}")
     finally:
         for p in procs:
-            if p.is_alive():
-                p.terminate()
+            if p.is_alive():  # a checkpointing worker ignores SIGTERM (see _worker); its checkpoints are atomic
+                p.kill()
             p.join(timeout=5)
     return _merge(seeds, [results[i] for i in range(len(procs))])
