@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -173,6 +174,10 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
                              executor=args.executor, address=args.address)
         except RuntimeError as exc:
             raise UsageError(f"{exc} (finished cells are kept; re-run the same command to resume)") from None
+        except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: run_main names the signal and exits 128 + it
+            print(f"stopped: {finished[0]} of {len(todo)} cells finished and kept in {out}; the same command "
+                  f"runs the rest", file=sys.stderr, flush=True)
+            raise
     return time.perf_counter() - t0
 
 
