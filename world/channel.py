@@ -15,6 +15,11 @@ Averaging the rate rather than the dB loss keeps a rarely-LoS link useful in
 expectation, as an ergodic capacity does. The functions are compiled with
 numba so the world's step kernels call the very same code; `ChannelParams`
 carries the config into them.
+
+This is the paper's model (channel.model = "paper"). The other models of
+world/channel_models.py reach the kernels as rate tables over horizontal
+distance (`tabulated`, `backhaul_rate`, `relay_rate`), built by
+world.network.relay_params; with "paper" those are empty and unused.
 """
 
 from __future__ import annotations
@@ -39,9 +44,14 @@ class ChannelParams(NamedTuple):
     eta_los_db: float
     eta_nlos_db: float
     a2a_los_probability: float
+    tabulated: bool = False  # a model other than the paper's: the two tables below give the rates
+    table_step_m: float = 0.5
+    backhaul_rate: np.ndarray = np.empty(0)  # UAV -> RSU rate (bit/s) every table_step_m of horizontal distance
+    relay_rate: np.ndarray = np.empty(0)  # UAV <-> UAV rate (bit/s), likewise
 
     @classmethod
     def from_config(cls, ch: ChannelConfig) -> "ChannelParams":
+        """The paper model's parameters (world.network.relay_params adds the tables of the others)."""
         return cls(ch.carrier_hz, ch.bandwidth_hz, ch.noise_w, ch.antenna_gain_dbi, ch.los_a, ch.los_b,
                    ch.eta_los_db, ch.eta_nlos_db, ch.a2a_los_probability)
 
@@ -90,3 +100,12 @@ def a2a_rate(distance_m, tx_w, p):
     """Expected rate (bit/s) of a UAV-to-UAV link at equal altitude; its LoS
     probability is the configured air-to-air value, not the elevation model."""
     return _two_state_rate(p.a2a_los_probability, fspl_db(distance_m, p.carrier_hz), tx_w, p)
+
+
+@njit(cache=True)
+def table_rate(table, step_m, horizontal_m):
+    """A rate table sampled every step_m, linearly interpolated (held beyond its end)."""
+    x = min(horizontal_m / step_m, table.size - 2.0)
+    i = int(x)
+    frac = x - i
+    return table[i] * (1.0 - frac) + table[i + 1] * frac
