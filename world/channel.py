@@ -17,9 +17,10 @@ numba so the world's step kernels call the very same code; `ChannelParams`
 carries the config into them.
 
 This is the paper's model (channel.model = "paper"). The other models of
-world/channel_models.py reach the kernels as rate tables over horizontal
-distance (`tabulated`, `backhaul_rate`, `relay_rate`), built by
-world.network.relay_params; with "paper" those are empty and unused.
+world/channel_models.py reach the kernels as `RateTables` (rates over
+horizontal distance, built by world.network.relay_params) in its place:
+`backhaul_rate` and `relay_rate` pick the formula by the type of the
+parameters at compile time, so the paper's kernels are the code they were.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from truav.config import ChannelConfig
 
@@ -44,16 +46,19 @@ class ChannelParams(NamedTuple):
     eta_los_db: float
     eta_nlos_db: float
     a2a_los_probability: float
-    tabulated: bool = False  # a model other than the paper's: the two tables below give the rates
-    table_step_m: float = 0.5
-    backhaul_rate: np.ndarray = np.empty(0)  # UAV -> RSU rate (bit/s) every table_step_m of horizontal distance
-    relay_rate: np.ndarray = np.empty(0)  # UAV <-> UAV rate (bit/s), likewise
 
     @classmethod
     def from_config(cls, ch: ChannelConfig) -> "ChannelParams":
-        """The paper model's parameters (world.network.relay_params adds the tables of the others)."""
+        """The paper model's parameters."""
         return cls(ch.carrier_hz, ch.bandwidth_hz, ch.noise_w, ch.antenna_gain_dbi, ch.los_a, ch.los_b,
                    ch.eta_los_db, ch.eta_nlos_db, ch.a2a_los_probability)
+
+
+class RateTables(NamedTuple):
+    """A model other than the paper's, for the kernels: rates (bit/s) sampled every step_m of horizontal distance."""
+    step_m: float
+    backhaul: np.ndarray  # UAV -> RSU
+    relay: np.ndarray  # UAV <-> UAV
 
 
 @njit(cache=True)
@@ -109,3 +114,31 @@ def table_rate(table, step_m, horizontal_m):
     i = int(x)
     frac = x - i
     return table[i] * (1.0 - frac) + table[i + 1] * frac
+
+
+def _tabulated(ch) -> bool:
+    return isinstance(ch, types.BaseNamedTuple) and ch.instance_class is RateTables
+
+
+def backhaul_rate(horizontal_m, height_diff_m, tx_w, ch):
+    """UAV -> RSU rate (bit/s) under ch, ChannelParams or RateTables (compiled code only)."""
+    raise NotImplementedError("called from numba kernels only")
+
+
+def relay_rate(distance_m, tx_w, ch):
+    """UAV <-> UAV rate (bit/s) under ch, ChannelParams or RateTables (compiled code only)."""
+    raise NotImplementedError("called from numba kernels only")
+
+
+@overload(backhaul_rate)
+def _backhaul_rate(horizontal_m, height_diff_m, tx_w, ch):
+    if _tabulated(ch):
+        return lambda horizontal_m, height_diff_m, tx_w, ch: table_rate(ch.backhaul, ch.step_m, horizontal_m)
+    return lambda horizontal_m, height_diff_m, tx_w, ch: a2g_rate(horizontal_m, height_diff_m, tx_w, ch)
+
+
+@overload(relay_rate)
+def _relay_rate(distance_m, tx_w, ch):
+    if _tabulated(ch):
+        return lambda distance_m, tx_w, ch: table_rate(ch.relay, ch.step_m, distance_m)
+    return lambda distance_m, tx_w, ch: a2a_rate(distance_m, tx_w, ch)

@@ -29,7 +29,7 @@ from numba import njit
 from truav.config import Config
 from world import packets
 from world import channel_models
-from world.channel import SPEED_OF_LIGHT, ChannelParams, a2a_rate, a2g_rate, table_rate
+from world.channel import SPEED_OF_LIGHT, ChannelParams, RateTables, a2g_rate, backhaul_rate, relay_rate
 
 # Columns of the per-UAV output (B, U, UAV_COLUMNS).
 IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST, EXCLUSIVE = range(7)
@@ -71,7 +71,7 @@ def rsu_positions(cfg: Config) -> np.ndarray:
     return np.array(cfg.scenario.rsu_intersections, dtype=np.float64).reshape(-1, 2) * cfg.roads.block_m
 
 
-def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
+def relay_params(cfg: Config) -> tuple[ChannelParams | RateTables, RelayParams]:
     sc, ch = cfg.scenario, cfg.channel
     cp = ChannelParams.from_config(ch)
     # The uplink rate is tabulated over horizontal distance (linear interpolation
@@ -85,17 +85,17 @@ def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
         # a longer hop, always (los_a, los_b >= 0 by the config's bounds).
         nearest_only = height >= 0.0 and ch.eta_nlos_db >= ch.eta_los_db
     else:
-        table, cp = _model_tables(cfg, samples, cp)
+        table, cp = _model_tables(cfg, samples)
         # A rate that never rises with distance (and propagation that grows) makes the nearest RSU's hop the shortest.
-        nearest_only = bool(np.all(np.diff(cp.backhaul_rate) <= 0.0))
+        nearest_only = bool(np.all(np.diff(cp.backhaul) <= 0.0))
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
                        cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only,
                        float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors))
 
 
-def _model_tables(cfg: Config, uplink_m: np.ndarray, cp: ChannelParams) -> tuple[np.ndarray, ChannelParams]:
-    """Uplink rate at uplink_m, and cp with the backhaul and relay rate tables, of a model other
-    than the paper's (world/channel_models.py): over every horizontal distance within the area."""
+def _model_tables(cfg: Config, uplink_m: np.ndarray) -> tuple[np.ndarray, RateTables]:
+    """Uplink rate at uplink_m, and the backhaul and relay rate tables over every horizontal
+    distance within the area, of a model other than the paper's (world/channel_models.py)."""
     sc, ch, m = cfg.scenario, cfg.channel, cfg.channel.model
     far = np.arange(0.0, sc.area_m * np.sqrt(2.0) + 2 * TABLE_RESOLUTION_M, TABLE_RESOLUTION_M)
 
@@ -107,8 +107,7 @@ def _model_tables(cfg: Config, uplink_m: np.ndarray, cp: ChannelParams) -> tuple
     backhaul = rate(ch.uav_tx_w, channel_models.backhaul_loss_db(m, ch.environment, far, sc.uav_altitude_m,
                                                                  sc.rsu_height_m, ch.carrier_hz))
     relay = rate(ch.uav_tx_w, channel_models.relay_loss_db(m, far, ch.carrier_hz))
-    return uplink, cp._replace(tabulated=True, table_step_m=TABLE_RESOLUTION_M, backhaul_rate=backhaul,
-                               relay_rate=relay)
+    return uplink, RateTables(TABLE_RESOLUTION_M, backhaul, relay)
 
 
 @njit(cache=True)
@@ -154,17 +153,15 @@ def routes(uav_pos, p, ch):
             h = np.sqrt((uav_pos[u, 0] - p.rsu[k, 0]) ** 2 + (uav_pos[u, 1] - p.rsu[k, 1]) ** 2)
             if h > cutoff:
                 continue
-            rate = table_rate(ch.backhaul_rate, ch.table_step_m, h) if ch.tabulated \
-                else a2g_rate(h, p.uav_rsu_height, p.uav_tx_w, ch)
-            t = p.bits / rate + np.sqrt(h * h + p.uav_rsu_height ** 2) / SPEED_OF_LIGHT
+            t = p.bits / backhaul_rate(h, p.uav_rsu_height, p.uav_tx_w, ch) \
+                + np.sqrt(h * h + p.uav_rsu_height ** 2) / SPEED_OF_LIGHT
             best[u] = min(best[u], t)
     hop[:] = best
     t_uu[:] = np.inf
     for u in range(n_uav):
         for j in range(u + 1, n_uav):  # symmetric: (a - b)^2 == (b - a)^2 exactly
             d = np.sqrt((uav_pos[u, 0] - uav_pos[j, 0]) ** 2 + (uav_pos[u, 1] - uav_pos[j, 1]) ** 2)
-            rate = table_rate(ch.relay_rate, ch.table_step_m, d) if ch.tabulated else a2a_rate(d, p.uav_tx_w, ch)
-            t_uu[u, j] = t_uu[j, u] = p.bits / rate + d / SPEED_OF_LIGHT
+            t_uu[u, j] = t_uu[j, u] = p.bits / relay_rate(d, p.uav_tx_w, ch) + d / SPEED_OF_LIGHT
     for _ in range(n_uav - 1):
         changed = False
         for u in range(n_uav):
