@@ -65,9 +65,9 @@ MODELS: dict[str, Model] = {
                    "the paper's Sec. System model as read by this project: Al-Hourani LoS probability with "
                    "channel.los_a/los_b/eta_*, ergodic two-state Shannon rate"),
     "al-hourani": Model("Al-Hourani", "Al-Hourani", "free space", AL_HOURANI_2014),
-    "3gpp-uma-av": Model("Al-Hourani", "TR 36.777 UMa-AV", "free space", TR36777 + "; uplink: " + AL_HOURANI_2014),
-    "3gpp-umi-av": Model("Al-Hourani", "TR 36.777 UMi-AV", "free space", TR36777 + "; uplink: " + AL_HOURANI_2014),
-    "3gpp-rma-av": Model("Al-Hourani", "TR 36.777 RMa-AV", "free space", TR36777 + "; uplink: " + AL_HOURANI_2014),
+    "3gpp-uma-av": Model("Al-Hourani", "TR 36.777 UMa-AV", "free space", TR36777 + "; vehicle-UAV: Al-Hourani et al. 2014"),
+    "3gpp-umi-av": Model("Al-Hourani", "TR 36.777 UMi-AV", "free space", TR36777 + "; vehicle-UAV: Al-Hourani et al. 2014"),
+    "3gpp-rma-av": Model("Al-Hourani", "TR 36.777 RMa-AV", "free space", TR36777 + "; vehicle-UAV: Al-Hourani et al. 2014"),
 }
 """channel.model: which formula each link uses, and where it comes from."""
 
