@@ -83,8 +83,9 @@ def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet
 # -- commands -----------------------------------------------------------------
 def cmd_config_show(args) -> int:
     from truav.presets import DEFAULT_PRESET, preset_header
+    from world.channel_models import describe
     cfg = config_from(args)
-    sys.stdout.write(preset_header(args.preset or DEFAULT_PRESET) + to_toml(cfg))
+    sys.stdout.write(preset_header(args.preset or DEFAULT_PRESET) + describe() + to_toml(cfg))
     return 0
 
 
@@ -227,6 +228,9 @@ def cmd_evaluate(args) -> int:
     seeds, q = runio.read_qtables(run)
     runio.check_qtables(run, q.shape, cfg)
     cfg = cfg.replace(**preset_from(args))
+    if args.set:  # e.g. the trained policy under another channel.model
+        cfg = cfg.replace(**parse_sets(args.set))
+        runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
@@ -290,6 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
     ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
+    ev.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override one value of the run's saved config (repeatable), e.g. --set channel.model=al-hourani")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)

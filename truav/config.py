@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from truav.errors import UserError
+from world.channel_models import ENVIRONMENTS, MODELS, TR36777_HEIGHTS
 
 
 UAV_STARTS = ("random", "persist", "center")
@@ -162,8 +163,16 @@ class TrafficConfig:
 @dataclass(frozen=True)
 class ChannelConfig:
     """Air-to-ground and air-to-air links (paper: 20 MHz, noise 1e-9 W,
-    vehicle 0.1 W, UAV 1.0 W; LoS model after Al-Hourani et al., IEEE WCL 2014)."""
+    vehicle 0.1 W, UAV 1.0 W; LoS model after Al-Hourani et al., IEEE WCL 2014).
+    The model's formulas and sources: world/channel_models.py, docs/channel-models.md."""
 
+    model: str = param("paper")
+    """Channel model of the links: "paper" (the default, every number as before), "al-hourani",
+    "3gpp-uma-av", "3gpp-umi-av" or "3gpp-rma-av" (TR 36.777 Annex B for UAV-RSU links);
+    `truav config show` lists each one's formulas per link and its source."""
+    environment: str = param("urban")
+    """Al-Hourani's environment (his Table I: suburban, urban, dense-urban, highrise-urban) for the
+    air-to-ground links of the models other than "paper", which takes los_a/los_b/eta_* instead."""
     carrier_hz: float = param(5.9e9, 1e8, 1e11)
     """Carrier frequency (Hz): 5.9 GHz, IEEE 802.11p (paper)."""
     bandwidth_hz: float = param(20e6, 1e3, 1e10)
@@ -564,6 +573,32 @@ def _check_consistency(cfg: Config) -> None:
         raise ConfigError(f"patrol.assignment: {cfg.patrol.assignment!r} is not one of {', '.join(PATROL_ASSIGNMENTS)}")
     if cfg.learner.epsilon_end > cfg.learner.epsilon_start:
         raise ConfigError("learner.epsilon_end must not exceed learner.epsilon_start")
+    _check_channel(cfg)
+
+
+PAPER_CHANNEL_KEYS = ("los_a", "los_b", "eta_los_db", "eta_nlos_db", "a2a_los_probability")
+"""Keys of the paper's channel model only; the other models take channel.environment instead."""
+
+
+def _check_channel(cfg: Config) -> None:
+    ch, default = cfg.channel, ChannelConfig()
+    if ch.model not in MODELS:
+        raise ConfigError(f"channel.model: {ch.model!r} is not one of {', '.join(MODELS)}")
+    if ch.environment not in ENVIRONMENTS:
+        raise ConfigError(f"channel.environment: {ch.environment!r} is not one of {', '.join(ENVIRONMENTS)}")
+    if ch.model == "paper" and ch.environment != default.environment:
+        raise ConfigError(f"channel.environment: applies to the models other than 'paper', which takes "
+                          f"channel.{'/'.join(PAPER_CHANNEL_KEYS[:2])}/eta_* instead; set channel.model too")
+    if ch.model != "paper":
+        for key in PAPER_CHANNEL_KEYS:
+            if getattr(ch, key) != getattr(default, key):
+                raise ConfigError(f"channel.{key}: belongs to channel.model 'paper', not {ch.model!r} "
+                                  "(which takes channel.environment)")
+    if ch.model in TR36777_HEIGHTS:
+        lo, hi = TR36777_HEIGHTS[ch.model]
+        if not lo < cfg.scenario.uav_altitude_m <= hi:
+            raise ConfigError(f"scenario.uav_altitude_m: {cfg.scenario.uav_altitude_m:g} m is outside ({lo:g}, {hi:g}] m, "
+                              f"where TR 36.777's aerial formulas of channel.model {ch.model!r} hold")
 
 
 def n_grid_roads(cfg: Config) -> int:

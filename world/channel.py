@@ -15,6 +15,12 @@ Averaging the rate rather than the dB loss keeps a rarely-LoS link useful in
 expectation, as an ergodic capacity does. The functions are compiled with
 numba so the world's step kernels call the very same code; `ChannelParams`
 carries the config into them.
+
+This is the paper's model (channel.model = "paper"). The other models of
+world/channel_models.py reach the kernels as `RateTables` (rates over
+horizontal distance, built by world.network.relay_params) in its place:
+`backhaul_rate` and `relay_rate` pick the formula by the type of the
+parameters at compile time, so the paper's kernels are the code they were.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from truav.config import ChannelConfig
 
@@ -42,8 +49,16 @@ class ChannelParams(NamedTuple):
 
     @classmethod
     def from_config(cls, ch: ChannelConfig) -> "ChannelParams":
+        """The paper model's parameters."""
         return cls(ch.carrier_hz, ch.bandwidth_hz, ch.noise_w, ch.antenna_gain_dbi, ch.los_a, ch.los_b,
                    ch.eta_los_db, ch.eta_nlos_db, ch.a2a_los_probability)
+
+
+class RateTables(NamedTuple):
+    """A model other than the paper's, for the kernels: rates (bit/s) sampled every step_m of horizontal distance."""
+    step_m: float
+    backhaul: np.ndarray  # UAV -> RSU
+    relay: np.ndarray  # UAV <-> UAV
 
 
 @njit(cache=True)
@@ -90,3 +105,40 @@ def a2a_rate(distance_m, tx_w, p):
     """Expected rate (bit/s) of a UAV-to-UAV link at equal altitude; its LoS
     probability is the configured air-to-air value, not the elevation model."""
     return _two_state_rate(p.a2a_los_probability, fspl_db(distance_m, p.carrier_hz), tx_w, p)
+
+
+@njit(cache=True)
+def table_rate(table, step_m, horizontal_m):
+    """A rate table sampled every step_m, linearly interpolated (held beyond its end)."""
+    x = min(horizontal_m / step_m, table.size - 2.0)
+    i = int(x)
+    frac = x - i
+    return table[i] * (1.0 - frac) + table[i + 1] * frac
+
+
+def _tabulated(ch) -> bool:
+    return isinstance(ch, types.BaseNamedTuple) and ch.instance_class is RateTables
+
+
+def backhaul_rate(horizontal_m, height_diff_m, tx_w, ch):
+    """UAV -> RSU rate (bit/s) under ch, ChannelParams or RateTables (compiled code only)."""
+    raise NotImplementedError("called from numba kernels only")
+
+
+def relay_rate(distance_m, tx_w, ch):
+    """UAV <-> UAV rate (bit/s) under ch, ChannelParams or RateTables (compiled code only)."""
+    raise NotImplementedError("called from numba kernels only")
+
+
+@overload(backhaul_rate)
+def _backhaul_rate(horizontal_m, height_diff_m, tx_w, ch):
+    if _tabulated(ch):
+        return lambda horizontal_m, height_diff_m, tx_w, ch: table_rate(ch.backhaul, ch.step_m, horizontal_m)
+    return lambda horizontal_m, height_diff_m, tx_w, ch: a2g_rate(horizontal_m, height_diff_m, tx_w, ch)
+
+
+@overload(relay_rate)
+def _relay_rate(distance_m, tx_w, ch):
+    if _tabulated(ch):
+        return lambda distance_m, tx_w, ch: table_rate(ch.relay, ch.step_m, distance_m)
+    return lambda distance_m, tx_w, ch: a2a_rate(distance_m, tx_w, ch)

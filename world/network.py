@@ -28,7 +28,8 @@ from numba import njit
 
 from truav.config import Config
 from world import packets
-from world.channel import SPEED_OF_LIGHT, ChannelParams, a2a_rate, a2g_rate
+from world import channel_models
+from world.channel import SPEED_OF_LIGHT, ChannelParams, RateTables, a2g_rate, backhaul_rate, relay_rate
 
 # Columns of the per-UAV output (B, U, UAV_COLUMNS).
 IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST, EXCLUSIVE = range(7)
@@ -70,21 +71,43 @@ def rsu_positions(cfg: Config) -> np.ndarray:
     return np.array(cfg.scenario.rsu_intersections, dtype=np.float64).reshape(-1, 2) * cfg.roads.block_m
 
 
-def relay_params(cfg: Config) -> tuple[RelayParams, ChannelParams]:
+def relay_params(cfg: Config) -> tuple[ChannelParams | RateTables, RelayParams]:
     sc, ch = cfg.scenario, cfg.channel
     cp = ChannelParams.from_config(ch)
     # The uplink rate is tabulated over horizontal distance (linear interpolation
     # between 0.5 m samples): the exact formula costs ~10 transcendental calls.
     samples = np.arange(0.0, sc.comm_range_m + 2 * TABLE_RESOLUTION_M, TABLE_RESOLUTION_M)
-    table = a2g_rate(samples, sc.uav_altitude_m, ch.vehicle_tx_w, cp)
     height = sc.uav_altitude_m - sc.rsu_height_m
-    # With the UAVs above the RSUs and NLoS no better than LoS, a farther RSU
-    # means a lower elevation (less LoS), more path loss and more propagation:
-    # a longer hop, always (los_a, los_b >= 0 by the config's bounds).
-    nearest_only = height >= 0.0 and ch.eta_nlos_db >= ch.eta_los_db
+    if ch.model == "paper":
+        table = a2g_rate(samples, sc.uav_altitude_m, ch.vehicle_tx_w, cp)
+        # With the UAVs above the RSUs and NLoS no better than LoS, a farther RSU
+        # means a lower elevation (less LoS), more path loss and more propagation:
+        # a longer hop, always (los_a, los_b >= 0 by the config's bounds).
+        nearest_only = height >= 0.0 and ch.eta_nlos_db >= ch.eta_los_db
+    else:
+        table, cp = _model_tables(cfg, samples)
+        # A rate that never rises with distance (and propagation that grows) makes the nearest RSU's hop the shortest.
+        nearest_only = bool(np.all(np.diff(cp.backhaul) <= 0.0))
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
                        cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only,
                        float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors))
+
+
+def _model_tables(cfg: Config, uplink_m: np.ndarray) -> tuple[np.ndarray, RateTables]:
+    """Uplink rate at uplink_m, and the backhaul and relay rate tables over every horizontal
+    distance within the area, of a model other than the paper's (world/channel_models.py)."""
+    sc, ch, m = cfg.scenario, cfg.channel, cfg.channel.model
+    far = np.arange(0.0, sc.area_m * np.sqrt(2.0) + 2 * TABLE_RESOLUTION_M, TABLE_RESOLUTION_M)
+
+    def rate(tx_w: float, loss_db: np.ndarray) -> np.ndarray:
+        return channel_models.shannon_rate(tx_w, loss_db, ch.antenna_gain_dbi, ch.noise_w, ch.bandwidth_hz)
+
+    uplink = rate(ch.vehicle_tx_w, channel_models.uplink_loss_db(m, ch.environment, uplink_m, sc.uav_altitude_m,
+                                                                 ch.carrier_hz))
+    backhaul = rate(ch.uav_tx_w, channel_models.backhaul_loss_db(m, ch.environment, far, sc.uav_altitude_m,
+                                                                 sc.rsu_height_m, ch.carrier_hz))
+    relay = rate(ch.uav_tx_w, channel_models.relay_loss_db(m, far, ch.carrier_hz))
+    return uplink, RateTables(TABLE_RESOLUTION_M, backhaul, relay)
 
 
 @njit(cache=True)
@@ -130,7 +153,7 @@ def routes(uav_pos, p, ch):
             h = np.sqrt((uav_pos[u, 0] - p.rsu[k, 0]) ** 2 + (uav_pos[u, 1] - p.rsu[k, 1]) ** 2)
             if h > cutoff:
                 continue
-            t = p.bits / a2g_rate(h, p.uav_rsu_height, p.uav_tx_w, ch) \
+            t = p.bits / backhaul_rate(h, p.uav_rsu_height, p.uav_tx_w, ch) \
                 + np.sqrt(h * h + p.uav_rsu_height ** 2) / SPEED_OF_LIGHT
             best[u] = min(best[u], t)
     hop[:] = best
@@ -138,7 +161,7 @@ def routes(uav_pos, p, ch):
     for u in range(n_uav):
         for j in range(u + 1, n_uav):  # symmetric: (a - b)^2 == (b - a)^2 exactly
             d = np.sqrt((uav_pos[u, 0] - uav_pos[j, 0]) ** 2 + (uav_pos[u, 1] - uav_pos[j, 1]) ** 2)
-            t_uu[u, j] = t_uu[j, u] = p.bits / a2a_rate(d, p.uav_tx_w, ch) + d / SPEED_OF_LIGHT
+            t_uu[u, j] = t_uu[j, u] = p.bits / relay_rate(d, p.uav_tx_w, ch) + d / SPEED_OF_LIGHT
     for _ in range(n_uav - 1):
         changed = False
         for u in range(n_uav):
