@@ -50,6 +50,7 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder",                        BASE),
     ("truav.errors",                    BASE),
     ("truav.stopping",                  BASE),
+    ("truav.channel_catalog",           BASE),
     ("truav.actions",                   BASE),
     ("truav.checks",                    BASE),
     ("truav.seeding",                   BASE),

@@ -83,7 +83,7 @@ def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet
 # -- commands -----------------------------------------------------------------
 def cmd_config_show(args) -> int:
     from truav.presets import DEFAULT_PRESET, preset_header
-    from world.channel_models import describe
+    from truav.channel_catalog import describe
     cfg = config_from(args)
     sys.stdout.write(preset_header(args.preset or DEFAULT_PRESET) + describe() + to_toml(cfg))
     return 0

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from truav.errors import UserError
-from world.channel_models import ENVIRONMENTS, MODELS, TR36777_HEIGHTS
+from truav.channel_catalog import ENVIRONMENTS, MODELS, TR36777_HEIGHTS
 
 
 UAV_STARTS = ("random", "persist", "center")
