@@ -25,6 +25,7 @@ import numpy as np
 
 from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
+from truav import jsonio
 
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
@@ -242,7 +243,7 @@ def read_policy(path: str | Path, index: int, cfg: Config) -> dict[str, np.ndarr
 def write_resume_info(run: Path, info: dict) -> None:
     d = Path(run) / RESUME_DIR
     d.mkdir(exist_ok=True)
-    atomic_write_bytes(d / RESUME_FILE, json.dumps(info, indent=1).encode())
+    atomic_write_bytes(d / RESUME_FILE, jsonio.dumps(info, indent=1).encode())
 
 
 def read_resume_info(run: Path) -> dict | None:

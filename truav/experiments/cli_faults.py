@@ -14,6 +14,7 @@ from truav.config import ConfigError, read_toml, to_dict
 from truav.experiments import fault_sweep
 from truav.experiments.scheme_faults import SCHEMES
 from truav.experiments.cli_executor import add_executor_args, check_executor
+from truav import jsonio
 
 
 def add_fault_sweep_parser(ex_sub) -> None:
@@ -94,7 +95,7 @@ def check_settings(out: Path, settings: dict) -> None:
     """A re-run into ``out`` keeps its finished points, so it must run with their settings: the first run writes
     them to SETTINGS_FILE, a later one with others is refused in one line (UsageError) before anything runs."""
     path = out / SETTINGS_FILE
-    settings = json.loads(json.dumps(settings))  # tuples as lists, as read back
+    settings = json.loads(jsonio.dumps(settings))  # tuples as lists, as read back
     if path.is_file():
         try:
             before = json.loads(path.read_text())
@@ -109,4 +110,4 @@ def check_settings(out: Path, settings: dict) -> None:
         raise UsageError(f"--out {out}: holds finished points with no {path.name} to tell their settings (an "
                          f"earlier version's run); choose another --out")
     out.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(settings, indent=1))
+    path.write_text(jsonio.dumps(settings, indent=1))

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from truav import jsonio
 from truav.config import Config
 
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0),
@@ -139,7 +140,7 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
         eps = (summary.get("world") or {}).get("episodes") or []
         row = {"kind": kind, "level": level}
         for key, _, _ in METRICS:
-            vals = [e.get(key, math.nan) for e in eps]
+            vals = [jsonio.num(e.get(key)) for e in eps]
             row[key] = float(np.nanmean(vals)) if vals else math.nan
         row["missed_actions"] = (summary.get("world") or {}).get("deadline_misses", math.nan)
         share = missed_share(summary, cfg.scenario.n_uavs)

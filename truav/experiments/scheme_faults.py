@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from truav.config import Config
+from truav import jsonio
 
 SCHEMES = ("truav", "central", "patrol", "federated", "truav_online")
 LEARNING = ("federated", "truav_online")
@@ -158,7 +159,7 @@ def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> 
     eps = world.get("episodes") or []
     row = {"scheme": scheme, "kind": kind, "level": level}
     for key, _, _ in METRICS[:-1]:
-        vals = [e.get(key, math.nan) for e in eps]
+        vals = [jsonio.num(e.get(key)) for e in eps]
         row[key] = float(np.nanmean(vals)) if vals else math.nan
     acting = world.get("ticks", 0) - len(eps)
     held = sum(((a or {}).get("commands") or {}).get("held", 0) for a in summary.get("agents") or [])
@@ -209,7 +210,7 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    (out / "policies.json").write_text(json.dumps(policies, indent=1))
+    (out / "policies.json").write_text(jsonio.dumps(policies, indent=1))
     return [metric_figure(rows, schemes, key, label, scale, out / f"comparison-{key}.png",
                           title=f"{label}: {', '.join(schemes)} under the same faults, seed {seed}")
             for key, label, scale in METRICS]

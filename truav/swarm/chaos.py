@@ -23,6 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from truav import jsonio  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.faults import FaultPlan, load_plan  # noqa: E402
 from truav.nemesis import heal_at, random_plan  # noqa: E402
@@ -41,7 +42,7 @@ def _load(out: Path) -> dict:
 
 def _mean_episode(summary: dict, key: str) -> float:
     eps = (summary.get("world") or {}).get("episodes") or []
-    vals = [e.get(key, math.nan) for e in eps]
+    vals = [jsonio.num(e.get(key)) for e in eps]
     return float(np.nanmean(vals)) if vals else math.nan
 
 

@@ -41,6 +41,7 @@ from recorder.reader import iter_messages
 from recorder.schemas import decode_envelope
 from truav.faults import FaultPlan
 from truav.swarm.children import truav_process
+from truav import jsonio
 
 MAX_RSS_GROWTH_MB = 100.0
 """Memory growth allowed per process over a run (the issue's 3-8 min soaks grew by at most 34 MB)."""
@@ -105,7 +106,7 @@ def table(rows: list[Invariant]) -> str:
 def write(out: Path, rows: list[Invariant]) -> tuple[Path, Path]:
     txt, js = out / "invariants.txt", out / "invariants.json"
     txt.write_text(table(rows) + "\n")
-    js.write_text(json.dumps({"held": all(r.held for r in rows), "invariants": [asdict(r) for r in rows]}, indent=1))
+    js.write_text(jsonio.dumps({"held": all(r.held for r in rows), "invariants": [asdict(r) for r in rows]}, indent=1))
     return txt, js
 
 

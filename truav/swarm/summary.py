@@ -19,6 +19,7 @@ from truav.swarm.outdir import SUMMARY_FILE
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
+from truav import jsonio
 
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
@@ -127,7 +128,7 @@ class SwarmEnd:
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
-        (out / SUMMARY_FILE).write_text(json.dumps({
+        (out / SUMMARY_FILE).write_text(jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
@@ -164,8 +165,8 @@ class SwarmEnd:
 def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
-        print(f"episode {e}: coverage {m.get('coverage_pct', float('nan')):5.1f}%  PDR {m.get('pdr', float('nan')):.3f}  "
-              f"delay {m.get('delay_ms', float('nan')):6.1f} ms  energy/UAV {m.get('energy_j', float('nan')) / 1e3:6.2f} kJ")
+        cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
+        print(f"episode {e}: coverage {cov:5.1f}%  PDR {pdr:.3f}  delay {delay:6.1f} ms  energy/UAV {energy / 1e3:6.2f} kJ")
     if world:
         lat = world.get("tick_lateness_ms")
         if lat:
