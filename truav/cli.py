@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from truav import runio
+from truav import policy_scenario, runio
 from truav.checks import check_federated
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
@@ -147,9 +147,9 @@ def cmd_train(args) -> int:
         return 130
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
-        runio.write_policy(out, seeds, result.policy)
+        runio.write_policy(out, seeds, result.policy, cfg)
     else:
-        runio.write_qtables(out, seeds, result.q, result.uav_pos)
+        runio.write_qtables(out, seeds, result.q, result.uav_pos, cfg)
     window = min(500, episodes)
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
                        title=f"{'TRUAV' if scheme == 'truav' else 'centralized SAC'} at {cfg.scenario.uav_speed_mps:g} m/s")
@@ -210,6 +210,9 @@ def cmd_evaluate(args) -> int:
     cfg = cfg.replace(**preset_from(args))
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
+    fit = policy_scenario.check("", args.run, runio.qtable_file(run), cfg, args.allow_scenario_mismatch)
+    if fit.line():
+        print(f"warning: {fit.line()}", flush=True)
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
@@ -265,11 +268,13 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
     ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
-    ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
+    ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed (with "
+                                                         "--allow-scenario-mismatch if it was trained at another)")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
+    policy_scenario.add_allow_arg(ev)
     ev.add_argument("--quiet", action="store_true")
     ev.set_defaults(func=cmd_evaluate)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from truav import runio
+from truav import policy_scenario
 from truav.cli_args import check_out_dir, positive_float, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
 from truav.config import ConfigError, read_toml, to_dict
@@ -24,6 +24,7 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--quick", action="store_true",
                    help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
+    policy_scenario.add_allow_arg(p)
     p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running with the same "
@@ -44,27 +45,30 @@ def cmd_fault_sweep(args) -> int:
     size = "quick" if args.quick else "full"
     cfg = config_from(args)
     out = check_out_dir("--out", args.out if args.out is not None else f"runs/faults{'-quick' if args.quick else ''}")
+    fits = []
     if args.qtable is not None:  # the policy every swarm run flies: check it fits before the first run
-        run = Path(args.qtable)
-        try:
-            _, q = runio.read_qtables(run)
-            runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
-        except runio.RunDirError as exc:
-            raise UsageError(f"--qtable: {exc}") from None
+        from truav.swarm.checks import check_qtable
+        fits.append(check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch))
+    if args.policy is not None and "central" in (args.schemes or ()):
+        from truav.swarm.cli import check_policy
+        fits.append(check_policy("--policy", args.policy, cfg, 0, args.allow_scenario_mismatch))
     check_executor(args)
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
     keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
     settings = {"mode": "schemes" if args.schemes else "sweep", "size": size, "seed": args.seed, "rate": args.rate,
                 "qtable": _resolved(args.qtable), "policy": _resolved(args.policy), "keep_steps": keep_steps,
                 "config": to_dict(cfg)}
+    if any(f.line() for f in fits):  # a mismatch allowed, or a record missing: in settings.json and said
+        settings["policy_scenario"] = [f.as_json() for f in fits]
+        for fit in fits:
+            if fit.line():
+                print(f"warning: {fit.line()}", flush=True)
     if args.schemes:
         from truav.experiments.scheme_faults import run_comparison
         schemes = tuple(dict.fromkeys(args.schemes))
         if args.policy is not None:
             if "central" not in schemes:
                 raise UsageError("--policy: only --schemes central flies a trained controller")
-            from truav.swarm.cli import check_policy
-            check_policy("--policy", args.policy, cfg, 0)
         if "central" in schemes:
             from truav.swarm.cli import check_central_sizes
             check_central_sizes(cfg)

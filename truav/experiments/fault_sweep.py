@@ -70,7 +70,7 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     cfg = cfg.replace(learner={"episodes": episodes})
     result = run_parallel("truav", cfg, [seed], episodes, workers=1)
     runio.write_config(run, cfg)
-    runio.write_qtables(run, [seed], result.q)
+    runio.write_qtables(run, [seed], result.q, cfg=cfg)
     return run
 
 

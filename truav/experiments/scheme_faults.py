@@ -121,7 +121,7 @@ def train_central(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     result = run_chunk("central", cfg, [seed], episodes)
     runio.write_config(run, cfg)
     runio.write_metrics(run / runio.METRICS_FILE, [seed], result.metrics)
-    runio.write_policy(run, [seed], result.policy)
+    runio.write_policy(run, [seed], result.policy, cfg)
     return run
 
 

@@ -20,6 +20,7 @@ from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
 from truav import jsonio
+from truav.policy_scenario import Fit
 
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
@@ -125,6 +126,9 @@ class SwarmEnd:
         events = self.controller.events if self.controller is not None else []
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
+        if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
+            o.warnings.append(fit_line)
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
@@ -135,7 +139,7 @@ class SwarmEnd:
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages}, indent=1))
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             for entry in o.external:
