@@ -24,6 +24,7 @@ from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_pl
                                 check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
+from truav.swarm.chaos_time import PLAN_EPISODES
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.outdir import OutDirError, check_swarm_dir
@@ -180,7 +181,7 @@ def cmd_chaos(args) -> int:
         for flag, value in (("--duration", args.duration),):
             if value is not None:
                 raise UsageError(f"{flag}: only with --nemesis (a --plan run lasts --episodes)")
-        args.episodes = 2 if args.episodes is None else args.episodes
+        args.episodes = PLAN_EPISODES if args.episodes is None else args.episodes
     else:
         if args.duration is None:
             raise UsageError("--nemesis: give --duration (e.g. 10m): the schedule is drawn for the run's length")
@@ -319,3 +320,7 @@ def add_up_commands(sub) -> None:
     ch.add_argument("--duration", type=duration_s, metavar="T",
                     help="--nemesis: how long the run lasts (e.g. 90s, 10m; sets --episodes)")
     ch.set_defaults(func=cmd_chaos, episodes=None)
+    for action in ch._actions:  # --plan's default differs from up's: enough episodes to pair
+        if action.dest == "episodes":
+            action.help = (f"episodes of each run (default {PLAN_EPISODES} with --plan: the effects are paired over "
+                           f"them; set by --duration with --nemesis)")
