@@ -125,7 +125,7 @@ def test_the_checker_looks_for_missed_actions_only_after_the_heal(tmp_path):
     hovering[-1][1] = 2.0
     early = invariants._quiet_tail({"timeline": {"hovering": hovering[:300]}}, plan, 10.0)  # ended at 30 s
     # a --plan run shorter than its plan: nothing after the heal to check (the run's length, not the swarm)
-    assert early.held is None and early.detail.startswith("not checked") and "heal (35.0 s)" in early.detail, early
+    assert early.held is None and early.status == "not checked" and "heal (35.0 s)" in early.detail, early
     bad = invariants._quiet_tail({"timeline": {"hovering": hovering}}, plan, 10.0)
     assert not bad.held and bad.detail.startswith("2 UAV-tick(s) without an action")
     assert "1 of 2 checked held: the run is NOT sound" in invariants.table([row, bad])
