@@ -149,7 +149,8 @@ class SwarmEnd:
             if opts.plot and monitor.tracks:
                 from truav.swarm.plots import swarm_figure
                 picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
-                                       episodes_done=len((world or {}).get("episodes") or []) if world else None)
+                                       episodes_done=len((world or {}).get("episodes") or []) if world else None,
+                                       missed=(world or {}).get("deadline_misses"))
                 print(f"picture: {picture}")
             if opts.record:
                 print(f"recording: {recording_files(opts)}")
