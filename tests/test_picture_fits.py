@@ -49,3 +49,12 @@ def test_the_missed_panel_claims_no_miss_only_when_the_world_counted_none(tmp_pa
     assert texts[0] == ["every UAV acted in time on every tick"]
     assert texts[5] == ["none in the step metrics heard, but the world\ncounted 5 missed action(s), on ticks not heard"]
     assert "every UAV acted in time" not in texts[None][0]
+
+
+def test_metrics_png_names_the_worlds_per_uav_counts_as_a_reader_says_them():
+    from recorder.report_figures import metric_label
+    assert metric_label("uav.2.missed") == "UAV 2: actions missed (hovered), total so far"
+    assert metric_label("uav.11.late") == "UAV 11: actions too late, total so far"
+    assert metric_label("rejected") == "messages the world refused (total so far)"
+    assert metric_label("rejected.too_large") == "messages the world refused as too large (total so far)"
+    assert metric_label("some_new_metric") == "some new metric"
