@@ -62,3 +62,18 @@ def test_the_scheme_comparison_pairs_schemes_at_each_point_and_points_with_no_fa
                               ("truav", "patrol"))
     assert "patrol - truav at none 0:\n  coverage (%)              +10.67 ±" in text
     assert "truav: loss 0.5 - no fault:\n  coverage (%)              +0.00: identical in all 3 episodes" in text
+
+
+def test_evaluate_against_references_pairs_them_over_seeds(tmp_path, capsys):
+    from truav.cli import main
+    run = tmp_path / "run"
+    assert main(["train", "--seeds", "3", "--episodes", "2", "--workers", "1", "--quiet", "--out", str(run),
+                 "--set", "scenario.n_vehicles=30", "--set", "scenario.steps_per_episode=10",
+                 "--set", "roads.warmup_steps=5"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--episodes", "1", "--workers", "1", "--quiet", "--against", "hover"]) == 0
+    out = capsys.readouterr().out
+    assert "truav - hover, paired over seeds, 95% t-interval:" in out
+    lines = out.split("truav - hover, paired over seeds, 95% t-interval:\n", 1)[1].splitlines()
+    assert [line.split()[0] for line in lines[:4]] == ["coverage", "PDR", "delay", "energy"]
+    assert all(" seeds" in line or "no pair" in line for line in lines[:4]), lines  # a NaN delay drops its seed

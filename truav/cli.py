@@ -52,6 +52,21 @@ def format_table(rows: dict[str, dict[str, np.ndarray]]) -> str:
     return "\n".join(lines)
 
 
+def paired_lines(rows: dict[str, dict[str, np.ndarray]], against: str) -> str:
+    """Each other scheme's difference from ``against`` per metric, paired over seeds (the same evaluation
+    seeds drive the same traffic for every scheme), with its 95% interval or why there is none."""
+    from truav.stats import effect_text, paired_effect
+    lines = []
+    for scheme, per_seed in rows.items():
+        if scheme == against:
+            continue
+        lines.append(f"{against} - {scheme}, paired over seeds, 95% t-interval:")
+        for name, label, scale in SUMMARY_METRICS:
+            e = paired_effect(per_seed[name] * scale, rows[against][name] * scale)
+            lines.append(f"  {label:<16}{effect_text(e, noun='seeds')}")
+    return "\n".join(lines)
+
+
 def progress_bar(total: int, desc: str, quiet: bool):
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="ep", disable=quiet, dynamic_ncols=True,
@@ -227,6 +242,8 @@ def cmd_evaluate(args) -> int:
           f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds"
           + ("; the swarm starts where training left it" if start is not None else ""))
     print(format_table(rows))
+    if len(rows) > 1:
+        print(paired_lines(rows, "truav"))
     return 0
 
 
