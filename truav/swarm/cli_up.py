@@ -84,6 +84,8 @@ def swarm_options(args):
         fit = check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch)
     if args.policy is not None:
         fit = check_policy("--policy", args.policy, cfg, args.policy_index, args.allow_scenario_mismatch)
+    if fit is not None and fit.line():  # said now, and again in the summary
+        print(f"warning: {fit.line()}", flush=True)
     if args.scheme == "central":
         check_central_sizes(cfg)
     plan = check_plan("--fault-plan", args.fault_plan, n, args.scheme) if args.fault_plan is not None else None
