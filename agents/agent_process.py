@@ -66,6 +66,7 @@ from truav.options import opt
 from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.snapshot_messages import agent_snapshot, fits, snapshot_due, snapshot_every_option
+from truav import jsonio
 
 log = logging.getLogger("truav.agent")
 
@@ -493,7 +494,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
             return
         path = Path(self.opts.checkpoint)
         tmp = path.with_name(path.name + ".tmp.npz")
-        state = json.dumps(self.learners.rngs[0].bit_generator.state)
+        state = jsonio.dumps(self.learners.rngs[0].bit_generator.state)
         np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
                  visits_at_share=self.visits_at_share, density_map=self.decision.density_map[0, 0])
         with open(tmp, "rb") as f:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from truav.bus import keys, schema
+from truav import jsonio
 
 HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
@@ -121,5 +122,5 @@ class AgentReports:
                         incarnations=[*self._earlier_incarnations, me])
             p = Path(self.opts.stats_out)
             tmp = p.with_name(p.name + ".tmp")
-            tmp.write_text(json.dumps(data))
+            tmp.write_text(jsonio.dumps(data))
             tmp.replace(p)

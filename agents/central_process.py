@@ -26,7 +26,6 @@ the same control-plane model as the in-process driver (world.world_process).
 from __future__ import annotations
 
 import gc
-import json
 import logging
 import threading
 import time
@@ -46,6 +45,7 @@ from truav.lograte import Every
 from truav.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
 from truav.options import opt
 from world.env import LocalObs
+from truav import jsonio
 
 log = logging.getLogger("truav.controller")
 
@@ -267,5 +267,5 @@ class ControllerNode:
         data["bus"] = {"filtered": self.bus.stats().filtered, "delayed": self.bus.stats().delayed}
         p = Path(self.opts.stats_out)
         tmp = p.with_name(p.name + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
+        tmp.write_text(jsonio.dumps(data, indent=1))
         tmp.replace(p)

@@ -35,6 +35,7 @@ import zenoh  # noqa: E402
 
 from bench.hostile import flood  # noqa: E402
 from truav.bus import schema, transport  # noqa: E402
+from truav import jsonio  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -177,7 +178,7 @@ def main() -> None:
     print("world rejections by reason:", {r: sum(v.values()) for r, v in world["rejected"].items()})
     print(f"(details in {out})")
     if args.json:
-        Path(args.json).write_text(json.dumps({"phases": phases, "ticks": world["ticks"], "missed": total,
+        Path(args.json).write_text(jsonio.dumps({"phases": phases, "ticks": world["ticks"], "missed": total,
                                                "actions": actions, "alive": alive}, indent=1))
 
 

@@ -21,11 +21,13 @@ import os
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from truav import jsonio  # noqa: E402
 from truav.cli_args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
 
@@ -66,9 +68,9 @@ def main() -> int:
           f"env-steps/s, sumo trace {rates['sumo']:,.0f} env-steps/s ({rates['sumo'] / rates['builtin']:.2f}x)")
     print(f"load average {os.getloadavg()[0]:.2f}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"build_s": build_s, "network_s": meta["network_s"], "env_steps_per_s": rates,
-                       "batch": args.batch, "episodes": args.episodes, "load": os.getloadavg()[0]}, f, indent=1)
+        Path(args.json).write_text(jsonio.dumps({"build_s": build_s, "network_s": meta["network_s"],
+                                                 "env_steps_per_s": rates, "batch": args.batch,
+                                                 "episodes": args.episodes, "load": os.getloadavg()[0]}, indent=1))
     return 0
 
 

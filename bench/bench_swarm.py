@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from truav.config import Config  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
+from truav import jsonio  # noqa: E402
 import swarm_runs  # noqa: E402
 
 
@@ -323,7 +324,7 @@ def sweep(args) -> None:
                         if load is not None:
                             r["load_before"] = load
                         rows.append(r)
-                        rows_path.write_text(json.dumps(rows, indent=1))
+                        rows_path.write_text(jsonio.dumps(rows, indent=1))
                         write_csv(out / "sweep.csv", rows)
     print(f"\n{len(rows)} runs in {out}/sweep.csv and sweep.json")
     print(table(rows))

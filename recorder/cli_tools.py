@@ -14,13 +14,13 @@ written; OUT is written to ``OUT.part`` and renamed when complete.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, Optional
 
 from truav.cli_args import non_negative_float, non_negative_int
 from truav.errors import EXIT_USAGE, UserError
+from truav import jsonio
 
 EXIT_OK, EXIT_FAILED = 0, 1
 PROG = "truav"
@@ -135,7 +135,7 @@ def cmd_log_info(args: argparse.Namespace) -> int:
             return _fail(f"{path}: damaged recording ({type(exc).__name__}: {exc}); `truav log recover` "
                          f"salvages the rest")
     if args.json:
-        print(json.dumps([r.as_json() for r in results], indent=1))
+        print(jsonio.dumps([r.as_json() for r in results], indent=1))
     else:
         print("\n\n".join(r.format() for r in results))
     return EXIT_OK

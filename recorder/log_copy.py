@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 from pathlib import Path
@@ -30,6 +29,7 @@ from recorder.reader import probe
 from recorder.recover import PART_SUFFIX
 from recorder.record_modes import PARTS_INDEX_SUFFIX
 from truav.errors import UserError
+from truav import jsonio
 
 __all__ = ["LogMessage", "FinishedLog", "open_finished", "OutputChannels", "written_atomically", "new_writer",
            "not_mcap_reason", "dump", "damage_errors"]
@@ -142,7 +142,7 @@ def open_finished(path: str | os.PathLike[str], flag: str = "IN") -> Iterator[Fi
 
 def dump(value: object) -> str:
     """A metadata value: compact JSON."""
-    return json.dumps(value, separators=(",", ":"), sort_keys=True)
+    return jsonio.dumps(value, separators=(",", ":"), sort_keys=True)
 
 
 class OutputChannels:

@@ -30,7 +30,6 @@ tests parse them back with mcap's readers).
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from typing import IO, Any, Callable, Mapping, Optional, Union
@@ -53,6 +52,7 @@ from mcap.records import (
 )
 
 from recorder.mcap_chunk import OpenChunk, summary_section
+from truav import jsonio
 
 __all__ = ["McapWriter", "Output"]
 
@@ -123,7 +123,7 @@ class Registry:
             if sid > MAX_ID:
                 raise ValueError("too many schemas for MCAP's uint16 ids")
             record = Schema(id=sid, name=name, encoding=JSONSCHEMA_ENCODING,
-                            data=json.dumps(schema, separators=(",", ":")).encode())
+                            data=jsonio.dumps(schema, separators=(",", ":")).encode())
             self.schemas.append(record)
             self._schema_ids[(name, JSONSCHEMA_ENCODING)] = sid
             self._chunk.add_record(record)  # in the chunk, before its first user
@@ -322,7 +322,7 @@ class McapWriter:
             raise ValueError("set_metadata() on a closed McapLog")
         record = Metadata(
             name=name,
-            metadata={str(k): v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=str) for k, v in data.items()},
+            metadata={str(k): v if isinstance(v, str) else jsonio.dumps(v, sort_keys=True, default=str) for k, v in data.items()},
         )
         offset = self._offset
         length = self._write_records(record)

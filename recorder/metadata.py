@@ -9,6 +9,7 @@ import tomllib
 from typing import Any, Optional
 
 from recorder.reader import Source, read_metadata
+from truav import jsonio
 
 CONFIG_METADATA = "truav.config"  # {"toml": <text>, "<section>.<key>": <JSON value>, ...}
 CONFIG_TOML_KEY = "toml"
@@ -31,7 +32,7 @@ def config_metadata(toml_text: str) -> dict[str, str]:
             for k, v in value.items():
                 walk(f"{prefix}.{k}" if prefix else str(k), v)
         else:
-            out[prefix] = json.dumps(value, default=str)
+            out[prefix] = jsonio.dumps(value, default=str)
 
     walk("", tomllib.loads(toml_text))
     return out
@@ -45,7 +46,7 @@ def read_config_toml(source: Source | os.PathLike[str]) -> Optional[str]:
 
 def run_info_metadata(info: dict[str, Any]) -> dict[str, str]:
     """A run's settings as an MCAP metadata map (every value JSON-encoded)."""
-    return {str(k): json.dumps(v) for k, v in info.items()}
+    return {str(k): jsonio.dumps(v) for k, v in info.items()}
 
 
 def read_run_info(source: Source | os.PathLike[str]) -> Optional[dict[str, Any]]:

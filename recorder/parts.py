@@ -23,6 +23,7 @@ from typing import Any, Callable, Iterable, Mapping, Optional
 from recorder.mcap_log import LogSummary, McapLog
 from recorder.record_modes import (PART_METADATA, REASON_COMMAND, REASON_DURATION, REASON_END, REASON_SIZE,
                                    RecordModes, part_path, parts_index_path)
+from truav import jsonio
 
 __all__ = ["PartedLog", "read_parts_index"]
 
@@ -136,6 +137,6 @@ class PartedLog:
         """``<stem>.parts.json``, replaced atomically (a reader never sees half of it)."""
         index = parts_index_path(self.out)
         tmp = index.with_name(index.name + ".tmp")
-        tmp.write_text(json.dumps({"version": INDEX_VERSION, "session": self.session, "parts": self.parts},
+        tmp.write_text(jsonio.dumps({"version": INDEX_VERSION, "session": self.session, "parts": self.parts},
                                   indent=1) + "\n")
         os.replace(tmp, index)

@@ -13,6 +13,7 @@ import json
 from typing import Mapping, Optional
 
 from recorder.schemas import envelope_fields
+from truav import jsonio
 
 __all__ = ["PauseLedger", "skipped_ranges", "MAX_STREAMS"]
 
@@ -60,7 +61,7 @@ class PauseLedger:
         return {"paused_ns": str(self.started_ns), "resumed_ns": str(ended_ns), "paused_by": self.by,
                 "resumed_by": resumed_by, "messages_not_recorded": str(self.messages),
                 "undecodable": str(self.undecodable), "streams_not_ranged": str(self.overflow),
-                SKIPPED_KEY: json.dumps({stream_label(*k): v for k, v in sorted(self._ranges.items())})}
+                SKIPPED_KEY: jsonio.dumps({stream_label(*k): v for k, v in sorted(self._ranges.items())})}
 
 
 def skipped_ranges(record: Mapping[str, str]) -> dict[str, tuple[int, int]]:

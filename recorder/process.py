@@ -46,7 +46,6 @@ Log time is the time the writer pulls the sample (wall clock, ns); publish time 
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import queue
@@ -86,6 +85,7 @@ from truav.options import to_argv
 from truav.bus import keys, schema, transport
 from truav.lograte import Every
 from truav.lifecycle import signals_handled, watch_supervisor
+from truav import jsonio
 
 log = logging.getLogger("truav.recorder")
 
@@ -516,7 +516,7 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
     if summary_json:
         try:
             Path(summary_json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before the start
-            Path(summary_json).write_text(json.dumps(summary.to_json(), indent=1) + "\n")
+            Path(summary_json).write_text(jsonio.dumps(summary.to_json(), indent=1) + "\n")
         except OSError as exc:
             print(f"recorder: error: cannot write {summary_json}: {exc.strerror or exc}", file=sys.stderr)
             return EXIT_FAILED
@@ -536,7 +536,7 @@ def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] 
     more flags, e.g. credentials or ``-v``)."""
     argv = [python, "-m", ENTRY_MODULE, "--run", run, "--out", os.fspath(out)]
     if run_info is not None:
-        argv += ["--run-info", json.dumps(run_info, sort_keys=True)]
+        argv += ["--run-info", jsonio.dumps(run_info, sort_keys=True)]
     for endpoint in connect:
         argv += ["--connect", endpoint]
     if config_toml is not None:

@@ -8,6 +8,7 @@ or None when the recording has nothing to show (the figure is then skipped).
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any, Optional
 
@@ -28,11 +29,26 @@ METRIC_LABELS = {
     "delay_sum_s": "relay delay, all packets (s)",
     "energy_j": "energy per UAV (J/step)",
     "hovering_uavs": "UAVs without an action",
+    "rejected": "messages the world refused (total so far)",
 }
+UAV_COUNT_LABELS = {"missed": "actions missed (hovered)", "late": "actions too late", "stale": "actions out of order",
+                    "rejected": "messages refused"}
+"""The world's per-UAV counts (world.world_stats.UAV_METRIC_COUNTS), each a total so far."""
 
 
 def metric_label(name: str) -> str:
-    return METRIC_LABELS.get(name, name.replace("_", " "))
+    """A step metric's name as a reader says it: ``uav.2.missed`` is "UAV 2: actions missed (hovered), total
+    so far", ``rejected.<reason>`` "messages the world refused as <reason>"."""
+    if name in METRIC_LABELS:
+        return METRIC_LABELS[name]
+    head, _, rest = name.partition(".")
+    if head == "uav":
+        uav, _, count = rest.partition(".")
+        if uav.isdigit() and count in UAV_COUNT_LABELS:
+            return f"UAV {uav}: {UAV_COUNT_LABELS[count]}, total so far"
+    if head == "rejected" and rest:
+        return f"messages the world refused as {rest.replace('_', ' ')} (total so far)"
+    return name.replace("_", " ")
 
 
 TRACK_BREAK_MIN_M = 100.0  # a jump longer than this (and 5x the usual step) starts a new track segment
@@ -241,19 +257,36 @@ def metrics_figure(rec: Recording, path: Path) -> Optional[str]:
         ax.axis("off")
     for ax in axes[-1]:
         ax.set_xlabel("time since recording start (s)")
+    ticks = np.array([m["tick"] if m.get("tick") is not None else np.nan for m in steps], dtype=float)
+    ok = np.isfinite(ticks) & np.isfinite(t)
+    tick_axis = ok.sum() >= 2 and np.all(np.diff(t[ok]) >= 0) and np.all(np.diff(ticks[ok]) > 0)
+    if tick_axis:
+        # the world's tick above, as summary.png and `truav-swarm status` count (recording seconds below:
+        # the fault windows and the other pictures of the report are in them)
+        tt, kk = t[ok], ticks[ok]
+        for ax in axes[0]:
+            if ax.has_data():
+                top_axis = ax.secondary_xaxis("top", functions=(lambda x: np.interp(x, tt, kk),
+                                                               lambda k: np.interp(k, kk, tt)))
+                top_axis.tick_params(labelsize=7)
+                ax.set_title(ax.get_title(loc="left"), fontsize=9, loc="left", pad=14)  # above the tick labels
     handles, labels = axes.ravel()[0].get_legend_handles_labels()
     if starts:
         from matplotlib.lines import Line2D
 
         handles.append(Line2D([], [], color="0.5", lw=0.8, ls=":"))
         labels.append("episode start")
-    top = 1.0 - 0.5 / fig.get_figheight()  # room for the title line and the legend line, in figure units
+    more = f" (first {len(shown)} of {len(varying)})" if len(varying) > len(shown) else ""
+    flat = "\n" + textwrap.fill("not drawn, constant over the run: " + ", ".join(
+        f"{metric_label(n)} = {v:g}" for n, v in constant.items()), 120) if constant else ""
+    title_in = 0.25 * (1 + flat.count("\n"))
+    # room for the title's lines and the legend line, in figure units
+    top = 1.0 - (title_in + 0.25) / fig.get_figheight()
     if handles:
         fig.legend(handles, labels, loc="upper left", bbox_to_anchor=(0.01, top + 0.25 / fig.get_figheight()),
                    ncol=len(handles), fontsize=8, frameon=False)
-    more = f" (first {len(shown)} of {len(varying)})" if len(varying) > len(shown) else ""
-    flat = "; constant: " + ", ".join(f"{metric_label(n)} = {v:g}" for n, v in constant.items()) if constant else ""
-    fig.suptitle(f"Step metrics over time{more}: {len(steps)} samples, {len(spans)} fault interval(s){flat}",
+    ticked = "; top axis: the world's tick (as summary.png counts)" if tick_axis else ""
+    fig.suptitle(f"Step metrics over time{more}: {len(steps)} samples, {len(spans)} fault interval(s){ticked}{flat}",
                  x=0.01, y=0.995, ha="left", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, top))
     fig.savefig(path, dpi=DPI)

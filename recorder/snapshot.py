@@ -18,7 +18,6 @@ It offers the writing interface of :class:`recorder.mcap_log.McapLog` that the r
 
 from __future__ import annotations
 
-import json
 import time
 from collections import deque
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Any, Callable, Mapping, Optional
 from recorder.mcap_log import LogSummary, McapLog
 from recorder.record_modes import SNAPSHOT_METADATA, snapshot_path
 from recorder.snapshot_triggers import Trigger, TriggerWatch
+from truav import jsonio
 
 __all__ = ["SnapshotLog", "MAX_TRIGGERS_LISTED"]
 
@@ -158,7 +158,7 @@ class SnapshotLog:
             "trigger": first.kind, "trigger_time_ns": str(first.at_ns), "what": first.what,
             "before_s": repr(self._before / S), "after_s": repr(self._after / S),
             "window_start_ns": str(first.at_ns - self._before), "window_end_ns": str(self._end_ns),
-            "triggers": json.dumps([[t.kind, t.at_ns, t.what] for t in self._triggers]),
+            "triggers": jsonio.dumps([[t.kind, t.at_ns, t.what] for t in self._triggers]),
             "trigger_count": str(self._n_triggers), "cut_short": "true" if cut_short else "false",
             "at_span_limit": "true" if self._end_ns >= self._last_ns else "false",
         }

@@ -125,12 +125,12 @@ def test_the_checker_looks_for_missed_actions_only_after_the_heal(tmp_path):
     hovering[-1][1] = 2.0
     early = invariants._quiet_tail({"timeline": {"hovering": hovering[:300]}}, plan, 10.0)  # ended at 30 s
     # a --plan run shorter than its plan: nothing after the heal to check (the run's length, not the swarm)
-    assert early.held and early.detail.startswith("not checked") and "heal (35.0 s)" in early.detail, early
+    assert early.held is None and early.status == "not checked" and "heal (35.0 s)" in early.detail, early
     bad = invariants._quiet_tail({"timeline": {"hovering": hovering}}, plan, 10.0)
     assert not bad.held and bad.detail.startswith("2 UAV-tick(s) without an action")
-    assert "1 of 2 invariants held: the run is NOT sound" in invariants.table([row, bad])
+    assert "1 of 2 checked held: the run is NOT sound" in invariants.table([row, bad])
     invariants.write(tmp_path, [row, bad])
-    assert json.loads((tmp_path / "invariants.json").read_text())["held"] is False
+    assert json.loads((tmp_path / "invariants.json").read_text())["sound"] is False
 
 
 def test_after_the_heal_a_busy_hosts_sporadic_misses_are_not_a_fault_but_a_uav_that_never_recovers_is():
@@ -176,11 +176,11 @@ def test_a_short_nemesis_run_heals_and_its_checker_reports_every_invariant(tmp_p
     report = json.loads((out / "invariants.json").read_text())
     rows = {r["name"]: r for r in report["invariants"]}
     assert len(rows) == 8 and (out / "invariants.txt").read_text().startswith("invariant"), text
-    assert rc == (0 if report["held"] else 1), text  # the exit code tells the table's verdict
+    assert rc == (0 if report["sound"] else 1), text  # the exit code tells the table's verdict
     for name, row in rows.items():
         if name.startswith(TIMING_ROWS):
             continue
-        assert row["held"], (name, row, text)
+        assert row["status"] == "held", (name, row, text)
     assert rows["every restarted agent resumed from its checkpoint"]["detail"].startswith("1 restart(s)"), text
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from truav import runio
+from truav import policy_scenario, runio
 from truav.checks import check_federated
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
@@ -49,6 +49,21 @@ def format_table(rows: dict[str, dict[str, np.ndarray]]) -> str:
             m, h = mean_ci(per_seed[name] * scale)
             cells.append(f"{m:10.2f} ± {h:<9.2f}" if np.isfinite(h) else f"{m:10.2f}{'':12}")
         lines.append(f"{scheme:<10}" + "".join(f"{c:>22}" for c in cells))
+    return "\n".join(lines)
+
+
+def paired_lines(rows: dict[str, dict[str, np.ndarray]], against: str) -> str:
+    """Each other scheme's difference from ``against`` per metric, paired over seeds (the same evaluation
+    seeds drive the same traffic for every scheme), with its 95% interval or why there is none."""
+    from truav.stats import effect_text, paired_effect
+    lines = []
+    for scheme, per_seed in rows.items():
+        if scheme == against:
+            continue
+        lines.append(f"{against} - {scheme}, paired over seeds, 95% t-interval:")
+        for name, label, scale in SUMMARY_METRICS:
+            e = paired_effect(per_seed[name] * scale, rows[against][name] * scale)
+            lines.append(f"  {label:<16}{effect_text(e, noun='seeds')}")
     return "\n".join(lines)
 
 
@@ -156,9 +171,9 @@ def cmd_train(args) -> int:
         return 130
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
-        runio.write_policy(out, seeds, result.policy)
+        runio.write_policy(out, seeds, result.policy, cfg)
     else:
-        runio.write_qtables(out, seeds, result.q, result.uav_pos)
+        runio.write_qtables(out, seeds, result.q, result.uav_pos, cfg)
     window = min(500, episodes)
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
                        title=f"{'TRUAV' if scheme == 'truav' else 'centralized SAC'} at {cfg.scenario.uav_speed_mps:g} m/s")
@@ -233,6 +248,9 @@ def cmd_evaluate(args) -> int:
         runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
+    fit = policy_scenario.check("", args.run, runio.qtable_file(run), cfg, args.allow_scenario_mismatch)
+    if fit.line():
+        print(f"warning: {fit.line()}", flush=True)
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
@@ -248,6 +266,8 @@ def cmd_evaluate(args) -> int:
           f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds"
           + ("; the swarm starts where training left it" if start is not None else ""))
     print(format_table(rows))
+    if len(rows) > 1:
+        print(paired_lines(rows, "truav"))
     return 0
 
 
@@ -292,13 +312,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
     ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
     ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
-    ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed")
+    ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed (with "
+                                                         "--allow-scenario-mismatch if it was trained at another)")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one value of the run's saved config (repeatable), e.g. --set channel.model=al-hourani")
     ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
                     help="also run these reference policies on the same traffic")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
+    policy_scenario.add_allow_arg(ev)
     ev.add_argument("--quiet", action="store_true")
     ev.set_defaults(func=cmd_evaluate)
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
+from truav import jsonio
 
 CHECKPOINT_EVERY_S = 60.0
 """Seconds between the checkpoints of a running `truav train` (its --checkpoint-every)."""
@@ -107,13 +108,38 @@ def read_metrics(path: Path) -> tuple[list[int], dict[str, np.ndarray]]:
     return seeds, out
 
 
-def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarray | None = None) -> None:
+def write_qtables(run: Path, seeds: list[int], q: np.ndarray, uav_pos: np.ndarray | None = None,
+                  cfg: Config | None = None) -> None:
     """Q-tables and, if given, where the UAVs ended training (B, U, 2): a
-    persist-trained swarm is evaluated from there (read_uav_positions)."""
+    persist-trained swarm is evaluated from there (read_uav_positions); with ``cfg``, the scenario they
+    were trained in (truav.policy_scenario)."""
     tmp = run / (QTABLE_FILE + ".tmp.npz")
     extra = {} if uav_pos is None else {"uav_pos": np.asarray(uav_pos, np.float64)}
+    extra.update(_scenario(cfg))
     np.savez_compressed(tmp, q=np.asarray(q, np.float64), seeds=np.asarray(seeds), **extra)
     os.replace(tmp, run / QTABLE_FILE)
+
+
+def _scenario(cfg: Config | None) -> dict[str, np.ndarray]:
+    from truav.policy_scenario import RECORD_ARRAY, record_array
+    return {} if cfg is None else {RECORD_ARRAY: record_array(cfg)}
+
+
+NPZ_MAGIC = b"PK\x03\x04"
+"""How every .npz file (a zip archive) starts."""
+
+
+def check_npz(p: Path, what: str) -> None:
+    """``p`` is an .npz archive, or a RunDirError naming what it should be: np.load would try another file
+    (a CSV, a TOML) as a pickle and answer with its allow_pickle message."""
+    try:
+        with open(p, "rb") as f:
+            head = f.read(len(NPZ_MAGIC))
+    except OSError as exc:
+        raise RunDirError(f"{p}: cannot read it ({exc.strerror or exc})") from None
+    if head != NPZ_MAGIC and not head.startswith(b"\x93NUMPY"):
+        kind = "an empty file" if not head else f"a {p.suffix.lstrip('.')} file" if p.suffix else "another kind of file"
+        raise RunDirError(f"{p}: not {what} (an .npz archive); this is {kind}")
 
 
 def qtable_file(path: str | Path) -> Path:
@@ -129,6 +155,7 @@ def qtable_file(path: str | Path) -> Path:
 def read_qtables(path: str | Path) -> tuple[list[int], np.ndarray]:
     """(seeds, q (B, U, S, 16) float64) from a run directory or a .npz file."""
     p = qtable_file(path)
+    check_npz(p, "a Q-table file of 'truav train'")
     # What np.load raises on an empty, truncated or foreign file: a user's file, not a bug.
     try:
         data = np.load(p, allow_pickle=False)
@@ -155,6 +182,7 @@ def qtable_shapes(path: str | Path) -> tuple[int, tuple[int, ...]]:
     """(number of seeds, shape of q) from the array headers alone: the cheap check an agent
     process makes before it loads the tables (`truav-swarm up` has read them in full)."""
     p = qtable_file(path)
+    check_npz(p, "a Q-table file of 'truav train'")
     try:
         with zipfile.ZipFile(p) as z:
             shapes = {}
@@ -203,10 +231,12 @@ POLICY_FILE = "policy.npz"
 ACTOR_ARRAYS = tuple(f"actor{i}" for i in range(6))
 
 
-def write_policy(run: Path, seeds: list[int], params: dict[str, np.ndarray]) -> None:
-    """The actors of a central run (agents.sac.BatchedSAC.state_dict, seed axis first)."""
+def write_policy(run: Path, seeds: list[int], params: dict[str, np.ndarray], cfg: Config | None = None) -> None:
+    """The actors of a central run (agents.sac.BatchedSAC.state_dict, seed axis first); with ``cfg``, the
+    scenario they were trained in."""
     tmp = run / (POLICY_FILE + ".tmp.npz")
-    np.savez_compressed(tmp, seeds=np.asarray(seeds), **{k: np.asarray(params[k], np.float32) for k in ACTOR_ARRAYS})
+    np.savez_compressed(tmp, seeds=np.asarray(seeds), **{k: np.asarray(params[k], np.float32) for k in ACTOR_ARRAYS},
+                        **_scenario(cfg))
     os.replace(tmp, run / POLICY_FILE)
 
 
@@ -219,6 +249,7 @@ def read_policy(path: str | Path, index: int, cfg: Config) -> dict[str, np.ndarr
     p = p / POLICY_FILE if p.is_dir() else p
     if not p.is_file():
         raise RunDirError(f"no trained controller at {p} (make one with `truav train --scheme central`)")
+    check_npz(p, "a policy file of 'truav train --scheme central'")
     try:
         with np.load(p, allow_pickle=False) as data:
             if not {"seeds", *ACTOR_ARRAYS} <= set(data.files):
@@ -245,7 +276,7 @@ def read_policy(path: str | Path, index: int, cfg: Config) -> dict[str, np.ndarr
 def write_resume_info(run: Path, info: dict) -> None:
     d = Path(run) / RESUME_DIR
     d.mkdir(exist_ok=True)
-    atomic_write_bytes(d / RESUME_FILE, json.dumps(info, indent=1).encode())
+    atomic_write_bytes(d / RESUME_FILE, jsonio.dumps(info, indent=1).encode())
 
 
 def read_resume_info(run: Path) -> dict | None:

@@ -1,9 +1,12 @@
-"""Small statistics helpers: mean with a two-sided 95% Student-t interval,
-and the paper's sliding-window smoothing."""
+"""Small statistics helpers: mean with a two-sided 95% Student-t interval, the paper's sliding-window
+smoothing, and paired effects (a change measured on the same seeds or episodes with and without it) with
+their interval and the number of pairs it would take to resolve them. Pure: no I/O."""
 
 from __future__ import annotations
 
+import math
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,3 +52,85 @@ def sliding_mean(x: np.ndarray, window: int, axis: int = 0) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         out = (c[idx] - c[lo]) / (k[idx] - k[lo])
     return np.moveaxis(out, 0, axis)
+
+
+# -- paired effects ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class Effect:
+    """The mean of paired differences b - a (the same seeds or episodes with and without a change) and its
+    two-sided 95% Student-t half-width."""
+
+    diff: float
+    half: float
+    """NaN with fewer than 2 pairs."""
+    n: int
+    sd: float
+    """Standard deviation of the differences (NaN with fewer than 2 pairs)."""
+
+    @property
+    def lo(self) -> float:
+        return self.diff - self.half
+
+    @property
+    def hi(self) -> float:
+        return self.diff + self.half
+
+    @property
+    def identical(self) -> bool:
+        """Every pair equal: no difference at all (not merely none detectable)."""
+        return self.n >= 2 and self.sd == 0.0 and self.diff == 0.0
+
+    @property
+    def resolved(self) -> bool:
+        """The interval excludes zero."""
+        return self.n >= 2 and math.isfinite(self.half) and abs(self.diff) > self.half
+
+
+def paired_effect(a, b) -> Effect:
+    """The effect b - a over the pairs where both values are finite (a NaN metric drops its pair)."""
+    a, b = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
+    if a.shape != b.shape:
+        raise ValueError(f"paired values need equal lengths, got {a.size} and {b.size}")
+    d = (b - a)[np.isfinite(a) & np.isfinite(b)]
+    n = int(d.size)
+    if n == 0:
+        return Effect(math.nan, math.nan, 0, math.nan)
+    diff = float(d.mean())
+    if n == 1:
+        return Effect(diff, math.nan, 1, math.nan)
+    sd = float(d.std(ddof=1))
+    return Effect(diff, t95(n - 1) * sd / math.sqrt(n), n, sd)
+
+
+def pairs_to_resolve(sd: float, size: float, limit: int = 100_000) -> int | None:
+    """Roughly how many pairs make the 95% half-width smaller than ``size`` at this spread of differences
+    (an effect of that size would then show as an interval that excludes zero, about half the time:
+    twice as many make it likely); None when it cannot be said (no spread known, no size, past ``limit``)."""
+    if not (math.isfinite(sd) and math.isfinite(size)) or size == 0.0:
+        return None
+    if sd == 0.0:
+        return 2
+    # the normal approximation first, then the t correction by a short walk up
+    n = max(2, math.ceil((1.96 * sd / abs(size)) ** 2))
+    while n <= limit and t95(n - 1) * sd / math.sqrt(n) >= abs(size):
+        n += 1
+    return n if n <= limit else None
+
+
+def effect_text(e: Effect, digits: int = 2, noun: str = "pairs", size: float | None = None) -> str:
+    """One cell of a comparison: the difference with its 95% interval, or why there is none. When the
+    interval covers zero: "no effect detectable at this size (±X)" and about how many ``noun`` would
+    resolve a difference of the observed size (or of ``size``, when given)."""
+    f = f"{{:+.{digits}f}}"
+    if e.n == 0:
+        return "n/a (no pair with both values)"
+    if e.n == 1:
+        return f"{f.format(e.diff)} (1 pair: no interval; more {noun} give one)"
+    if e.identical:
+        return f"{f.format(0.0)}: identical in all {e.n} {noun}"
+    if e.resolved:
+        return f"{f.format(e.diff)} ±{e.half:.{digits}f} (95% CI, {e.n} {noun})"
+    target = abs(e.diff) if size is None else abs(size)
+    need = pairs_to_resolve(e.sd, target)
+    more = f"; ~{need} {noun} would resolve a difference of {target:.{digits}f}" if need and target > 0 else ""
+    return f"{f.format(e.diff)}: no effect detectable at this size (±{e.half:.{digits}f}, {e.n} {noun}){more}"

@@ -16,7 +16,6 @@ trips it was made from.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -34,6 +33,7 @@ from truav.config import Config
 from truav.errors import UserError
 from world import sumo_scenario
 from world.trace import Trace, rows_needed
+from truav import jsonio
 
 INSTALL_HINT = "pip install -e '.[sumo]' (eclipse-sumo and libsumo 1.28)"
 TRACE_FILE = "trace.npz"
@@ -150,7 +150,7 @@ def record(cfg: Config, work: Path) -> Trace:
 def save_trace(trace: Trace, path: Path, meta: dict) -> None:
     tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, positions=trace.positions, active=trace.active, step_s=trace.step_s,
-                        steps_per_episode=trace.steps_per_episode, meta=json.dumps(meta))
+                        steps_per_episode=trace.steps_per_episode, meta=jsonio.dumps(meta))
     os.replace(tmp, path)
 
 

@@ -13,13 +13,13 @@ drive the vehicles; traffic lights stand at the major intersections.
 from __future__ import annotations
 
 import hashlib
-import json
 from typing import Callable
 
 import numpy as np
 
 from truav.config import Config, n_grid_roads, to_dict
 from world.roads import RoadGrid, move_hotspots_env
+from truav import jsonio
 
 
 def node_id(i: int, j: int) -> str:
@@ -101,7 +101,7 @@ def cache_key(cfg: Config, sumo_version: str) -> str:
     """Name of a trace in the cache: a hash of what it depends on and SUMO's version."""
     data = to_dict(cfg)
     picked = {sec: (data[sec] if keys is None else {k: data[sec][k] for k in keys}) for sec, keys in TRACE_KEYS.items()}
-    text = json.dumps({"sumo": sumo_version, "drive": DRIVE_VERSION, "cfg": picked}, sort_keys=True, default=list)
+    text = jsonio.dumps({"sumo": sumo_version, "drive": DRIVE_VERSION, "cfg": picked}, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

@@ -4,12 +4,12 @@ and the stats file (world.json). Pure bookkeeping: no bus, no simulation."""
 from __future__ import annotations
 
 import hashlib
-import json
 import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from truav import jsonio
 
 
 @dataclass
@@ -156,5 +156,5 @@ def write_stats(path: str | Path, stats: WorldStats) -> None:
                                     "max": float(lat.max()), "n": int(lat.size)}
     p = Path(path)
     tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, allow_nan=True))
+    tmp.write_text(jsonio.dumps(data, indent=1))
     tmp.replace(p)

@@ -15,6 +15,7 @@ from truav.bus import keys, schema
 from truav.bus.bus_types import BUS_LOGGER
 from truav.bus.placement import KIND_BY_KEY
 from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODE_ROUTER, close_session, make_config, open_session
+from truav import jsonio
 
 log = logging.getLogger(BUS_LOGGER)
 
@@ -67,10 +68,10 @@ def open_router(
     :func:`router_size_filters` (plain and secure alike)."""
     conf = make_config(MODE_ROUTER, connect, listen, config_file)
     if json.loads(conf.get_json("low_pass_filter") or "[]") == []:
-        conf.insert_json5("low_pass_filter", json.dumps(router_size_filters()))
+        conf.insert_json5("low_pass_filter", jsonio.dumps(router_size_filters()))
     for path, value in ROUTER_SESSION_LIMITS.items():  # Zenoh's defaults stop a swarm short of 1,000 UAVs
         if json.loads(conf.get_json(path) or "null") == ZENOH_DEFAULT_LIMITS[path]:
-            conf.insert_json5(path, json.dumps(value))
+            conf.insert_json5(path, jsonio.dumps(value))
     return open_session(conf)
 
 

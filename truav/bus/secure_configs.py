@@ -5,7 +5,6 @@ plus the credentials directory's file names and a probe telling a TLS router fro
 from __future__ import annotations
 
 import base64
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -13,6 +12,7 @@ from pathlib import Path
 
 from truav.bus.acl import ROUTER, CredentialsError, Grant, acl_config, file_stem, grants
 from truav.bus.rate_caps import downsampling_config
+from truav import jsonio
 
 CA_CERT = "ca.pem"
 CA_KEY = "ca.key"
@@ -191,7 +191,7 @@ def answers_tls(endpoint: str, timeout_s: float = 1.0) -> bool:
 
 def _write_json(path: Path, data: dict, *, secret: bool = False) -> None:
     """JSON (which is JSON5); ``secret``: owner-only (it holds a private key)."""
-    text = json.dumps(data, indent=1) + "\n"
+    text = jsonio.dumps(data, indent=1) + "\n"
     if not secret:
         path.write_text(text)
         return

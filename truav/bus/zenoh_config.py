@@ -18,6 +18,7 @@ import zenoh
 from truav.bus.acl import CredentialsError, replay_run
 from truav.bus.certs import load as load_credentials
 from truav.bus.secure_configs import TLS_FILE_KEYS
+from truav import jsonio
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_PEER_LISTEN = "tcp/127.0.0.1:0"
@@ -60,19 +61,19 @@ def make_config(
     if config_file is not None:
         _files_next_to(conf, os.path.dirname(os.path.abspath(config_file)))
     if mode is not None:
-        conf.insert_json5("mode", json.dumps(mode))
+        conf.insert_json5("mode", jsonio.dumps(mode))
     loopback_defaults = config_file is None
     if connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("connect/endpoints", jsonio.dumps(list(connect)))
     elif loopback_defaults and mode == MODE_CLIENT:
-        conf.insert_json5("connect/endpoints", json.dumps([DEFAULT_ENDPOINT]))
+        conf.insert_json5("connect/endpoints", jsonio.dumps([DEFAULT_ENDPOINT]))
     if listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        conf.insert_json5("listen/endpoints", jsonio.dumps(list(listen)))
     elif loopback_defaults and mode in (MODE_ROUTER, MODE_PEER):
         default = DEFAULT_ENDPOINT if mode == MODE_ROUTER else DEFAULT_PEER_LISTEN
-        conf.insert_json5("listen/endpoints", json.dumps([default]))
+        conf.insert_json5("listen/endpoints", jsonio.dumps([default]))
     if connect_timeout_ms is not None:
-        conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_ms)))
+        conf.insert_json5("connect/timeout_ms", jsonio.dumps(int(connect_timeout_ms)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if config_file is None or json.loads(conf.get_json("transport/shared_memory/enabled")) is True:
         conf.insert_json5("transport/shared_memory/enabled", "false")  # see SHARED_MEMORY_NOTE
@@ -90,7 +91,7 @@ def _files_next_to(conf: zenoh.Config, directory: str) -> None:
     for name in TLS_FILE_KEYS:
         value = json.loads(conf.get_json(f"transport/link/tls/{name}"))
         if isinstance(value, str) and value and not os.path.isabs(value):
-            conf.insert_json5(f"transport/link/tls/{name}", json.dumps(os.path.join(directory, value)))
+            conf.insert_json5(f"transport/link/tls/{name}", jsonio.dumps(os.path.join(directory, value)))
 
 
 def apply_creds(args: Any, identity: str) -> None:

@@ -7,13 +7,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from truav import runio
+from truav import policy_scenario
 from truav.cli_args import check_out_dir, positive_float, seed_int
 from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
 from truav.config import ConfigError, read_toml, to_dict
 from truav.experiments import fault_sweep
 from truav.experiments.scheme_faults import SCHEMES
 from truav.experiments.cli_executor import add_executor_args, check_executor
+from truav import jsonio
 
 
 def add_fault_sweep_parser(ex_sub) -> None:
@@ -21,8 +22,10 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
     add_config_args(p)
     p.add_argument("--quick", action="store_true",
-                   help="3 levels each, 1 short episode per point (about a minute); default: the full sweep")
+                   help="3 levels each, 3 short episodes per point (the effects paired over them; about 3 minutes); "
+                        "default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
+    policy_scenario.add_allow_arg(p)
     p.add_argument("--seed", type=seed_int, default=0, help="seed of every swarm run (default %(default)s)")
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running with the same "
@@ -43,27 +46,30 @@ def cmd_fault_sweep(args) -> int:
     size = "quick" if args.quick else "full"
     cfg = config_from(args)
     out = check_out_dir("--out", args.out if args.out is not None else f"runs/faults{'-quick' if args.quick else ''}")
+    fits = []
     if args.qtable is not None:  # the policy every swarm run flies: check it fits before the first run
-        run = Path(args.qtable)
-        try:
-            _, q = runio.read_qtables(run)
-            runio.check_qtables(run, q.shape, cfg, exact_uavs=False)
-        except runio.RunDirError as exc:
-            raise UsageError(f"--qtable: {exc}") from None
+        from truav.swarm.checks import check_qtable
+        fits.append(check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch))
+    if args.policy is not None and "central" in (args.schemes or ()):
+        from truav.swarm.cli import check_policy
+        fits.append(check_policy("--policy", args.policy, cfg, 0, args.allow_scenario_mismatch))
     check_executor(args)
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
     keep_steps = any("steps_per_episode" in (layer.get("scenario") or {}) for layer in given)  # the user's wins
     settings = {"mode": "schemes" if args.schemes else "sweep", "size": size, "seed": args.seed, "rate": args.rate,
                 "qtable": _resolved(args.qtable), "policy": _resolved(args.policy), "keep_steps": keep_steps,
                 "config": to_dict(cfg)}
+    if any(f.line() for f in fits):  # a mismatch allowed, or a record missing: in settings.json and said
+        settings["policy_scenario"] = [f.as_json() for f in fits]
+        for fit in fits:
+            if fit.line():
+                print(f"warning: {fit.line()}", flush=True)
     if args.schemes:
         from truav.experiments.scheme_faults import run_comparison
         schemes = tuple(dict.fromkeys(args.schemes))
         if args.policy is not None:
             if "central" not in schemes:
                 raise UsageError("--policy: only --schemes central flies a trained controller")
-            from truav.swarm.cli import check_policy
-            check_policy("--policy", args.policy, cfg, 0)
         if "central" in schemes:
             from truav.swarm.cli import check_central_sizes
             check_central_sizes(cfg)
@@ -94,7 +100,7 @@ def check_settings(out: Path, settings: dict) -> None:
     """A re-run into ``out`` keeps its finished points, so it must run with their settings: the first run writes
     them to SETTINGS_FILE, a later one with others is refused in one line (UsageError) before anything runs."""
     path = out / SETTINGS_FILE
-    settings = json.loads(json.dumps(settings))  # tuples as lists, as read back
+    settings = json.loads(jsonio.dumps(settings))  # tuples as lists, as read back
     if path.is_file():
         try:
             before = json.loads(path.read_text())
@@ -109,4 +115,4 @@ def check_settings(out: Path, settings: dict) -> None:
         raise UsageError(f"--out {out}: holds finished points with no {path.name} to tell their settings (an "
                          f"earlier version's run); choose another --out")
     out.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(settings, indent=1))
+    path.write_text(jsonio.dumps(settings, indent=1))

@@ -18,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from truav import jsonio
 from truav.config import Config
+from truav.stats import effect_text, paired_effect
 
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0),
            ("delay_ms", "relay delay (ms)", 1.0), ("energy_j", "energy (kJ/UAV/episode)", 1e-3))
@@ -49,7 +51,8 @@ class SweepSize:
 
 
 SIZES = {
-    "quick": SweepSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), 1, 60, 200),
+    # quick: 3 episodes per point, the fewest that give each effect an interval (paired over episodes)
+    "quick": SweepSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), 3, 60, 200),
     "full": SweepSize((0.0, 0.1, 0.2, 0.3, 0.4, 0.5), (0.0, 100.0, 200.0, 300.0, 400.0, 500.0), 3, 100, 2000),
 }
 
@@ -69,7 +72,7 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     cfg = cfg.replace(learner={"episodes": episodes})
     result = run_parallel("truav", cfg, [seed], episodes, workers=1)
     runio.write_config(run, cfg)
-    runio.write_qtables(run, [seed], result.q)
+    runio.write_qtables(run, [seed], result.q, cfg=cfg)
     return run
 
 
@@ -134,12 +137,14 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
         texts = [point(n, kind, level) for n, (kind, level) in enumerate(points)]
     from truav.swarm.chaos import BASELINE_MAX_MISSED_SHARE  # the same bar as chaos's no-fault run
     rows = []
+    per_episode: dict[tuple[str, float], dict[str, list[float]]] = {}
     for (kind, level), text in zip(points, texts):
         summary = json.loads(text)
         eps = (summary.get("world") or {}).get("episodes") or []
+        per_episode[kind, level] = {key: [jsonio.num(e.get(key)) * scale for e in eps] for key, _, scale in METRICS}
         row = {"kind": kind, "level": level}
         for key, _, _ in METRICS:
-            vals = [e.get(key, math.nan) for e in eps]
+            vals = [jsonio.num(e.get(key)) for e in eps]
             row[key] = float(np.nanmean(vals)) if vals else math.nan
         row["missed_actions"] = (summary.get("world") or {}).get("deadline_misses", math.nan)
         share = missed_share(summary, cfg.scenario.n_uavs)
@@ -151,7 +156,26 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+    text = effects_text(per_episode)
+    print(text, flush=True)
+    (out / "effects.txt").write_text(text + "\n")
     return sweep_figure(rows, out / "faults.png")
+
+
+def effects_text(per_episode: dict[tuple[str, float], dict[str, list[float]]]) -> str:
+    """Each fault point's effect on each metric against its kind's no-fault point (level 0), paired over the
+    episodes (the same seed: episode k drives the same traffic at every point), with its 95% interval."""
+    lines = ["effect against the no-fault point (fault - none), paired over episodes, 95% t-interval:"]
+    for (kind, level), values in per_episode.items():
+        base = per_episode.get((kind, 0.0))
+        if level == 0 or base is None:
+            continue
+        lines.append(f"beacon {kind} {level:g}:")
+        for key, label, _ in METRICS:
+            a, b = base[key], values[key]
+            n = min(len(a), len(b))
+            lines.append(f"  {label:<26}{effect_text(paired_effect(a[:n], b[:n]), noun='episodes')}")
+    return "\n".join(lines)
 
 
 def sweep_figure(rows: list[dict], path: Path) -> Path:

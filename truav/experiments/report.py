@@ -236,6 +236,12 @@ def versus_figure(rows: list[dict[str, object]], x: str, xlabel: str, path: Path
     return path
 
 
+CONVERGENCE_MIN_WIDTH_IN = 7.5
+"""Narrowest convergence figure (inches): its title and a legend entry fit."""
+LEGEND_ENTRY_WIDTH_IN = 3.6
+"""About the width of one legend entry (the schemes' labels run to ~40 characters)."""
+
+
 def convergence_figure(results: list[CellResult], path: Path, window: int, title: str) -> Path:
     """Training curves: rows = the four metrics, columns = speeds, one line per
     scheme ({window}-episode sliding mean, mean over seeds, 95% band)."""
@@ -249,8 +255,9 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
     speeds = sorted({k[1] for k in data})
     schemes = [s for s in SCHEME_STYLE if any(k[0] == s for k in data)]
     plt = _pyplot()
-    fig, axes = plt.subplots(len(PANELS), len(speeds), figsize=(3.3 * len(speeds), 2.5 * len(PANELS)),
-                             squeeze=False, sharex="col")
+    # at one or two speeds the columns alone are narrower than the title and the legend: a minimum width
+    width, height = max(3.3 * len(speeds), CONVERGENCE_MIN_WIDTH_IN), 2.5 * len(PANELS)
+    fig, axes = plt.subplots(len(PANELS), len(speeds), figsize=(width, height), squeeze=False, sharex="col")
     for j, v in enumerate(speeds):
         for i, (name, label, scale) in enumerate(PANELS):
             ax = axes[i, j]
@@ -276,9 +283,11 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
                 ax.set_xlabel("episode")
             ax.grid(alpha=0.3)
     handles, labels = _legend(axes)
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), frameon=False)
+    ncol = max(1, min(len(labels), int(width // LEGEND_ENTRY_WIDTH_IN)))
+    rows = -(-len(labels) // ncol)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, frameon=False)
     fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    fig.tight_layout(rect=(0, (0.15 + 0.3 * rows) / height, 1, 0.97))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

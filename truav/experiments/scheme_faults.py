@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from truav.config import Config
+from truav.stats import effect_text, paired_effect
+from truav import jsonio
 
 SCHEMES = ("truav", "central", "patrol", "federated", "truav_online")
 LEARNING = ("federated", "truav_online")
@@ -120,7 +122,7 @@ def train_central(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     result = run_chunk("central", cfg, [seed], episodes)
     runio.write_config(run, cfg)
     runio.write_metrics(run / runio.METRICS_FILE, [seed], result.metrics)
-    runio.write_policy(run, [seed], result.policy)
+    runio.write_policy(run, [seed], result.policy, cfg)
     return run
 
 
@@ -158,7 +160,7 @@ def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> 
     eps = world.get("episodes") or []
     row = {"scheme": scheme, "kind": kind, "level": level}
     for key, _, _ in METRICS[:-1]:
-        vals = [e.get(key, math.nan) for e in eps]
+        vals = [jsonio.num(e.get(key)) for e in eps]
         row[key] = float(np.nanmean(vals)) if vals else math.nan
     acting = world.get("ticks", 0) - len(eps)
     held = sum(((a or {}).get("commands") or {}).get("held", 0) for a in summary.get("agents") or [])
@@ -200,8 +202,13 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
     else:
         texts = [point(n, *p) for n, p in enumerate(todo)]
     rows = []
+    per_episode = {}
     for (scheme, kind, level), text in zip(todo, texts):
-        row = row_of(scheme, kind, level, json.loads(text), cfg.scenario.n_uavs)
+        summary = json.loads(text)
+        per_episode[scheme, kind, level] = {key: [jsonio.num(e.get(key)) * scale for e in
+                                                  (summary.get("world") or {}).get("episodes") or []]
+                                            for key, _, scale in METRICS[:-1]}
+        row = row_of(scheme, kind, level, summary, cfg.scenario.n_uavs)
         for k in ([kind] if kind != "none" else [k for k, _, _ in KINDS]):  # the baseline is level 0 of every kind
             rows.append({**row, "kind": k})
     rows.sort(key=lambda r: (schemes.index(r["scheme"]), [k for k, _, _ in KINDS].index(r["kind"]), r["level"]))
@@ -209,10 +216,38 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    (out / "policies.json").write_text(json.dumps(policies, indent=1))
+    (out / "policies.json").write_text(jsonio.dumps(policies, indent=1))
+    text = comparison_effects(per_episode, schemes)
+    print(text, flush=True)
+    (out / "effects.txt").write_text(text + "\n")
     return [metric_figure(rows, schemes, key, label, scale, out / f"comparison-{key}.png",
                           title=f"{label}: {', '.join(schemes)} under the same faults, seed {seed}")
             for key, label, scale in METRICS]
+
+
+def comparison_effects(per_episode: dict[tuple[str, str, float], dict[str, list[float]]], schemes) -> str:
+    """Each scheme against the first at every point, and each fault point against the scheme's own no-fault
+    run: differences paired over the episodes (the same seed: episode k drives the same traffic in every run),
+    with their 95% interval or why there is none."""
+    def line(label: str, a: list[float], b: list[float]) -> str:
+        n = min(len(a), len(b))
+        return f"  {label:<26}{effect_text(paired_effect(a[:n], b[:n]), noun='episodes')}"
+
+    lines = ["effects paired over episodes, 95% t-interval:"]
+    first = schemes[0]
+    for (scheme, kind, level), values in per_episode.items():
+        if scheme == first:
+            continue
+        base = per_episode.get((first, kind, level))
+        if base is not None:
+            lines.append(f"{scheme} - {first} at {kind} {level:g}:")
+            lines += [line(label, base[key], values[key]) for key, label, _ in METRICS[:-1]]
+    for (scheme, kind, level), values in per_episode.items():
+        base = per_episode.get((scheme, "none", 0.0))
+        if kind != "none" and base is not None:
+            lines.append(f"{scheme}: {kind} {level:g} - no fault:")
+            lines += [line(label, base[key], values[key]) for key, label, _ in METRICS[:-1]]
+    return "\n".join(lines)
 
 
 LINE_STYLES = ("-", "--", ":", "-.")

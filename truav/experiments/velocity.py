@@ -54,7 +54,7 @@ def write_outputs(out: Path, base: Config, results: list[CellResult], window: in
         + report.markdown_table(rows, setting) + "\n")
     report.versus_figure(rows, "speed_mps", "UAV velocity (m/s)", out / "velocity.png",
                          f"Performance versus UAV velocity (mean of {n_seeds} seeds, "
-                         + ("95% bands)" if n_seeds >= MIN_SEEDS_FOR_BAND else "circles: each seed)"))
+                         + ("95% bands)" if n_seeds >= MIN_SEEDS_FOR_BAND else "open markers: each seed)"))
     report.convergence_figure(results, out / "convergence.png", window,
                               f"Training convergence ({window}-episode sliding window)")
     return [out / f for f in FILES]

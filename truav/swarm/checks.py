@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from truav import runio
+from truav import policy_scenario, runio
 from truav.bus import schema, security
 from truav.checks import check_endpoint, check_in_file, check_out_file
 from truav.config import Config
 from truav.errors import UserError
 from truav.faults import check_plan_for, load_plan
+from truav.policy_scenario import Fit
 from agents.agent_process import AgentOptions
 from agents.state import StateEncoder
 from world.uavs import N_ACTIONS
@@ -76,9 +77,11 @@ def check_plan(flag: str, path: str, n_uavs: int, scheme: str | None = None):
     return check_plan_for(load_plan(path), n_uavs, path, scheme)
 
 
-def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, full: bool = True) -> None:
+def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, full: bool = True,
+                 allow_mismatch: bool = False) -> Fit | None:
     """A trained run (or its qtables.npz) whose tables fit this scenario; ``full``: read every
-    entry (once, in `up`), else only the array headers (each agent process, just before it loads them)."""
+    entry and compare the scenario it was trained in (once, in `up`: its fit, for the summary), else
+    only the array headers (each agent process, just before it loads them; None)."""
     try:
         if full:
             seeds, q = runio.read_qtables(run)
@@ -90,6 +93,9 @@ def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, ful
         raise UserError(f"{flag}: {exc}") from None
     if index is not None and index >= n_seeds:
         raise UserError(f"--qtable-index {index}: {run} holds {n_seeds} table(s) (indices 0-{n_seeds - 1})")
+    if not full:
+        return None
+    return policy_scenario.check(flag, run, runio.qtable_file(run), cfg, allow_mismatch, exact_uavs=False)
 
 
 def check_beacon_cell(cell_m: float | None, cfg: Config) -> None:
@@ -114,12 +120,14 @@ def check_scheme_flags(args) -> None:
             raise UserError(f"--command-hold: only --scheme central has commands (this is --scheme {scheme})")
 
 
-def check_policy(flag: str, run: str, cfg: Config, index: int) -> None:
-    """A trained central controller (`truav train --scheme central`) that fits this scenario."""
+def check_policy(flag: str, run: str, cfg: Config, index: int, allow_mismatch: bool = False) -> Fit:
+    """A trained central controller (`truav train --scheme central`) that fits this scenario; its fit."""
     try:
         runio.read_policy(run, index, cfg)
     except runio.RunDirError as exc:
         raise UserError(f"{flag}: {exc}") from None
+    path = Path(run)
+    return policy_scenario.check(flag, run, path / runio.POLICY_FILE if path.is_dir() else path, cfg, allow_mismatch)
 
 
 def check_central_sizes(cfg: Config) -> None:

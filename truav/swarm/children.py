@@ -18,6 +18,7 @@ from pathlib import Path
 
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.lifecycle import child_env
+from truav import jsonio
 
 ROUTER_READY_LINE = b"router listening on"
 """What `truav-swarm router` prints once its endpoints are open."""
@@ -111,7 +112,7 @@ class Children:
         self.started_at[name] = time.monotonic()
         self.incarnations.append((name, proc, self.started_at[name]))
         if self.pid_file is not None:
-            self.pid_file.write_text(json.dumps(self.pids()))
+            self.pid_file.write_text(jsonio.dumps(self.pids()))
         if self.on_start is not None:
             self.on_start(name, proc)
         return proc

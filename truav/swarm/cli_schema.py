@@ -11,7 +11,6 @@ what every field means.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from truav.bus import protocol_doc
 from truav.bus.messages import MESSAGE_CLASSES
 from truav.checks import check_in_file, check_out_dir, make_dir
 from truav.cli_config import UsageError
+from truav import jsonio
 
 INDEX_FILE = "index.json"
 
@@ -48,13 +48,13 @@ def write_schemas(out: Path) -> list[Path]:
     written, index = [], {}
     for kind in MESSAGE_CLASSES:
         path = out / schema_file(kind)
-        path.write_text(json.dumps(bus_schema(kind), indent=1) + "\n")
+        path.write_text(jsonio.dumps(bus_schema(kind), indent=1) + "\n")
         written.append(path)
         index[kind] = {"file": path.name, "title": SCHEMA_PREFIX + kind,
                        "key": f"truav/<run>/{protocol_doc.key_of(kind)}"}
     doc = {"description": "TRUAV bus messages: msgpack maps; one JSON Schema per kind (of the decoded map). "
                           "The meaning of every field: docs/protocol.md", "kinds": index}
-    (out / INDEX_FILE).write_text(json.dumps(doc, indent=1) + "\n")
+    (out / INDEX_FILE).write_text(jsonio.dumps(doc, indent=1) + "\n")
     return [*written, out / INDEX_FILE]
 
 

@@ -17,12 +17,14 @@ from truav.config import MOBILITIES
 from agents.agent_process import AgentOptions
 from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav import policy_scenario
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
                                 check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
+from truav.swarm.chaos_time import PLAN_EPISODES
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.outdir import OutDirError, check_swarm_dir
@@ -77,10 +79,13 @@ def swarm_options(args):
         check_out_file("--record", args.record)
     check_scheme_flags(args)
     check_federated(cfg, args.scheme, learns=not getattr(args, "greedy", False))
+    fit = None
     if args.qtable is not None:
-        check_qtable("--qtable", args.qtable, cfg)
+        fit = check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch)
     if args.policy is not None:
-        check_policy("--policy", args.policy, cfg, args.policy_index)
+        fit = check_policy("--policy", args.policy, cfg, args.policy_index, args.allow_scenario_mismatch)
+    if fit is not None and fit.line():  # said now, and again in the summary
+        print(f"warning: {fit.line()}", flush=True)
     if args.scheme == "central":
         check_central_sizes(cfg)
     plan = check_plan("--fault-plan", args.fault_plan, n, args.scheme) if args.fault_plan is not None else None
@@ -119,7 +124,7 @@ def swarm_options(args):
                              f"{' and '.join(sorted(kinds))}es single agent processes; use 1 agent per process")
     opts = SwarmOptions(run=args.run, seed=args.seed, episodes=args.episodes, lockstep=args.lockstep,
                         lockstep_wait_s=lockstep_wait(args), rate_hz=args.rate, record=args.record, qtable=args.qtable,
-                        greedy=args.greedy,
+                        greedy=args.greedy, policy_fit=fit.as_json() if fit is not None else None,
                         out=args.out, listen=args.listen[0] if args.listen else None,
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
                         fault_plan=args.fault_plan, plan=plan, foxglove_port=getattr(args, "foxglove", None),
@@ -178,7 +183,7 @@ def cmd_chaos(args) -> int:
         for flag, value in (("--duration", args.duration),):
             if value is not None:
                 raise UsageError(f"{flag}: only with --nemesis (a --plan run lasts --episodes)")
-        args.episodes = 2 if args.episodes is None else args.episodes
+        args.episodes = PLAN_EPISODES if args.episodes is None else args.episodes
     else:
         if args.duration is None:
             raise UsageError("--nemesis: give --duration (e.g. 10m): the schedule is drawn for the run's length")
@@ -240,6 +245,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
     up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
     up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
+    policy_scenario.add_allow_arg(up)
     up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")
     up.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                     help=f"router endpoint (default {DEFAULT_ENDPOINT} if that port is free, else a free loopback port)")
@@ -316,3 +322,7 @@ def add_up_commands(sub) -> None:
     ch.add_argument("--duration", type=duration_s, metavar="T",
                     help="--nemesis: how long the run lasts (e.g. 90s, 10m; sets --episodes)")
     ch.set_defaults(func=cmd_chaos, episodes=None)
+    for action in ch._actions:  # --plan's default differs from up's: enough episodes to pair
+        if action.dest == "episodes":
+            action.help = (f"episodes of each run (default {PLAN_EPISODES} with --plan: the effects are paired over "
+                           f"them; set by --duration with --nemesis)")

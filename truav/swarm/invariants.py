@@ -41,6 +41,7 @@ from recorder.reader import iter_messages
 from recorder.schemas import decode_envelope
 from truav.faults import FaultPlan
 from truav.swarm.children import truav_process
+from truav import jsonio
 
 MAX_RSS_GROWTH_MB = 100.0
 """Memory growth allowed per process over a run (the issue's 3-8 min soaks grew by at most 34 MB)."""
@@ -58,8 +59,32 @@ PROCESS_GRACE_S = 5.0
 @dataclass
 class Invariant:
     name: str
-    held: bool
+    held: bool | None
+    """True held, False violated, None not checked (never counted as held)."""
     detail: str
+
+    @property
+    def status(self) -> str:
+        return "not checked" if self.held is None else "held" if self.held else "VIOLATED"
+
+
+def not_checked(name: str, why: str) -> Invariant:
+    """A row the run gave nothing to check (its status column says "not checked"; ``why`` is its detail)."""
+    return Invariant(name, None, why)
+
+
+def sound(rows: list[Invariant]) -> bool:
+    """No invariant violated (what the exit code says; what was not checked is said by :func:`count_line`)."""
+    return not any(r.held is False for r in rows)
+
+
+def count_line(rows: list[Invariant]) -> str:
+    """e.g. "6 of 6 checked held; 2 not checked: a, b": what was not checked is never counted as held."""
+    checked = [r for r in rows if r.held is not None]
+    held = sum(bool(r.held) for r in checked)
+    skipped = [r.name for r in rows if r.held is None]
+    line = f"{held} of {len(checked)} checked held" + ("" if sound(rows) else ": the run is NOT sound")
+    return line + (f"; {len(skipped)} not checked: {', '.join(skipped)}" if skipped else "")
 
 
 def heal_time(plan: FaultPlan) -> float:
@@ -95,17 +120,19 @@ def check_run(out: Path, rc: int, plan: FaultPlan, rate_hz: float, record: str |
 
 def table(rows: list[Invariant]) -> str:
     width = max(len(r.name) for r in rows)
-    lines = [f"{'invariant':<{width}}  {'':8}  detail", "-" * (width + 40)]
-    lines += [f"{r.name:<{width}}  {'held' if r.held else 'VIOLATED':8}  {r.detail}" for r in rows]
-    held = sum(r.held for r in rows)
-    lines.append(f"{held} of {len(rows)} invariants held" + ("" if held == len(rows) else ": the run is NOT sound"))
+    lines = [f"{'invariant':<{width}}  {'':11}  detail", "-" * (width + 40)]
+    lines += [f"{r.name:<{width}}  {r.status:11}  {r.detail}" for r in rows]
+    lines.append(count_line(rows))
     return "\n".join(lines)
 
 
 def write(out: Path, rows: list[Invariant]) -> tuple[Path, Path]:
     txt, js = out / "invariants.txt", out / "invariants.json"
     txt.write_text(table(rows) + "\n")
-    js.write_text(json.dumps({"held": all(r.held for r in rows), "invariants": [asdict(r) for r in rows]}, indent=1))
+    js.write_text(jsonio.dumps({"sound": sound(rows), "held": sum(r.held is True for r in rows),
+                                "violated": sum(r.held is False for r in rows),
+                                "not_checked": sum(r.held is None for r in rows),
+                                "invariants": [{**asdict(r), "status": r.status} for r in rows]}, indent=1))
     return txt, js
 
 
@@ -113,7 +140,7 @@ def write(out: Path, rows: list[Invariant]) -> tuple[Path, Path]:
 def _log_check(record: str | None, outages: list[list[int]]) -> Invariant:
     name = "the recording passes truav log check"
     if not record:
-        return Invariant(name, True, "nothing recorded (no --record): not checked")
+        return not_checked(name, "nothing recorded (no --record)")
     try:
         done = subprocess.run([sys.executable, "-m", "truav.cli", "log", "check", record], capture_output=True,
                               text=True, timeout=LOG_CHECK_TIMEOUT_S)
@@ -227,13 +254,12 @@ def _quiet_tail(summary: dict, plan: FaultPlan, rate_hz: float) -> Invariant:
     window = quiet_window_s(plan, end_tick / rate_hz)
     name = f"no missed action in the last {window:.0f} s (after the heal)"
     if window <= 0 and not math.isfinite(heal_time(plan)):  # a plan of one's own may fault to the end
-        return Invariant("no missed action after the heal", True,
-                         "not checked: the plan's faults last to the end of the run (no quiet tail)")
+        return not_checked("no missed action after the heal", "the plan's faults last to the end of the run "
+                                                                 "(no quiet tail)")
     if window <= 0:  # a --plan run shorter than its plan (a nemesis run lasts past its heal by construction;
         # ending early fails "the run ended ok"): nothing after the heal to check
-        return Invariant("no missed action after the heal", True,
-                         f"not checked: the run's last tick ({end_tick / rate_hz:.1f} s) came before the plan's "
-                         f"heal ({heal_time(plan):.1f} s)")
+        return not_checked("no missed action after the heal", f"the run's last tick ({end_tick / rate_hz:.1f} s) came "
+                                                                 f"before the plan's heal ({heal_time(plan):.1f} s)")
     ticks = [(t, h) for t, h in hovering if t / rate_hz >= end_tick / rate_hz - window]
     missed = sum(h for _, h in ticks)
     n_uavs = len((summary.get("world") or {}).get("per_uav") or [])
@@ -266,7 +292,7 @@ def _memory(procs: list[dict]) -> Invariant:
     growth = [(p["rss_max_mb"] - p["rss_first_mb"], p) for p in procs if p.get("rss_first_mb") is not None]
     name = f"memory growth at most {MAX_RSS_GROWTH_MB:g} MB per process"
     if not growth:
-        return Invariant(name, True, "no process lived long enough to be sampled")
+        return not_checked(name, "no process lived long enough to be sampled")
     worst, p = max(growth, key=lambda g: g[0])
     return Invariant(name, worst <= MAX_RSS_GROWTH_MB,
                      f"worst: {p['name']} (pid {p['pid']}) {p['rss_first_mb']:.0f} -> {p['rss_max_mb']:.0f} MB "

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from truav import jsonio
 
 PID_FILE = "pids.json"
 SCENARIO_FILE = "scenario.toml"
@@ -130,7 +131,7 @@ def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
 def write_run_file(out: Path, info: dict) -> None:
     """Atomically: `status`, `down` and tests read it while the run starts (a half-written file read as empty)."""
     tmp = out / f".{RUN_FILE}.tmp"
-    tmp.write_text(json.dumps(info, indent=1))
+    tmp.write_text(jsonio.dumps(info, indent=1))
     os.replace(tmp, out / RUN_FILE)
 
 

@@ -101,10 +101,21 @@ def tracks_title(last_tick: int, steps: int, finished: int) -> str:
     return "UAV tracks (from beacons)"
 
 
+def no_miss_text(missed: int | None) -> str:
+    """What the missed-actions panel says when the step metrics heard show no UAV without an action: only
+    the world's own count can say that none was missed."""
+    if missed == 0:
+        return "every UAV acted in time on every tick"
+    if missed is None:
+        return "none in the step metrics heard\n(the world's own count is unknown)"
+    return f"none in the step metrics heard, but the world\ncounted {missed} missed action(s), on ticks not heard"
+
+
 def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm", plan=None,
-                 episodes_done: int | None = None) -> Path:
+                 episodes_done: int | None = None, missed: int | None = None) -> Path:
     """``plan``: the run's fault plan (its windows shaded); ``episodes_done``: episodes the world
-    finished (default: the episode summaries the monitor heard)."""
+    finished (default: the episode summaries the monitor heard); ``missed``: the actions the world counted
+    missing (its world.json), which the step metrics heard may not all show (an interrupted run)."""
     fig = plt.figure(figsize=(13, 6.8))
     grid = fig.add_gridspec(2, 2, width_ratios=[1.1, 1], height_ratios=[3, 1], hspace=0.08)
     ax = fig.add_subplot(grid[:, 0])
@@ -174,7 +185,7 @@ def swarm_figure(cfg: Config, monitor, path: Path, title: str = "swarm", plan=No
     else:
         miss_ax.set_ylim(0, 1)
         miss_ax.set_yticks([])
-        miss_ax.text(0.5, 0.5, "every UAV acted in time on every tick", transform=miss_ax.transAxes,
+        miss_ax.text(0.5, 0.5, no_miss_text(missed), transform=miss_ax.transAxes,
                      ha="center", va="center", fontsize=9, color="0.35")
     miss_ax.set_ylabel("UAVs without\nan action", fontsize=9)
     miss_ax.set_xlabel("tick")

@@ -15,7 +15,6 @@ and for a router per host (deploy/README.md):
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from truav.bus import keys, security
@@ -24,6 +23,7 @@ from truav.checks import check_out_dir
 from truav.cli_config import UsageError
 from truav.cli_args import positive_int
 from world.world_stats import uav_metrics  # the world's per-UAV step-metrics values, read back here
+from truav import jsonio
 
 
 def _table(args) -> tuple[tuple[security.Grant, ...], tuple[str, ...]]:
@@ -109,7 +109,7 @@ def cmd_deploy_configs(args) -> int:
 def cmd_acl(args) -> int:
     table, peers = _table(args)
     if args.json:
-        print(json.dumps(security.acl_config(table, peers), indent=1))
+        print(jsonio.dumps(security.acl_config(table, peers), indent=1))
         return 0
     try:
         lines = security.explain(table, args.identity, args.key, peers)

@@ -19,6 +19,8 @@ from truav.swarm.outdir import SUMMARY_FILE
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
+from truav import jsonio
+from truav.policy_scenario import Fit
 
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
@@ -124,17 +126,20 @@ class SwarmEnd:
         events = self.controller.events if self.controller is not None else []
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
+        if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
+            o.warnings.append(fit_line)
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
-        (out / SUMMARY_FILE).write_text(json.dumps({
+        (out / SUMMARY_FILE).write_text(jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages}, indent=1))
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             for entry in o.external:
@@ -144,7 +149,8 @@ class SwarmEnd:
             if opts.plot and monitor.tracks:
                 from truav.swarm.plots import swarm_figure
                 picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
-                                       episodes_done=len((world or {}).get("episodes") or []) if world else None)
+                                       episodes_done=len((world or {}).get("episodes") or []) if world else None,
+                                       missed=(world or {}).get("deadline_misses"))
                 print(f"picture: {picture}")
             if opts.record:
                 print(f"recording: {recording_files(opts)}")
@@ -164,8 +170,8 @@ class SwarmEnd:
 def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
-        print(f"episode {e}: coverage {m.get('coverage_pct', float('nan')):5.1f}%  PDR {m.get('pdr', float('nan')):.3f}  "
-              f"delay {m.get('delay_ms', float('nan')):6.1f} ms  energy/UAV {m.get('energy_j', float('nan')) / 1e3:6.2f} kJ")
+        cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
+        print(f"episode {e}: coverage {cov:5.1f}%  PDR {pdr:.3f}  delay {delay:6.1f} ms  energy/UAV {energy / 1e3:6.2f} kJ")
     if world:
         lat = world.get("tick_lateness_ms")
         if lat:

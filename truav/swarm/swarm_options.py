@@ -59,6 +59,9 @@ class SwarmOptions:
     """With ``record``: one file, parts (split by size, time, command) or snapshots (recorder.record_modes)."""
     qtable: str | None = None
     greedy: bool = False
+    policy_fit: dict | None = None
+    """How the --qtable/--policy fits the scenario it was trained in (truav.policy_scenario.Fit.as_json):
+    summary.json records it, and the summary says a mismatch the user allowed or a record that is missing."""
     out: str | None = None
     """Where the run's files go; None: :attr:`out_dir`'s default, runs/swarm-<run>."""
     listen: str | None = None

@@ -13,7 +13,6 @@ WebSocket* -> ``ws://127.0.0.1:8765``, then import ``deploy/foxglove-layout.json
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -26,6 +25,7 @@ from recorder.mcap_log import JSON_ENCODING, MIRROR_PREFIX
 from recorder.schemas import MIRROR_SCHEMA_PREFIX, envelope_fields, mirror_builder, mirror_schema
 from truav.bus import keys
 from truav.bus.transport import Bus
+from truav import jsonio
 
 log = logging.getLogger("truav.view")
 
@@ -83,7 +83,7 @@ class FoxgloveView:
             build = self._json[key]
             if build is not None:
                 self._channel(MIRROR_PREFIX + key, MIRROR_SCHEMA_PREFIX + kind, "jsonschema",
-                              json.dumps(mirror_schema(kind)).encode(), JSON_ENCODING).log(build(body), log_time=recv_ns)
+                              jsonio.dumps(mirror_schema(kind)).encode(), JSON_ENCODING).log(build(body), log_time=recv_ns)
             for out in self.mirror.feed(kind, body, recv_ns):
                 self._emit(out, recv_ns)
         except Exception:  # an odd body: count it, keep serving
