@@ -50,6 +50,7 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder",                        BASE),
     ("truav.errors",                    BASE),
     ("truav.stopping",                  BASE),
+    ("truav.jsonio",                    BASE),
     ("truav.channel_catalog",           BASE),
     ("truav.actions",                   BASE),
     ("truav.checks",                    BASE),
@@ -103,6 +104,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.warmup",                    ANALYSIS),
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
+    ("truav.policy_scenario",           ANALYSIS),
     ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
     ("truav.plots",                     ANALYSIS),
     ("truav.swarm.plots",               ANALYSIS),
