@@ -40,9 +40,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     recorded = recorded_durations()
     longest: dict[str, float] = {}
     for item in items:
-        parts = item.path.relative_to(TESTS).parts
-        if parts[0] in TIERS:
-            item.add_marker(parts[0])
+        tier = item.path.relative_to(TESTS).parts[0] if item.path.is_relative_to(TESTS) else None
+        if tier in TIERS:
+            item.add_marker(tier)
         seconds = recorded.get(item.nodeid, 0.0)
         if seconds > SLOW_S:
             item.add_marker("slow")
@@ -52,11 +52,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 _measured: dict[str, float] = {}  # nodeid: seconds, of this run
+_skipped: set[str] = set()  # a skipped test's time says nothing of its run: its recorded time stays
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """Setup + call + teardown of each test; under xdist the controller gets every worker's reports."""
     _measured[report.nodeid] = _measured.get(report.nodeid, 0.0) + report.duration
+    if report.skipped:
+        _skipped.add(report.nodeid)
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
@@ -64,7 +67,7 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     if not config.getoption("--record-durations") or hasattr(config, "workerinput"):
         return  # only the controller writes, once, with every worker's tests
     durations = recorded_durations()
-    durations.update({nodeid: round(s, 2) for nodeid, s in _measured.items()})
+    durations.update({nodeid: round(s, 2) for nodeid, s in _measured.items() if nodeid not in _skipped})
     # entries of tests whose file is gone (moved, renamed) are dropped; tests not run keep theirs
     kept = {n: s for n, s in sorted(durations.items()) if (TESTS.parent / n.split("::")[0]).is_file()}
     DURATIONS.write_text(json.dumps(kept, indent=0) + "\n")

@@ -201,6 +201,7 @@ def _run(argv: list[str], cwd: Path, env: dict) -> tuple[int, str]:
 
 @pytest.mark.skipif(not (os.environ.get("TRUAV_README_COMMANDS") or os.environ.get("CI")),
                     reason="runs every README command (minutes): set TRUAV_README_COMMANDS=1 (CI does)")
+@pytest.mark.timeout(1800)  # ~55 commands in turn, minutes: beyond the suite's 300 s; each is bounded by TIMEOUT_S
 def test_readme_commands_run_in_order_in_a_fresh_directory(tmp_path: Path) -> None:
     """A fresh clone after the quick start: the repository's files, no runs/ yet."""
     work = tmp_path / "clone"

@@ -1,4 +1,5 @@
-"""The experiment runner: cells resume, tidy CSV shape, and the CLI end to end (--quick)."""
+"""The experiment runner: cells resume, tidy CSV shape, and the CLI end to end (--quick); cells on worker
+processes: tests/swarm/test_worker_processes.py."""
 
 import csv
 
@@ -31,17 +32,6 @@ def test_resume_skips_finished_cells(tmp_path, small_cfg):
     other = small_cfg.replace(traffic={"packet_rate_hz": 0.3})
     assert cells[0].key(other) != cells[0].key(small_cfg)
     assert cells[0].key(small_cfg.replace(central={"hidden": 32})) == cells[0].key(small_cfg)
-
-
-def test_cells_are_worker_independent(tmp_path, small_cfg):
-    cells = [runner.Cell("patrol", 15.0, (s,), 2, 1) for s in (0, 1)]
-    runner.run_cells(small_cfg, tmp_path / "a", cells, workers=2)
-    runner.run_cells(small_cfg, tmp_path / "b", cells, workers=1)
-    for c in cells:
-        a = runner.load_cell(runner.cell_path(tmp_path / "a", small_cfg, c), c)
-        b = runner.load_cell(runner.cell_path(tmp_path / "b", small_cfg, c), c)
-        for k in a.train:
-            np.testing.assert_array_equal(a.train[k], b.train[k])
 
 
 def test_cli_velocity_quick_end_to_end(tmp_path, capsys):

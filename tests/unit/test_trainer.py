@@ -1,10 +1,11 @@
-"""The trainer: determinism, batch and worker equivalence, and the CLI end to end."""
+"""The trainer: determinism, batch equivalence, and the CLI end to end (worker processes:
+tests/swarm/test_worker_processes.py)."""
 
 import numpy as np
 
 from truav import runio
 from truav.cli import main
-from truav.trainer import run_chunk, run_parallel
+from truav.trainer import run_chunk
 
 
 def test_training_is_deterministic_and_batch_equivalent(small_cfg):
@@ -19,15 +20,6 @@ def test_training_is_deterministic_and_batch_equivalent(small_cfg):
         for k in ("coverage_pct", "delivered", "energy_j", "reward"):
             np.testing.assert_array_equal(alone.metrics[k][:, 0], batch.metrics[k][:, b])
         np.testing.assert_array_equal(alone.q[0], batch.q[b])
-
-
-def test_worker_processes_change_no_number(small_cfg):
-    seeds = [1, 2, 3]
-    one = run_parallel("truav", small_cfg, seeds, 2, workers=1)
-    two = run_parallel("truav", small_cfg, seeds, 2, workers=2)
-    for k in one.metrics:
-        np.testing.assert_array_equal(one.metrics[k], two.metrics[k])
-    np.testing.assert_array_equal(one.q, two.q)
 
 
 def test_learning_changes_the_tables(small_cfg):
