@@ -1,77 +1,76 @@
-"""Shared fixtures: small, fast configurations of the paper's scenario."""
+"""Fixtures shared by every tier, the tier markers, and the test order from recorded durations."""
 
 from __future__ import annotations
 
-import signal
-import socket
-import subprocess
-import time
-from pathlib import Path
+import json
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
+from tests.support.waits import free_port
 from truav.bus import transport
 from truav.bus.transport import Bus
 from truav.config import Config
 
+TESTS = Path(__file__).resolve().parent
+TIERS = ("unit", "bus", "swarm", "docs")  # a test's tier is the folder it is in
+DURATIONS = TESTS / "durations.json"
+"""{nodeid: seconds of setup+call+teardown} of a recorded run (`--record-durations`)."""
+SLOW_S = 20.0  # a test recorded longer than this is marked `slow`
 
-LONG_FIRST = ("tests/test_readme_commands.py", "tests/test_cold_start.py", "tests/test_nemesis.py",
-              "tests/test_healing.py", "tests/test_shared_parts.py", "tests/test_experiments.py")
-"""Modules of the longest tests (a minute or more each), started first: on two workers (`pytest -n 2`)
-a long test started last would keep one worker busy alone at the end."""
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--record-durations", action="store_true",
+                     help=f"rewrite {DURATIONS.relative_to(TESTS.parent)} with this run's test durations")
+
+
+def recorded_durations() -> dict[str, float]:
+    try:
+        return json.loads(DURATIONS.read_text())
+    except FileNotFoundError:
+        return {}
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    rank = {module: i for i, module in enumerate(LONG_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(LONG_FIRST)))  # stable: else as collected
+    """Mark each test with its tier and, if recorded longer than SLOW_S, `slow`; then order the modules
+    longest-recorded test first: on two workers (`-n 2`) a long test started last would keep one worker
+    busy alone at the end. A module's tests stay together and in order (its module fixtures are set up
+    once); tests without a recorded time count as 0, and equal modules keep their collected order."""
+    recorded = recorded_durations()
+    longest: dict[str, float] = {}
+    for item in items:
+        tier = item.path.relative_to(TESTS).parts[0] if item.path.is_relative_to(TESTS) else None
+        if tier in TIERS:
+            item.add_marker(tier)
+        seconds = recorded.get(item.nodeid, 0.0)
+        if seconds > SLOW_S:
+            item.add_marker("slow")
+        module = item.nodeid.split("::")[0]
+        longest[module] = max(longest.get(module, 0.0), seconds)
+    items.sort(key=lambda item: -longest[item.nodeid.split("::")[0]])  # stable
 
 
-def wait_until(pred: Callable[[], bool], timeout_s: float, poll_s: float = 0.01) -> bool:
-    """Poll ``pred`` until it holds or ``timeout_s`` passes; its last value."""
-    deadline = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(poll_s)
-    return pred()
+_measured: dict[str, float] = {}  # nodeid: seconds, of this run
+_skipped: set[str] = set()  # a skipped test's time says nothing of its run: its recorded time stays
 
 
-def wait_matched(sender, key: str, timeout_s: float = 30.0) -> bool:
-    """Wait until ``sender`` (a zenoh Session or a Bus) knows of a subscriber to ``key``: the subscription
-    has reached the router and the router has told the sender. A fixed sleep for that (0.3 s) was too
-    short on a loaded machine, and a put before it is dropped."""
-    if isinstance(sender, Bus):
-        return sender.await_subscribers(key, timeout_s)
-    pub = sender.declare_publisher(key)
-    try:
-        return wait_until(lambda: pub.matching_status.matching, timeout_s, poll_s=0.02)
-    finally:
-        pub.undeclare()
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """Setup + call + teardown of each test; under xdist the controller gets every worker's reports."""
+    _measured[report.nodeid] = _measured.get(report.nodeid, 0.0) + report.duration
+    if report.skipped:
+        _skipped.add(report.nodeid)
 
 
-def free_port() -> int:
-    """A free TCP port on loopback (bound once, then released)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def run_to_end(cmd: list[str], log_path: Path, timeout_s: float, *, env: dict | None = None,
-               term_wait_s: float = 30.0) -> int:
-    """Run a `truav-swarm` command to its end, output in ``log_path``; its exit code. If it outlives
-    ``timeout_s`` (the wait raises) it gets SIGTERM (the supervisor stops every process it started),
-    then SIGKILL after ``term_wait_s``."""
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
-    try:
-        return proc.wait(timeout=timeout_s)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=term_wait_s)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    config = session.config
+    if not config.getoption("--record-durations") or hasattr(config, "workerinput"):
+        return  # only the controller writes, once, with every worker's tests
+    durations = recorded_durations()
+    durations.update({nodeid: round(s, 2) for nodeid, s in _measured.items() if nodeid not in _skipped})
+    # entries of tests whose file is gone (moved, renamed) are dropped; tests not run keep theirs
+    kept = {n: s for n, s in sorted(durations.items()) if (TESTS.parent / n.split("::")[0]).is_file()}
+    DURATIONS.write_text(json.dumps(kept, indent=0) + "\n")
 
 
 @pytest.fixture(scope="module")
@@ -110,19 +109,3 @@ def small_cfg() -> Config:
         roads={"warmup_steps": 20},
         learner={"episodes": 3},
     )
-
-
-def up_to_end(tmp: Path, name: str, cfg: Config, *args: str, timeout_s: float = 300.0) -> Path:
-    """`truav-swarm up` of scenario ``cfg`` (written to ``tmp/<name>.toml``) with ``args``, run to its end;
-    asserts exit 0 (the log in the message otherwise) and returns its --out directory."""
-    import sys
-
-    from truav.config import to_toml
-    scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(cfg))
-    out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--run", name, "--scenario", str(scenario),
-           "--out", str(out), "--quiet", "--no-plot", *args]
-    rc = run_to_end(cmd, tmp / f"{name}.log", timeout_s, term_wait_s=60)
-    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
-    return out

@@ -1,0 +1,218 @@
+"""Every command of the README's bash blocks, in the order written, in a fresh directory.
+
+Each command is classified below: RUN (run, with the tiny budget given appended; argparse lets the last
+flag win) or CHECKED (not run here, with the reason; parsed by the real parser unless it is not one of
+ours). A README command in neither table fails the test until it is classified; so does an entry no
+longer in the README. Running them all takes a few minutes of CPU, so it happens in CI (.ci/run sets
+TRUAV_README_COMMANDS=1; also with CI set) and on request; the classification runs always.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.support.readme_commands import commands, key
+
+REPO = Path(__file__).resolve().parents[2]
+ENTRY = {"truav": "truav.cli", "truav-swarm": "truav.swarm.cli"}
+
+SMALL_CITY = ["--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5"]
+# --max-missed 1: how many of a 5-tick real-time run's actions a loaded CI host misses is not what this test
+# checks (tests/swarm/test_cold_start.py bounds the first ticks of a cold start, scheme by scheme).
+SWARM = ["--episodes", "1", "--steps", "5", *SMALL_CITY, "--no-plot", "--quiet", "--max-missed", "1"]
+TRAIN = ["--seeds", "2", "--episodes", "3", "--workers", "1", "--quiet"]
+VELOCITY = ["--quick", "--seeds", "1", "--episodes", "2", "--eval-episodes", "1", "--workers", "1", "--quiet"]
+
+RUN: dict[str, list[str]] = {
+    "truav-swarm up": SWARM,
+    "truav train": TRAIN,
+    "truav-swarm up --agents 8 --episodes 5 --out runs/swarm-8": SWARM,
+    "truav-swarm up --lockstep --out runs/swarm-lockstep": SWARM,
+    "truav-swarm up --qtable runs/train-15mps --greedy --out runs/swarm-greedy": SWARM,
+    "truav-swarm up --record runs/swarm-rec.mcap --out runs/swarm-rec": SWARM,
+    "truav-swarm up --scheme patrol --out runs/swarm-patrol": SWARM,
+    "truav-swarm up --scheme central --out runs/swarm-central": SWARM,
+    "truav train --scheme central --seeds 1 --episodes 300 --out runs/train-central": TRAIN,
+    "truav-swarm up --scheme central --policy runs/train-central --out runs/swarm-central-trained": SWARM,
+    "truav-swarm up -v --force": SWARM,
+    # 100 and 50 agents: the same options at 20 agents (2 processes of 10), a CI machine's share
+    "truav-swarm up --agents 100 --agents-per-process 10 --share-beacons --out runs/swarm-100": [*SWARM, "--agents", "20"],
+    "truav-swarm up --agents 100 --agents-per-process 20 --share-beacons --batch-beacons --lockstep "
+    "--out runs/swarm-100-lockstep": [*SWARM, "--agents", "20", "--agents-per-process", "10"],
+    "truav-swarm up --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
+        [*SWARM, "--agents", "20"],
+    "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": SWARM,
+    "truav-swarm up --lockstep --set federated.every=1 --out runs/swarm-fed": SWARM,
+    "truav-swarm up --secure --out runs/swarm-secure": SWARM,
+    "truav-swarm acl explain --identity uav/1": [],
+    "truav-swarm certs --deployment deploy/three-hosts.toml --out creds": [],
+    "truav train --speed 25 --seeds 4 --episodes 1000 --out runs/quick": TRAIN,
+    "truav evaluate runs/train-15mps --against random hover": ["--episodes", "1", "--workers", "1", "--quiet"],
+    "truav config show": [],
+    "truav config show --set scenario.n_uavs=8 --set learner.episodes=200": [],
+    "truav config show --set learner.episodes=200 '>' my-config.toml": [],
+    "truav train --config my-config.toml --out runs/my-config": TRAIN,
+    "truav traffic build": [],
+    "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
+    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": SWARM,
+    "truav experiment velocity --quick --mobility sumo --out runs/velocity-sumo": VELOCITY,
+    "truav experiment velocity": VELOCITY,
+    "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
+    "truav experiment velocity --quick": VELOCITY,
+    "truav experiment scale --episodes 1000": [*VELOCITY],
+    "truav experiment velocity --schemes truav central patrol patrol_ctrl --episodes-for patrol_ctrl=100":
+        [*VELOCITY, "--episodes-for", "patrol_ctrl=2"],
+    "truav-swarm up --record runs/demo.mcap --out runs/swarm-record": SWARM,
+    "truav log check runs/demo.mcap": [],
+    "truav-swarm up --lockstep --record runs/lockstep.mcap --out runs/swarm-lockstep-rec": SWARM,
+    "truav log resim runs/lockstep.mcap": [],
+    "truav log resim runs/lockstep.mcap --from 150 --greedy": ["--from", "3"],  # the tiny run has 6 ticks
+    "truav report runs/demo.mcap": [],
+    "truav log report runs/demo.mcap --out runs/demo-report": [],
+    "truav log info runs/demo.mcap": [],
+    "truav log cut runs/demo.mcap runs/demo-ticks.mcap --from-tick 2 --to-tick 3": [],
+    "truav log cut runs/demo.mcap runs/demo-a.mcap --to-tick 2": [],
+    "truav log cut runs/demo.mcap runs/demo-b.mcap --from-tick 3": [],
+    "truav log merge runs/demo-ab.mcap runs/demo-a.mcap runs/demo-b.mcap": [],
+    "truav-swarm up --record runs/foxglove.mcap --foxglove --out runs/swarm-foxglove": [*SWARM, "--foxglove", "0"],
+    "truav-swarm up --record runs/parts.mcap --split-size 1 --split-duration 60 --out runs/swarm-parts": SWARM,
+    "truav-swarm up --record runs/snap.mcap --snapshot 10:5 --out runs/swarm-snap": SWARM,
+    "truav-swarm up --fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-faults": SWARM,
+    "truav-swarm chaos --plan deploy/plans/partition-latency.toml": SWARM,
+    "truav-swarm up --scheme central --fault-plan deploy/plans/controller-crash.toml "
+    "--out runs/swarm-controller-crash": SWARM,
+    "truav-swarm chaos --scheme central --plan deploy/plans/controller-links.toml --out runs/chaos-central": SWARM,
+    # the soak at 15 s (its schedule drawn for that); the re-run of its plan as long (it fails, honestly,
+    # when its run ends before the plan's heal)
+    "truav-swarm chaos --nemesis random --duration 10m --seed 1 --out runs/chaos-soak":
+        ["--duration", "15s", "--steps", "50", *SMALL_CITY, "--no-plot", "--quiet"],
+    "truav-swarm chaos --plan runs/chaos-soak/nemesis-plan.toml --out runs/chaos-soak-again":
+        ["--episodes", "3", "--steps", "50", *SMALL_CITY, "--no-plot", "--quiet"],
+}
+"""Run in order, each with these flags appended; each must exit 0."""
+
+SETUP = "the environment the check runs in was set up so (the quick start's install)"
+OTHER_TERMINAL = "needs a swarm running in another terminal; the parts it talks to are tested in tests/swarm/test_swarm*.py"
+OTHER_HOST = "a part for another host (ROUTER, ~/truav-creds are the user's); tests/swarm/test_multihost.py runs them"
+LONG = "an experiment of minutes (many swarm runs); its code runs small in tests/swarm/test_fault_sweep.py, test_scheme_faults.py"
+REPLAY_RUNNING = "needs a replay running in another terminal; tests/swarm/test_replay_ctl.py runs replay-ctl against one"
+BENCH = "a benchmark: minutes, and it measures the host (bench/ is run by hand)"
+CHECKED: dict[str, str] = {
+    "python3 -m venv .venv": SETUP,
+    ". .venv/bin/activate": SETUP,
+    "pip install -e '.[dev]'": SETUP,
+    "pip install -e '.[central]'": SETUP + " ([dev] includes PyTorch)",
+    "python -m pytest -q": "the test suite this test is part of",
+    "truav-swarm status": OTHER_TERMINAL,
+    "truav-swarm down --run demo": OTHER_TERMINAL,
+    "truav-swarm router -l tcp/0.0.0.0:7447": "listens on every interface until stopped (a router for other hosts); "
+                                             "routers on loopback run in every swarm test",
+    "truav-swarm world --run demo -e tcp/ROUTER:7447 --episodes 3": OTHER_HOST,
+    "truav-swarm agent --id 0 --run demo -e tcp/ROUTER:7447 --checkpoint agent0.npz": OTHER_HOST,
+    "truav-swarm router --creds '~/truav-creds'": OTHER_HOST,
+    "truav-swarm world --run demo --set scenario.n_uavs=4 --creds '~/truav-creds'": OTHER_HOST,
+    "truav experiment velocity --executor ray": "starts a Ray instance (tens of seconds, about a GB); "
+                                                "tests/swarm/test_ray_executor.py runs cells on one",
+    "ray start --head --port 6379": "Ray's own command: starts a cluster head that outlives the test",
+    "truav experiment velocity --executor ray --address HEAD:6379": "needs a Ray cluster at HEAD",
+    "truav log recover broken.mcap fixed.mcap": "needs a recording whose recorder was killed (broken.mcap is the "
+                                                "user's); tests/swarm/test_recorder_process.py kills one and recovers it",
+    "truav-swarm replay runs/demo.mcap --rate 2 --topics 'truav/*/uav/1/obs' --paused":
+        "starts paused, waiting for keys or bus commands; replay is tested in tests/swarm/test_replay.py",
+    "truav-swarm record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav-swarm replay-ctl --run demo seek --tick 40": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo seek --by -5": REPLAY_RUNNING,
+    "truav-swarm replay-ctl --run demo rate 4": REPLAY_RUNNING,
+    "truav log play runs/parts.parts.json --rate 4 --paused":
+        "starts paused, waiting for keys or bus commands; tests/unit/test_replay_seek.py plays parts as one",
+    "truav log play-ctl --run demo status": REPLAY_RUNNING,
+    "truav-swarm replay runs/demo.mcap --lockstep --topics 'truav/*/world/tick' 'truav/*/uav/1/obs' "
+    "-e tcp/127.0.0.1:7447": "needs a live agent answering in another terminal; tests/swarm/test_replay_ctl.py runs one",
+    "truav log play runs/demo.mcap --rate 2 --paused":
+        "starts paused, waiting for keys or bus commands; the same command as truav-swarm replay (tests/swarm/test_log_group.py)",
+    "truav log record --run demo --out other.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav log record-ctl pause --run demo -e tcp/127.0.0.1:7447":
+        OTHER_TERMINAL + " (tests/swarm/test_record_modes.py sends it to a recorder)",
+    "truav-swarm view -e tcp/127.0.0.1:7447 --run demo": OTHER_TERMINAL,
+    "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447": OTHER_TERMINAL,
+    "truav-swarm faults --run demo --plan my.toml -e tcp/127.0.0.1:7447": OTHER_TERMINAL + " (my.toml: the user's plan)",
+    "truav experiment faults --quick --schemes truav central patrol --rate 5 --out runs/faults-schemes": LONG,
+    "truav experiment faults --quick --schemes federated truav_online --rate 5 --out runs/faults-federated": LONG,
+    "truav experiment faults --qtable runs/train-15mps": LONG,
+    "truav experiment faults --quick": LONG,
+    **{c: BENCH for c in (
+        "python bench/bench_trainer.py", "python bench/bench_trainer.py --full", "python bench/bench_sumo.py",
+        "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
+        "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
+        "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",
+        "python bench/bench_swarm.py --secure", "python bench/bench_flood.py",
+        "python bench/bench_swarm.py --sweep 5,10,20,50,100 --variants base,hz1,cells,k10+shared",
+        "python bench/bench_swarm.py --sweep 20,50 --modes realtime --compare ../old --max-load 1")},
+}
+"""Not run here, and why."""
+
+TIMEOUT_S = 240
+
+
+def _parse(argv: list[str]) -> None:
+    """Our own commands go through their real parser (a renamed or misspelt flag fails here)."""
+    from truav.cli import build_parser as truav_parser
+    from truav.swarm.cli import build_parser as swarm_parser
+    parser = {"truav": truav_parser, "truav-swarm": swarm_parser}[argv[0]]()
+    parser.parse_args(argv[1:argv.index(">")] if ">" in argv else argv[1:])
+
+
+def test_every_readme_command_is_classified_and_parses() -> None:
+    found = [key(c) for c in commands()]
+    unknown = [c for c in found if c not in RUN and c not in CHECKED]
+    assert not unknown, f"README commands neither run nor checked (add each to RUN or CHECKED): {unknown}"
+    stale = [c for c in [*RUN, *CHECKED] if c not in found]
+    assert not stale, f"no longer in the README: {stale}"
+    for argv in commands():
+        if argv[0] in ENTRY:
+            _parse(argv + RUN.get(key(argv), []))
+
+
+def _run(argv: list[str], cwd: Path, env: dict) -> tuple[int, str]:
+    out_file = None
+    if ">" in argv:  # the README's one redirection
+        at = argv.index(">")
+        argv, out_file = argv[:at], cwd / argv[at + 1]
+    full = [sys.executable, "-m", ENTRY[argv[0]], *argv[1:]]
+    with open(out_file or os.devnull, "w") as stdout:
+        proc = subprocess.Popen(full, cwd=cwd, env=env, stdin=subprocess.DEVNULL, start_new_session=True,
+                                stdout=stdout if out_file else subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            text, _ = proc.communicate(timeout=TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)  # its own session: the swarm it started with it
+            text, _ = proc.communicate()
+            text = (text or "") + f"\n(killed after {TIMEOUT_S} s)"
+    return proc.returncode, text or ""
+
+
+@pytest.mark.skipif(not (os.environ.get("TRUAV_README_COMMANDS") or os.environ.get("CI")),
+                    reason="runs every README command (minutes): set TRUAV_README_COMMANDS=1 (CI does)")
+@pytest.mark.timeout(1800)  # ~55 commands in turn, minutes: beyond the suite's 300 s; each is bounded by TIMEOUT_S
+def test_readme_commands_run_in_order_in_a_fresh_directory(tmp_path: Path) -> None:
+    """A fresh clone after the quick start: the repository's files, no runs/ yet."""
+    work = tmp_path / "clone"
+    work.mkdir()
+    shutil.copytree(REPO / "deploy", work / "deploy")  # the plans and deployments the commands name
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    for argv in commands():
+        name = key(argv)
+        if name in CHECKED:
+            continue
+        began = time.monotonic()
+        rc, text = _run(argv + RUN[name], work, env)
+        print(f"{time.monotonic() - began:6.1f} s  {name}", flush=True)  # the check's cost, command by command
+        assert rc == 0, f"`{name}` (+ {' '.join(RUN[name])}) exited {rc}:\n{text[-3000:]}"
