@@ -9,7 +9,7 @@ The backward pass is the one autograd runs for these operations, op for op
 and in its order (baddbmm's gradients are bmm's with the transposed operand
 and a sum over rows for the broadcast bias; relu's is threshold_backward on
 its output), so its numbers are autograd's, bit for bit
-(tests/test_sac_grad.py checks it against torch.autograd). Written out, it
+(tests/unit/test_sac_grad.py checks it against torch.autograd). Written out, it
 runs without a graph, into buffers allocated once: at these sizes (64 rows,
 64 units) the autograd engine, the allocations and the copies it makes cost
 as much as the arithmetic.

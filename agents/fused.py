@@ -10,7 +10,7 @@ world's `step.env_step`, each agent's neighbour features, state and reward
 (`state.neighbour_one`, `state.nearest_sector_one`, `prediction.predict_one`, `state.encode_one`,
 `reward.full_one`) and its Q
 update (`qlearning.q_update_one`). Environments share nothing, so running
-them on threads changes no number; tests/test_fused.py checks the two paths
+them on threads changes no number; tests/unit/test_fused.py checks the two paths
 agree entry by entry. The world's per-episode draws after the UAV start
 (arrivals, turns, hotspot moves) are made inside the kernel, each env from
 its own generator's PCG64 state (World.start_episode(defer_draws=True)), so

@@ -152,7 +152,7 @@ class BatchedSAC:
 
     # -- networks ---------------------------------------------------------------
     # The plain torch forward, differentiable by autograd: the update runs on BatchedMlp's buffers instead,
-    # and tests/test_sac_grad.py checks it against autograd through these.
+    # and tests/unit/test_sac_grad.py checks it against autograd through these.
     @staticmethod
     def _mlp(params, x):
         torch = _TORCH
@@ -224,7 +224,7 @@ class BatchedSAC:
         """One gradient step of critics, actor and temperature for every seed.
 
         The losses (their gradients are written out below, as autograd
-        computes them; tests/test_sac_grad.py):
+        computes them; tests/unit/test_sac_grad.py):
         critic  sum_b mean_{m,u} (Q_c(s, a) - y)^2 over both critics c, with
                 y = r + discount * sum_a pi(a|s') (min_c Q'_c(s', a) - alpha log pi(a|s'));
         actor   sum_b mean_{m,u} sum_a pi(a|s) (alpha log pi(a|s) - min_c Q_c(s, a)),

@@ -1,6 +1,6 @@
 """Hostile traffic for a running swarm, as an attacker with a bare zenoh session would send it.
 
-Used by tests/test_security.py (small floods) and, run as a script, to measure
+Used by tests/swarm/test_security.py (small floods) and, run as a script, to measure
 the full-size floods of issue 14 against a `truav-swarm up` on loopback:
 
     python bench/hostile.py --endpoint tcp/127.0.0.1:7447 --run demo --agents 5 \\

@@ -271,7 +271,7 @@ REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live ag
                   "unless given --accept-replay): `truav-swarm agent --id 3 --run demo --accept-replay "
                   "-e tcp/127.0.0.1:7447`, then `truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7447 "
                   "--topics 'truav/*/world/tick' 'truav/*/uav/3/obs'`.")
-"""`replay --help`'s example (tests/test_replay.py parses its commands with the real parsers)."""
+"""`replay --help`'s example (tests/swarm/test_replay.py parses its commands with the real parsers)."""
 
 
 

@@ -7,7 +7,7 @@ consume each env's Generator exactly as numpy does (the same uniforms in the
 same order: `Generator.random` is numpy's next_double, and Poisson with
 lam < 10 is numpy's multiplication method, `random_poisson_mult`), fill the
 (T, B, ...) arrays in place, and release the GIL, so the draw threads run in
-parallel. tests/test_world.py checks them against numpy, stream included.
+parallel. tests/unit/test_world.py checks them against numpy, stream included.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def uniform_into(rng: np.random.Generator, out: np.ndarray) -> None:
 # output as numpy's pcg64_next64, and next_double = (next64 >> 11) * 2^-53,
 # so the kernel draws the very numbers numpy would, and its state goes back
 # into the Generator afterwards (`pcg64_state`, `set_pcg64_state`).
-# tests/test_world.py checks the stream against numpy's.
+# tests/unit/test_world.py checks the stream against numpy's.
 _MULT_HI = np.uint64(0x2360ED051FC65DA4)
 _MULT_LO = np.uint64(0x4385DF649FCCF645)
 

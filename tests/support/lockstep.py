@@ -12,6 +12,8 @@ from agents.agent_process import DELAY_ENV
 from tests.support.runs import run_to_end
 from truav.config import Config, to_toml
 
+METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
+"""The per-episode metrics a lock-step swarm and the trainer must agree on."""
 SEED = 3
 EPISODES = 30
 CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": 5},

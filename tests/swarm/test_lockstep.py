@@ -18,11 +18,9 @@ import json
 
 import numpy as np
 
-from tests.support.lockstep import CFG, EPISODES, SEED, agent_tables, run_swarm
+from tests.support.lockstep import CFG, EPISODES, METRICS, SEED, agent_tables, run_swarm
 from truav import runio
 from truav.trainer import run_chunk
-
-METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
 
 
 def test_lockstep_runs_and_trainer_learn_identical_q_tables(tmp_path):

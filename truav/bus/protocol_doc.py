@@ -7,7 +7,7 @@ kind's ``PLACE``, limits from :mod:`truav.bus.schema_names` and the codec's msgp
 reasons from the ``R_*`` constants, the action numbering from the world's own velocity table
 (``world.uavs.ACTION_UNIT_VELOCITY``). What cannot be read from code (a field's unit and meaning, who
 sends a kind) is kept here by hand, next to the tables, in :data:`FIELD_NOTES` and friends; a field or
-reason without a note is rendered with :data:`NO_NOTE`, which tests/test_protocol_doc.py refuses.
+reason without a note is rendered with :data:`NO_NOTE`, which tests/docs/test_protocol_doc.py refuses.
 
 The document keeps its prose by hand and holds each table between two markers::
 

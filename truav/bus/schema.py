@@ -38,7 +38,7 @@ Lenient in, strict out: constructors accept numpy scalars/arrays and ints for
 float fields, and store plain Python ``int``/``float``/``tuple`` values.
 Floats go on the wire as float64, so a decode/encode round-trip is exact.
 
-Size (measured, pinned by ``tests/test_schema.py``): a stamped beacon from
+Size (measured, pinned by ``tests/unit/test_schema.py``): a stamped beacon from
 ``uav/3`` at tick 1234 with a 19-digit ns timestamp is 114 bytes: map header
 1 B, envelope with its keys 54 B (13 of them the incarnation), body 59 B (of
 which the four float64 of pos/vel are 36 B).  The worst case (``uav/1023``,

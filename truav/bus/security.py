@@ -21,7 +21,7 @@ tokens it may declare and the tokens it may watch.  From that table
   and its components' client configs; :func:`issue` puts them, with that
   host's keys only, into one bundle per host (``deploy/README.md``).
 
-How Zenoh applies the table (zenoh 1.10, checked by ``tests/test_security.py``):
+How Zenoh applies the table (zenoh 1.10, checked by ``tests/swarm/test_security.py``):
 the router's ACL interceptor sees every message at *ingress* (from the client
 that sent it) and *egress* (to each client it forwards to), with the sender's
 or receiver's certificate CN as subject.  So a put needs ``put``/ingress on the

@@ -46,7 +46,7 @@ def test_world_stats_with_an_episode_without_packets_are_strict_json(tmp_path):
 
 
 def test_every_json_a_swarm_run_writes_is_strict(tmp_path):
-    from tests.conftest import up_to_end
+    from tests.support.runs import up_to_end
 
     # 1 vehicle: hardly any packet, so the episode's delay (and likely PDR) is NaN in memory
     cfg = Config().replace(scenario={"n_vehicles": 1, "steps_per_episode": 6, "n_uavs": 2},

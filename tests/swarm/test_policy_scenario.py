@@ -108,7 +108,7 @@ def test_tables_without_a_record_say_so_and_fly(run25, tmp_path, capsys):
 
 
 def test_up_with_the_opt_in_records_the_mismatch_in_the_summary(run25, tmp_path):
-    from tests.conftest import up_to_end
+    from tests.support.runs import up_to_end
     cfg = Config().replace(scenario={"n_vehicles": 30, "steps_per_episode": 4, "n_uavs": 2, "uav_speed_mps": 15.0},
                            roads={"warmup_steps": 5})
     out = up_to_end(tmp_path, "mismatch", cfg, "--qtable", str(run25), "--greedy", "--allow-scenario-mismatch",

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from tests.test_lockstep import CFG, METRICS, SEED, agent_tables, run_swarm
+from tests.support.lockstep import CFG, METRICS, SEED, agent_tables, run_swarm
 from truav.trainer import run_chunk
 
 
