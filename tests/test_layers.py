@@ -102,6 +102,8 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.warmup",                    ANALYSIS),
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
+    ("truav.agent_loader",              ANALYSIS),   # an agents.api class by name: imported and checked
+    ("truav.agent_run",                 ANALYSIS),   # a `truav train --agent` run's agent.npz
     ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
     ("truav.plots",                     ANALYSIS),
     ("truav.swarm.plots",               ANALYSIS),
