@@ -25,6 +25,14 @@ from world.network import rsu_positions
 from world.uavs import action_velocity
 
 
+def nearest_rsu_m(pos: np.ndarray, rsu: np.ndarray) -> np.ndarray:
+    """Distance (m) from each position (..., 2) to the nearest RSU of rsu (K, 2) (inf without RSUs): one
+    arithmetic for the in-process views and the agent process's (agents.api_decision)."""
+    if not len(rsu):
+        return np.full(pos.shape[:-1], np.inf)
+    return np.sqrt(((pos[..., None, :] - rsu) ** 2).sum(-1)).min(-1)
+
+
 class AgentFailure(RuntimeError):
     """An API agent raised or broke the API during a run: the message is one line for the user."""
 
@@ -141,8 +149,7 @@ class ApiController:
         sc = self.cfg.scenario
         pos = np.asarray(obs.pos, np.float64)
         vel = action_velocity(self.action, sc.uav_speed_mps)  # HOVER's row is (0, 0)
-        rsu_m = np.sqrt(((pos[:, :, None, :] - self.rsu[None, None]) ** 2).sum(-1)).min(-1) if len(self.rsu) \
-            else np.full(self.shape, np.inf)
+        rsu_m = nearest_rsu_m(pos, self.rsu)
         densest = obs.densest_sector if obs.densest_sector is not None else np.zeros(self.shape, np.int64)
         exclusive = obs.exclusive if obs.exclusive is not None else np.zeros(self.shape, np.int64)
         if self.batched is not None:
@@ -197,4 +204,4 @@ class ApiController:
         return state
 
 
-__all__ = ["AgentFailure", "ApiController"]
+__all__ = ["AgentFailure", "ApiController", "nearest_rsu_m"]
