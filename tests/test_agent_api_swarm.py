@@ -96,3 +96,54 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
     assert "agent flaky:Flaky: act raised RuntimeError: lost the plot" in (out / "logs" / "agent1.log").read_text()
     world = json.loads((out / "world.json").read_text())
     assert len(world["episodes"]) == EPISODES
+
+
+def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
+    """The tutorial's Bandit (tests/test_agent_api.py), trained in process and flown as a lock-step swarm:
+    every agent process ends with the state_dict training ends with, array for array."""
+    from test_agent_api import USER_MODULE
+    from truav.trainer import run_chunk
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    sys.path.insert(0, str(mods))
+    try:
+        trained = run_chunk("agent:bandit_agent:Bandit", CFG, [SEED], EPISODES)
+    finally:
+        sys.path.remove(str(mods))
+        sys.modules.pop("bandit_agent", None)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(mods), os.environ.get("PYTHONPATH", "")])}
+    out = up(tmp_path, "bandit", "--agent", "bandit_agent:Bandit", env=env)
+    world = json.loads((out / "world.json").read_text())
+    for e, got in enumerate(world["episodes"]):
+        for k in METRICS:
+            assert np.array_equal(got[k], trained.metrics[k][e, 0], equal_nan=True), (e, k)
+    assert trained.policy["count"].sum() == EPISODES * CFG.scenario.steps_per_episode * CFG.scenario.n_uavs
+    for uav in range(CFG.scenario.n_uavs):
+        with np.load(out / f"agent{uav}.npz") as ck:
+            for k in ("value", "count"):
+                assert np.array_equal(ck[f"state.{k}"], trained.policy[k][0, uav]), (uav, k)
+
+
+def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(tmp_path):
+    """Real time, 10 Hz: UAV 1's process is SIGKILLed at 6 s and restarted 2 s later; it resumes from its
+    checkpoint (taken every 50 steps), so its state counts every step it learned, before and after."""
+    from test_agent_api import USER_MODULE
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    plan = tmp_path / "crash.toml"
+    plan.write_text('[[fault]]\nkind = "crash"\nstart = 6.0\nuav = 1\nrestart_after = 2.0\n')
+    scenario = tmp_path / "rt.toml"
+    scenario.write_text(to_toml(CFG.replace(scenario={"steps_per_episode": 120})))
+    out = tmp_path / "rt"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(mods), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--seed", str(SEED), "--run", "rt", "--episodes", "1",
+           "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", "--agent", "bandit_agent:Bandit",
+           "--fault-plan", str(plan)]
+    assert run_to_end(cmd, tmp_path / "rt.log", SWARM_TIMEOUT_S, env=env) == 0, (tmp_path / "rt.log").read_text()
+    stats = json.loads((out / "agent1.json").read_text())
+    resumed_at = stats["incarnations"][-1]["steps_from"]
+    assert resumed_at > 0  # the restarted process started from the checkpoint's step count
+    with np.load(out / "agent1.npz") as ck:
+        assert int(ck["state.count"].sum()) == int(ck["steps"]) > resumed_at  # the state learned before the crash too

@@ -21,6 +21,7 @@ from agents.central_process import ControllerOptions
 from agents.controller_host import host_controller
 from truav.bus import keys
 from truav.bus.transport import DEFAULT_ENDPOINT, run_router
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.checks import check_out_file
 from truav.cli_config import UsageError
 from truav.cli_args import add_options, non_negative_int, options_from, positive_float
@@ -106,7 +107,7 @@ def cmd_agent(args) -> int:
 
     for uav in ids:
         if args.checkpoint:
-            check_checkpoint(path_of(args.checkpoint, uav), cfg)
+            check_checkpoint(path_of(args.checkpoint, uav), cfg, api_agent=args.scheme.startswith(AGENT_KIND_PREFIX))
         if args.stats_out:
             check_out_file("--stats-out", path_of(args.stats_out, uav))
     configs = {}
