@@ -35,12 +35,18 @@ class ApiAgentNode(AgentNode):
         self.api = ApiDecision(resolve(self.agent_name), self.cfg, o.uav, o.seed, o.train)
         self.agent_errors = 0
         self.first_agent_error: str | None = None
-        if o.checkpoint and Path(o.checkpoint).is_file():
+        if o.checkpoint and Path(o.checkpoint).is_file():  # checked readable by the command (check_checkpoint)
             with np.load(o.checkpoint, allow_pickle=False) as ck:
                 state = {k[len(STATE_PREFIX):]: ck[k] for k in ck.files if k.startswith(STATE_PREFIX)}
+                rng_state, steps = json.loads(str(ck["rng_state"])), int(ck["steps"])
+            try:
                 self.api.agent.load_state_dict(state)
-                self.api.rng.bit_generator.state = json.loads(str(ck["rng_state"]))
-                self.steps = int(ck["steps"])
+            except Exception as exc:  # the class's own failure: this UAV flies on, from a fresh agent
+                log.error("uav %d: agent %s: load_state_dict raised %s: %s; not resumed from %s, starting afresh",
+                          o.uav, self.agent_name, type(exc).__name__, " ".join(str(exc).split()), o.checkpoint)
+                return None
+            self.api.rng.bit_generator.state = rng_state
+            self.steps = steps
             self.resumed = True
             log.info("uav %d (agent %s) resumed from checkpoint %s at step %d", o.uav, self.agent_name,
                      o.checkpoint, self.steps)
