@@ -22,39 +22,9 @@ TINY = ["--seeds", "1", "--episodes", "3", "--set", "scenario.n_vehicles=60", "-
         "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10", "--quiet"]
 TINY_CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10}, roads={"warmup_steps": 10})
 
-USER_MODULE = textwrap.dedent('''
-    """A user's agent, written from docs/how-to/your-own-agent.md, outside the repository."""
-    import numpy as np
-    from agents.api import N_ACTIONS, UavAgent
-
-    class Bandit(UavAgent):
-        """Epsilon-greedy over the 16 actions, one running mean reward per action."""
-
-        def __init__(self, cfg, uav, rng):
-            super().__init__(cfg, uav, rng)
-            self.value = np.zeros(N_ACTIONS)
-            self.count = np.zeros(N_ACTIONS, np.int64)
-            self.last = 0
-
-        def act(self, view):
-            explore = self.training and self.rng.random() < 0.2
-            self.last = int(self.rng.integers(N_ACTIONS)) if explore else int(np.argmax(self.value))
-            return self.last
-
-        def learn(self, view, reward, done):
-            if self.training:
-                self.count[self.last] += 1
-                self.value[self.last] += (reward - self.value[self.last]) / self.count[self.last]
-
-        def beacon_fields(self):
-            return {"best": int(np.argmax(self.value))}
-
-        def state_dict(self):
-            return {"value": self.value.copy(), "count": self.count.copy()}
-
-        def load_state_dict(self, d):
-            self.value, self.count = np.array(d["value"]), np.array(d["count"])
-''')
+TUTORIAL = REPO / "docs" / "how-to" / "your-own-agent.md"
+USER_MODULE = re.search(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S).group(1)
+"""The tutorial's agent (its first Python block), as a user would copy it: the docs and the tests stay one."""
 
 BAD_MODULE = textwrap.dedent('''
     from agents.api import UavAgent
