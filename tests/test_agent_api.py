@@ -135,3 +135,56 @@ def test_a_class_breaking_during_training_is_one_line_exit_1(bad_module, tmp_pat
     assert cli.main(["train", "--agent", agent, *two_seeds, "--workers", workers, "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and re.search(f"^truav: error: agent {agent} {says}", err), err
+
+
+class Probe:
+    """A duck-typed agent (no UavAgent base) that records the calls it gets."""
+
+    api_version = 1
+
+    def __init__(self, cfg, uav, rng):
+        self.uav, self.calls, self.training = uav, [], None
+
+    def begin_episode(self, episode, train):
+        self.calls.append(("begin", episode, train))
+        self.training = train
+
+    def act(self, view):
+        self.calls.append(("act", view.episode, view.step))
+        assert view.uav == self.uav and [b.uav for b in view.beacons] == [u for u in range(5) if u != self.uav]
+        return (self.uav + view.step) % 16
+
+    def learn(self, view, reward, done):
+        self.calls.append(("learn", view.episode, view.step, done))
+
+    def beacon_fields(self):
+        return {"uav_again": self.uav}
+
+    def state_dict(self):
+        return {"w": np.full(3, float(self.uav))}
+
+    def load_state_dict(self, d):
+        self.loaded = {k: np.array(v) for k, v in d.items()}
+
+
+def test_the_calls_follow_the_documented_order_and_state_round_trips():
+    from agents.api_controller import ApiController
+    from truav.driver import run_episodes
+    T, E = TINY_CFG.scenario.steps_per_episode, 2
+    ctl = ApiController("probe", Probe, TINY_CFG, [0, 1])
+    run_episodes(TINY_CFG, [0, 1], ctl, E)
+    want = []
+    for e in range(E):
+        want += [("begin", e, True), ("act", e, 0)]
+        for t in range(1, T + 1):
+            want.append(("learn", e, t, t == T))
+            if t < T:
+                want.append(("act", e, t))
+    assert all(a.calls == want for row in ctl.agents for a in row)
+    assert ctl.views[1][2].beacons[0].fields == {"uav_again": 0}  # a peer's beacon fields, heard at the next step
+    state = ctl.state_arrays()
+    assert state["w"].shape == (2, 5, 3) and (state["w"][1, 4] == 4.0).all()
+    greedy = ApiController("probe", Probe, TINY_CFG, [0, 1], train=False, state=state)
+    assert np.array_equal(greedy.agents[1][3].loaded["w"], np.full(3, 3.0))
+    run_episodes(TINY_CFG, [0, 1], greedy, 1)
+    assert greedy.agents[0][0].calls[0] == ("begin", 0, False)
