@@ -242,9 +242,9 @@ def _resumed_episodes(out: Path, chunks: list[list[int]]) -> int:
     return total
 
 
-def _against_kinds(names: list[str], cfg: Config) -> dict[str, str]:
+def _against_kinds(names: list[str], cfg: Config, taken: str) -> dict[str, str]:
     """{label: controller kind} of evaluate's --against: a reference policy, or an agents.api class by name
-    (found and checked here, before anything runs)."""
+    (found and checked here, before anything runs; labelled apart from ``taken``, the evaluated run's)."""
     from truav import agent_loader
     kinds = {}
     for name in names:
@@ -252,7 +252,7 @@ def _against_kinds(names: list[str], cfg: Config) -> dict[str, str]:
             kinds[name] = name
         else:
             agent_loader.load(name, cfg, flag="--against")
-            kinds[name] = agent_loader.AGENT_KIND_PREFIX + name
+            kinds[name + " (untrained)" if name == taken else name] = agent_loader.AGENT_KIND_PREFIX + name
     return kinds
 
 
@@ -267,6 +267,10 @@ def cmd_evaluate(args) -> int:
     if is_agent_run(run):  # a run of `truav train --agent NAME`: that class, with its learned state
         name, seeds, q, end_pos = read_agent_state(run)
         agent_loader.load(name, cfg, flag=f"{args.run}: agent")
+        uavs = {v.shape[1] for v in q.values()} | ({end_pos.shape[1]} if end_pos is not None else set())
+        if uavs - {cfg.scenario.n_uavs}:
+            raise runio.RunDirError(f"{args.run}: its agent state holds {sorted(uavs)} UAVs, its config "
+                                    f"{cfg.scenario.n_uavs}")
         main_kind = agent_loader.AGENT_KIND_PREFIX + name
         main_label = main_kind if name in REFERENCE_POLICIES else name  # apart from --against random etc.
     else:
@@ -282,14 +286,14 @@ def cmd_evaluate(args) -> int:
     # deployment would put its agents in states they never visited (docs/reproduction.md).
     start = (end_pos if main_kind != "truav" else runio.read_uav_positions(run)) \
         if cfg.scenario.uav_start == "persist" else None
-    kinds = {main_label: main_kind, **_against_kinds(list(args.against), cfg)}
+    kinds = {main_label: main_kind, **_against_kinds(list(args.against), cfg, main_label)}
     _compile_first()
     rows = {}
     from agents.api_controller import AgentFailure
     for label, kind in kinds.items():
         try:
             result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
-                                       q if kind == main_kind else None, label, args.quiet, start)
+                                       q if label == main_label else None, label, args.quiet, start)
         except AgentFailure as exc:
             print(f"truav: error: {exc}", file=sys.stderr)
             return 1
