@@ -30,7 +30,8 @@ from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_ch
                                 check_policy, check_qtable, check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
-                                    config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging, zenoh_reason)
+                                    config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
+                                    zenoh_reason)
 from world.world_host import host_world
 from world.world_process import WorldOptions
 
