@@ -32,6 +32,7 @@ import numpy as np
 
 from agents.agent_process import DONE_ACK_ACTION, AgentNode, AgentOptions
 from agents.patrol import PatrolController
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config
@@ -265,6 +266,9 @@ class CentralAgentNode(_NoLearner):
 
 def make_agent_node(cfg: Config, opts: AgentOptions, bus: Bus, beacon_inbox=None, **shared) -> AgentNode:
     """The agent process's node for ``opts.scheme`` (``beacon_inbox`` and ``shared``'s switches: see AgentNode)."""
+    if opts.scheme.startswith(AGENT_KIND_PREFIX):  # an agents.api class (truav-swarm up --agent NAME)
+        from agents.api_process import ApiAgentNode
+        return ApiAgentNode(cfg, opts, bus, beacon_inbox=beacon_inbox, **shared)
     cls = {"truav": AgentNode, "patrol": PatrolAgentNode, "central": CentralAgentNode}[opts.scheme]
     return cls(cfg, opts, bus, beacon_inbox=beacon_inbox, **shared)
 

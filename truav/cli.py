@@ -30,6 +30,9 @@ from truav.cli_traffic import add_traffic_parser
 from truav.experiments.cli import add_experiment_parser
 from truav.seeding import EVAL_SEED_OFFSET
 
+REFERENCE_POLICIES = ("random", "hover", "patrol")
+"""evaluate --against's built-in controllers (trainer.make_controller); any other name is an agent class."""
+
 SUMMARY_METRICS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0),
                    ("delay_ms", "delay ms", 1.0), ("energy_j", "energy kJ/UAV", 1e-3))
 
@@ -117,6 +120,14 @@ def cmd_train(args) -> int:
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav import sumo_traffic
         sumo_traffic.sumo_home()
+    agent_cls = None
+    if args.agent is not None:  # an agents.api class: found and checked before anything starts
+        from truav import agent_loader
+        if args.scheme is not None:
+            raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
+        agent_cls = agent_loader.load(args.agent, cfg)
+        args.scheme = agent_loader.AGENT_KIND_PREFIX + args.agent
+    args.scheme = args.scheme or "truav"
     check_federated(cfg, args.scheme, learns=True)
     seeds = seed_list(args)
     from truav.trainer import RESUMABLE, Checkpointing, split
@@ -150,13 +161,18 @@ def cmd_train(args) -> int:
           f"-> {out}", flush=True)
     _compile_first(["agents/sac_kernels.py"] if scheme == "central" else [])
     t0 = time.perf_counter()
+    from agents.api_controller import AgentFailure
     try:
         result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
                                    chunks=chunks, done=done_before)
+    except AgentFailure as exc:  # the class broke during the run: its one line, exit 1
+        print(f"truav: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         if ckpt is not None:  # a second Ctrl-C: the checkpoints written so far stand
             raise
-        print(f"interrupted: --scheme {scheme} keeps no checkpoint and cannot resume; train it again with --force",
+        print(f"interrupted: {'--agent ' + args.agent if agent_cls else '--scheme ' + scheme} keeps no checkpoint "
+              f"and cannot resume; train it again with --force",
               file=sys.stderr)
         return 130
     elapsed = time.perf_counter() - t0
@@ -170,20 +186,26 @@ def cmd_train(args) -> int:
               file=sys.stderr)
         return 130
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
+    from truav.agent_run import AGENT_FILE, write_agent_state
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
         runio.write_policy(out, seeds, result.policy, cfg)
+    elif agent_cls is not None:  # its state_dicts, for `truav evaluate RUN`
+        write_agent_state(out, args.agent, agent_cls.api_version, seeds, result.policy, result.uav_pos)
     else:
         runio.write_qtables(out, seeds, result.q, result.uav_pos, cfg)
     window = min(500, episodes)
+    label = args.agent if agent_cls is not None else scheme
+    title = {"truav": "TRUAV", "central": "centralized SAC"}.get(scheme, f"agent {label}")
     convergence_figure(result.metrics, out / runio.CONVERGENCE_FILE, window=window,
-                       title=f"{'TRUAV' if scheme == 'truav' else 'centralized SAC'} at {cfg.scenario.uav_speed_mps:g} m/s")
+                       title=f"{title} at {cfg.scenario.uav_speed_mps:g} m/s")
     steps = (len(seeds) * episodes - done_before) * cfg.scenario.steps_per_episode  # this run's own, not the resumed
     print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s"
           + (f" over the {len(seeds) * episodes - done_before:,} env-episodes after the resume)" if done_before else ")"))
     last = {k: np.nanmean(v[-window:], axis=0) for k, v in result.metrics.items()}
     print(f"last {window} episodes, mean ± 95% interval over seeds:")
-    print(format_table({scheme: last}))
-    for name in (runio.METRICS_FILE, runio.QTABLE_FILE if scheme == "truav" else runio.POLICY_FILE,
+    print(format_table({label: last}))
+    state_file = {"truav": runio.QTABLE_FILE, "central": runio.POLICY_FILE}.get(scheme, AGENT_FILE)
+    for name in (runio.METRICS_FILE, state_file,
                  runio.CONVERGENCE_FILE, runio.CONFIG_FILE):
         print(f"  {out / name}")
     runio.remove_resume_state(out)  # finished: nothing to resume
@@ -195,6 +217,8 @@ def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[li
     from truav.trainer import RESUMABLE
     if args.force:
         raise UsageError("--resume and --force exclude each other (continue the training in --out, or replace it)")
+    if args.agent is not None:
+        raise UsageError(f"--resume: --agent {args.agent} runs keep no checkpoint yet; train it again with --force")
     if args.scheme not in RESUMABLE:
         raise UsageError(f"--resume: --scheme {args.scheme} cannot continue exactly (its SAC's torch state is not "
                          f"checkpointed); train it again with --force")
@@ -234,14 +258,41 @@ def _resumed_episodes(out: Path, chunks: list[list[int]]) -> int:
     return total
 
 
+def _against_kinds(names: list[str], cfg: Config, taken: str) -> dict[str, str]:
+    """{label: controller kind} of evaluate's --against: a reference policy, or an agents.api class by name
+    (found and checked here, before anything runs; labelled apart from ``taken``, the evaluated run's)."""
+    from truav import agent_loader
+    kinds = {}
+    for name in names:
+        if name in REFERENCE_POLICIES:
+            kinds[name] = name
+        else:
+            agent_loader.load(name, cfg, flag="--against")
+            kinds[name + " (untrained)" if name == taken else name] = agent_loader.AGENT_KIND_PREFIX + name
+    return kinds
+
+
 def cmd_evaluate(args) -> int:
+    from truav import agent_loader
+    from truav.agent_run import is_agent_run, read_agent_state
     run = Path(args.run)
     if not run.exists():  # not "its parent has no config.toml": the path the user gave
         raise runio.RunDirError(f"{args.run}: no such run directory or file (a directory `truav train` wrote, "
                                 f"or its {runio.QTABLE_FILE})")
     cfg = runio.read_config(run if run.is_dir() else run.parent)
-    seeds, q = runio.read_qtables(run)
-    runio.check_qtables(run, q.shape, cfg)
+    if is_agent_run(run):  # a run of `truav train --agent NAME`: that class, with its learned state
+        name, seeds, q, end_pos = read_agent_state(run)
+        agent_loader.load(name, cfg, flag=f"{args.run}: agent")
+        uavs = {v.shape[1] for v in q.values()} | ({end_pos.shape[1]} if end_pos is not None else set())
+        if uavs - {cfg.scenario.n_uavs}:
+            raise runio.RunDirError(f"{args.run}: its agent state holds {sorted(uavs)} UAVs, its config "
+                                    f"{cfg.scenario.n_uavs}")
+        main_kind = agent_loader.AGENT_KIND_PREFIX + name
+        main_label = main_kind if name in REFERENCE_POLICIES else name  # apart from --against random etc.
+    else:
+        seeds, q = runio.read_qtables(run)
+        runio.check_qtables(run, q.shape, cfg)
+        main_label, main_kind, end_pos = "truav", "truav", None
     cfg = cfg.replace(**preset_from(args))
     if args.set:  # e.g. the trained policy under another channel.model
         cfg = cfg.replace(**parse_sets(args.set))
@@ -255,13 +306,20 @@ def cmd_evaluate(args) -> int:
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
     # deployment would put its agents in states they never visited (docs/reproduction.md).
-    start = runio.read_uav_positions(run) if cfg.scenario.uav_start == "persist" else None
+    start = (end_pos if main_kind != "truav" else runio.read_uav_positions(run)) \
+        if cfg.scenario.uav_start == "persist" else None
+    kinds = {main_label: main_kind, **_against_kinds(list(args.against), cfg, main_label)}
     _compile_first()
     rows = {}
-    for kind in ["truav"] + list(args.against):
-        result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
-                                   q if kind == "truav" else None, kind, args.quiet, start)
-        rows[kind] = {k: np.nanmean(v, axis=0) for k, v in result.metrics.items()}
+    from agents.api_controller import AgentFailure
+    for label, kind in kinds.items():
+        try:
+            result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
+                                       q if label == main_label else None, label, args.quiet, start)
+        except AgentFailure as exc:
+            print(f"truav: error: {exc}", file=sys.stderr)
+            return 1
+        rows[label] = {k: np.nanmean(v, axis=0) for k, v in result.metrics.items()}
     print(f"greedy evaluation: {len(seeds)} seeds x {args.episodes} episodes on held-out traffic "
           f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds"
           + ("; the swarm starts where training left it" if start is not None else ""))
@@ -283,9 +341,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser("train", help="train TRUAV agents for many seeds (one batch per core)")
     add_config_args(tr)
-    tr.add_argument("--scheme", choices=("truav", "central"), default="truav",
+    tr.add_argument("--scheme", choices=("truav", "central"),
                     help="truav (Q-tables, default) or central (the centralized SAC; writes policy.npz for "
                          "`truav-swarm up --scheme central --policy RUN`)")
+    tr.add_argument("--agent", metavar="NAME",
+                    help="train your own agent class instead (pkg.module:Class, or a name registered in the "
+                         "entry-point group truav.agents, e.g. random, patrol; agents/api.py, "
+                         "docs/how-to/your-own-agent.md); writes agent.npz")
     tr.add_argument("--speed", type=positive_float,
                     help=f"UAV speed in m/s (default: scenario.uav_speed_mps, {ScenarioConfig().uav_speed_mps:g})")
     tr.add_argument("--mobility", choices=MOBILITIES,
@@ -309,16 +371,17 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--quiet", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 
-    ev = sub.add_parser("evaluate", help="run saved Q-tables greedily and print the metrics")
-    ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz)")
+    ev = sub.add_parser("evaluate", help="run saved Q-tables (or an agent's state) greedily and print the metrics")
+    ev.add_argument("run", help="run directory of 'truav train' (or its qtables.npz, or agent.npz)")
     ev.add_argument("--episodes", type=positive_int, default=20, help="episodes per seed (default %(default)s)")
     ev.add_argument("--speed", type=positive_float, help="evaluate at another UAV speed (with "
                                                          "--allow-scenario-mismatch if it was trained at another)")
     add_preset_arg(ev, "apply a scenario preset (literal or paper) on top of the run's saved config")
     ev.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override one value of the run's saved config (repeatable), e.g. --set channel.model=al-hourani")
-    ev.add_argument("--against", nargs="*", default=[], choices=["random", "hover", "patrol"],
-                    help="also run these reference policies on the same traffic")
+    ev.add_argument("--against", nargs="*", default=[], metavar="NAME",
+                    help=f"also run these on the same traffic: reference policies ({', '.join(REFERENCE_POLICIES)}) "
+                         f"or agent classes (pkg.module:Class or a registered name), untrained")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
     policy_scenario.add_allow_arg(ev)
     ev.add_argument("--quiet", action="store_true")

@@ -71,6 +71,11 @@ class Checkpointing:
 
 
 def make_controller(kind: str, cfg: Config, seeds: list[int], train: bool, q: np.ndarray | None):
+    if kind.startswith("agent:"):  # an agents.api class, by name (truav.agent_loader; q: its state arrays)
+        from agents.api_controller import ApiController
+        from truav.agent_loader import resolve
+        name = kind[len("agent:"):]
+        return ApiController(name, resolve(name), cfg, seeds, train=train, state=q)
     if kind == "truav":
         return TruavController(cfg, seeds, train=train, q=q)
     if kind == "random":
@@ -162,6 +167,8 @@ def run_chunk(kind: str, cfg: Config, seeds: list[int], episodes: int, train: bo
     policy = None
     if kind == "central":
         policy = {k: v for k, v in controller.sac.state_dict().items() if k.startswith("actor")}
+    elif kind.startswith("agent:"):
+        policy = controller.state_arrays()
     return RunResult(list(seeds), metrics, table, end_pos, policy)
 
 
@@ -183,7 +190,16 @@ def _worker(parent_pid, index, kind, cfg, seeds, episodes, train, q, start_pos, 
                            lambda e, m: out.put(("episode", index, len(seeds), _live(m))), start_pos, ckpt, index)
         out.put(("done", index, result))
     except BaseException as exc:  # report, then let the process end
-        out.put(("error", index, f"{type(exc).__name__}: {exc}"))
+        from agents.api_controller import AgentFailure
+        out.put(("agent_failure", index, str(exc)) if isinstance(exc, AgentFailure) else
+                ("error", index, f"{type(exc).__name__}: {exc}"))
+
+
+def _rows(q, lo: int, hi: int):
+    """Seeds lo..hi-1 of a controller's parameters: an array, or named arrays (an API agent's state)."""
+    if q is None:
+        return None
+    return {k: v[lo:hi] for k, v in q.items()} if isinstance(q, dict) else q[lo:hi]
 
 
 def split(seq: list, parts: int) -> list[list]:
@@ -280,7 +296,7 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
     out = ctx.Queue()
     bounds = np.cumsum([0] + [len(c) for c in chunks])
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(os.getpid(), i, kind, cfg, c, episodes, train, None if q is None else q[lo:hi],
+                         args=(os.getpid(), i, kind, cfg, c, episodes, train, _rows(q, lo, hi),
                                None if start_pos is None else start_pos[lo:hi], out, ckpt))
              for i, (c, lo, hi) in enumerate(zip(chunks, bounds[:-1], bounds[1:]))]
     for p in procs:
@@ -301,6 +317,9 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
                 results[msg[1]] = msg[2]
             elif msg[0] == "error":
                 raise RuntimeError(f"worker {msg[1]} failed: {msg[2]}")
+            elif msg[0] == "agent_failure":  # the API class broke: its one line
+                from agents.api_controller import AgentFailure
+                raise AgentFailure(msg[2])
     finally:
         for p in procs:
             if p.is_alive():  # a checkpointing worker ignores SIGTERM (see _worker); its checkpoints are atomic

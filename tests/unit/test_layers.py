@@ -75,6 +75,7 @@ LAYERS: list[tuple[str, int]] = [
     ("agents.agent_host",               PROCESS),
     ("agents.shared_beacons",           PROCESS),
     ("agents.scheme_process",           PROCESS),
+    ("agents.api_process",              PROCESS),    # an agents.api class flying one UAV on the bus
     ("agents.central_process",          PROCESS),
     ("recorder.process",                PROCESS),
     ("recorder.replay",                 PROCESS),
@@ -85,7 +86,8 @@ LAYERS: list[tuple[str, int]] = [
     ("world.world_messages",            WIRE),       # the world's observation messages, from the model
     ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
     ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
-    ("agents.decision_state",           ANALYSIS),   # that cycle's state captured and restored (snapshots)
+    ("agents.decision_state",           ANALYSIS),
+    ("agents.api_decision",             ANALYSIS),   # an agents.api class's cycle over wire messages   # that cycle's state captured and restored (snapshots)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
     ("world.*",                         MODEL),
     ("agents.*",                        MODEL),
@@ -105,6 +107,8 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.pettingzoo_env",            ANALYSIS),
     ("truav.runio",                     ANALYSIS),
     ("truav.policy_scenario",           ANALYSIS),
+    ("truav.agent_loader",              ANALYSIS),   # an agents.api class by name: imported and checked
+    ("truav.agent_run",                 ANALYSIS),   # a `truav train --agent` run's agent.npz
     ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
     ("truav.plots",                     ANALYSIS),
     ("truav.swarm.plots",               ANALYSIS),

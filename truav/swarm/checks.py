@@ -142,8 +142,9 @@ def check_central_sizes(cfg: Config) -> None:
         raise UserError("--scheme central: the controller needs PyTorch: pip install -e '.[central]'")
 
 
-def check_checkpoint(path: str, cfg: Config) -> None:
-    """An agent checkpoint: resumed from if it exists (then it must be one), else creatable."""
+def check_checkpoint(path: str, cfg: Config, api_agent: bool = False) -> None:
+    """An agent checkpoint: resumed from if it exists (then it must be one), else creatable. ``api_agent``:
+    of an agents.api class (agents.api_process: its state arrays, steps, rng_state; no Q-table)."""
     p = Path(path)
     if not p.exists():
         check_out_file("--checkpoint", path)
@@ -151,10 +152,13 @@ def check_checkpoint(path: str, cfg: Config) -> None:
     check_in_file("--checkpoint", path)
     try:
         with np.load(p, allow_pickle=False) as ck:
-            shape, _, _ = ck["q"].shape, int(ck["steps"]), json.loads(str(ck["rng_state"]))
+            shape = None if api_agent else ck["q"].shape
+            _, _ = int(ck["steps"]), json.loads(str(ck["rng_state"]))
     except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, zlib.error) as exc:
-        raise UserError(f"--checkpoint {path}: not an agent checkpoint (.npz with q, steps, rng_state): "
-                         f"{type(exc).__name__}") from None
+        raise UserError(f"--checkpoint {path}: not an agent checkpoint (.npz with {'' if api_agent else 'q, '}steps, "
+                        f"rng_state): {type(exc).__name__}") from None
+    if api_agent:
+        return
     want = (StateEncoder(cfg).n_states, N_ACTIONS)
     if shape != want:
         raise UserError(f"--checkpoint {path}: its Q-table is {shape}, this scenario needs {want}")

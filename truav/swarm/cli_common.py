@@ -16,6 +16,7 @@ from truav.cli_config import UsageError, parse_sets
 from truav.cli_args import add_options, positive_float, run_name, seed_int
 from truav.config import Config, load_config
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.swarm.checks import SCHEMES
 
 log = logging.getLogger("truav.swarm")
@@ -76,10 +77,26 @@ def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
                    % DEFAULT_ORIGIN)
 
 
+def scheme_name(text: str) -> str:
+    """argparse type of --scheme: one of SCHEMES, or agent:NAME (an agents.api class; `up --agent NAME`),
+    the class checked by the command (check_agent_scheme)."""
+    if text in SCHEMES or (text.startswith(AGENT_KIND_PREFIX) and len(text) > len(AGENT_KIND_PREFIX)):
+        return text
+    raise argparse.ArgumentTypeError(f"invalid choice: {text!r} (choose from {', '.join(SCHEMES)}, or agent:NAME)")
+
+
+def check_agent_scheme(args, cfg: Config) -> None:
+    """--scheme agent:NAME: the class found and checked (one line, exit 2) before anything starts."""
+    if args.scheme.startswith(AGENT_KIND_PREFIX):
+        from truav import agent_loader
+        agent_loader.load(args.scheme[len(AGENT_KIND_PREFIX):], cfg, flag="--agent")
+
+
 def add_scheme_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scheme", choices=SCHEMES, default="truav",
+    p.add_argument("--scheme", type=scheme_name, default="truav",
                    help="what flies the UAVs: truav (independent Q-learning agents, default), central (a controller "
-                        "process commands every UAV each tick), patrol (the pre-planned patrol)")
+                        "process commands every UAV each tick), patrol (the pre-planned patrol), or agent:NAME "
+                        "(an agent class; `up --agent NAME`)")
 
 
 def add_command_hold_arg(p: argparse.ArgumentParser) -> None:

@@ -21,6 +21,7 @@ from agents.central_process import ControllerOptions
 from agents.controller_host import host_controller
 from truav.bus import keys
 from truav.bus.transport import DEFAULT_ENDPOINT, run_router
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.checks import check_out_file
 from truav.cli_config import UsageError
 from truav.cli_args import add_options, non_negative_int, options_from, positive_float
@@ -28,8 +29,9 @@ from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_policy, check_qtable, check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
-                                    add_scheme_arg, add_swarm_process_args, add_transport_args, config_from_args,
-                                    lockstep_wait, part_creds, scenario_from, setup_logging, zenoh_reason)
+                                    add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
+                                    config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
+                                    zenoh_reason)
 from world.world_host import host_world
 from world.world_process import WorldOptions
 
@@ -100,12 +102,13 @@ def cmd_agent(args) -> int:
     if args.fault_plan:
         check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
     check_scheme_flags(args)
+    check_agent_scheme(args, cfg)
     if args.qtable:
         check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
 
     for uav in ids:
         if args.checkpoint:
-            check_checkpoint(path_of(args.checkpoint, uav), cfg)
+            check_checkpoint(path_of(args.checkpoint, uav), cfg, api_agent=args.scheme.startswith(AGENT_KIND_PREFIX))
         if args.stats_out:
             check_out_file("--stats-out", path_of(args.stats_out, uav))
     configs = {}

@@ -23,7 +23,9 @@ from truav.swarm import supervisor
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
                                 check_scheme_flags)
 from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
-                                    add_scenario_args, add_scheme_arg, lockstep_wait, scenario_from)
+                                    add_scenario_args, add_scheme_arg, check_agent_scheme, lockstep_wait,
+                                    scenario_from)
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.swarm.chaos_time import PLAN_EPISODES
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
@@ -60,6 +62,11 @@ def swarm_options(args):
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav import sumo_traffic
         sumo_traffic.sumo_home()
+    if args.agent is not None:  # an agents.api class flies the UAVs: the agent processes' scheme agent:NAME
+        if args.scheme != "truav":
+            raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
+        args.scheme = AGENT_KIND_PREFIX + args.agent
+    check_agent_scheme(args, cfg)
     n = cfg.scenario.n_uavs
     external = tuple(getattr(args, "external", None) or ())  # `up` only: chaos runs the swarm twice
     processes = -(-n // args.agents_per_process)
@@ -229,6 +236,9 @@ def record_modes(args) -> RecordModes:
 def add_up_args(up: argparse.ArgumentParser) -> None:
     add_scenario_args(up)
     add_scheme_arg(up)
+    up.add_argument("--agent", metavar="NAME",
+                    help="fly your own agent class (pkg.module:Class or a name registered in the entry-point group "
+                         "truav.agents; docs/how-to/your-own-agent.md), one per UAV agent process")
     add_policy_args(up)
     add_command_hold_arg(up)
     up.add_argument("--agents", type=positive_int,

@@ -1,0 +1,208 @@
+"""The public agent API, version 1: one class per decentralized UAV algorithm.
+
+A user's algorithm is a subclass of :class:`UavAgent` (or any class with the same methods and
+``api_version = 1``): one instance per UAV, seeing only what that UAV's agent process sees
+(:class:`LocalView`: its own observation and the beacons it heard), returning an action index,
+learning from its local reward. ``truav train --agent pkg.module:Class`` trains it in process
+(agents/api_controller.py adapts it to the batched driver); docs/how-to/your-own-agent.md is the tutorial.
+
+The call order, per UAV and episode (T = scenario.steps_per_episode)::
+
+    begin_episode(episode, train)
+    a = act(view_0); fields = beacon_fields()
+    for t in 1..T:  learn(view_t, reward_t, done = t == T); if t < T: a = act(view_t); fields = beacon_fields()
+
+The optional batched form (:class:`BatchedAgents`, offered as the class attribute ``batched``)
+takes the same calls for all UAVs of all seeds at once, arrays with leading axes (B seeds, U UAVs);
+the fast trainer uses it when a class offers it, and it must then compute what the per-UAV form
+computes. Pure computation: no I/O, no bus.
+
+Versioning: :data:`API_VERSION` grows when a promise here changes incompatibly; a class declares
+the version it was written for (``api_version``), and a loader refuses versions it does not serve
+(:data:`SUPPORTED_API_VERSIONS`). Adding a field to LocalView or an optional method is compatible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from truav.actions import HOVER, N_ACTIONS
+from truav.config import Config
+
+API_VERSION = 1
+SUPPORTED_API_VERSIONS = (1,)
+"""The versions this TRUAV drives (agents.loader refuses a class declaring another)."""
+
+MAX_BEACON_FIELDS = 8
+MAX_BEACON_FIELD_NAME = 32
+"""beacon_fields(): at most this many entries, names this long, values bool, int or float: a beacon stays small."""
+
+REQUIRED_METHODS = ("act", "learn", "state_dict", "load_state_dict")
+
+
+@dataclass(frozen=True)
+class HeardBeacon:
+    """A peer's beacon as this UAV heard it."""
+
+    uav: int
+    pos: tuple[float, float]
+    """The peer's position (m) at this step."""
+    vel: tuple[float, float]
+    """The velocity (m/s) of the peer's last action ((0, 0) before its first action of an episode)."""
+    fields: Mapping[str, bool | int | float] = field(default_factory=dict)
+    """What the peer's beacon_fields() returned after its last action ({} if none)."""
+
+
+@dataclass(frozen=True)
+class LocalView:
+    """What one UAV's agent sees at one step: its own sensing and the beacons it heard."""
+
+    uav: int
+    episode: int
+    step: int
+    """The step within the episode, 0..T (T: the view after the last action, given to learn only)."""
+    pos: tuple[float, float]
+    """Own position (m), in [0, scenario.area_m]^2."""
+    vehicles_in_range: int
+    """Vehicles within scenario.comm_range_m."""
+    queued_packets: int
+    """Packets queued at the vehicles this UAV serves."""
+    relayed: int
+    """Packets this UAV relayed to an RSU in the last step."""
+    covered: int
+    """Vehicles this UAV served in the last step."""
+    energy_j: float
+    """Energy this UAV spent in the last step (J)."""
+    speed_max: float
+    """Full speed (m/s): actions 8-15 fly at it, 0-7 at half of it."""
+    densest_sector: int
+    """1 + the direction sector with most vehicles beyond comm range (learner.sense_range_m), 0 none or off."""
+    exclusive: int
+    """Vehicles in this UAV's range and no other UAV's."""
+    nearest_rsu_m: float
+    """Distance to the nearest RSU (RSU sites are known a priori)."""
+    beacons: tuple[HeardBeacon, ...]
+    """The beacons heard at this step, in UAV-id order (in the in-process trainer: every other UAV's)."""
+
+
+class UavAgent:
+    """Base class of a per-UAV agent (API version 1). Override act and learn; the rest has defaults.
+
+    One instance flies one UAV of one seed. Every random number must come from ``rng``
+    (seeded per seed and UAV by TRUAV), so the same seed gives the same run."""
+
+    api_version: ClassVar[int] = API_VERSION
+    batched: ClassVar[type | None] = None
+    """Optional: a :class:`BatchedAgents` subclass computing the same as this class for all UAVs at once."""
+
+    def __init__(self, cfg: Config, uav: int, rng: np.random.Generator):
+        self.cfg, self.uav, self.rng = cfg, uav, rng
+        self.training = True
+
+    def begin_episode(self, episode: int, train: bool) -> None:
+        """An episode starts; ``train`` False: a greedy evaluation (learn is still called: update nothing)."""
+        self.training = train
+
+    def act(self, view: LocalView) -> int:
+        """The action for this step: an int in 0..N_ACTIONS-1 (truav.actions: 8 headings x half/full
+        speed), or HOVER (-1) to stay in place."""
+        raise NotImplementedError
+
+    def learn(self, view: LocalView, reward: float, done: bool) -> None:
+        """The outcome of the last action: the next view, this UAV's local reward, whether the episode ended."""
+
+    def beacon_fields(self) -> dict[str, bool | int | float]:
+        """Extra fields of this UAV's beacon after each act (bounded: MAX_BEACON_FIELDS); peers hear them
+        at the next step."""
+        return {}
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Everything learned, as named arrays (the same names and shapes for every UAV and seed of a run):
+        saved after training, loaded for evaluation and by a restarted or re-simulated agent."""
+        return {}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restore what state_dict returned."""
+
+
+class BatchedAgents:
+    """Optional batched form: all U UAVs of B seeds in one object, arrays with leading axes (B, U).
+
+    ``rngs[b][u]`` is the generator the per-UAV instance of seed b, UAV u would get. state_dict
+    returns each per-UAV array stacked to (B, U, ...), under the per-UAV names."""
+
+    def __init__(self, cfg: Config, rngs: list[list[np.random.Generator]]):
+        self.cfg, self.rngs = cfg, rngs
+        self.training = True
+
+    def begin_episode(self, episode: int, train: bool) -> None:
+        self.training = train
+
+    def act(self, views: "BatchedViews") -> np.ndarray:
+        """Actions (B, U) ints in 0..N_ACTIONS-1 or HOVER."""
+        raise NotImplementedError
+
+    def learn(self, views: "BatchedViews", reward: np.ndarray, done: bool) -> None:
+        """reward (B, U)."""
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        pass
+
+
+@dataclass(frozen=True)
+class BatchedViews:
+    """LocalView for every UAV of every seed: arrays (B, U) unless noted. Beacons: every UAV hears every
+    other (peer m of UAV u is UAV m; ``heard[b, u, u]`` is False)."""
+
+    episode: int
+    step: int
+    pos: np.ndarray
+    """(B, U, 2)"""
+    vehicles_in_range: np.ndarray
+    queued_packets: np.ndarray
+    relayed: np.ndarray
+    covered: np.ndarray
+    energy_j: np.ndarray
+    speed_max: float
+    densest_sector: np.ndarray
+    exclusive: np.ndarray
+    nearest_rsu_m: np.ndarray
+    peer_pos: np.ndarray
+    """(B, U, U, 2) the heard beacons' positions."""
+    peer_vel: np.ndarray
+    """(B, U, U, 2) their velocities."""
+    heard: np.ndarray
+    """(B, U, U) bool."""
+
+
+def beacon_problem(fields: Any) -> str | None:
+    """What is wrong with a beacon_fields() result, or None."""
+    if not isinstance(fields, dict):
+        return f"beacon_fields returned {type(fields).__name__}, not a dict"
+    if len(fields) > MAX_BEACON_FIELDS:
+        return f"beacon_fields returned {len(fields)} fields, more than {MAX_BEACON_FIELDS}"
+    for k, v in fields.items():
+        if not isinstance(k, str) or not 0 < len(k) <= MAX_BEACON_FIELD_NAME:
+            return f"beacon_fields: the name {k!r} is not a string of 1-{MAX_BEACON_FIELD_NAME} characters"
+        if not isinstance(v, (bool, int, float, np.integer, np.floating)):
+            return f"beacon_fields: {k!r} is {type(v).__name__}, not a bool, int or float"
+    return None
+
+
+def action_problem(action: Any) -> str | None:
+    """What is wrong with an act() result, or None."""
+    if isinstance(action, (bool, np.bool_)) or not isinstance(action, (int, np.integer)):
+        return f"act returned {action!r} ({type(action).__name__}), not an int action in 0..{N_ACTIONS - 1} or HOVER"
+    if not HOVER <= action < N_ACTIONS:
+        return f"act returned {action}, not an action in 0..{N_ACTIONS - 1} or HOVER ({HOVER})"
+    return None
+
+
+__all__ = ["API_VERSION", "SUPPORTED_API_VERSIONS", "MAX_BEACON_FIELDS", "HeardBeacon", "LocalView", "UavAgent",
+           "BatchedAgents", "BatchedViews", "HOVER", "N_ACTIONS"]

@@ -1,0 +1,207 @@
+"""An API agent class (agents.api) as a controller of the in-process driver (truav.driver.Controller).
+
+Its batched form when the class offers one (``batched``), else one instance per seed and UAV, looped.
+Each step builds every UAV's LocalView from the world's LocalObs, as TRUAV's trainer does: every UAV hears
+every other's beacon (position, the velocity of its last action, its beacon_fields), and its reward is
+the paper's local reward (agents.reward, with the same overlap term TRUAV's controller uses). A class
+that raises or breaks a promise (an illegal action, a bad beacon or state) stops the run with an
+AgentFailure naming the class, the UAV and the error.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from agents.api import BatchedViews, HeardBeacon, LocalView, action_problem, beacon_problem
+from agents.reward import Reward
+from agents.state import all_peers, neighbour_features
+from truav import seeding
+from truav.actions import HOVER, N_ACTIONS
+from truav.config import Config
+from world.env import LocalObs
+from world.network import rsu_positions
+from world.uavs import action_velocity
+
+
+def nearest_rsu_m(pos: np.ndarray, rsu: np.ndarray) -> np.ndarray:
+    """Distance (m) from each position (..., 2) to the nearest RSU of rsu (K, 2) (inf without RSUs): one
+    arithmetic for the in-process views and the agent process's (agents.api_decision)."""
+    if not len(rsu):
+        return np.full(pos.shape[:-1], np.inf)
+    return np.sqrt(((pos[..., None, :] - rsu) ** 2).sum(-1)).min(-1)
+
+
+class AgentFailure(RuntimeError):
+    """An API agent raised or broke the API during a run: the message is one line for the user."""
+
+
+class ApiController:
+    """Drives an agents.api class for B seeds x U UAVs (see the module's docstring)."""
+
+    def __init__(self, name: str, cls: type, cfg: Config, seeds: list[int], train: bool = True,
+                 state: Mapping[str, np.ndarray] | None = None):
+        self.name, self.cls, self.cfg, self.seeds, self.train = name, cls, cfg, list(seeds), train
+        B, U = len(seeds), cfg.scenario.n_uavs
+        self.shape = (B, U)
+        self.reward = Reward(cfg)
+        self.rsu = rsu_positions(cfg)
+        rngs = [[seeding.agent_rng(s, u) for u in range(U)] for s in seeds]
+        self.batched = getattr(cls, "batched", None)
+        if self.batched is not None:
+            self.group = self._call(None, None, "batched __init__", self.batched, cfg, rngs)
+            if state is not None:
+                self._call(None, None, "load_state_dict", self.group.load_state_dict, dict(state))
+        else:
+            self.agents = [[self._call(b, u, "__init__", cls, cfg, u, rngs[b][u]) for u in range(U)]
+                           for b in range(B)]
+            if state is not None:
+                for b, row in enumerate(self.agents):
+                    for u, agent in enumerate(row):
+                        self._call(b, u, "load_state_dict", agent.load_state_dict,
+                                   {k: np.array(v[b, u]) for k, v in state.items()})
+        self.episode, self.t = 0, 0
+        self.views = None
+        self.action = np.zeros(self.shape, np.int64)
+        self.fields = [[{} for _ in range(U)] for _ in range(B)]
+        self.prev_in_range = np.zeros(self.shape)
+        self._reward_sum = np.zeros(B)
+        self._steps = 0
+
+    # -- failures ---------------------------------------------------------------------------
+    def _where(self, b, u) -> str:
+        return "" if b is None else f" (UAV {u} of seed {self.seeds[b]})"
+
+    def _call(self, b, u, what, fn, *args):
+        try:
+            return fn(*args)
+        except Exception as exc:
+            raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} raised "
+                               f"{type(exc).__name__}: {exc}".replace("\n", " ")) from None
+
+    def _fail(self, b, u, problem: str):
+        raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {problem}")
+
+    # -- the driver's calls -----------------------------------------------------------------
+    def begin_episode(self, episode: int, obs: LocalObs) -> None:
+        self.episode, self.t = episode, 0
+        self.action[:] = HOVER  # no action yet: beacons carry velocity (0, 0)
+        self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()
+        self._reward_sum[:], self._steps = 0.0, 0
+        if self.batched is not None:
+            self._call(None, None, "begin_episode", self.group.begin_episode, episode, self.train)
+        else:
+            for b, row in enumerate(self.agents):
+                for u, agent in enumerate(row):
+                    self._call(b, u, "begin_episode", agent.begin_episode, episode, self.train)
+                    self.fields[b][u] = {}
+        self.views = self._views(obs)
+
+    def act(self, t: int) -> np.ndarray:
+        if self.batched is not None:
+            a = self._call(None, None, "act", self.group.act, self.views)
+            if not (isinstance(a, np.ndarray) and a.shape == self.shape and np.issubdtype(a.dtype, np.integer)):
+                self._fail(None, None, f"batched act returned {type(a).__name__} "
+                                       f"{getattr(a, 'shape', '')}, not an int array shaped {self.shape}")
+            bad = np.argwhere((a < HOVER) | (a >= N_ACTIONS))
+            if len(bad):
+                b, u = bad[0]
+                self._fail(b, u, action_problem(int(a[b, u])))
+            self.action = a.astype(np.int64)
+            return self.action
+        for b, row in enumerate(self.agents):
+            for u, agent in enumerate(row):
+                a = self._call(b, u, "act", agent.act, self.views[b][u])
+                problem = action_problem(a)
+                if problem:
+                    self._fail(b, u, problem)
+                self.action[b, u] = a
+                fields = self._call(b, u, "beacon_fields", agent.beacon_fields)
+                problem = beacon_problem(fields)
+                if problem:
+                    self._fail(b, u, problem)
+                self.fields[b][u] = dict(fields)
+        return self.action.copy()
+
+    def observe(self, obs: LocalObs, done: bool) -> None:
+        self.t += 1
+        overlap = neighbour_features(obs.pos, *all_peers(obs.pos), self.cfg.scenario.comm_range_m)[1]
+        r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap, obs.exclusive, obs.vehicles_in_range,
+                        self.prev_in_range)
+        self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()
+        self.views = self._views(obs)
+        if self.batched is not None:
+            self._call(None, None, "learn", self.group.learn, self.views, r, done)
+        else:
+            rows = r.tolist()
+            for b, row in enumerate(self.agents):
+                for u, agent in enumerate(row):
+                    self._call(b, u, "learn", agent.learn, self.views[b][u], rows[b][u], done)
+        self._reward_sum += r.mean(axis=1)
+        self._steps += 1
+
+    def episode_stats(self) -> dict[str, np.ndarray]:
+        return {"reward": self._reward_sum / max(self._steps, 1)}
+
+    # -- views and state ------------------------------------------------------------------------
+    def _views(self, obs: LocalObs):
+        sc = self.cfg.scenario
+        pos = np.asarray(obs.pos, np.float64)
+        vel = action_velocity(self.action, sc.uav_speed_mps)  # HOVER's row is (0, 0)
+        rsu_m = nearest_rsu_m(pos, self.rsu)
+        densest = obs.densest_sector if obs.densest_sector is not None else np.zeros(self.shape, np.int64)
+        exclusive = obs.exclusive if obs.exclusive is not None else np.zeros(self.shape, np.int64)
+        if self.batched is not None:
+            peers, heard = all_peers(pos)
+            return BatchedViews(self.episode, self.t, pos.copy(), np.asarray(obs.vehicles_in_range).copy(),
+                                np.asarray(obs.queued).copy(), np.asarray(obs.relayed).copy(),
+                                np.asarray(obs.covered).copy(), np.asarray(obs.energy_j, np.float64).copy(),
+                                float(sc.uav_speed_mps), np.asarray(densest).copy(), np.asarray(exclusive).copy(),
+                                rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard)
+        P, V = pos.tolist(), vel.tolist()
+        cols = [np.asarray(x).tolist() for x in (obs.vehicles_in_range, obs.queued, obs.relayed, obs.covered,
+                                                  obs.energy_j, densest, exclusive, rsu_m)]
+        views = []
+        for b in range(self.shape[0]):
+            beacons = [HeardBeacon(m, tuple(P[b][m]), tuple(V[b][m]), self.fields[b][m]) for m in range(self.shape[1])]
+            views.append([LocalView(u, self.episode, self.t, tuple(P[b][u]), int(cols[0][b][u]), int(cols[1][b][u]),
+                                    int(cols[2][b][u]), int(cols[3][b][u]), float(cols[4][b][u]),
+                                    float(sc.uav_speed_mps), int(cols[5][b][u]), int(cols[6][b][u]),
+                                    float(cols[7][b][u]), tuple(beacons[:u] + beacons[u + 1:]))
+                          for u in range(self.shape[1])])
+        return views
+
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """Every agent's state_dict, each array stacked to (B, U, ...) (the batched form's own layout)."""
+        if self.batched is not None:
+            state = self._call(None, None, "state_dict", self.group.state_dict)
+            return {k: np.asarray(v) for k, v in self._checked_state(None, None, state).items()}
+        dicts = [[self._checked_state(b, u, self._call(b, u, "state_dict", agent.state_dict))
+                  for u, agent in enumerate(row)] for b, row in enumerate(self.agents)]
+        first = dicts[0][0]
+        out = {}
+        for k, v in first.items():
+            for b, row in enumerate(dicts):
+                for u, d in enumerate(row):
+                    if set(d) != set(first):
+                        self._fail(b, u, f"state_dict has keys {sorted(d)}, UAV 0 of seed {self.seeds[0]} "
+                                         f"{sorted(first)} (every UAV must use the same names)")
+                    if np.shape(d[k]) != np.shape(v):
+                        self._fail(b, u, f"state_dict[{k!r}] is shaped {np.shape(d[k])}, UAV 0 of seed "
+                                         f"{self.seeds[0]}'s {np.shape(v)} (every UAV must use the same shapes)")
+            out[k] = np.stack([np.stack([np.asarray(d[k]) for d in row]) for row in dicts])
+        return out
+
+    def _checked_state(self, b, u, state) -> dict[str, np.ndarray]:
+        if not isinstance(state, dict):
+            self._fail(b, u, f"state_dict returned {type(state).__name__}, not a dict of arrays")
+        for k, v in state.items():
+            if not isinstance(k, str) or not k.isidentifier():
+                self._fail(b, u, f"state_dict: the name {k!r} is not a Python identifier")
+            if np.asarray(v).dtype == object:
+                self._fail(b, u, f"state_dict[{k!r}] is not a numeric array")
+        return state
+
+
+__all__ = ["AgentFailure", "ApiController", "nearest_rsu_m"]

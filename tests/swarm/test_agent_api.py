@@ -1,0 +1,190 @@
+"""The public agent API (agents/api.py): a user's class from outside the repository trains and evaluates
+through the CLI; the built-in random and patrol agents through it; one line for every mistake."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from truav import cli, runio
+from truav.agent_run import read_agent_state
+from truav.config import Config
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = ["--seeds", "1", "--episodes", "3", "--set", "scenario.n_vehicles=60", "--set",
+        "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10", "--quiet"]
+TINY_CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10}, roads={"warmup_steps": 10})
+
+TUTORIAL = REPO / "docs" / "how-to" / "your-own-agent.md"
+USER_MODULE = re.search(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S).group(1)
+"""The tutorial's agent (its first Python block), as a user would copy it: the docs and the tests stay one."""
+
+BAD_MODULE = textwrap.dedent('''
+    from agents.api import UavAgent
+
+    class NoAct:
+        api_version = 1
+        def learn(self, view, reward, done): pass
+        def state_dict(self): return {}
+        def load_state_dict(self, d): pass
+
+    class Future(UavAgent):
+        api_version = 99
+        def act(self, view): return 0
+
+    class Boom(UavAgent):
+        def __init__(self, cfg, uav, rng):
+            raise RuntimeError("no GPU")
+
+    class Illegal(UavAgent):
+        def act(self, view):
+            return 16 if view.step == 2 and self.uav == 3 else 0
+
+    class Raises(UavAgent):
+        def act(self, view): return 0
+        def learn(self, view, reward, done):
+            if view.step == 4:
+                raise KeyError("lost")
+''')
+
+
+def _metrics(run: Path) -> dict[str, np.ndarray]:
+    return runio.read_metrics(run / runio.METRICS_FILE)[1]
+
+
+def test_user_class_outside_the_repo_trains_and_evaluates(tmp_path):
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    env = {**os.environ, "PYTHONPATH": f"{mods}{os.pathsep}{REPO}"}
+    out = tmp_path / "run"
+    train = subprocess.run([sys.executable, "-m", "truav.cli", "train", "--agent", "bandit_agent:Bandit", *TINY,
+                            "--out", str(out)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert train.returncode == 0, train.stderr
+    assert {"metrics.csv", "convergence.png", "agent.npz", "config.toml"} <= {p.name for p in out.iterdir()}
+    name, seeds, state, _ = read_agent_state(out)
+    assert (name, seeds) == ("bandit_agent:Bandit", [0])
+    # every UAV learned from every step of its 3 episodes x 10 steps (the count of greedy picks included)
+    assert state["count"].shape == (1, 5, 16) and (state["count"].sum(axis=-1) == 30).all()
+    assert np.isfinite(state["value"]).all() and state["value"].any()
+    ev = subprocess.run([sys.executable, "-m", "truav.cli", "evaluate", str(out), "--episodes", "2", "--quiet",
+                         "--against", "patrol"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert ev.returncode == 0, ev.stderr
+    assert "bandit_agent:Bandit" in ev.stdout and "patrol" in ev.stdout
+
+
+def test_random_agent_is_seeded(tmp_path):
+    for name, start in (("a", "0"), ("b", "0"), ("c", "7")):
+        assert cli.main(["train", "--agent", "random", *TINY, "--seed-start", start, "--out",
+                         str(tmp_path / name)]) == 0
+    a, b, c = (_metrics(tmp_path / n) for n in "abc")
+    assert all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+    assert not np.array_equal(a["coverage_pct"], c["coverage_pct"])
+
+
+def test_batched_form_equals_per_uav_form_and_patrol_equals_the_controller():
+    from truav.trainer import run_chunk
+    per_uav = run_chunk("agent:random", TINY_CFG, [0, 1], 3).metrics
+    batched = run_chunk("agent:agents.random_agent:RandomAgentBatched", TINY_CFG, [0, 1], 3).metrics
+    assert all(np.array_equal(per_uav[k], batched[k], equal_nan=True) for k in per_uav)
+    api = run_chunk("agent:patrol", TINY_CFG, [0, 1], 3).metrics
+    own = run_chunk("patrol", TINY_CFG, [0, 1], 3).metrics
+    for k in ("coverage_pct", "pdr", "delay_ms", "energy_j", "delivered", "generated"):
+        assert np.array_equal(api[k], own[k], equal_nan=True), k
+
+
+@pytest.fixture
+def bad_module(tmp_path, monkeypatch):
+    (tmp_path / "badagents.py").write_text(BAD_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield
+    sys.modules.pop("badagents", None)
+
+
+@pytest.mark.parametrize("agent, says", [
+    ("nosuchmodule:Agent", "cannot import nosuchmodule"),
+    ("badagents:Missing", "badagents has no Missing"),
+    ("badagents:NoAct", "NoAct lacks the method act"),
+    ("badagents:Future", "API version 99"),
+    ("badagents:Boom", "Boom(cfg, uav, rng) raised RuntimeError: no GPU"),
+    ("notregistered", "no agent registered under that name"),
+])
+def test_mistakes_are_one_line_before_the_start(bad_module, tmp_path, capsys, agent, says):
+    out = tmp_path / "run"
+    assert cli.main(["train", "--agent", agent, *TINY, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and agent in err and says in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("agent, workers, says", [
+    ("badagents:Illegal", "1", r"\(UAV 3 of seed 0\): act returned 16, not an action"),
+    # each seed's worker fails: the first to tell the parent is named
+    ("badagents:Illegal", "2", r"\(UAV 3 of seed [01]\): act returned 16, not an action"),
+    ("badagents:Raises", "1", r"\(UAV 0 of seed 0\): learn raised KeyError: 'lost'"),
+])
+def test_a_class_breaking_during_training_is_one_line_exit_1(bad_module, tmp_path, capsys, agent, workers, says):
+    two_seeds = ["--seeds", "2", *TINY[2:]]  # with 2 workers: the failure comes from a worker process
+    assert cli.main(["train", "--agent", agent, *two_seeds, "--workers", workers, "--out", str(tmp_path / "r")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and re.search(f"^truav: error: agent {agent} {says}", err), err
+
+
+class Probe:
+    """A duck-typed agent (no UavAgent base) that records the calls it gets."""
+
+    api_version = 1
+
+    def __init__(self, cfg, uav, rng):
+        self.uav, self.calls, self.training = uav, [], None
+
+    def begin_episode(self, episode, train):
+        self.calls.append(("begin", episode, train))
+        self.training = train
+
+    def act(self, view):
+        self.calls.append(("act", view.episode, view.step))
+        assert view.uav == self.uav and [b.uav for b in view.beacons] == [u for u in range(5) if u != self.uav]
+        return (self.uav + view.step) % 16
+
+    def learn(self, view, reward, done):
+        self.calls.append(("learn", view.episode, view.step, done))
+
+    def beacon_fields(self):
+        return {"uav_again": self.uav}
+
+    def state_dict(self):
+        return {"w": np.full(3, float(self.uav))}
+
+    def load_state_dict(self, d):
+        self.loaded = {k: np.array(v) for k, v in d.items()}
+
+
+def test_the_calls_follow_the_documented_order_and_state_round_trips():
+    from agents.api_controller import ApiController
+    from truav.driver import run_episodes
+    T, E = TINY_CFG.scenario.steps_per_episode, 2
+    ctl = ApiController("probe", Probe, TINY_CFG, [0, 1])
+    run_episodes(TINY_CFG, [0, 1], ctl, E)
+    want = []
+    for e in range(E):
+        want += [("begin", e, True), ("act", e, 0)]
+        for t in range(1, T + 1):
+            want.append(("learn", e, t, t == T))
+            if t < T:
+                want.append(("act", e, t))
+    assert all(a.calls == want for row in ctl.agents for a in row)
+    assert ctl.views[1][2].beacons[0].fields == {"uav_again": 0}  # a peer's beacon fields, heard at the next step
+    state = ctl.state_arrays()
+    assert state["w"].shape == (2, 5, 3) and (state["w"][1, 4] == 4.0).all()
+    greedy = ApiController("probe", Probe, TINY_CFG, [0, 1], train=False, state=state)
+    assert np.array_equal(greedy.agents[1][3].loaded["w"], np.full(3, 3.0))
+    run_episodes(TINY_CFG, [0, 1], greedy, 1)
+    assert greedy.agents[0][0].calls[0] == ("begin", 0, False)

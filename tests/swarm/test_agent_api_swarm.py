@@ -1,0 +1,149 @@
+"""The agent API on the bus: `truav-swarm up --lockstep --agent NAME` (one agent process per UAV, each
+running agents.api_decision) flies exactly what the in-process adapter (agents.api_controller) flies:
+episode for episode the same metrics, the same actions at every step (the world's digest of them)
+and the same end positions; a class that fails mid-run makes its UAV hover, counted, and the run goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from tests.support.runs import run_to_end
+from agents.api_controller import ApiController
+from agents.random_agent import RandomAgent
+from truav.config import Config, to_toml
+from truav.driver import run_episodes
+from world.world_process import action_digest
+
+SEED = 4
+EPISODES = 4
+CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": 4}, roads={"warmup_steps": 10})
+SWARM_TIMEOUT_S = 240.0
+METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
+
+
+class Recorder:
+    """Wraps a driver controller: the digest of the actions it gives the world (as the world digests them),
+    and where the UAVs end."""
+
+    def __init__(self, inner):
+        self.inner, self.digests, self.end_pos = inner, [], []
+
+    def begin_episode(self, episode, obs):
+        self._digest = action_digest()
+        self.inner.begin_episode(episode, obs)
+
+    def act(self, t):
+        actions = self.inner.act(t)
+        self._digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
+        return actions
+
+    def observe(self, obs, done):
+        self.inner.observe(obs, done)
+        if done:
+            self.digests.append(self._digest.hexdigest())
+            self.end_pos.append(obs.pos[0].tolist())
+
+    def episode_stats(self):
+        return self.inner.episode_stats()
+
+
+def up(tmp: Path, name: str, *extra: str, env: dict | None = None) -> Path:
+    scenario = tmp / f"{name}.toml"
+    scenario.write_text(to_toml(CFG))
+    out = tmp / name
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+           "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
+    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=env or dict(os.environ), term_wait_s=30)
+    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
+    return out
+
+
+def test_lockstep_swarm_of_the_random_agent_equals_training_it(tmp_path):
+    rec = Recorder(ApiController("random", RandomAgent, CFG, [SEED]))
+    expected = run_episodes(CFG, [SEED], rec, EPISODES)
+    out = up(tmp_path, "apirandom", "--agent", "random")
+    world = json.loads((out / "world.json").read_text())
+    assert world["deadline_misses"] == 0 and world["hover_answers"] == 0
+    assert len(rec.digests) == EPISODES and world["actions_digest"] == rec.digests  # every action of every step
+    assert np.array_equal(np.array(world["end_positions"]), np.array(rec.end_pos))
+    for e, got in enumerate(world["episodes"]):
+        for k in METRICS:
+            assert np.array_equal(got[k], expected[k][e, 0], equal_nan=True), (e, k)
+
+
+def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_path):
+    (tmp_path / "flaky.py").write_text(textwrap.dedent('''
+        from agents.api import UavAgent
+
+        class Flaky(UavAgent):
+            def act(self, view):
+                if self.uav == 1 and view.step == 3:
+                    raise RuntimeError("lost the plot")
+                return 8 if self.uav == 2 and view.step == 5 else 0
+    '''))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", env=env)
+    agents = [json.loads((out / f"agent{i}.json").read_text()) for i in range(CFG.scenario.n_uavs)]
+    assert [a["agent_errors"] for a in agents] == [0, EPISODES, 0, 0]
+    assert agents[1]["first_agent_error"] == "act raised RuntimeError: lost the plot"
+    assert "agent flaky:Flaky: act raised RuntimeError: lost the plot" in (out / "logs" / "agent1.log").read_text()
+    world = json.loads((out / "world.json").read_text())
+    assert len(world["episodes"]) == EPISODES
+
+
+def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
+    """The tutorial's Bandit (tests/test_agent_api.py), trained in process and flown as a lock-step swarm:
+    every agent process ends with the state_dict training ends with, array for array."""
+    from test_agent_api import USER_MODULE
+    from truav.trainer import run_chunk
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    sys.path.insert(0, str(mods))
+    try:
+        trained = run_chunk("agent:bandit_agent:Bandit", CFG, [SEED], EPISODES)
+    finally:
+        sys.path.remove(str(mods))
+        sys.modules.pop("bandit_agent", None)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(mods), os.environ.get("PYTHONPATH", "")])}
+    out = up(tmp_path, "bandit", "--agent", "bandit_agent:Bandit", env=env)
+    world = json.loads((out / "world.json").read_text())
+    for e, got in enumerate(world["episodes"]):
+        for k in METRICS:
+            assert np.array_equal(got[k], trained.metrics[k][e, 0], equal_nan=True), (e, k)
+    assert trained.policy["count"].sum() == EPISODES * CFG.scenario.steps_per_episode * CFG.scenario.n_uavs
+    for uav in range(CFG.scenario.n_uavs):
+        with np.load(out / f"agent{uav}.npz") as ck:
+            for k in ("value", "count"):
+                assert np.array_equal(ck[f"state.{k}"], trained.policy[k][0, uav]), (uav, k)
+
+
+def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(tmp_path):
+    """Real time, 10 Hz: UAV 1's process is SIGKILLed at 6 s and restarted 2 s later; it resumes from its
+    checkpoint (taken every 50 steps), so its state counts every step it learned, before and after."""
+    from test_agent_api import USER_MODULE
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    plan = tmp_path / "crash.toml"
+    plan.write_text('[[fault]]\nkind = "crash"\nstart = 6.0\nuav = 1\nrestart_after = 2.0\n')
+    scenario = tmp_path / "rt.toml"
+    scenario.write_text(to_toml(CFG.replace(scenario={"steps_per_episode": 120})))
+    out = tmp_path / "rt"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(mods), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--seed", str(SEED), "--run", "rt", "--episodes", "1",
+           "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", "--agent", "bandit_agent:Bandit",
+           "--fault-plan", str(plan)]
+    assert run_to_end(cmd, tmp_path / "rt.log", SWARM_TIMEOUT_S, env=env) == 0, (tmp_path / "rt.log").read_text()
+    stats = json.loads((out / "agent1.json").read_text())
+    resumed_at = stats["incarnations"][-1]["steps_from"]
+    assert resumed_at > 0  # the restarted process started from the checkpoint's step count
+    with np.load(out / "agent1.npz") as ck:
+        assert int(ck["state.count"].sum()) == int(ck["steps"]) > resumed_at  # the state learned before the crash too
