@@ -296,12 +296,14 @@ def cmd_evaluate(args) -> int:
     cfg = cfg.replace(**preset_from(args))
     if args.set:  # e.g. the trained policy under another channel.model
         cfg = cfg.replace(**parse_sets(args.set))
-        runio.check_qtables(run, q.shape, cfg)
+        if main_kind == "truav":
+            runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
-    fit = policy_scenario.check("", args.run, runio.qtable_file(run), cfg, args.allow_scenario_mismatch)
-    if fit.line():
-        print(f"warning: {fit.line()}", flush=True)
+    if main_kind == "truav":  # an agent run's state records no scenario yet (truav.agent_run)
+        fit = policy_scenario.check("", args.run, runio.qtable_file(run), cfg, args.allow_scenario_mismatch)
+        if fit.line():
+            print(f"warning: {fit.line()}", flush=True)
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
@@ -325,7 +327,7 @@ def cmd_evaluate(args) -> int:
           + ("; the swarm starts where training left it" if start is not None else ""))
     print(format_table(rows))
     if len(rows) > 1:
-        print(paired_lines(rows, "truav"))
+        print(paired_lines(rows, main_label))
     return 0
 
 

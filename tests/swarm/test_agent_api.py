@@ -17,7 +17,7 @@ from truav import cli, runio
 from truav.agent_run import read_agent_state
 from truav.config import Config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = ["--seeds", "1", "--episodes", "3", "--set", "scenario.n_vehicles=60", "--set",
         "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10", "--quiet"]
 TINY_CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10}, roads={"warmup_steps": 10})
