@@ -232,7 +232,7 @@ def cmd_evaluate(args) -> int:
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
-    # deployment would put its agents in states they never visited (docs/reproduction.md).
+    # deployment would put its agents in states they never visited (docs/results/reproduction.md).
     start = runio.read_uav_positions(run) if cfg.scenario.uav_start == "persist" else None
     _compile_first()
     rows = {}
