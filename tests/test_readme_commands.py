@@ -108,9 +108,10 @@ BENCH = "a benchmark: minutes, and it measures the host (bench/ is run by hand)"
 CHECKED: dict[str, str] = {
     "python3 -m venv .venv": SETUP,
     ". .venv/bin/activate": SETUP,
-    "pip install -e '.[dev]'": SETUP,
-    "pip install -e '.[central]'": SETUP + " ([dev] includes PyTorch)",
-    "python -m pytest -q": "the test suite this test is part of",
+    "pip install -e . -c constraints.txt": SETUP,
+    "pip install -e '.[dev]' -c constraints.txt": SETUP,
+    "pip install -e '.[central]' -c constraints.txt": SETUP + " ([dev] includes PyTorch)",
+    "python -m pytest -q -n 2": "the test suite this test is part of",
     "truav-swarm status": OTHER_TERMINAL,
     "truav-swarm down --run demo": OTHER_TERMINAL,
     "truav-swarm router -l tcp/0.0.0.0:7447": "listens on every interface until stopped (a router for other hosts); "

@@ -410,7 +410,7 @@ class SumoConfig:
 
 @dataclass(frozen=True)
 class FederatedConfig:
-    """Federated TRUAV (issue 32; the paper's future work: UAVs that "periodically
+    """Federated TRUAV (the paper's future work: UAVs that "periodically
     share distilled policy information"): every `every` episodes each UAV
     shares the Q rows of the states it visited since its last share, with its
     visit counts, and merges its peers' rows by visit-weighted averaging
