@@ -3,7 +3,7 @@
 `literal` is the defaults: the paper's Table read literally, with a random
 redeployment every episode and traffic hotspots fixed at the major
 intersections. `paper` is the scenario the paper's results and wording imply
-(docs/results/reproduction.md, "Reproduction II"). A preset is applied first; a
+(docs/results/reproduction.md, "Scenario presets"). A preset is applied first; a
 --config file and --set overrides come on top of it.
 """
 
