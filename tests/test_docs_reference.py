@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 import pytest
 
 from truav import cli_reference
-from truav.cli_reference import COMMAND, PAGES, cli_page, config_page
+from truav.cli_reference import COMMAND, PAGES, cli_page, config_page, fault_plan_page
 
 
-@pytest.mark.parametrize("name", ["cli.md", "config.md"])
+@pytest.mark.parametrize("name", ["cli.md", "config.md", "fault-plan-format.md"])
 def test_committed_page_is_what_the_code_makes(name: str) -> None:
     fresh = cli_reference.pages()[name]
     committed = (PAGES / name).read_text() if (PAGES / name).exists() else ""
@@ -82,3 +82,20 @@ def test_check_mode_names_the_command_that_regenerates(tmp_path, monkeypatch, ca
     assert COMMAND in capsys.readouterr().err
     assert cli_reference.main([]) == 0 and (tmp_path / "cli.md").read_text() == "new\n"
     assert cli_reference.main(["--check"]) == 0
+
+
+def test_fault_plan_page_shows_the_docstrings_example_as_toml() -> None:
+    doc = """Plans.
+
+    A plan is TOML:
+
+        [[fault]]
+        kind = "loss"
+
+        [[fault]]
+        kind = "crash"
+
+    Crashes are real signals.
+    """
+    page = fault_plan_page(doc)
+    assert '```toml\n[[fault]]\nkind = "loss"\n\n[[fault]]\nkind = "crash"\n```\n\nCrashes are real signals.' in page

@@ -1,13 +1,14 @@
 """The generated reference pages of the documentation: every command and flag, every config key.
 
-    python -m truav.cli_reference           # write docs/reference/cli.md and docs/reference/config.md
+    python -m truav.cli_reference           # write docs/reference/cli.md, config.md and fault-plan-format.md
     python -m truav.cli_reference --check   # exit 1 if the committed pages differ from what the code makes
 
 The pages are built from the code itself, so they cannot say what the code does not do:
 :func:`cli_page` walks the argparse parsers of ``truav`` and ``truav-swarm`` (every subcommand, every flag
 with its help, choices and default); :func:`config_page` reads :mod:`truav.config`'s dataclasses (every key
 with its default and valid range) and the docstring under each field (read from the source with ast, as
-Python keeps no attribute docstrings). tests/test_docs_reference.py fails when a page drifts.
+Python keeps no attribute docstrings); :func:`fault_plan_page` is the fault-plan format as
+:mod:`truav.faults` documents it. tests/test_docs_reference.py fails when a page drifts.
 """
 
 from __future__ import annotations
@@ -204,14 +205,36 @@ def config_page(config_cls: type, source: str) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
+# -- the fault-plan format ----------------------------------------------------------------------------------
+def fault_plan_page(doc: str) -> str:
+    """The fault-plan format: the docstring of truav/faults.py, its indented TOML example as a code block."""
+    lines = [HEADER.format(cmd=COMMAND, src="the docstring of truav/faults.py"), "# Fault-plan format", ""]
+    in_code = False
+    for line in inspect.cleandoc(doc).split("\n"):
+        indented = line.startswith("    ")
+        if indented and not in_code:
+            lines.append("```toml")
+            in_code = True
+        elif in_code and line and not indented:
+            while lines[-1] == "":
+                lines.pop()
+            lines += ["```", ""]
+            in_code = False
+        lines.append(line[4:] if in_code else line)
+    if in_code:
+        lines.append("```")
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
 # -- the pages ---------------------------------------------------------------------------------------------
 def pages() -> dict[str, str]:
     """{file name under docs/reference: its text} as the code makes it now."""
-    from truav import config
+    from truav import config, faults
     from truav.cli import build_parser as truav_parser
     from truav.swarm.cli import build_parser as swarm_parser
     return {"cli.md": cli_page([("truav", truav_parser), ("truav-swarm", swarm_parser)]),
-            "config.md": config_page(config.Config, inspect.getsource(config))}
+            "config.md": config_page(config.Config, inspect.getsource(config)),
+            "fault-plan-format.md": fault_plan_page(faults.__doc__ or "")}
 
 
 def main(argv: list[str] | None = None) -> int:
