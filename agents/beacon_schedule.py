@@ -6,7 +6,7 @@ tick, not into it.  Few slots is what makes beacons cheap to receive: the
 beacons of one slot reach each receiver together, so Zenoh carries them in a
 few batches and the receiver wakes once for many of them, where one slot per
 UAV woke every receiver once per beacon (measured with ``bench/bench_swarm.py``
-and ``bench/bench_beacon_burst.py``: 50 agents, 2 cores, see docs/architecture.md
+and ``bench/bench_beacon_burst.py``: 50 agents, 2 cores, see docs/results/history.md
 "Scale").  The slot is anchored to the *start of
 the tick* rather than to when this agent got round to its observation: with
 20 agents the observations reach the last agent 5-30 ms after the first, and

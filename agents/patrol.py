@@ -30,7 +30,7 @@ routing over the planned positions, as in Zhou et al., reduces here to the
 min-time route at the current positions: every UAV always has a link to an
 RSU (the Shannon rate never drops to zero) whose per-packet time is far below
 one step, so carrying a packet to a later, better position never arrives
-sooner (see docs/reproduction.md).
+sooner (see docs/results/reproduction.md).
 """
 
 from __future__ import annotations

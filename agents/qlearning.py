@@ -14,7 +14,7 @@ Geofence (learner.geofence, on in the `paper` preset): an agent never picks an
 action whose full move would leave the area (it knows its own position and the area it may fly in). Without it, a
 move into the border is clipped, the UAV hovers there at lower energy cost,
 its state never changes, and a greedy policy whose argmax points into the
-border is trapped for good (docs/reproduction.md, "The greedy collapse").
+border is trapped for good (docs/results/reproduction.md, "The greedy collapse").
 """
 
 from __future__ import annotations

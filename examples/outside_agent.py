@@ -1,4 +1,4 @@
-"""A minimal outside agent for a TRUAV swarm: flies one UAV by the wire protocol (docs/protocol.md).
+"""A minimal outside agent for a TRUAV swarm: flies one UAV by the wire protocol (docs/reference/protocol.md).
 
 Only zenoh (pip install eclipse-zenoh) and msgpack; nothing of TRUAV is imported. Its policy is a seeded
 random heading, the same sequence in every run with the same --seed and --id. Run it beside a world:

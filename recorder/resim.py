@@ -1,6 +1,6 @@
 """Deterministic re-simulation of a lock-step swarm run, in process, from its recorded seed and config.
 
-A lock-step swarm is exact by protocol (docs/architecture.md, "Lock-step is exact by protocol"): each tick
+A lock-step swarm is exact by protocol (docs/explanation/architecture.md, "Lock-step is exact by protocol"): each tick
 the world publishes every observation, every agent sends its beacon, waits for its peers' beacons of the
 same tick, learns and answers; the world steps once every action is in. :class:`Resimulation` runs that
 same sequence without a bus: the world's ``World`` stepped as `world/world_process.py` steps it, one

@@ -45,7 +45,7 @@ TR36777_HEIGHTS: dict[str, tuple[float, float]] = {
 
 def describe() -> str:
     """TOML comment lines listing the models (`truav config show`)."""
-    lines = ["# channel.model choices (world/channel_models.py, docs/channel-models.md):"]
+    lines = ["# channel.model choices (world/channel_models.py, docs/explanation/channel-models.md):"]
     for name, m in MODELS.items():
         lines.append(f"#   {name}: vehicle-UAV {m.uplink}; UAV-RSU {m.backhaul}; UAV-UAV {m.relay}. Source: {m.source}")
     envs = ", ".join(f"{k} {v}" for k, v in ENVIRONMENTS.items())

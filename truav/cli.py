@@ -307,7 +307,7 @@ def cmd_evaluate(args) -> int:
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random
-    # deployment would put its agents in states they never visited (docs/reproduction.md).
+    # deployment would put its agents in states they never visited (docs/results/reproduction.md).
     start = (end_pos if main_kind != "truav" else runio.read_uav_positions(run)) \
         if cfg.scenario.uav_start == "persist" else None
     kinds = {main_label: main_kind, **_against_kinds(list(args.against), cfg, main_label)}

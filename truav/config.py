@@ -164,7 +164,7 @@ class TrafficConfig:
 class ChannelConfig:
     """Air-to-ground and air-to-air links (paper: 20 MHz, noise 1e-9 W,
     vehicle 0.1 W, UAV 1.0 W; LoS model after Al-Hourani et al., IEEE WCL 2014).
-    The model's formulas and sources: world/channel_models.py, docs/channel-models.md."""
+    The model's formulas and sources: world/channel_models.py, docs/explanation/channel-models.md."""
 
     model: str = param("paper")
     """Channel model of the links: "paper" (the default, every number as before), "al-hourani",
@@ -348,7 +348,7 @@ class CentralConfig:
     hidden: int = param(64, 4, 4096)
     """Width of the two hidden layers of the actor and of each critic: small
     MLPs, as the joint state is only U x 8 numbers (and the CPU budget of the
-    10-seed x 5-speed sweep is tight; see docs/reproduction.md)."""
+    10-seed x 5-speed sweep is tight; see docs/results/reproduction.md)."""
     actor_lr: float = param(3e-4, 0.0, 1.0)
     """Adam step size of the actor (Haarnoja et al. 2018; CleanRL's discrete SAC)."""
     critic_lr: float = param(3e-4, 0.0, 1.0)
@@ -375,19 +375,19 @@ class CentralConfig:
     action it commanded, the fence being part of its environment. Off keeps
     the literal preset's numbers; the `paper` preset turns it on (without it a
     persistent swarm under the SAC ends pinned to the borders: 2.8% coverage,
-    docs/reproduction.md)."""
+    docs/results/reproduction.md)."""
     evaluate_sampled: bool = param(False)
     """Evaluation (and a swarm run from a trained policy) samples each action
     from the actor's distribution pi instead of taking its mode. False (the
     default, as for TRUAV's greedy evaluation) keeps every number; True is the
     protocol of a maximum-entropy learner's stochastic policy, whose training
-    coverage can exceed its mode's (docs/reproduction.md, "A fair centralized
+    coverage can exceed its mode's (docs/results/reproduction.md, "A fair centralized
     baseline"). Draws come from each seed's SAC generator."""
     reward_scale: float = param(1.0, 1e-6, 1e6)
     """Factor on the reward the SAC learns from (stored in its replay); the
     reported reward is unscaled. SAC is sensitive to reward scale against its
     temperature (Haarnoja et al. 2018, Sec. 5.2); a tuning knob
-    (docs/reproduction.md, "A fair centralized baseline")."""
+    (docs/results/reproduction.md, "A fair centralized baseline")."""
 
 
 @dataclass(frozen=True)
@@ -419,7 +419,7 @@ class SumoConfig:
 
 @dataclass(frozen=True)
 class FederatedConfig:
-    """Federated TRUAV (issue 32; the paper's future work: UAVs that "periodically
+    """Federated TRUAV (the paper's future work: UAVs that "periodically
     share distilled policy information"): every `every` episodes each UAV
     shares the Q rows of the states it visited since its last share, with its
     visit counts, and merges its peers' rows by visit-weighted averaging

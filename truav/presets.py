@@ -3,7 +3,7 @@
 `literal` is the defaults: the paper's Table read literally, with a random
 redeployment every episode and traffic hotspots fixed at the major
 intersections. `paper` is the scenario the paper's results and wording imply
-(docs/reproduction.md, "Reproduction II"). A preset is applied first; a
+(docs/results/reproduction.md, "Scenario presets"). A preset is applied first; a
 --config file and --set overrides come on top of it.
 """
 
@@ -38,7 +38,7 @@ PRESETS: dict[str, tuple[Choice, ...]] = {
                "traffic variations'. No rate is given: 0.5 per 100 s episode, a hotspot dwells 200 s on average"),
         Choice("learner.geofence", True,
                "Not in the paper (silent on boundaries): a greedy UAV that pushes into a wall keeps its state "
-               "and stays there; the fence removes that corner trap (docs/reproduction.md, greedy collapse)"),
+               "and stays there; the fence removes that corner trap (docs/results/reproduction.md, greedy collapse)"),
         Choice("central.geofence", True,
                "Not in the paper: the same boundary rule for the centralized baseline (its UAVs' autopilot "
                "refuses moves out of the area); without it a persistent swarm under the SAC ends pinned to "

@@ -1,4 +1,4 @@
-"""Path loss against horizontal distance for each channel model (docs/channel-models.md).
+"""Path loss against horizontal distance for each channel model (docs/explanation/channel-models.md).
 
     python docs/scripts/channel_models_figure.py [docs/figures/channel_models.png]
 

@@ -1,5 +1,5 @@
-"""docs/protocol.md agrees with the schema: a kind, field, type, key, limit or refusal reason missing
-or different fails here (regenerate the tables with `truav-swarm schema --doc docs/protocol.md`).
+"""docs/reference/protocol.md agrees with the schema: a kind, field, type, key, limit or refusal reason missing
+or different fails here (regenerate the tables with `truav-swarm schema --doc docs/reference/protocol.md`).
 
 The generated tables are compared with a fresh generation, and the document is also read back
 (its tables parsed) and held against the schema registry directly, so a generator that forgot
@@ -27,9 +27,9 @@ from truav.bus.messages import MESSAGE_CLASSES, Envelope, size_limit
 from truav.swarm import cli as swarm_cli
 from world.world_process import WorldOptions
 
-DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
+DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "reference" / "protocol.md"
 DOC = DOC_PATH.read_text()
-REGENERATE = "regenerate: truav-swarm schema --doc docs/protocol.md"
+REGENERATE = "regenerate: truav-swarm schema --doc docs/reference/protocol.md"
 
 
 def _rows(text: str) -> list[list[str]]:
@@ -43,7 +43,7 @@ def _rows(text: str) -> list[list[str]]:
 
 def _part(name: str) -> str:
     part = protocol_doc.generated_parts(DOC)[name]
-    assert part is not None, f"docs/protocol.md lost its '{name}' markers"
+    assert part is not None, f"docs/reference/protocol.md lost its '{name}' markers"
     return part
 
 
@@ -60,13 +60,13 @@ def _kind_tables() -> dict[str, tuple[str, list[list[str]]]]:
 def test_generated_tables_are_up_to_date() -> None:
     fresh = protocol_doc.sections()
     for name, part in protocol_doc.generated_parts(DOC).items():
-        assert part == fresh[name], f"docs/protocol.md: the '{name}' table differs from the schema; {REGENERATE}"
+        assert part == fresh[name], f"docs/reference/protocol.md: the '{name}' table differs from the schema; {REGENERATE}"
     assert protocol_doc.render_into(DOC) == DOC, REGENERATE
 
 
 def test_every_kind_and_field_is_documented_with_its_type_and_range() -> None:
     tables = _kind_tables()
-    assert list(tables) == list(MESSAGE_CLASSES), "kinds missing from or extra in docs/protocol.md"
+    assert list(tables) == list(MESSAGE_CLASSES), "kinds missing from or extra in docs/reference/protocol.md"
     for kind, cls in MESSAGE_CLASSES.items():
         _, rows = tables[kind]
         assert [r[0] for r in rows] == list(cls.CHECKS), f"{kind}: fields differ"

@@ -1,4 +1,5 @@
-"""Every command of the README's bash blocks, in the order written, in a fresh directory.
+"""Every command of the README's bash blocks, then of the docs pages in tests/support/readme_commands.PAGES, in the order
+written, in a fresh directory.
 
 Each command is classified below: RUN (run, with the tiny budget given appended; argparse lets the last
 flag win) or CHECKED (not run here, with the reason; parsed by the real parser unless it is not one of

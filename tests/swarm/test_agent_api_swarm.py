@@ -99,7 +99,7 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
 
 
 def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
-    """The tutorial's Bandit (tests/test_agent_api.py), trained in process and flown as a lock-step swarm:
+    """The tutorial's Bandit (tests/swarm/test_agent_api.py), trained in process and flown as a lock-step swarm:
     every agent process ends with the state_dict training ends with, array for array."""
     from test_agent_api import USER_MODULE
     from truav.trainer import run_chunk

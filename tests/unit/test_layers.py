@@ -99,7 +99,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.bus.codec",                 WIRE),
     ("truav.bus.guard",                 WIRE),
     ("truav.bus.rejection_notices",     WIRE),   # what the world tells a sender it refused (pure)
-    ("truav.bus.protocol_doc",          WIRE),   # docs/protocol.md's tables, generated from the schema
+    ("truav.bus.protocol_doc",          WIRE),   # docs/reference/protocol.md's tables, generated from the schema
     # -- 4 analysis / drivers: pure or file I/O, no zenoh --------------------------------------
     ("truav.driver",                    ANALYSIS),
     ("truav.trainer",                   ANALYSIS),

@@ -3,7 +3,7 @@
 Under scenario.uav_start = "persist" each agent only ever visits the states
 around where its UAV settled (a few dozen of thousands), so a greedy
 evaluation from a fresh random deployment puts it in states it never saw and
-coverage collapses (docs/reproduction.md, "The greedy collapse"). The
+coverage collapses (docs/results/reproduction.md, "The greedy collapse"). The
 experiment runner therefore evaluates a persist cell in the world its
 training ran in, going on with held-out random streams. The city here is
 small (2.5 km, 2 UAVs, 4 hotspots, 300 m range) so training takes seconds,

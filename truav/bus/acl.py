@@ -67,7 +67,7 @@ def batch_groups(n_uavs: int, group_size: int) -> list[tuple[int, int]]:
 
 
 def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...]:
-    """Who may put / subscribe where in run ``run`` with ``n_uavs`` agents (docs/security.md).
+    """Who may put / subscribe where in run ``run`` with ``n_uavs`` agents (docs/explanation/security.md).
 
     ``batch_group_size`` > 1 (``--batch-beacons`` with that many agents per process): the first UAV of each
     process's group may put that group's batch of beacons (``group/<first>-<last>/beacons``), and only it."""

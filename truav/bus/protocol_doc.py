@@ -1,4 +1,4 @@
-"""The tables of docs/protocol.md that come from the schema, generated (pure: text in, text out).
+"""The tables of docs/reference/protocol.md that come from the schema, generated (pure: text in, text out).
 
 Each table is built from the schema itself: the message kinds from the registry
 (:data:`truav.bus.messages.MESSAGE_CLASSES`, so a kind added there appears here), each field's wire type
@@ -15,7 +15,7 @@ The document keeps its prose by hand and holds each table between two markers::
     ...
     <!-- end generated: NAME -->
 
-:func:`render_into` replaces what is between them; ``truav-swarm schema --doc docs/protocol.md``
+:func:`render_into` replaces what is between them; ``truav-swarm schema --doc docs/reference/protocol.md``
 rewrites the file (``--check``: only says whether it is up to date).
 """
 

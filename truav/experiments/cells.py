@@ -119,7 +119,7 @@ def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None 
     wall = time.perf_counter() - t0
     steps = len(seeds) * cell.episodes * cfg.scenario.steps_per_episode
     meta = {"train_s": t_train, "train_env_steps_per_s": steps / max(t_train, 1e-9)}
-    if cell.scheme == "truav":  # how much of its state space each agent has seen (docs/reproduction.md ablation)
+    if cell.scheme == "truav":  # how much of its state space each agent has seen (docs/results/reproduction.md ablation)
         from agents.qlearning import states_visited
         from truav import seeding
         rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(cfg.scenario.n_uavs)]

@@ -13,7 +13,7 @@ and the parts, for other hosts or terminals (zenoh-example style flags):
     truav-swarm agent --id 3 --run demo -e tcp/HOST:7447
     truav-swarm controller --run demo -e tcp/HOST:7447 --policy RUN   # --scheme central's controller
 
-and the wire protocol, for an agent of your own (docs/protocol.md, examples/outside_agent.py):
+and the wire protocol, for an agent of your own (docs/reference/protocol.md, examples/outside_agent.py):
 
     truav-swarm schema --out schemas        # the JSON Schemas of every message kind
 """

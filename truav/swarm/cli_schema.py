@@ -1,11 +1,11 @@
 """`truav-swarm schema`: the wire protocol on request, for authors of agents in other languages.
 
     truav-swarm schema --out schemas            # one JSON Schema per message kind + index.json (--force: again)
-    truav-swarm schema --doc docs/protocol.md   # regenerate the document's tables from the schema
-    truav-swarm schema --doc docs/protocol.md --check   # exit 1 if they are out of date
+    truav-swarm schema --doc docs/reference/protocol.md   # regenerate the document's tables from the schema
+    truav-swarm schema --doc docs/reference/protocol.md --check   # exit 1 if they are out of date
 
 The JSON Schemas are the ones the recorder writes into every MCAP file (recorder.schemas.bus_schema),
-one per kind of the schema's registry (truav.bus.messages.MESSAGE_CLASSES); docs/protocol.md says
+one per kind of the schema's registry (truav.bus.messages.MESSAGE_CLASSES); docs/reference/protocol.md says
 what every field means.
 """
 
@@ -53,16 +53,16 @@ def write_schemas(out: Path) -> list[Path]:
         index[kind] = {"file": path.name, "title": SCHEMA_PREFIX + kind,
                        "key": f"truav/<run>/{protocol_doc.key_of(kind)}"}
     doc = {"description": "TRUAV bus messages: msgpack maps; one JSON Schema per kind (of the decoded map). "
-                          "The meaning of every field: docs/protocol.md", "kinds": index}
+                          "The meaning of every field: docs/reference/protocol.md", "kinds": index}
     (out / INDEX_FILE).write_text(jsonio.dumps(doc, indent=1) + "\n")
     return [*written, out / INDEX_FILE]
 
 
 def cmd_schema(args) -> int:
     if args.out is None and args.doc is None:
-        raise UsageError("give --out DIR (the JSON Schemas) or --doc FILE (docs/protocol.md's tables)")
+        raise UsageError("give --out DIR (the JSON Schemas) or --doc FILE (docs/reference/protocol.md's tables)")
     if args.check and args.doc is None:
-        raise UsageError("--check: checks --doc FILE; add --doc docs/protocol.md")
+        raise UsageError("--check: checks --doc FILE; add --doc docs/reference/protocol.md")
     if args.force and args.out is None:
         raise UsageError("--force: overwrites the JSON Schemas of --out DIR; add --out DIR or drop it")
     if args.out is not None:
@@ -79,7 +79,7 @@ def cmd_schema(args) -> int:
         try:
             text = path.read_text(encoding="utf-8")
         except UnicodeDecodeError:
-            raise UsageError(f"--doc {args.doc}: not UTF-8 text (give docs/protocol.md)") from None
+            raise UsageError(f"--doc {args.doc}: not UTF-8 text (give docs/reference/protocol.md)") from None
         try:
             new = protocol_doc.render_into(text)
         except ValueError as exc:
@@ -102,9 +102,9 @@ def cmd_schema(args) -> int:
 
 def add_schema_commands(sub) -> None:
     """The `schema` subcommand."""
-    sc = sub.add_parser("schema", help="write the wire protocol's JSON Schemas, or regenerate docs/protocol.md")
+    sc = sub.add_parser("schema", help="write the wire protocol's JSON Schemas, or regenerate docs/reference/protocol.md")
     sc.add_argument("--out", metavar="DIR", help="write one JSON Schema per message kind and index.json here")
-    sc.add_argument("--doc", metavar="FILE", help="rewrite the generated tables of this document (docs/protocol.md)")
+    sc.add_argument("--doc", metavar="FILE", help="rewrite the generated tables of this document (docs/reference/protocol.md)")
     sc.add_argument("--check", action="store_true", help="with --doc: only check, exit 1 if out of date")
     sc.add_argument("--force", action="store_true", help="with --out: overwrite the files of an earlier run there")
     sc.set_defaults(func=cmd_schema)

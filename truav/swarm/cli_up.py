@@ -39,7 +39,7 @@ from world.world_process import WorldOptions
 MAX_AGENTS = 50
 """Agent processes `up` and `chaos` start without --force-agents (--agents-per-process K hosts K agents in
 one). On the 2-core reference machine, quiet, all-to-all at 10 Hz with one process per agent, 20 agents
-missed no action and 50 missed 0.85% (docs/architecture.md, "Scale"); past 50 processes the swarm is no
+missed no action and 50 missed 0.85% (docs/results/benchmarks.md); past 50 processes the swarm is no
 longer real time there, and hundreds of processes can load the machine before anything is printed. 100
 agents keep up hosted 10 per process with --share-beacons."""
 

@@ -98,7 +98,7 @@ def instructions(ids: tuple[int, ...], run: str, endpoint: str, out: Path, *, lo
                      f"; credentials: {_shown(creds)} (identity {keys.uav_identity(i)}: a zenoh config holding its "
                      f"certificate, key and the CA inline; plain zenoh loads it from any directory)"))
         lines.append(f"  tick 0 waits for its liveliness token {keys.alive_uav(run, i)} (at most --external-wait "
-                     f"{wait_s:g} s){'; lock-step' if lockstep else ''}; protocol: docs/protocol.md")
+                     f"{wait_s:g} s){'; lock-step' if lockstep else ''}; protocol: docs/reference/protocol.md")
     return lines
 
 
@@ -154,7 +154,7 @@ def verdicts(entry: dict, world: dict | None, max_missed_share: float) -> tuple[
     rejected = entry.get("rejected") or {}
     if sum(rejected.values()):
         warnings.append(f"external uav/{uav}: the world refused {sum(rejected.values())} of its message(s) ("
-                        + ", ".join(f"{r} {n}" for r, n in sorted(rejected.items())) + "; docs/protocol.md)")
+                        + ", ".join(f"{r} {n}" for r, n in sorted(rejected.items())) + "; docs/reference/protocol.md)")
     return failures, warnings
 
 
