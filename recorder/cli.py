@@ -41,12 +41,16 @@ from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
 from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
+from recorder.mcap_guard import DamagedRecording
 from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
                              positive_float)
 from truav.errors import UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_PROBLEMS = 1
+EXIT_DAMAGED = 1
+"""A damaged recording (corrupt chunk, a record over the caps, invalid schema/channel/message; docs/recordings.md):
+recover wrote what was sound and said what it left out; report and play refuse it."""
 """`truav log check`: the recording is unfinished, damaged or has sequence anomalies (like diff/grep, 1 = found)."""
 
 
@@ -83,9 +87,10 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
         rep = recover(args.input, args.output, compression=args.compression)
     except OSError as exc:
         return _fail("truav", f"recovery failed: {exc.strerror or exc}", EXIT_FAILED)
-    if rep.messages == 0 and (rep.corrupt_chunks or rep.error or rep.orphan_messages or rep.torn_bytes):
+    if rep.messages == 0 and (rep.corrupt_chunks or rep.error or rep.orphan_messages or rep.torn_bytes
+                              or rep.invalid_records):
         Path(args.output).unlink(missing_ok=True)  # an empty "recovered" file would pass for a real one
-        why = (f"{rep.corrupt_chunks} corrupt chunk(s), {rep.orphan_messages} message(s) without a channel, "
+        why = (f"{rep.corrupt_chunks} corrupt chunk(s), {rep.invalid_records} invalid record(s), "
                f"{rep.torn_bytes:,} torn bytes" + (f"; stopped early: {rep.error}" if rep.error else ""))
         return _fail("truav", f"{args.input}: nothing salvageable ({why}); {args.output} not written", EXIT_FAILED)
     span = ((rep.last_log_time - rep.first_log_time) / 1e9
@@ -94,9 +99,11 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
     print(f"{rep.in_path}: {state}, {rep.input_bytes:,} bytes, {rep.torn_bytes:,} torn bytes dropped")
     print(f"{rep.out_path}: {rep.messages} messages over {span:.3f} s on {rep.channels} channels, "
           f"{rep.metadata} metadata, {rep.attachments} attachments")
-    if not rep.clean:
-        print(f"  also lost: {rep.corrupt_chunks} corrupt chunks, {rep.orphan_messages} messages without a channel"
-              + (f"; stopped early: {rep.error}" if rep.error else ""))
+    if not rep.clean:  # what was left out, and the exit code says it (OUT carries a truav.damage record)
+        return _fail("truav", f"{args.input}: damaged recording, left out of {args.output}: {rep.corrupt_chunks} "
+                              f"corrupt chunk(s), {rep.invalid_records} invalid record(s)"
+                              + (f"; stopped early: {rep.error}" if rep.error else "")
+                              + (f" ({'; '.join(rep.notes)})" if rep.notes else ""), EXIT_DAMAGED)
     return EXIT_OK
 
 
@@ -122,9 +129,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     if problem:
         return _fail("truav", problem)
     audit = check(args.file)  # a damaged chunk would stop the report halfway: say so first
-    if audit.corrupt_chunks or audit.read_error:
+    if audit.damaged:
         return _fail("truav", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                              f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+                              f"`truav log recover {args.file} FIXED.mcap` salvages the rest", EXIT_DAMAGED)
     if audit.messages == 0:  # a report of nothing would look like a run where nothing happened
         return _fail("truav", f"{args.file}: no bus messages in the file; nothing to report", EXIT_FAILED)
     if args.out is not None:
@@ -137,8 +144,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ReportError as exc:
         return _fail("truav", str(exc))
     except damage_errors() as exc:
-        return _fail("truav", f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log check` "
-                              f"shows what is wrong, `truav log recover` salvages the rest")
+        return _fail("truav", f"{args.file}: damaged recording ({exc})", EXIT_DAMAGED)
     except OSError as exc:
         return _fail("truav", f"cannot write the report: {exc.strerror or exc}", EXIT_FAILED)
     print("\n".join(lines))
@@ -205,14 +211,16 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
                                 lockstep_wait_s=args.lockstep_wait)
         zconfig = config_from_args(args)
         info = recording_info(options.path)  # the parts resolved: each is checked below
+    except DamagedRecording as exc:
+        return _fail(prog, str(exc), EXIT_DAMAGED)
     except (ReplayUsageError, ValueError) as exc:
         return _fail(prog, str(exc))
     from recorder.check import check
     for part in info.paths:
         audit = check(part)  # a damaged chunk would stop the replay halfway: say so first
-        if audit.corrupt_chunks or audit.read_error:
+        if audit.damaged:
             return _fail(prog, f"{part}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                               f"`truav log recover {part} FIXED.mcap` salvages the rest")
+                               f"`truav log recover {part} FIXED.mcap` salvages the rest", EXIT_DAMAGED)
     try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
         target = Replayer(options, lambda _key, _payload: None, info).target_run
         if target is None:
@@ -220,8 +228,7 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except damage_errors() as exc:
-        return _fail(prog, f"{args.file[0]}: damaged recording ({type(exc).__name__}: {exc}); "
-                           f"`truav log recover` salvages the rest")
+        return _fail(prog, f"{args.file[0]}: damaged recording ({exc})", EXIT_DAMAGED)
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet
