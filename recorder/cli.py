@@ -41,7 +41,7 @@ from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
 from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
-from recorder.mcap_guard import DamagedRecording
+from recorder.mcap_guard import DamagedRecording, damage_line
 from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
                              positive_float)
 from truav.errors import UserError
@@ -144,7 +144,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ReportError as exc:
         return _fail("truav", str(exc))
     except damage_errors() as exc:
-        return _fail("truav", f"{args.file}: damaged recording ({exc})", EXIT_DAMAGED)
+        return _fail("truav", damage_line(args.file, exc), EXIT_DAMAGED)
     except OSError as exc:
         return _fail("truav", f"cannot write the report: {exc.strerror or exc}", EXIT_FAILED)
     print("\n".join(lines))
@@ -228,7 +228,7 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except damage_errors() as exc:
-        return _fail(prog, f"{args.file[0]}: damaged recording ({exc})", EXIT_DAMAGED)
+        return _fail(prog, damage_line(args.file[0], exc), EXIT_DAMAGED)
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet

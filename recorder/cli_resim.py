@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from recorder.log_copy import damage_errors, not_mcap_reason
+from recorder.mcap_guard import damage_line
 from truav.cli_args import non_negative_int
 
 RESIM_HELP = "re-run a lock-step recording in process and check every observation, beacon and action bit for bit"
@@ -99,7 +100,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except damage_errors() as exc:
-        return _fail(f"{args.file}: damaged recording ({exc})", EXIT_DAMAGED)
+        return _fail(damage_line(args.file, exc), EXIT_DAMAGED)
     print(f"{args.file}: run {rec.run!r}, seed {rec.seed}, {n} UAVs, {rec.episodes} episode(s) of "
           f"{rec.cfg.scenario.steps_per_episode} steps, lock-step"
           f"{', from ' + rec.qtable if rec.qtable else ''}{', greedy' if rec.greedy else ''}", flush=True)
@@ -111,7 +112,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     except UserError as exc:  # a recorded snapshot that does not fit its run
         return _fail(str(exc))
     except damage_errors() as exc:
-        return _fail(f"{args.file}: damaged recording ({exc})", EXIT_DAMAGED)
+        return _fail(damage_line(args.file, exc), EXIT_DAMAGED)
     finally:
         bar.close()
 

@@ -46,6 +46,11 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
     return damage_errors()
 
 
+def _damage_line(path: str, exc: BaseException) -> str:
+    from recorder.mcap_guard import damage_line
+    return damage_line(path, exc)
+
+
 def _check_out(out: str, inputs: list[str], force: bool) -> None:
     from truav.checks import check_out_file
 
@@ -87,7 +92,7 @@ def cmd_log_cut(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except _damage_errors() as exc:
-        return _fail(f"IN {args.input}: {exc}", EXIT_DAMAGED)
+        return _fail(f"IN {_damage_line(args.input, exc)}", EXIT_DAMAGED)
     except OSError as exc:
         return _fail(f"cut failed: {exc.strerror or exc}", EXIT_FAILED)
     origin = report.source_first_log_time
@@ -115,7 +120,7 @@ def cmd_log_merge(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except _damage_errors() as exc:
-        return _fail(f"IN: {exc}", EXIT_DAMAGED)
+        return _fail(f"IN {_damage_line('(one of them)', exc)}", EXIT_DAMAGED)
     except OSError as exc:
         return _fail(f"merge failed: {exc.strerror or exc}", EXIT_FAILED)
     span = _seconds(report.last_log_time, report.first_log_time)
@@ -148,7 +153,7 @@ def cmd_log_info(args: argparse.Namespace) -> int:
         try:
             results.append(info(path))
         except _damage_errors() as exc:
-            return _fail(f"{path}: {exc}", EXIT_DAMAGED)
+            return _fail(_damage_line(path, exc), EXIT_DAMAGED)
     if args.json:
         print(json.dumps([r.as_json() for r in results], indent=1))
     else:

@@ -36,7 +36,7 @@ from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkInde
                           SummaryOffset)
 
 __all__ = ["MAX_RECORD_BYTES", "MAX_NAME_CHARS", "LOG_TIME_MAX_NS", "MAX_BUFFERED_BYTES", "DAMAGE_METADATA",
-           "ReadDamage", "DamagedRecording", "Validator", "walk", "chunk_records", "read_summary",
+           "ReadDamage", "DamagedRecording", "damage_line", "Validator", "walk", "chunk_records", "read_summary",
            "GuardedSummary", "ordered_messages"]
 
 MAX_RECORD_BYTES = 64 * 1024 * 1024
@@ -111,6 +111,13 @@ class ReadDamage:
 
 class DamagedRecording(ValueError):
     """A recording with damage a tool will not read past; the message is one line naming the file."""
+
+
+def damage_line(path: object, exc: BaseException) -> str:
+    """One line for a damage error: a DamagedRecording says it all, anything else is named."""
+    if isinstance(exc, DamagedRecording):
+        return str(exc)
+    return f"{path}: damaged recording ({type(exc).__name__}: {str(exc)[:300]})"
 
 
 class Malformed(ValueError):
