@@ -87,10 +87,9 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
         rep = recover(args.input, args.output, compression=args.compression)
     except OSError as exc:
         return _fail("truav", f"recovery failed: {exc.strerror or exc}", EXIT_FAILED)
-    if rep.messages == 0 and (rep.corrupt_chunks or rep.error or rep.orphan_messages or rep.torn_bytes
-                              or rep.invalid_records):
-        Path(args.output).unlink(missing_ok=True)  # an empty "recovered" file would pass for a real one
-        why = (f"{rep.corrupt_chunks} corrupt chunk(s), {rep.invalid_records} invalid record(s), "
+    if rep.messages == 0:  # an empty "recovered" file would pass for a real one (header-only input included)
+        Path(args.output).unlink(missing_ok=True)
+        why = (f"no message; {rep.corrupt_chunks} corrupt chunk(s), {rep.invalid_records} invalid record(s), "
                f"{rep.torn_bytes:,} torn bytes" + (f"; stopped early: {rep.error}" if rep.error else ""))
         return _fail("truav", f"{args.input}: nothing salvageable ({why}); {args.output} not written", EXIT_FAILED)
     span = ((rep.last_log_time - rep.first_log_time) / 1e9
@@ -321,7 +320,9 @@ def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentP
                     "truav/<run>/replay/ctl), or a control message on truav/<run>/control/replay with command "
                     "pause|resume|toggle|step|burst|next|seek|rate|quit. A seek (to a time, a tick, or back/forward "
                     "by a time) first sends each channel's last message before that point. Status about 5 times a "
-                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}")
+                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}",
+        epilog="Exit codes: 0 played; 1 a damaged recording (refused before anything is published; see "
+               "docs/recordings.md), the bus failed, or --lockstep gave up waiting; 2 a user mistake.")
     rp.add_argument("file", metavar="FILE", nargs="+",
                     help="MCAP recording (finished or not); a split recording: its <stem>.parts.json, any part, "
                          "or all its parts (played as one, in part order)")
@@ -356,7 +357,9 @@ def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
         "report", help=help,
         description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
                     "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
-                    "and metrics.csv from a recording.")
+                    "and metrics.csv from a recording.",
+        epilog="Exit codes: 0 written; 1 a damaged recording (refused; see docs/recordings.md), no message, or "
+               "writing failed; 2 a user mistake (missing or non-MCAP file, --out under a file).")
     rep.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     rep.add_argument("--out", metavar="DIR", help="output directory (default: <FILE stem>_report next to FILE)")
     return rep
@@ -406,7 +409,11 @@ def add_log_commands(subparsers: Any) -> None:
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",
         description="Salvage every complete chunk of IN (a recording whose recorder died, so it has no "
                     "summary and mcap's make_reader cannot open it) into a finished MCAP file OUT. "
-                    "A recorder flushes a chunk at least every 50 ms, so about that much is lost.")
+                    "A recorder flushes a chunk at least every 50 ms, so about that much is lost.",
+        epilog="Exit codes: 0 written, nothing lost but a torn tail; 1 damage left out (corrupt chunks, invalid "
+               "records: named on stderr; OUT carries a truav.damage record, so `truav log check OUT` is not "
+               "clean), no message to salvage, or writing failed; 2 a user mistake (missing or non-MCAP file, OUT "
+               "exists...). See docs/recordings.md.")
     rec.add_argument("input", metavar="IN", help="the unfinished (or any) MCAP file; left untouched")
     rec.add_argument("output", metavar="OUT", help="the finished MCAP file to write")
     rec.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd",
@@ -421,7 +428,9 @@ def add_log_commands(subparsers: Any) -> None:
                     "or sent before it subscribed); an UNFINISHED file means the recorder itself died and "
                     "lost its last flush interval (run `truav log recover`). Exit code 0: finished and "
                     "complete; 1: unfinished, damaged, or with gaps, duplicates, reordering or undecodable "
-                    "messages (listed on stderr); 2: not an MCAP file.")
+                    "messages (listed on stderr), a damaged file (corrupt chunks, records over the caps, invalid "
+                    "schemas, channels or messages: left out and named), or one written from a damaged file (a "
+                    "truav.damage record); 2: not an MCAP file. See docs/recordings.md.")
     chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)
