@@ -27,8 +27,8 @@ import msgpack
 import pytest
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import Channel, ChunkIndex, DataEnd, Footer, Header, McapRecord, Message, Metadata, Schema, \
-    Statistics
+from mcap.records import Channel, ChunkIndex, DataEnd, Footer, Header, McapRecord, Message, Metadata, MetadataIndex, \
+    Schema, Statistics
 
 from recorder.mcap_log import McapLog
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, config_metadata, run_info_metadata
@@ -116,15 +116,18 @@ def mcap(items: list[bytes | ChunkSpec], summary: list[McapRecord] | None = (), 
             out += blob
         else:
             out += item
+    meta_indexes = []
     for name, values in (metadata or {}).items():
-        out += ser(Metadata(name=name, metadata=values))
+        blob = ser(Metadata(name=name, metadata=values))
+        meta_indexes.append(MetadataIndex(offset=len(out), length=len(blob), name=name))
+        out += blob
     out += ser(DataEnd(data_section_crc=0))
     summary_start = 0
     if summary is not None:
         summary_start = len(out)
         for record in summary:
             out += ser(record)
-        for index in indexes:
+        for index in [*indexes, *meta_indexes]:
             out += ser(index)
         out += ser(Statistics(message_count=1, schema_count=1, channel_count=1, attachment_count=0, metadata_count=0,
                               chunk_count=len(indexes), message_start_time=min((c.message_start_time for c in indexes),
