@@ -160,7 +160,8 @@ def cmd_log_info(args: argparse.Namespace) -> int:
         print("\n\n".join(r.format() for r in results))
     damaged = [r for r in results if r.damage.damaged]
     for r in damaged:
-        print(f"{PROG}: error: {r.path}: damaged recording, counts above leave out {r.damage.describe()}",
+        print(f"{PROG}: error: {r.path}: damaged recording (the counts above are of what was sound): "
+              f"{r.damage.describe()}",
               file=sys.stderr)
     return EXIT_DAMAGED if damaged else EXIT_OK
 
