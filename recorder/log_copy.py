@@ -59,6 +59,7 @@ class FinishedLog:
         self._stream = stream
         self.summary = summary
         self.damage = damage
+        self._scanned: Optional[tuple[list[Metadata], list[Attachment]]] = None
 
     def messages(self, damage: Optional[ReadDamage] = None, topics: Optional[set[str]] = None
                  ) -> Iterator[LogMessage]:
@@ -70,18 +71,35 @@ class FinishedLog:
             if topics is None or channel.topic in topics:
                 yield LogMessage(schema, channel, message)
 
-    def _top_level(self, kind: type) -> list:
-        check = Validator(self.damage)
-        return [record for offset, _, record in
-                walk(self._stream, 8, self.summary.data_end, self.damage, skip=_BULK)
-                if isinstance(record, kind) and check(record, offset)]
+    def _scan(self) -> tuple[list[Metadata], list[Attachment]]:
+        """One walk over the data section's top-level records (chunk bodies skipped): the metadata and
+        attachments, and every chunk the summary's index leaves out (damage: its messages would be lost
+        silently; a chunk indexed twice is read once, recorder.mcap_guard.read_summary)."""
+        if self._scanned is None:
+            check = Validator(self.damage)
+            found: list = []
+            chunks: set[int] = set()
+            for offset, opcode, record in walk(self._stream, 8, self.summary.data_end, self.damage, skip=_BULK):
+                if opcode == Opcode.CHUNK:
+                    chunks.add(offset)
+                elif isinstance(record, (Metadata, Attachment)) and check(record, offset):
+                    found.append(record)
+            indexed = {c.chunk_start_offset for c in self.summary.chunk_indexes}
+            if chunks and not indexed:
+                raise UserError(f"IN {self.path}: its summary has no chunk index; `truav log recover {self.path} "
+                                f"FIXED.mcap` rewrites it")
+            for offset in sorted(chunks - indexed):
+                self.damage.chunk(offset, "not in the summary's chunk index")
+            self._scanned = ([r for r in found if isinstance(r, Metadata)],
+                             [r for r in found if isinstance(r, Attachment)])
+        return self._scanned
 
     def metadata(self) -> list[Metadata]:
         """Every metadata record, in file order (repeated names included)."""
-        return self._top_level(Metadata)
+        return self._scan()[0]
 
     def attachments(self) -> list[Attachment]:
-        return self._top_level(Attachment)
+        return self._scan()[1]
 
     @property
     def first_log_time(self) -> Optional[int]:
