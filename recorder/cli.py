@@ -41,16 +41,13 @@ from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
 from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
-from recorder.mcap_guard import DamagedRecording, damage_line
+from recorder.mcap_guard import EXIT_DAMAGED, DamagedRecording, damage_line
 from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
                              positive_float)
 from truav.errors import UserError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_PROBLEMS = 1
-EXIT_DAMAGED = 1
-"""A damaged recording (corrupt chunk, a record over the caps, invalid schema/channel/message; docs/recordings.md):
-recover wrote what was sound and said what it left out; report and play refuse it."""
 """`truav log check`: the recording is unfinished, damaged or has sequence anomalies (like diff/grep, 1 = found)."""
 
 

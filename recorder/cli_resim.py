@@ -14,12 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from recorder.log_copy import damage_errors, not_mcap_reason
-from recorder.mcap_guard import damage_line
+from recorder.mcap_guard import EXIT_DAMAGED, damage_line
 from truav.cli_args import non_negative_int
 
 RESIM_HELP = "re-run a lock-step recording in process and check every observation, beacon and action bit for bit"
 EXIT_OK, EXIT_DIVERGED, EXIT_USAGE = 0, 1, 2
-EXIT_DAMAGED = 1
 
 
 def add_resim_parser(subparsers: Any) -> argparse.ArgumentParser:

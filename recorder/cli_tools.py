@@ -23,12 +23,11 @@ import sys
 from pathlib import Path
 from typing import Any, Optional
 
+from recorder.mcap_guard import EXIT_DAMAGED
 from truav.cli_args import non_negative_float, non_negative_int
 from truav.errors import EXIT_USAGE, UserError
 
 EXIT_OK, EXIT_FAILED = 0, 1
-EXIT_DAMAGED = 1
-"""A damaged input: cut and merge wrote what was sound (and said what they left out), info named it."""
 PROG = "truav"
 DAMAGE_EPILOG = ("Exit codes: 0 done; 1 an input is damaged (corrupt chunk, a record over the caps, an invalid "
                  "schema, channel or message: what was left out is said on stderr, and OUT carries a truav.damage "

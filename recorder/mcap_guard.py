@@ -35,7 +35,8 @@ from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkInde
                           McapRecord, Message, MessageIndex, Metadata, MetadataIndex, Schema, Statistics,
                           SummaryOffset)
 
-__all__ = ["MAX_RECORD_BYTES", "MAX_NAME_CHARS", "LOG_TIME_MAX_NS", "MAX_BUFFERED_BYTES", "DAMAGE_METADATA",
+__all__ = ["EXIT_DAMAGED", "MAX_RECORD_BYTES", "MAX_NAME_CHARS", "LOG_TIME_MAX_NS", "MAX_BUFFERED_BYTES",
+           "DAMAGE_METADATA", "DATA_ONLY",
            "ReadDamage", "DamagedRecording", "damage_line", "Validator", "walk", "chunk_records", "read_summary",
            "GuardedSummary", "ordered_messages"]
 
@@ -49,9 +50,13 @@ LOG_TIME_MAX_NS = 4_102_444_800 * 10**9
 MAX_BUFFERED_BYTES = 256 * 1024 * 1024
 """Log-time ordering keeps at most this many decompressed bytes of overlapping chunks; past it order is
 given up for bounded memory (never the case for a recorder's file, whose chunks barely overlap)."""
+EXIT_DAMAGED = 1
+"""Every `truav log` tool's exit code for a damaged recording (docs/recordings.md); 2 stays a user mistake."""
 DAMAGE_METADATA = "truav.damage"
 """Metadata record a tool writes into a file made from a damaged one; `truav log check` reports it."""
 MAX_NOTES = 5
+DATA_ONLY = frozenset({Opcode.CHUNK, Opcode.MESSAGE, Opcode.METADATA, Opcode.ATTACHMENT})
+"""Records of the data section only: one after DataEnd (in the summary) is hidden data, so damage."""
 
 _HEAD = struct.Struct("<BQ")
 _MESSAGE = struct.Struct("<HIQQ")
@@ -337,8 +342,10 @@ def read_summary(stream: IO[bytes], size: int, validator: Validator) -> Optional
         return None
     indexes: list[ChunkIndex] = []
     statistics = None
-    for offset, _, record in walk(stream, footer.summary_start, footer_at, validator.damage):
-        if isinstance(record, (Schema, Channel)):
+    for offset, opcode, record in walk(stream, footer.summary_start, footer_at, validator.damage, skip=DATA_ONLY):
+        if opcode in DATA_ONLY:  # data hidden in the summary: no reader would show it
+            validator.damage.invalid(f"{Opcode(opcode).name.lower()} record at offset {offset}, in the summary section")
+        elif isinstance(record, (Schema, Channel)):
             validator(record, offset)
         elif isinstance(record, ChunkIndex):
             if record.chunk_start_offset + record.chunk_length > footer.summary_start or record.chunk_length < 9:

@@ -31,7 +31,7 @@ from typing import IO, Iterator, NamedTuple, Optional, Sequence, Union
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message, Metadata, Schema
 
-from recorder.mcap_guard import DamagedRecording, Malformed, ReadDamage, Validator, chunk_records, read_footer, walk
+from recorder.mcap_guard import DATA_ONLY, DamagedRecording, Malformed, ReadDamage, Validator, chunk_records, walk
 from recorder.mcap_log import MCAP_MAGIC, is_mirror_topic
 
 Source = Union[str, "os.PathLike[str]", IO[bytes]]
@@ -109,14 +109,13 @@ def iter_salvaged_records(
     out. Stops at DataEnd so a finished file's summary is not read as data."""
     stats = stats if stats is not None else SalvageStats()
     check = Validator(stats)
-    end = state.valid_end
-    if state.finished:
-        footer = read_footer(stream, state.size)
-        if footer is not None and 8 <= footer.summary_start <= state.size:
-            end = footer.summary_start
-    for offset, _, record in walk(stream, len(MCAP_MAGIC), end, stats, skip=_NOT_DATA):
-        if isinstance(record, (DataEnd, Footer)):
-            return
+    summary_at = None
+    for offset, _, record in walk(stream, len(MCAP_MAGIC), state.valid_end, stats, skip=_NOT_DATA):
+        if isinstance(record, DataEnd):
+            summary_at = stream.tell()  # just past DataEnd: walk() read exactly its body
+            break
+        if isinstance(record, Footer):
+            break
         if isinstance(record, Chunk):
             try:
                 inner = chunk_records(record)
@@ -130,13 +129,21 @@ def iter_salvaged_records(
         elif record is not None and check(record, offset):
             stats.records += 1
             yield record
+    # What follows DataEnd is the summary: data hidden there (a forged DataEnd) is damage, not silence.
+    if summary_at is None:
+        return
+    for offset, opcode, _ in walk(stream, summary_at, state.valid_end, stats, skip=_ANY):
+        if opcode in DATA_ONLY:
+            stats.invalid(f"{Opcode(opcode).name.lower()} record at offset {offset}, after the data section's end")
 
 
+_ANY = frozenset(range(256))
 _NOT_DATA = frozenset({Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
                        Opcode.STATISTICS, Opcode.SUMMARY_OFFSET})
 
 
-def _checked(records: Iterator[McapRecord], stats: SalvageStats, strict: bool, source: "Source") -> Iterator[McapRecord]:
+def _checked(records: Iterator[McapRecord], stats: SalvageStats, strict: bool,
+             source: "Source") -> Iterator[McapRecord]:
     """``records``; when ``strict``, DamagedRecording at the first damage."""
     for record in records:
         if strict and stats.damaged:

@@ -77,7 +77,8 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
         raise UserError(f"{name}: a real-time run (not --lockstep): its timing decided which actions and beacons "
                         f"counted, so it cannot be re-simulated")
     if info.get("scheme", "truav") != "truav":
-        raise UserError(f"{name}: a --scheme {str(info.get('scheme'))[:60]} run; only the TRUAV agents are re-simulated")
+        raise UserError(f"{name}: a --scheme {str(info.get('scheme'))[:60]} run; only the TRUAV agents are "
+                        f"re-simulated")
     if info.get("resume"):
         raise UserError(f"{name}: a --resume run: its agents started from checkpoints the recording does not hold")
     if info.get("external"):

@@ -27,8 +27,8 @@ import msgpack
 import pytest
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import Channel, ChunkIndex, DataEnd, Footer, Header, McapRecord, Message, Metadata, MetadataIndex, \
-    Schema, Statistics
+from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, McapRecord, Message, Metadata,
+                          MetadataIndex, Schema, Statistics)
 
 from recorder.mcap_log import McapLog
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, config_metadata, run_info_metadata
@@ -258,6 +258,9 @@ FAMILIES: dict[str, tuple[Callable[[], bytes], frozenset]] = {  # name -> (build
                                           *declared([])[1:]], []), ALL),
     "chunk_left_out_of_the_index": (lambda: mcap(good_chunks(), SUMMARY, index=lambda c: c[:1] + c[2:]),
                                     frozenset({"cut", "merge"})),  # the only tools that read by the index
+    "chunk_after_data_end": (lambda: mcap(good_chunks(2), [*SUMMARY, Chunk(
+        compression="", data=b"".join(beacons(1, 0, range(20, 25))), message_start_time=T0, message_end_time=T0,
+        uncompressed_crc=0, uncompressed_size=5)]), ALL),  # hidden where no reader looks for messages
     "chunk_indexed_twice": (lambda: mcap(good_chunks(), SUMMARY, index=lambda c: c + c[1:2]), frozenset()),
     "metrics_hostile": (metrics_hostile, frozenset()),
     "metadata_hostile": (metadata_hostile, frozenset()),
