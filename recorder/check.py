@@ -36,6 +36,7 @@ from typing import Optional
 
 from mcap.records import Channel, Message, Metadata
 
+from recorder.mcap_guard import DAMAGE_METADATA
 from recorder.pause import skipped_ranges, stream_label
 from recorder.record_modes import PAUSE_METADATA
 from recorder.reader import SalvageStats, Source, TopicFilter, iter_salvaged_records, open_source, probe
@@ -95,6 +96,14 @@ class CheckReport:
     senders: dict[tuple[str, str, int], SenderCheck]  # (src, kind, inc) ->
     corrupt_chunks: int = 0  # chunks whose CRC or compression was bad: their messages are lost
     read_error: Optional[str] = None  # why reading stopped before the end, if it did
+    invalid_records: int = 0  # schemas, channels, messages, metadata left out as invalid (recorder.mcap_guard)
+    damage_notes: list[str] = field(default_factory=list)  # the first reasons, each naming a record
+    made_from_damaged: list[str] = field(default_factory=list)  # truav.damage records: written from damaged files
+
+    @property
+    def damaged(self) -> bool:
+        """Chunks or records of this file were left out as damaged (what `report`, `play`, `resim` refuse)."""
+        return bool(self.corrupt_chunks or self.read_error or self.invalid_records)
 
     @property
     def missing(self) -> int:
@@ -116,8 +125,12 @@ class CheckReport:
             out.append("unfinished (the recorder died; run `truav log recover` to finish the file)")
         if self.corrupt_chunks:
             out.append(f"{self.corrupt_chunks} corrupt chunk(s) (their messages are lost)")
+        if self.invalid_records:
+            out.append(f"{self.invalid_records} invalid record(s) left out ({'; '.join(self.damage_notes)})")
+        for what in self.made_from_damaged:
+            out.append(f"written from a damaged recording ({what})")
         if self.read_error:
-            out.append(f"unreadable after some point ({self.read_error})")
+            out.append(f"damaged, unreadable after some point ({self.read_error})")
         streams = sorted(self.senders.values(), key=lambda c: (c.src, c.kind, c.incarnation))
         if self.missing:
             gappy = [c for c in streams if c.missing]
@@ -143,8 +156,9 @@ class CheckReport:
         )
         state = ("finished" if self.finished else
                  f"UNFINISHED (recorder died; {self.torn_bytes} torn bytes; run `truav log recover`)")
-        if self.corrupt_chunks or self.read_error:
-            state += (f"; DAMAGED: {self.corrupt_chunks} corrupt chunk(s) skipped"
+        if self.corrupt_chunks or self.read_error or self.invalid_records:
+            state += (f"; DAMAGED: {self.corrupt_chunks} corrupt chunk(s) skipped, {self.invalid_records} invalid "
+                      f"record(s) left out"
                       + (f", stopped early: {self.read_error}" if self.read_error else ""))
         lines = [
             f"{self.path}: {state}",
@@ -241,9 +255,14 @@ def check(source: Source) -> CheckReport:
         first: Optional[int] = None
         last: Optional[int] = None
         paused: dict[str, list[tuple[int, int]]] = {}  # stream label -> seq ranges left out by pauses
+        made_from_damaged: list[str] = []
         for record in iter_salvaged_records(stream, state, stats):
             if isinstance(record, Channel):
                 topics.setdefault(record.id, record.topic)
+                continue
+            if isinstance(record, Metadata) and record.name == DAMAGE_METADATA:
+                made_from_damaged.append(f"{record.metadata.get('source', '?')[:200]}: "
+                                         f"{record.metadata.get('what', '?')[:500]}")
                 continue
             if isinstance(record, Metadata) and record.name == PAUSE_METADATA:
                 for label, span in skipped_ranges(record.metadata).items():
@@ -276,5 +295,6 @@ def check(source: Source) -> CheckReport:
         path=name, finished=state.finished, torn_bytes=state.torn_bytes, messages=messages,
         undecodable=undecodable, first_log_time=first, last_log_time=last, channels=channels,
         senders={k: a.finish(paused.get(stream_label(*k), [])) for k, a in audits.items()},
-        corrupt_chunks=stats.corrupt_chunks, read_error=stats.error,
+        corrupt_chunks=stats.corrupt_chunks, read_error=stats.error, invalid_records=stats.invalid_records,
+        damage_notes=[n for n in stats.notes if not n.startswith("chunk at")], made_from_damaged=made_from_damaged,
     )

@@ -41,6 +41,7 @@ from recorder.cli_record_ctl import add_record_ctl_parser
 from recorder.cli_tools import add_tool_parsers
 from recorder.cli_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
+from recorder.mcap_guard import EXIT_DAMAGED, DamagedRecording, damage_line
 from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
                              positive_float)
 from truav.errors import UserError
@@ -83,9 +84,9 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
         rep = recover(args.input, args.output, compression=args.compression)
     except OSError as exc:
         return _fail("truav", f"recovery failed: {exc.strerror or exc}", EXIT_FAILED)
-    if rep.messages == 0 and (rep.corrupt_chunks or rep.error or rep.orphan_messages or rep.torn_bytes):
-        Path(args.output).unlink(missing_ok=True)  # an empty "recovered" file would pass for a real one
-        why = (f"{rep.corrupt_chunks} corrupt chunk(s), {rep.orphan_messages} message(s) without a channel, "
+    if rep.messages == 0:  # an empty "recovered" file would pass for a real one (header-only input included)
+        Path(args.output).unlink(missing_ok=True)
+        why = (f"no message; {rep.corrupt_chunks} corrupt chunk(s), {rep.invalid_records} invalid record(s), "
                f"{rep.torn_bytes:,} torn bytes" + (f"; stopped early: {rep.error}" if rep.error else ""))
         return _fail("truav", f"{args.input}: nothing salvageable ({why}); {args.output} not written", EXIT_FAILED)
     span = ((rep.last_log_time - rep.first_log_time) / 1e9
@@ -94,9 +95,11 @@ def cmd_log_recover(args: argparse.Namespace) -> int:
     print(f"{rep.in_path}: {state}, {rep.input_bytes:,} bytes, {rep.torn_bytes:,} torn bytes dropped")
     print(f"{rep.out_path}: {rep.messages} messages over {span:.3f} s on {rep.channels} channels, "
           f"{rep.metadata} metadata, {rep.attachments} attachments")
-    if not rep.clean:
-        print(f"  also lost: {rep.corrupt_chunks} corrupt chunks, {rep.orphan_messages} messages without a channel"
-              + (f"; stopped early: {rep.error}" if rep.error else ""))
+    if not rep.clean:  # what was left out, and the exit code says it (OUT carries a truav.damage record)
+        return _fail("truav", f"{args.input}: damaged recording, left out of {args.output}: {rep.corrupt_chunks} "
+                              f"corrupt chunk(s), {rep.invalid_records} invalid record(s)"
+                              + (f"; stopped early: {rep.error}" if rep.error else "")
+                              + (f" ({'; '.join(rep.notes)})" if rep.notes else ""), EXIT_DAMAGED)
     return EXIT_OK
 
 
@@ -122,9 +125,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     if problem:
         return _fail("truav", problem)
     audit = check(args.file)  # a damaged chunk would stop the report halfway: say so first
-    if audit.corrupt_chunks or audit.read_error:
+    if audit.damaged:
         return _fail("truav", f"{args.file}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                              f"`truav log recover {args.file} FIXED.mcap` salvages the rest")
+                              f"`truav log recover {args.file} FIXED.mcap` salvages the rest", EXIT_DAMAGED)
     if audit.messages == 0:  # a report of nothing would look like a run where nothing happened
         return _fail("truav", f"{args.file}: no bus messages in the file; nothing to report", EXIT_FAILED)
     if args.out is not None:
@@ -137,8 +140,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ReportError as exc:
         return _fail("truav", str(exc))
     except damage_errors() as exc:
-        return _fail("truav", f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log check` "
-                              f"shows what is wrong, `truav log recover` salvages the rest")
+        return _fail("truav", damage_line(args.file, exc), EXIT_DAMAGED)
     except OSError as exc:
         return _fail("truav", f"cannot write the report: {exc.strerror or exc}", EXIT_FAILED)
     print("\n".join(lines))
@@ -205,14 +207,16 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
                                 lockstep_wait_s=args.lockstep_wait)
         zconfig = config_from_args(args)
         info = recording_info(options.path)  # the parts resolved: each is checked below
+    except DamagedRecording as exc:
+        return _fail(prog, str(exc), EXIT_DAMAGED)
     except (ReplayUsageError, ValueError) as exc:
         return _fail(prog, str(exc))
     from recorder.check import check
     for part in info.paths:
         audit = check(part)  # a damaged chunk would stop the replay halfway: say so first
-        if audit.corrupt_chunks or audit.read_error:
+        if audit.damaged:
             return _fail(prog, f"{part}: damaged recording ({'; '.join(audit.problems[:3])}); "
-                               f"`truav log recover {part} FIXED.mcap` salvages the rest")
+                               f"`truav log recover {part} FIXED.mcap` salvages the rest", EXIT_DAMAGED)
     try:  # the patterns against the recorded keys, before the banner (replay_on_bus checks again)
         target = Replayer(options, lambda _key, _payload: None, info).target_run
         if target is None:
@@ -220,8 +224,7 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except damage_errors() as exc:
-        return _fail(prog, f"{args.file[0]}: damaged recording ({type(exc).__name__}: {exc}); "
-                           f"`truav log recover` salvages the rest")
+        return _fail(prog, damage_line(args.file[0], exc), EXIT_DAMAGED)
     keyboard = KeyboardControl.available() and not args.no_keys
     stop = threading.Event()
     quiet = args.quiet
@@ -314,7 +317,9 @@ def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentP
                     "truav/<run>/replay/ctl), or a control message on truav/<run>/control/replay with command "
                     "pause|resume|toggle|step|burst|next|seek|rate|quit. A seek (to a time, a tick, or back/forward "
                     "by a time) first sends each channel's last message before that point. Status about 5 times a "
-                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}")
+                    f"second on truav/<run>/replay/status. {REPLAY_EXAMPLE}",
+        epilog="Exit codes: 0 played; 1 a damaged recording (refused before anything is published; see "
+               "docs/reference/untrusted-recordings.md), the bus failed, or --lockstep gave up waiting; 2 a user mistake.")
     rp.add_argument("file", metavar="FILE", nargs="+",
                     help="MCAP recording (finished or not); a split recording: its <stem>.parts.json, any part, "
                          "or all its parts (played as one, in part order)")
@@ -349,7 +354,9 @@ def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
         "report", help=help,
         description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
                     "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
-                    "and metrics.csv from a recording.")
+                    "and metrics.csv from a recording.",
+        epilog="Exit codes: 0 written; 1 a damaged recording (refused; see docs/reference/untrusted-recordings.md), no message, or "
+               "writing failed; 2 a user mistake (missing or non-MCAP file, --out under a file).")
     rep.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     rep.add_argument("--out", metavar="DIR", help="output directory (default: <FILE stem>_report next to FILE)")
     return rep
@@ -399,7 +406,11 @@ def add_log_commands(subparsers: Any) -> None:
         "recover", help="finish an unfinished recording (recorder killed) into a valid MCAP file",
         description="Salvage every complete chunk of IN (a recording whose recorder died, so it has no "
                     "summary and mcap's make_reader cannot open it) into a finished MCAP file OUT. "
-                    "A recorder flushes a chunk at least every 50 ms, so about that much is lost.")
+                    "A recorder flushes a chunk at least every 50 ms, so about that much is lost.",
+        epilog="Exit codes: 0 written, nothing lost but a torn tail; 1 damage left out (corrupt chunks, invalid "
+               "records: named on stderr; OUT carries a truav.damage record, so `truav log check OUT` is not "
+               "clean), no message to salvage, or writing failed; 2 a user mistake (missing or non-MCAP file, OUT "
+               "exists...). See docs/reference/untrusted-recordings.md.")
     rec.add_argument("input", metavar="IN", help="the unfinished (or any) MCAP file; left untouched")
     rec.add_argument("output", metavar="OUT", help="the finished MCAP file to write")
     rec.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd",
@@ -414,7 +425,9 @@ def add_log_commands(subparsers: Any) -> None:
                     "or sent before it subscribed); an UNFINISHED file means the recorder itself died and "
                     "lost its last flush interval (run `truav log recover`). Exit code 0: finished and "
                     "complete; 1: unfinished, damaged, or with gaps, duplicates, reordering or undecodable "
-                    "messages (listed on stderr); 2: not an MCAP file.")
+                    "messages (listed on stderr), a damaged file (corrupt chunks, records over the caps, invalid "
+                    "schemas, channels or messages: left out and named), or one written from a damaged file (a "
+                    "truav.damage record); 2: not an MCAP file. See docs/reference/untrusted-recordings.md.")
     chk.add_argument("file", metavar="FILE", help="MCAP recording (finished or not)")
     chk.add_argument("--max-ranges", type=non_negative_int, default=4, metavar="N", help="gap ranges shown per sender (default 4)")
     chk.set_defaults(func=cmd_log_check)

@@ -2,8 +2,9 @@
 branch a what-if there (recorder.resim, resim_verify, resim_branch, resim_figure).
 
 Exit codes: 0 reproduced (or, a branch, run and compared); 1 a divergence (a branch: the recording was not
-reproduced up to its tick, so nothing could be restored); 2 a user mistake or a recording that is not a
-lock-step TRUAV run, in one line."""
+reproduced up to its tick, so nothing could be restored), or a damaged recording (recorder.mcap_guard); 2 a
+user mistake or a recording that is not a lock-step TRUAV run or whose recorded settings are out of bounds
+(a run name the bus refuses, a config needing more than MAX_RESIM_TABLE_BYTES of Q-tables...), in one line."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from recorder.log_copy import damage_errors, not_mcap_reason
+from recorder.mcap_guard import EXIT_DAMAGED, damage_line
 from truav.cli_args import non_negative_int
 
 RESIM_HELP = "re-run a lock-step recording in process and check every observation, beacon and action bit for bit"
@@ -29,7 +31,10 @@ def add_resim_parser(subparsers: Any) -> argparse.ArgumentParser:
                     "divergence (tick, key, field, both values) and the totals; exit 1 on a divergence. With "
                     "--from TICK, branch a what-if: the run is restored at TICK (re-simulated up to it and checked "
                     "against the recording on the way), then runs on with --qtable, --greedy or --set, and its "
-                    "per-episode outcome is set beside the recorded one (whatif.csv, whatif.png).")
+                    "per-episode outcome is set beside the recorded one (whatif.csv, whatif.png).",
+        epilog="Exit codes: 0 reproduced (a branch: run); 1 a divergence, or a damaged recording; 2 a user mistake, "
+               "a recording that is not a lock-step TRUAV run, or recorded settings out of bounds. See "
+               "docs/reference/untrusted-recordings.md.")
     p.add_argument("file", metavar="FILE", help="MCAP recording of a lock-step run")
     p.add_argument("--from", dest="from_tick", type=non_negative_int, metavar="TICK",
                    help="branch a what-if at this tick (ticks count on across episodes, each episode's `done` "
@@ -94,8 +99,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except damage_errors() as exc:
-        return _fail(f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log recover` salvages "
-                     f"the rest")
+        return _fail(damage_line(args.file, exc), EXIT_DAMAGED)
     print(f"{args.file}: run {rec.run!r}, seed {rec.seed}, {n} UAVs, {rec.episodes} episode(s) of "
           f"{rec.cfg.scenario.steps_per_episode} steps, lock-step"
           f"{', from ' + rec.qtable if rec.qtable else ''}{', greedy' if rec.greedy else ''}", flush=True)
@@ -107,8 +111,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     except UserError as exc:  # a recorded snapshot that does not fit its run
         return _fail(str(exc))
     except damage_errors() as exc:
-        return _fail(f"{args.file}: damaged recording ({type(exc).__name__}: {exc}); `truav log recover` salvages "
-                     f"the rest")
+        return _fail(damage_line(args.file, exc), EXIT_DAMAGED)
     finally:
         bar.close()
 

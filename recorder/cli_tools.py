@@ -8,7 +8,11 @@ by :func:`recorder.cli.add_log_commands`)::
 
 A user mistake (IN not an MCAP file or unfinished, OUT existing without --force, a contradictory or
 empty window, a pattern matching nothing) is one line on stderr and exit 2, before anything is
-written; OUT is written to ``OUT.part`` and renamed when complete.
+written; OUT is written to ``OUT.part`` and renamed when complete. A damaged input (a chunk failing
+its CRC, a record declaring more than the caps, an invalid schema, channel or message; see
+recorder.mcap_guard) is exit 1: cut and merge write what is sound, say on stderr what they left out
+and mark OUT with a ``truav.damage`` record (so `truav log check OUT` does not call it clean); info
+prints what it could read and names the damage.
 """
 
 from __future__ import annotations
@@ -18,12 +22,17 @@ import sys
 from pathlib import Path
 from typing import Any, Optional
 
+from recorder.mcap_guard import EXIT_DAMAGED
 from truav.cli_args import non_negative_float, non_negative_int
 from truav.errors import EXIT_USAGE, UserError
 from truav import jsonio
 
 EXIT_OK, EXIT_FAILED = 0, 1
 PROG = "truav"
+DAMAGE_EPILOG = ("Exit codes: 0 done; 1 an input is damaged (corrupt chunk, a record over the caps, an invalid "
+                 "schema, channel or message: what was left out is said on stderr, and OUT carries a truav.damage "
+                 "record) or writing failed; 2 a user mistake (missing or non-MCAP file, unfinished input, OUT "
+                 "exists...). See docs/reference/untrusted-recordings.md.")
 
 
 def _fail(message: str, code: int = EXIT_USAGE) -> int:
@@ -34,6 +43,11 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
 def _damage_errors() -> tuple[type[BaseException], ...]:
     from recorder.log_copy import damage_errors
     return damage_errors()
+
+
+def _damage_line(path: str, exc: BaseException) -> str:
+    from recorder.mcap_guard import damage_line
+    return damage_line(path, exc)
 
 
 def _check_out(out: str, inputs: list[str], force: bool) -> None:
@@ -77,14 +91,16 @@ def cmd_log_cut(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except _damage_errors() as exc:
-        return _fail(f"IN {args.input}: damaged recording ({type(exc).__name__}: {exc}); "
-                     f"`truav log recover` salvages the rest")
+        return _fail(f"IN {_damage_line(args.input, exc)}", EXIT_DAMAGED)
     except OSError as exc:
         return _fail(f"cut failed: {exc.strerror or exc}", EXIT_FAILED)
     origin = report.source_first_log_time
     print(f"{report.out_path}: {report.messages:,} messages of {report.in_path} at {_seconds(report.first_log_time, origin)}"
           f"..{_seconds(report.last_log_time, origin)} s of it, {report.kept} last-before messages kept at the "
           f"window's start, {report.channels} channels, metadata {', '.join(report.metadata) or 'none'} + truav.cut")
+    if report.damage.damaged:
+        return _fail(f"IN {args.input}: damaged recording, left out of {args.output}: {report.damage.describe()}; "
+                     f"{args.output} is marked truav.damage", EXIT_DAMAGED)
     return EXIT_OK
 
 
@@ -103,8 +119,7 @@ def cmd_log_merge(args: argparse.Namespace) -> int:
     except UserError as exc:
         return _fail(str(exc))
     except _damage_errors() as exc:
-        return _fail(f"IN: damaged recording ({type(exc).__name__}: {exc}); `truav log check` shows which, "
-                     f"`truav log recover` salvages the rest")
+        return _fail(f"IN {_damage_line('(one of them)', exc)}", EXIT_DAMAGED)
     except OSError as exc:
         return _fail(f"merge failed: {exc.strerror or exc}", EXIT_FAILED)
     span = _seconds(report.last_log_time, report.first_log_time)
@@ -115,6 +130,11 @@ def cmd_log_merge(args: argparse.Namespace) -> int:
     for session, parts in report.missing_parts.items():
         print(f"truav log merge: session {session}: part(s) {', '.join(map(str, parts))} not given "
               f"(the merged run has a hole there)", file=sys.stderr)
+    for name, damage in report.damaged.items():
+        print(f"{PROG}: error: IN {name}: damaged recording, left out of {args.output}: {damage.describe()}",
+              file=sys.stderr)
+    if report.damaged:
+        return EXIT_DAMAGED
     return EXIT_OK
 
 
@@ -132,13 +152,17 @@ def cmd_log_info(args: argparse.Namespace) -> int:
         try:
             results.append(info(path))
         except _damage_errors() as exc:
-            return _fail(f"{path}: damaged recording ({type(exc).__name__}: {exc}); `truav log recover` "
-                         f"salvages the rest")
+            return _fail(_damage_line(path, exc), EXIT_DAMAGED)
     if args.json:
         print(jsonio.dumps([r.as_json() for r in results], indent=1))
     else:
         print("\n\n".join(r.format() for r in results))
-    return EXIT_OK
+    damaged = [r for r in results if r.damage.damaged]
+    for r in damaged:
+        print(f"{PROG}: error: {r.path}: damaged recording (the counts above are of what was sound): "
+              f"{r.damage.describe()}",
+              file=sys.stderr)
+    return EXIT_DAMAGED if damaged else EXIT_OK
 
 
 # --- the parsers ----------------------------------------------------------------------------------------
@@ -152,7 +176,8 @@ def add_tool_parsers(log_sub: Any) -> None:
                     "answers stay in). The last message of every chosen channel before the window is kept, "
                     "stamped at the window's start (a replay or a late joiner starts with the state then; the "
                     "truav.cut metadata record lists them with their original log times, which `truav log "
-                    "merge` restores). IN's metadata is kept. IN must be finished (`truav log recover` first).")
+                    "merge` restores). IN's metadata is kept. IN must be finished (`truav log recover` first).",
+        epilog=DAMAGE_EPILOG)
     cut.add_argument("input", metavar="IN", help="a finished MCAP recording; left untouched")
     cut.add_argument("output", metavar="OUT", help="the MCAP file to write")
     cut.add_argument("--start", type=non_negative_float, metavar="S", help="window start, seconds from IN's first message")
@@ -174,7 +199,7 @@ def add_tool_parsers(log_sub: Any) -> None:
                     "Parts of a split recording (truav.part records, or a <stem>.parts.json index given as an "
                     "input) are joined in part order; a cut's kept last-before messages get their original "
                     "log times back, so the cuts of a recording merge back into it. Metadata is kept; a "
-                    "truav.merge record lists the inputs.")
+                    "truav.merge record lists the inputs.", epilog=DAMAGE_EPILOG)
     mrg.add_argument("output", metavar="OUT", help="the MCAP file to write")
     mrg.add_argument("inputs", nargs="+", metavar="IN", help="finished MCAP recordings, or <stem>.parts.json indexes")
     mrg.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
@@ -185,7 +210,9 @@ def add_tool_parsers(log_sub: Any) -> None:
         description="Per topic, per sender (the envelope's src) and per kind: messages, first/last time (s "
                     "from the file's first message) and mean rate; sequence gaps per sender; fault windows; "
                     "the world's tick range; the run's metadata (run, seed, scheme, split part, cut window, "
-                    "merge inputs). Works on unfinished files too.")
+                    "merge inputs). Works on unfinished files too.",
+        epilog="Exit codes: 0 done; 1 a file is damaged (what was left out is named on stderr); 2 a missing or "
+               "non-MCAP file. See docs/reference/untrusted-recordings.md.")
     inf.add_argument("files", nargs="+", metavar="FILE", help="MCAP recordings")
     inf.add_argument("--json", action="store_true", help="print a JSON list, one object per file")
     inf.set_defaults(func=cmd_log_info)

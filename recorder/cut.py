@@ -28,6 +28,7 @@ from mcap.records import Channel, Metadata
 
 from recorder.log_copy import (FinishedLog, LogMessage, OutputChannels, dump, new_writer, open_finished,
                                written_atomically)
+from recorder.mcap_guard import DAMAGE_METADATA, DamagedRecording, ReadDamage
 from recorder.mcap_writer import LIBRARY
 from recorder.mirror_channels import META_MIRROR_OF, is_mirror_topic
 from recorder.schemas import envelope_fields
@@ -101,7 +102,7 @@ def _tick_window(log: FinishedLog, from_tick: Optional[int], to_tick: Optional[i
     if not topics:
         raise UserError(f"--from-tick/--to-tick: {log.path} has no world tick messages ({TICK_PATTERN})")
     ticks: list[tuple[int, int]] = []  # (log time, tick)
-    for _, _, message in log.reader.iter_messages(topics=topics, log_time_order=True):
+    for _, _, message in log.messages(ReadDamage(), set(topics)):  # damage is counted by the copying pass
         fields = envelope_fields(message.data)
         tick = None if fields is None else fields[4].get("tick")
         if type(tick) is int:
@@ -192,6 +193,7 @@ class CutReport:
     first_log_time: Optional[int] = None  # of the window's messages
     last_log_time: Optional[int] = None
     metadata: list[str] = field(default_factory=list)  # names of the records copied
+    damage: ReadDamage = field(default_factory=ReadDamage)  # what of the input was left out as damaged
 
 
 def cut(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], spec: WindowSpec,
@@ -199,7 +201,8 @@ def cut(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], spec:
     """Write the window ``spec`` of ``in_path`` (channels chosen by the globs) to ``out_path``.
 
     UserError (nothing written) for an input that is not a finished MCAP, a contradictory window, a
-    pattern matching nothing, or a window holding no message."""
+    pattern matching nothing, or a window holding no message. Damaged chunks and records are left out,
+    counted in the report's ``damage`` and named in a ``truav.damage`` record of the output."""
     choice = ChannelChoice(include, exclude)
     with open_finished(in_path) as log:
         choice.check_against(log.summary.channels.values())
@@ -237,11 +240,17 @@ def cut(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], spec:
                 report.messages += 1
                 report.first_log_time = message.log_time if report.first_log_time is None else report.first_log_time
                 report.last_log_time = message.log_time
+            report.damage = log.damage
+            if report.messages == 0 and log.damage.damaged:
+                raise DamagedRecording(f"{in_path}: damaged recording, nothing sound in the window: "
+                                       f"{log.damage.describe()}; {out_path} not written")
             if report.messages == 0:
                 raise UserError(f"{in_path}: the window {_window_text(window, log)} holds no message of the "
                                 f"chosen topics; {out_path} not written")
             report.channels = len(channels.topics)
             writer.add_metadata(CUT_METADATA, _cut_record(log, window, spec, choice, report, kept_entries))
+            if log.damage.damaged:  # so that `truav log check` of the cut does not call it sound
+                writer.add_metadata(DAMAGE_METADATA, log.damage.as_metadata(Path(log.path).name))
             writer.close()
     return report
 

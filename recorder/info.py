@@ -20,13 +20,15 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from mcap.records import Metadata
+from mcap.records import Header, Metadata
 
 from recorder.check import _table
 from recorder.cut import CUT_METADATA, KeptMessages
 from recorder.merge import MERGE_METADATA, PART_METADATA
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA
 from recorder.mirror_channels import is_mirror_topic
+from recorder.mcap_guard import ReadDamage, Validator, read_summary, walk
+from recorder.mcap_log import MCAP_MAGIC
 from recorder.reader import iter_messages, open_source, probe, read_metadata
 from recorder.report_data import Recording
 from recorder.schemas import envelope_fields, kind_from_key
@@ -106,6 +108,7 @@ class FileInfo:
     episodes: Optional[tuple[int, int]] = None
     kept: int = 0  # a cut's kept last-before messages (mirrors included)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    damage: ReadDamage = field(default_factory=ReadDamage)  # what was left out as damaged (not counted above)
 
     @property
     def span_s(self) -> float:
@@ -144,7 +147,7 @@ class FileInfo:
         if record is None:
             return None
         out: dict[str, Any] = {k: record.get(k, "") for k in ("source", "start_ns", "end_ns", "from_tick", "to_tick")}
-        out["topics"], out["exclude"] = _json(record.get("topics", "[]")), _json(record.get("exclude", "[]"))
+        out["topics"], out["exclude"] = _strings(record.get("topics", "[]")), _strings(record.get("exclude", "[]"))
         out["kept_before"] = _json(record.get("kept_before", "0"))
         return out
 
@@ -153,7 +156,8 @@ class FileInfo:
         if record is None:
             return None
         inputs = _json(record.get("inputs", "[]"))
-        return {"inputs": [i.get("file") for i in inputs] if isinstance(inputs, list) else inputs,
+        return {"inputs": [i.get("file") if isinstance(i, dict) else i for i in inputs] if isinstance(inputs, list)
+                else [inputs],
                 "duplicates_dropped": _json(record.get("duplicates_dropped", "0")),
                 "sessions": _json(record.get("sessions", "{}")), "missing_parts": _json(record.get("missing_parts", "{}"))}
 
@@ -179,6 +183,8 @@ class FileInfo:
             "streams": [vars(s) for s in self.streams],
             "faults": self.faults,
             "mirrors": {k: tally(t) for k, t in sorted(self.mirrors.items())},
+            "damage": {"corrupt_chunks": self.damage.corrupt_chunks, "invalid_records": self.damage.invalid_records,
+                       "error": self.damage.error, "notes": self.damage.notes},
             "metadata": {name: {k: v for k, v in m.items() if k not in ("toml", "kept")}
                          for name, m in sorted(self.metadata.items())},
         }
@@ -213,6 +219,8 @@ class FileInfo:
                          f"{merge['duplicates_dropped']} duplicates dropped"
                          + (f"; MISSING parts {merge['missing_parts']}" if merge["missing_parts"] else ""))
         lines.append("metadata: " + (", ".join(sorted(self.metadata)) or "none"))
+        if self.damage.damaged:
+            lines.append(f"DAMAGED: {self.damage.describe()}")
 
         def times(t: Tally) -> tuple[str, str, str]:
             rate = t.rate_hz
@@ -250,6 +258,12 @@ def _s(seconds: Optional[float]) -> str:
     return "-" if seconds is None else f"{seconds:.3f}"
 
 
+def _strings(text: str) -> list[str]:
+    """A recorded JSON list of patterns, as strings whatever it holds (a record from elsewhere)."""
+    value = _json(text)
+    return [str(v) for v in value] if isinstance(value, list) else [str(value)]
+
+
 def _json(text: str) -> Any:
     try:
         return json.loads(text)
@@ -259,30 +273,25 @@ def _json(text: str) -> Any:
 
 def info(path: str | os.PathLike[str]) -> FileInfo:
     """What ``path`` (an MCAP recording, finished or not) holds. ValueError if it is not MCAP."""
+    damage = ReadDamage()
     with open_source(path) as stream:
         state = probe(stream)
         chunks, compression, library = None, [], None
-        if state.finished:
-            from mcap.reader import make_reader
-            stream.seek(0)
-            try:
-                reader = make_reader(stream)
-                summary = reader.get_summary()
-                library = reader.get_header().library
-            except Exception:  # a damaged summary: the counts below still come from the records
-                summary = None
-            if summary is not None:
-                chunks = len(summary.chunk_indexes)
-                compression = sorted({c.compression or "none" for c in summary.chunk_indexes})
+        summary = read_summary(stream, state.size, Validator(ReadDamage())) if state.finished else None
+        if summary is not None:  # its damage is not counted: the records themselves are read below
+            chunks = len(summary.chunk_indexes)
+            compression = sorted({c.compression[:20] or "none" for c in summary.chunk_indexes})
+        header = next((r for _, _, r in walk(stream, len(MCAP_MAGIC), state.valid_end, ReadDamage())), None)
+        library = header.library[:200] if isinstance(header, Header) else None
     result = FileInfo(path=os.fspath(path), size=state.size, finished=state.finished, torn_bytes=state.torn_bytes,
-                      chunks=chunks, compression=compression, library=library)
-    result.metadata = read_metadata(path)
+                      chunks=chunks, compression=compression, library=library, damage=damage)
+    result.metadata = read_metadata(path, damage=ReadDamage())  # its damage is the same as the messages' below
     kept = KeptMessages(Metadata(name=n, metadata=m) for n, m in result.metadata.items())
     seq = SenderStats()
     faults: list[tuple[int, dict]] = []
     ticks: list[int] = []
     episodes: list[int] = []
-    for key, payload, log_time, pub in iter_messages(path, include_mirrors=True):
+    for key, payload, log_time, pub in iter_messages(path, include_mirrors=True, damage=damage):
         result.first = log_time if result.first is None or log_time < result.first else result.first
         result.last = log_time if result.last is None or log_time > result.last else result.last
         is_kept = bool(kept) and kept.original_log_time(key, log_time, pub, payload) is not None

@@ -1,9 +1,11 @@
 """Copying records between finished MCAP recordings: what `truav log cut` and `truav log merge` share.
 
-* :func:`open_finished` opens a recording with mcap's indexed reader (a finished file only: its
-  messages come out in log-time order, overlapping chunks included, which the salvage path of
-  :mod:`recorder.reader` cannot promise); an unfinished or damaged one is a
-  :class:`truav.errors.UserError` that points at ``truav log recover``.
+* :func:`open_finished` opens a recording through its summary's chunk index (a finished file only:
+  its messages come out in log-time order, overlapping chunks included, which the salvage path of
+  :mod:`recorder.reader` cannot promise), every chunk and record checked by
+  :mod:`recorder.mcap_guard`: a damaged one is left out and counted in :attr:`FinishedLog.damage`,
+  which cut and merge report (exit 1) and write into their output as a ``truav.damage`` record; an
+  unfinished one is a :class:`truav.errors.UserError` that points at ``truav log recover``.
 * :class:`OutputChannels` registers an input's schemas and channels in a
   :class:`recorder.mcap_writer.McapWriter` once: a channel equal to one already written (topic,
   encodings, metadata, schema) reuses its id, so merged inputs share their channels as ``mcap
@@ -20,9 +22,11 @@ import os
 from pathlib import Path
 from typing import IO, Iterator, NamedTuple, Optional
 
-from mcap.reader import McapReader, make_reader
+from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
-from mcap.summary import Summary
+
+from recorder.mcap_guard import (DamagedRecording, GuardedSummary, ReadDamage, Validator,
+                                 ordered_messages, read_summary, walk)
 
 from recorder.mcap_writer import COMPACT_CHUNK_BYTES, COMPACT_CHUNK_SPAN_NS, McapWriter
 from recorder.reader import probe
@@ -47,29 +51,55 @@ class LogMessage(NamedTuple):
 
 
 class FinishedLog:
-    """A finished recording open for reading: its summary, its messages in log-time order, its metadata."""
+    """A finished recording open for reading: its summary, its messages in log-time order, its metadata;
+    what was left out as damaged is counted in :attr:`damage`."""
 
-    def __init__(self, path: Path, stream: IO[bytes], reader: McapReader, summary: Summary) -> None:
+    def __init__(self, path: Path, stream: IO[bytes], summary: GuardedSummary, damage: ReadDamage) -> None:
         self.path = path
         self._stream = stream
-        self.reader = reader
         self.summary = summary
+        self.damage = damage
+        self._scanned: Optional[tuple[list[Metadata], list[Attachment]]] = None
 
-    def messages(self) -> Iterator[LogMessage]:
-        """Every message, ascending log time (ties in file order); a damaged chunk is a UserError naming the file."""
-        try:
-            for schema, channel, message in self.reader.iter_messages(log_time_order=True):
+    def messages(self, damage: Optional[ReadDamage] = None, topics: Optional[set[str]] = None
+                 ) -> Iterator[LogMessage]:
+        """Every sound message (of ``topics``, if given), ascending log time (ties in file order); what is
+        left out is counted in ``damage`` (default: :attr:`damage`)."""
+        check = Validator(self.damage if damage is None else damage)
+        check.schemas, check.channels = dict(self.summary.schemas), dict(self.summary.channels)
+        for schema, channel, message in ordered_messages(self._stream, self.summary, check):
+            if topics is None or channel.topic in topics:
                 yield LogMessage(schema, channel, message)
-        except damage_errors() as exc:
-            raise UserError(f"IN {self.path}: damaged recording ({type(exc).__name__}: {exc}); `truav log check` "
-                            f"shows where, `truav log recover {self.path} FIXED.mcap` salvages the rest") from None
+
+    def _scan(self) -> tuple[list[Metadata], list[Attachment]]:
+        """One walk over the data section's top-level records (chunk bodies skipped): the metadata and
+        attachments, and every chunk the summary's index leaves out (damage: its messages would be lost
+        silently; a chunk indexed twice is read once, recorder.mcap_guard.read_summary)."""
+        if self._scanned is None:
+            check = Validator(self.damage)
+            found: list = []
+            chunks: set[int] = set()
+            for offset, opcode, record in walk(self._stream, 8, self.summary.data_end, self.damage, skip=_BULK):
+                if opcode == Opcode.CHUNK:
+                    chunks.add(offset)
+                elif isinstance(record, (Metadata, Attachment)) and check(record, offset):
+                    found.append(record)
+            indexed = {c.chunk_start_offset for c in self.summary.chunk_indexes}
+            if chunks and not indexed:
+                raise UserError(f"IN {self.path}: its summary has no chunk index; `truav log recover {self.path} "
+                                f"FIXED.mcap` rewrites it")
+            for offset in sorted(chunks - indexed):
+                self.damage.chunk(offset, "not in the summary's chunk index")
+            self._scanned = ([r for r in found if isinstance(r, Metadata)],
+                             [r for r in found if isinstance(r, Attachment)])
+        return self._scanned
 
     def metadata(self) -> list[Metadata]:
         """Every metadata record, in file order (repeated names included)."""
-        return list(self.reader.iter_metadata())
+        return self._scan()[0]
 
     def attachments(self) -> list[Attachment]:
-        return list(self.reader.iter_attachments())
+        return self._scan()[1]
 
     @property
     def first_log_time(self) -> Optional[int]:
@@ -87,13 +117,16 @@ class FinishedLog:
         return stats.message_count if stats is not None else 0
 
 
+_BULK = frozenset({Opcode.CHUNK, Opcode.MESSAGE_INDEX})  # not read when looking for metadata and attachments
+
+
 def damage_errors() -> tuple[type[BaseException], ...]:
     """What mcap's indexed reader raises on a damaged file (bad chunk, framing, compression)."""
     import struct
 
     import zstandard
     from mcap.exceptions import McapError
-    return (McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
+    return (DamagedRecording, McapError, zstandard.ZstdError, EOFError, UnicodeDecodeError, struct.error)
 
 
 def not_mcap_reason(path: str | os.PathLike[str]) -> Optional[str]:
@@ -128,16 +161,11 @@ def open_finished(path: str | os.PathLike[str], flag: str = "IN") -> Iterator[Fi
         if not state.finished:
             raise UserError(f"{flag} {p}: unfinished recording (its recorder died); "
                             f"`truav log recover {p} FIXED.mcap` finishes it first")
-        stream.seek(0)
-        try:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-        except Exception as exc:  # a damaged summary section
-            raise UserError(f"{flag} {p}: unreadable summary ({type(exc).__name__}); "
-                            f"`truav log recover {p} FIXED.mcap` rewrites it") from None
+        damage = ReadDamage()
+        summary = read_summary(stream, state.size, Validator(damage))
         if summary is None:
-            raise UserError(f"{flag} {p}: no summary section; `truav log recover {p} FIXED.mcap` rewrites it")
-        yield FinishedLog(p, stream, reader, summary)
+            raise UserError(f"{flag} {p}: no usable summary section; `truav log recover {p} FIXED.mcap` rewrites it")
+        yield FinishedLog(p, stream, summary, damage)
 
 
 def dump(value: object) -> str:

@@ -31,6 +31,7 @@ from mcap.records import Metadata
 from recorder.cut import CUT_METADATA, KeptMessages
 from recorder.log_copy import FinishedLog, LogMessage, OutputChannels, dump, new_writer, open_finished, \
     written_atomically
+from recorder.mcap_guard import DAMAGE_METADATA, ReadDamage
 from recorder.mcap_writer import LIBRARY
 from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX
 from truav.errors import UserError
@@ -39,6 +40,9 @@ __all__ = ["MERGE_METADATA", "PART_METADATA", "PARTS_INDEX_SUFFIX", "MergeReport
 
 MERGE_METADATA = "truav.merge"
 FOLDED = (PART_METADATA, CUT_METADATA)
+MAX_PARTS = 100_000
+"""Highest part number taken from a truav.part record (a recorder splitting every second for a day writes
+86,400); a larger one is ignored, so a forged 10**30 cannot make the missing-parts list huge."""
 
 
 @dataclass
@@ -57,10 +61,12 @@ class InputInfo:
 
     @property
     def part_number(self) -> Optional[int]:
+        """The part's number, None when absent or outside 1..MAX_PARTS (a record from elsewhere)."""
         try:
-            return None if self.part is None else int(self.part.get("part", ""))
+            number = None if self.part is None else int(str(self.part.get("part", "")))
         except ValueError:
             return None
+        return number if number is not None and 1 <= number <= MAX_PARTS else None
 
     def as_json(self) -> dict:
         return {"file": self.path.name, "messages": self.messages, "first_log_time_ns": self.first_log_time,
@@ -82,6 +88,7 @@ class MergeReport:
     first_log_time: Optional[int] = None
     last_log_time: Optional[int] = None
     missing_parts: dict[str, list[int]] = field(default_factory=dict)  # session -> part numbers not given
+    damaged: dict[str, ReadDamage] = field(default_factory=dict)  # input file -> what of it was left out
 
 
 def expand_inputs(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
@@ -162,6 +169,10 @@ def merge(out_path: str | os.PathLike[str], in_paths: Sequence[str | os.PathLike
                 report.messages += 1
                 report.first_log_time = m.log_time if report.first_log_time is None else report.first_log_time
                 report.last_log_time = m.log_time
+            report.damaged = {log.path.name: log.damage for log, _, _ in entries if log.damage.damaged}
+            for name, damage in report.damaged.items():  # so that `truav log check` of OUT does not call it sound
+                writer.add_metadata(DAMAGE_METADATA, damage.as_metadata(name))
+                report.metadata += 1
             report.restored = restored[0]
             report.channels = len(channels.topics)
             writer.add_metadata(MERGE_METADATA, _merge_record(report))

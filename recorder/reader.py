@@ -1,22 +1,21 @@
 """Read TRUAV MCAP logs back as ``(key, payload, log_time, publish_time)``.
 
-A finished file (footer + closing magic) is read through mcap's
-:func:`mcap.reader.make_reader`, which uses the summary's chunk indexes.  A
-file whose recorder died has no summary; it is read with mcap's
-:class:`mcap.stream_reader.StreamReader` over its *valid prefix*:
+Every read goes through :mod:`recorder.mcap_guard` (bounded record lengths and decompression, CRC-checked
+chunks, validated schemas, channels, messages and metadata), finished file or not:
 
 * :func:`probe` walks the top-level record framing (opcode + uint64 length)
   and stops at the first record that runs past the end of the file (the torn
-  tail a killed writer leaves).  Checking the framing first matters because
-  ``StreamReader`` does not notice a short read inside a record: a cut
-  ``Chunk`` would come back with short data instead of an error.
+  tail a killed writer leaves); a finished file (footer + closing magic) is
+  read up to its summary.
 * :func:`iter_salvaged_records` then streams records out of exactly that
-  prefix, breaking chunks up with CRC validation and skipping (counting) any
-  chunk that fails it.
+  prefix, breaking chunks up with CRC validation and skipping (counting, in a
+  :class:`SalvageStats`) any chunk or record that fails.
 
+:func:`iter_messages`, :func:`read_metadata` and :func:`read_schemas` raise
+:class:`recorder.mcap_guard.DamagedRecording` (one line naming the file and the
+first bad record) at the first damage unless given a ``damage`` to fill in;
+`truav log check`, ``info`` and ``recover`` read leniently and report it.
 The JSON mirror channels (``/json/...``) are skipped unless asked for.
-Time bounds are applied here rather than passed to mcap, whose bound
-arguments changed names between releases (``start_time`` -> ``starting_at``).
 """
 
 from __future__ import annotations
@@ -27,15 +26,12 @@ import os
 import struct
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
-from typing import IO, Iterable, Iterator, NamedTuple, Optional, Sequence, Union
+from typing import IO, Iterator, NamedTuple, Optional, Sequence, Union
 
-from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
-from mcap.reader import McapReader, make_reader
-from mcap.records import Channel, Chunk, DataEnd, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.summary import Summary
+from mcap.records import Channel, Chunk, DataEnd, Footer, McapRecord, Message, Metadata, Schema
 
+from recorder.mcap_guard import DATA_ONLY, DamagedRecording, Malformed, ReadDamage, Validator, chunk_records, walk
 from recorder.mcap_log import MCAP_MAGIC, is_mirror_topic
 
 Source = Union[str, "os.PathLike[str]", IO[bytes]]
@@ -69,13 +65,8 @@ class FileState:
         return 0 if self.finished else self.size - self.valid_end
 
 
-@dataclass
-class SalvageStats:
-    """Filled in by :func:`iter_salvaged_records` while it runs."""
-
-    corrupt_chunks: int = 0  # chunks skipped: CRC mismatch or undecompressable
-    error: Optional[str] = None  # why reading stopped before valid_end, if it did
-    records: int = 0  # records yielded
+SalvageStats = ReadDamage
+"""What a lenient read left out (corrupt chunks, invalid records, notes naming them); see recorder.mcap_guard."""
 
 
 def probe(stream: IO[bytes]) -> FileState:
@@ -109,57 +100,59 @@ def probe(stream: IO[bytes]) -> FileState:
     return FileState(size=size, finished=False, valid_end=position)
 
 
-class _Prefix(io.RawIOBase):
-    """The first ``limit`` bytes of a stream, so StreamReader never sees the torn tail."""
-
-    def __init__(self, raw: IO[bytes], limit: int) -> None:
-        super().__init__()
-        self._raw = raw
-        self._left = limit
-
-    def readable(self) -> bool:
-        return True
-
-    def readinto(self, buffer: "bytearray | memoryview") -> int:  # type: ignore[override]
-        n = min(len(buffer), self._left)
-        if n <= 0:
-            return 0
-        data = self._raw.read(n)
-        buffer[: len(data)] = data
-        self._left -= len(data)
-        return len(data)
-
-
 def iter_salvaged_records(
     stream: IO[bytes], state: FileState, stats: Optional[SalvageStats] = None
 ) -> Iterator[McapRecord]:
     """Data-section records (Header, Schema, Channel, Message, Metadata,
-    Attachment...) of the valid prefix, chunks broken up; stops at DataEnd so a
-    finished file's summary is not read as data."""
+    Attachment...) of the valid prefix, chunks broken up, every one checked
+    (:mod:`recorder.mcap_guard`); what fails is counted in ``stats`` and left
+    out. Stops at DataEnd so a finished file's summary is not read as data."""
     stats = stats if stats is not None else SalvageStats()
-    stream.seek(0)
-    records = StreamReader(_Prefix(stream, state.valid_end), emit_chunks=True).records
-    while True:
-        try:
-            record = next(records)
-        except (StopIteration, EndOfFile):
-            return
-        except Exception as exc:  # a record that parses as garbage: keep what came before
-            stats.error = f"{type(exc).__name__}: {exc}"
-            return
+    check = Validator(stats)
+    summary_at = None
+    for offset, _, record in walk(stream, len(MCAP_MAGIC), state.valid_end, stats, skip=_NOT_DATA):
         if isinstance(record, DataEnd):
-            return
+            summary_at = stream.tell()  # just past DataEnd: walk() read exactly its body
+            break
+        if isinstance(record, Footer):
+            break
         if isinstance(record, Chunk):
             try:
-                inner = breakup_chunk(record, validate_crc=True)
-            except Exception:  # CRCValidationError, ZstdError, lz4 RuntimeError, ...
-                stats.corrupt_chunks += 1
+                inner = chunk_records(record)
+            except Malformed as exc:
+                stats.chunk(offset, str(exc))
                 continue
-            stats.records += len(inner)
-            yield from inner
-        else:
+            for item in inner:
+                if check(item, offset):
+                    stats.records += 1
+                    yield item
+        elif record is not None and check(record, offset):
             stats.records += 1
             yield record
+    # What follows DataEnd is the summary: data hidden there (a forged DataEnd) is damage, not silence.
+    if summary_at is None:
+        return
+    for offset, opcode, _ in walk(stream, summary_at, state.valid_end, stats, skip=_ANY):
+        if opcode in DATA_ONLY:
+            stats.invalid(f"{Opcode(opcode).name.lower()} record at offset {offset}, after the data section's end")
+
+
+_ANY = frozenset(range(256))
+_NOT_DATA = frozenset({Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
+                       Opcode.STATISTICS, Opcode.SUMMARY_OFFSET})
+
+
+def _checked(records: Iterator[McapRecord], stats: SalvageStats, strict: bool,
+             source: "Source") -> Iterator[McapRecord]:
+    """``records``; when ``strict``, DamagedRecording at the first damage."""
+    for record in records:
+        if strict and stats.damaged:
+            break
+        yield record
+    if strict and stats.damaged:
+        name = os.fspath(source) if isinstance(source, (str, os.PathLike)) else "<stream>"
+        raise DamagedRecording(f"{name}: damaged recording: {stats.describe()}; `truav log check {name}` "
+                               f"shows it, `truav log recover {name} FIXED.mcap` keeps what is sound")
 
 
 class TopicFilter:
@@ -200,20 +193,6 @@ def open_source(source: Source) -> Iterator[IO[bytes]]:
         yield source
 
 
-def _indexed_reader(stream: IO[bytes]) -> Optional[tuple[McapReader, Summary]]:
-    """mcap's reader and the summary of a finished file, or None if the summary is
-    missing, has no chunk index, or is unreadable (then we stream instead)."""
-    stream.seek(0)
-    try:
-        reader = make_reader(stream)
-        summary = reader.get_summary()
-    except Exception:  # a corrupt summary section
-        return None
-    if summary is None or not summary.chunk_indexes:
-        return None
-    return reader, summary
-
-
 def iter_messages(
     source: Source,
     include: Patterns = None,
@@ -222,75 +201,52 @@ def iter_messages(
     end_ns: Optional[int] = None,
     *,
     include_mirrors: bool = False,
+    damage: Optional[SalvageStats] = None,
 ) -> Iterator[RecordedMessage]:
     """Messages in file order (= arrival order), finished file or not.
 
     ``include``/``exclude`` are glob patterns over keys; ``start_ns`` is an
-    inclusive and ``end_ns`` an exclusive bound on the receive time.
+    inclusive and ``end_ns`` an exclusive bound on the receive time. Without
+    ``damage``, DamagedRecording at the first damage; with it, damage is
+    counted there and the sound messages still come.
     """
     keep = TopicFilter(include, exclude, include_mirrors)
+    stats = damage if damage is not None else SalvageStats()
     with open_source(source) as stream:
         state = probe(stream)
-        indexed = _indexed_reader(stream) if state.finished else None
-        if indexed is not None:
-            messages = _indexed(*indexed, keep)
-        else:
-            messages = _salvaged(stream, state, keep)
-        for message in messages:
-            if (start_ns is None or message.log_time >= start_ns) and (end_ns is None or message.log_time < end_ns):
-                yield message
+        channels: dict[int, Channel] = {}
+        for record in _checked(iter_salvaged_records(stream, state, stats), stats, damage is None, source):
+            if isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is not None and keep(channel.topic) and (start_ns is None or record.log_time >= start_ns) \
+                        and (end_ns is None or record.log_time < end_ns):
+                    yield RecordedMessage(channel.topic, record.data, record.log_time, record.publish_time)
+            elif isinstance(record, Channel):
+                channels.setdefault(record.id, record)
 
 
-def _indexed(reader: McapReader, summary: Summary, keep: TopicFilter) -> Iterator[RecordedMessage]:
-    topics = {c.topic for c in summary.channels.values() if keep(c.topic)}
-    if not topics:
-        return
-    for _, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
-        yield RecordedMessage(channel.topic, message.data, message.log_time, message.publish_time)
-
-
-def _salvaged(stream: IO[bytes], state: FileState, keep: TopicFilter) -> Iterator[RecordedMessage]:
-    channels: dict[int, Channel] = {}
-    for record in iter_salvaged_records(stream, state):
-        if isinstance(record, Message):
-            channel = channels.get(record.channel_id)
-            if channel is not None and keep(channel.topic):
-                yield RecordedMessage(channel.topic, record.data, record.log_time, record.publish_time)
-        elif isinstance(record, Channel):
-            channels[record.id] = record
-
-
-def read_metadata(source: Source) -> dict[str, dict[str, str]]:
-    """Metadata records by name (a later record of the same name wins)."""
+def read_metadata(source: Source, damage: Optional[SalvageStats] = None) -> dict[str, dict[str, str]]:
+    """Metadata records by name (a later record of the same name wins); DamagedRecording as iter_messages."""
     out: dict[str, dict[str, str]] = {}
+    stats = damage if damage is not None else SalvageStats()
     with open_source(source) as stream:
         state = probe(stream)
-        indexed = _indexed_reader(stream) if state.finished else None
-        if indexed is not None:
-            records: Iterable[McapRecord] = indexed[0].iter_metadata()
-        else:
-            records = iter_salvaged_records(stream, state)
-        for record in records:
+        for record in _checked(iter_salvaged_records(stream, state, stats), stats, damage is None, source):
             if isinstance(record, Metadata):
                 out[record.name] = dict(record.metadata)
     return out
 
 
-def read_schemas(source: Source) -> dict[str, Schema]:
+def read_schemas(source: Source, damage: Optional[SalvageStats] = None) -> dict[str, Schema]:
     """Schema of every channel, by topic (mirrors included), e.g. to decode JSON mirrors."""
     schemas: dict[int, Schema] = {}
     topics: dict[str, int] = {}
+    stats = damage if damage is not None else SalvageStats()
     with open_source(source) as stream:
         state = probe(stream)
-        indexed = _indexed_reader(stream) if state.finished else None
-        if indexed is not None:
-            summary = indexed[1]
-            schemas.update(summary.schemas)
-            topics = {c.topic: c.schema_id for c in summary.channels.values()}
-        else:
-            for record in iter_salvaged_records(stream, state):
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    topics[record.topic] = record.schema_id
+        for record in _checked(iter_salvaged_records(stream, state, stats), stats, damage is None, source):
+            if isinstance(record, Schema):
+                schemas.setdefault(record.id, record)
+            elif isinstance(record, Channel):
+                topics.setdefault(record.topic, record.schema_id)
     return {topic: schemas[sid] for topic, sid in topics.items() if sid in schemas}

@@ -22,7 +22,7 @@ import itertools
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
@@ -38,6 +38,7 @@ from recorder.mcap_writer import (
     LIBRARY,
     McapWriter,
 )
+from recorder.mcap_guard import DAMAGE_METADATA
 from recorder.reader import SalvageStats, iter_salvaged_records, probe
 
 RECOVERED_BY = f"{LIBRARY} recover"
@@ -60,14 +61,17 @@ class RecoverReport:
     attachments: int
     corrupt_chunks: int  # complete chunks dropped because their CRC or compression was bad
     orphan_messages: int  # messages on a channel never declared (dropped)
+    invalid_records: int  # schemas, channels, messages, metadata failing recorder.mcap_guard's checks (dropped)
     first_log_time: Optional[int]
     last_log_time: Optional[int]
     error: Optional[str]  # why salvage stopped before the end of the valid prefix, if it did
+    notes: list[str] = field(default_factory=list)  # the first reasons for what was left out, each naming a record
 
     @property
     def clean(self) -> bool:
         """Nothing but (possibly) a torn tail was lost."""
-        return self.corrupt_chunks == 0 and self.orphan_messages == 0 and self.error is None
+        return self.corrupt_chunks == 0 and self.orphan_messages == 0 and self.invalid_records == 0 \
+            and self.error is None
 
 
 def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *,
@@ -135,6 +139,8 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
                 elif isinstance(record, Attachment):
                     writer.add_attachment(record)
                     counts["attachments"] += 1
+            if stats.damaged:  # so that `truav log check OUT` does not call the salvage sound
+                writer.add_metadata(DAMAGE_METADATA, stats.as_metadata(os.path.basename(in_path)))
             writer.close()
             dst.flush()
             os.fsync(dst.fileno())
@@ -144,7 +150,8 @@ def recover(in_path: str | os.PathLike[str], out_path: str | os.PathLike[str], *
         input_bytes=state.size, torn_bytes=state.torn_bytes, messages=counts["messages"],
         schemas=counts["schemas"], channels=counts["channels"], metadata=counts["metadata"],
         attachments=counts["attachments"], corrupt_chunks=stats.corrupt_chunks,
-        orphan_messages=counts["orphans"], first_log_time=first, last_log_time=last, error=stats.error,
+        orphan_messages=counts["orphans"], invalid_records=stats.invalid_records, first_log_time=first,
+        last_log_time=last, error=stats.error, notes=list(stats.notes),
     )
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, NamedTuple, Optional
 
 from recorder.mcap_log import is_mirror_topic
+from recorder.mcap_guard import LOG_TIME_MAX_NS, DamagedRecording, ReadDamage, Validator, read_summary
 from recorder.reader import iter_messages, open_source, probe, read_schemas
 from recorder.replay_source import Paths, SourceError, resolve_parts
 from truav.bus import keys
@@ -131,6 +132,8 @@ def _file_info(path: Path) -> "_FileInfo":
             for message in iter_messages(path):
                 first = message.log_time if first is None else min(first, message.log_time)
                 last = message.log_time if last is None else max(last, message.log_time)
+    except DamagedRecording:
+        raise  # exit 1 (recorder.cli), not a user mistake
     except ValueError as exc:  # probe: "not an MCAP file"
         raise ReplayUsageError(f"{path}: {exc}") from None
     return _FileInfo(first, last, topics)
@@ -143,16 +146,17 @@ class _FileInfo(NamedTuple):
 
 
 def _finished_summary(path: Path) -> Any:
-    from mcap.reader import make_reader
-
+    """The checked summary of a finished file (recorder.mcap_guard), None without one or with implausible
+    times (then the messages are scanned)."""
     with open(path, "rb") as f:
-        if not probe(f).finished:
+        state = probe(f)
+        if not state.finished:
             return None
-        f.seek(0)
-        try:
-            return make_reader(f).get_summary()
-        except Exception:  # a damaged summary: fall back to scanning
-            return None
+        summary = read_summary(f, state.size, Validator(ReadDamage()))
+    stats = None if summary is None else summary.statistics
+    if stats is None or not stats.message_start_time <= stats.message_end_time <= LOG_TIME_MAX_NS:
+        return None
+    return summary
 
 
 def split_patterns(topics: Sequence[str], exclude: Sequence[str] = ()) -> tuple[tuple[str, ...], tuple[str, ...]]:

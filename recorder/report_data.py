@@ -25,6 +25,7 @@ from recorder.reader import iter_messages
 
 NS = 1e9
 MAX_VEHICLE_POINTS = 4_000_000  # keep every k-th positions message beyond this (bounded memory)
+MAX_METRIC_NAMES = 200  # values kept per metrics message (the world publishes about a dozen)
 
 
 class ReportError(ValueError):
@@ -115,6 +116,22 @@ def _xy(v: Any) -> Optional[tuple[float, float]]:
     return (x, y) if math.isfinite(x) and math.isfinite(y) else None
 
 
+def _numbers(values: dict) -> dict[str, float]:
+    """A metrics message's values as the figures and the CSV use them: names that are strings (at most
+    MAX_METRIC_NAMES of them, each at most 200 characters) with a number; anything else (a string "abc",
+    a list, a map, a bytes name: a message from elsewhere) is left out."""
+    out: dict[str, float] = {}
+    for name, value in values.items():
+        if len(out) >= MAX_METRIC_NAMES:
+            break
+        if type(name) is str and len(name) <= 200 and type(value) in (int, float):
+            try:
+                out[name] = float(value)
+            except OverflowError:  # an int beyond float
+                continue
+    return out
+
+
 def _uav(body: dict, key: str) -> Optional[int]:
     uav = body.get("uav")
     if type(uav) is int:
@@ -152,7 +169,7 @@ def load_recording(path: Path) -> Recording:
         elif kind == "positions":
             _add_positions(rec, body, log_ns, pub_ns)
         elif kind == "metrics" and isinstance(body.get("values"), dict):
-            rec.metrics.append({**body, "_log_ns": log_ns, "_pub_ns": pub_ns})
+            rec.metrics.append({**body, "values": _numbers(body["values"]), "_log_ns": log_ns, "_pub_ns": pub_ns})
         elif kind == "fault":
             rec.faults.append((log_ns, body))
     rec.config = _map_config(path)

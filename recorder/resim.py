@@ -33,11 +33,12 @@ from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_inf
 from recorder.reader import read_metadata
 from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX, REASON_END
 from truav import seeding
-from truav.bus import schema
+from truav.bus import keys, schema
 from truav.config import Config, ConfigError, config_from_dict
 from truav.errors import UserError
 from truav.runio import read_qtables
 from world.env import World
+from world.uavs import N_ACTIONS
 from world.world_messages import observation_messages
 from world.world_state import restore_world, world_state
 
@@ -76,22 +77,66 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
         raise UserError(f"{name}: a real-time run (not --lockstep): its timing decided which actions and beacons "
                         f"counted, so it cannot be re-simulated")
     if info.get("scheme", "truav") != "truav":
-        raise UserError(f"{name}: a --scheme {info.get('scheme')} run; only the TRUAV agents are re-simulated")
+        raise UserError(f"{name}: a --scheme {str(info.get('scheme'))[:60]} run; only the TRUAV agents are "
+                        f"re-simulated")
     if info.get("resume"):
         raise UserError(f"{name}: a --resume run: its agents started from checkpoints the recording does not hold")
     if info.get("external"):
-        raise UserError(f"{name}: UAV(s) {info['external']} were flown by outside agents (--external): their "
+        raise UserError(f"{name}: UAV(s) {str(info['external'])[:60]} were flown by outside agents (--external): their "
                         f"decisions cannot be re-run")
     try:
         cfg = config_from_dict(tomllib.loads(toml_text))
-        seed, episodes = int(info["seed"]), int(info["episodes"])
-    except (tomllib.TOMLDecodeError, ConfigError, KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"{name}: its recorded run config or settings are unreadable ({exc})") from None
+    except (tomllib.TOMLDecodeError, ConfigError, RecursionError, TypeError, ValueError) as exc:
+        raise UserError(f"{name}: its recorded run config is unreadable or out of bounds ({_short(exc)})") from None
+    seed = _setting(name, info, "seed", int, 0, 2**63 - 1)
+    episodes = _setting(name, info, "episodes", int, 1, _max_episodes())
+    qtable = _setting(name, info, "qtable", str, None, None, default=None) or None
+    qtable_index = _setting(name, info, "qtable_index", int, 0, 10**6, default=0)
     run = read_metadata(path).get(RECORDING_METADATA, {}).get("run")
     if not run:
         raise UserError(f"{name}: not a TRUAV recording: it names no run")
-    return RecordedRun(cfg=cfg, run=run, seed=seed, episodes=episodes, greedy=bool(info.get("greedy")),
-                       qtable=info.get("qtable") or None, qtable_index=int(info.get("qtable_index") or 0), info=info)
+    try:
+        keys.validate_run(run)
+    except ValueError as exc:
+        raise UserError(f"{name}: recorded run name {run[:80]!r}: {exc}") from None
+    table_bytes = cfg.scenario.n_uavs * StateEncoder(cfg).n_states * N_ACTIONS * 8
+    if table_bytes > MAX_RESIM_TABLE_BYTES:
+        raise UserError(f"{name}: its recorded config (learner.grid_cells {cfg.learner.grid_cells}, "
+                        f"{cfg.scenario.n_uavs} UAVs) needs {table_bytes / 2**30:.1f} GiB of Q-tables; resim "
+                        f"allocates at most {MAX_RESIM_TABLE_BYTES / 2**30:.0f} GiB")
+    return RecordedRun(cfg=cfg, run=run, seed=seed, episodes=episodes, greedy=info.get("greedy") is True,
+                       qtable=qtable, qtable_index=qtable_index, info=info)
+
+
+MAX_RESIM_TABLE_BYTES = 2**30
+"""Q-tables a re-simulation allocates at most: a recording from elsewhere may name any legal config
+(grid_cells 1000 asks for GiBs); refused in one line above this."""
+
+
+def _max_episodes() -> int:
+    from truav.config import LearnerConfig
+    return int(LearnerConfig.__dataclass_fields__["episodes"].metadata["range"][1])
+
+
+def _short(exc: BaseException) -> str:
+    return str(exc)[:200] or type(exc).__name__
+
+
+_MISSING = object()
+
+
+def _setting(name: str, info: dict, key: str, kind: type, lo, hi, default: Any = _MISSING) -> Any:
+    """One recorded run setting, type- and range-checked; UserError (one line naming it) otherwise."""
+    value = info.get(key, default)
+    if value is _MISSING:
+        raise UserError(f"{name}: its recorded run settings have no {key}")
+    if value is default:
+        return value
+    if type(value) is not kind or (lo is not None and not lo <= value <= hi):
+        shown = repr(value)[:60]
+        want = kind.__name__ + ("" if lo is None else f" in {lo}..{hi}")
+        raise UserError(f"{name}: recorded run setting {key} = {shown}: not a {want}")
+    return value
 
 
 def start_tables(qtable: str | None, index: int, n_uavs: int) -> list[np.ndarray | None]:

@@ -114,6 +114,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.swarm.plots",               ANALYSIS),
     ("recorder.mcap_log",               ANALYSIS),
     ("recorder.reader",                 ANALYSIS),
+    ("recorder.mcap_guard",             ANALYSIS),  # the one guarded reading of MCAP records (untrusted files)
     ("recorder.replay_source",          ANALYSIS),  # what a replay reads: parts resolved, the seek timeline
     ("recorder.replay_setup",           ANALYSIS),  # a replay's options, checked before it starts
     ("recorder.mcap_writer",            ANALYSIS),
