@@ -257,7 +257,8 @@ def metrics_figure(rec: Recording, path: Path) -> Optional[str]:
         ax.axis("off")
     for ax in axes[-1]:
         ax.set_xlabel("time since recording start (s)")
-    ticks = np.array([m["tick"] if m.get("tick") is not None else np.nan for m in steps], dtype=float)
+    ticks = np.array([m["tick"] if isinstance(m.get("tick"), (int, float)) and not isinstance(m.get("tick"), bool)
+                      else np.nan for m in steps], dtype=float)  # a forged tick is no tick
     ok = np.isfinite(ticks) & np.isfinite(t)
     tick_axis = ok.sum() >= 2 and np.all(np.diff(t[ok]) >= 0) and np.all(np.diff(ticks[ok]) > 0)
     if tick_axis:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from world.world_process import action_digest
+
 from agents.agent_process import DELAY_ENV
 from tests.support.runs import run_to_end
 from truav.config import Config, to_toml
@@ -42,3 +44,30 @@ def agent_tables(out: Path, cfg: Config = CFG) -> tuple[np.ndarray, list[int]]:
             qs.append(ck["q"])
             steps.append(int(ck["steps"]))
     return np.stack(qs), steps
+
+
+class Recorder:
+    """Wraps a driver controller: the digest of the actions it gives the world, and where the UAVs end."""
+
+    def __init__(self, inner):
+        self.inner, self.digests, self.end_pos = inner, [], []
+        if hasattr(inner, "control"):
+            self.control = inner.control
+
+    def begin_episode(self, episode, obs):
+        self._digest = action_digest()
+        self.inner.begin_episode(episode, obs)
+
+    def act(self, t):
+        actions = self.inner.act(t)
+        self._digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
+        return actions
+
+    def observe(self, obs, done):
+        self.inner.observe(obs, done)
+        if done:
+            self.digests.append(self._digest.hexdigest())
+            self.end_pos.append(obs.pos[0].tolist())
+
+    def episode_stats(self):
+        return self.inner.episode_stats()

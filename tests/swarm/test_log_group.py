@@ -180,11 +180,13 @@ def test_log_play_checks_endpoints_as_truav_swarm_does(tmp_path: Path, capsys: p
     assert old_err.removeprefix("truav-swarm: ") == new_err.removeprefix("truav: ")
 
 
-def test_readme_names_the_log_group_and_its_aliases() -> None:
-    text = README.read_text()
+def test_the_docs_name_the_log_group_and_its_aliases() -> None:
+    """The recording tutorial (the README links it) names every `truav log` action and alias; the commands
+    of the README and the docs pages use them all, and each parses."""
+    text = (README.parent / "docs" / "tutorials" / "record-replay-resim.md").read_text()
     for spelling in (*(f"truav log {a}" for a in LOG_ACTIONS), "truav report", "truav-swarm record",
                      "truav-swarm replay"):
-        assert f"`{spelling}" in text or f"{spelling} " in text, f"README does not mention {spelling}"
+        assert f"`{spelling}" in text or f"{spelling} " in text, f"the recording tutorial does not mention {spelling}"
     assert "`truav report` is `truav log report`" in " ".join(text.split())
     log_commands = [c for c in commands() if c[:2] == ["truav", "log"]]
     assert {c[2] for c in log_commands} == set(LOG_ACTIONS)

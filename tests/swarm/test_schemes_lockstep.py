@@ -22,7 +22,7 @@ from tests.support.runs import run_to_end
 from truav.bus import keys, schema
 from truav.config import Config, to_toml
 from truav.driver import run_episodes
-from world.world_process import action_digest
+from tests.support.lockstep import Recorder
 
 SEED = 4
 EPISODES = 4
@@ -30,33 +30,6 @@ CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_u
                        roads={"warmup_steps": 10}, central={"hidden": 16})
 SWARM_TIMEOUT_S = 240.0
 METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
-
-
-class Recorder:
-    """Wraps a driver controller: the digest of the actions it gives the world, and where the UAVs end."""
-
-    def __init__(self, inner):
-        self.inner, self.digests, self.end_pos = inner, [], []
-        if hasattr(inner, "control"):
-            self.control = inner.control
-
-    def begin_episode(self, episode, obs):
-        self._digest = action_digest()
-        self.inner.begin_episode(episode, obs)
-
-    def act(self, t):
-        actions = self.inner.act(t)
-        self._digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
-        return actions
-
-    def observe(self, obs, done):
-        self.inner.observe(obs, done)
-        if done:
-            self.digests.append(self._digest.hexdigest())
-            self.end_pos.append(obs.pos[0].tolist())
-
-    def episode_stats(self):
-        return self.inner.episode_stats()
 
 
 def up(tmp: Path, name: str, *extra: str) -> Path:
