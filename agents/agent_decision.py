@@ -16,6 +16,7 @@ from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav.bus import schema
 from truav.config import Config
+from world.link_phy import beacon_delivered, link_params
 from world.uavs import action_velocity
 
 DONE_ACK_ACTION = 0
@@ -35,8 +36,13 @@ class TruavDecision:
 
     def __init__(self, cfg: Config, uav: int, learners: QLearners | None, train: bool = True,
                  encoder: StateEncoder | None = None, reward: Reward | None = None,
-                 density_map: np.ndarray | None = None):
+                 density_map: np.ndarray | None = None, seed: int = 0):
         self.cfg, self.uav, self.learners, self.train = cfg, uav, learners, train
+        self.seed = seed
+        """The run's seed: the channel-driven links' draws (world.link_phy), as the trainer's env of this seed."""
+        self.links = link_params(cfg)
+        self.link_counts: dict[int, list[int]] = {}
+        """Channel-driven links: per peer, [beacons heard, beacons the channel lost] (links.model "channel")."""
         self.encoder = encoder if encoder is not None else StateEncoder(cfg)
         self.reward = reward if reward is not None else Reward(cfg)
         self.predict = predict_params(cfg)
@@ -57,6 +63,24 @@ class TruavDecision:
     def beacon(self, obs: schema.Obs) -> schema.Beacon:
         """This UAV's beacon for the tick of ``obs`` (its velocity: that of its last action)."""
         return schema.Beacon(uav=self.uav, tick=obs.tick, pos=obs.pos, vel=self.velocity)
+
+    def hear(self, obs: schema.Obs, beacons: dict[int, schema.Beacon]) -> dict[int, schema.Beacon]:
+        """The beacons of ``obs``'s tick that the channel delivers to this UAV (all of them with ideal links),
+        decided as the trainer decides them: beacon k of the episode (0 at its first observation, else one
+        more than the last step learned) from peer j, by distance, seed, episode, k and the two ids."""
+        links = self.links
+        if not links.table.size:
+            return beacons
+        k = 0 if obs.episode != self.episode else self.t + 1
+        x, y = float(obs.pos[0]), float(obs.pos[1])
+        kept = {}
+        for j, b in beacons.items():
+            ok = beacon_delivered(links.table, links.step_m, x, y, float(b.pos[0]), float(b.pos[1]), self.seed,
+                                  obs.episode, k, j, self.uav)
+            self.link_counts.setdefault(j, [0, 0])[0 if ok else 1] += 1
+            if ok:
+                kept[j] = b
+        return kept
 
     def learn(self, obs: schema.Obs, peers: np.ndarray, heard: np.ndarray) -> np.ndarray | None:
         """Encode the state of ``obs`` with the peers' positions; at an episode's first observation start
