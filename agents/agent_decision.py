@@ -42,6 +42,10 @@ class TruavDecision:
         """The run's seed: the channel-driven links' draws (world.link_phy), as the trainer's env of this seed."""
         self.links = link_params(cfg)
         self.link_counts: dict[int, list[int]] = {}
+        self.share_counts: dict[int, list[int]] = {}
+        """Channel-driven links, federated TRUAV: per peer, [shares heard, shares the channel lost]."""
+        self._positions: tuple[tuple[float, float], dict[int, tuple[float, float]]] | None = None
+        """This UAV's and its peers' positions at the last observation (a federated share's link)."""
         """Channel-driven links: per peer, [beacons heard, beacons the channel lost] (links.model "channel")."""
         self.encoder = encoder if encoder is not None else StateEncoder(cfg)
         self.reward = reward if reward is not None else Reward(cfg)
@@ -73,6 +77,7 @@ class TruavDecision:
             return beacons
         k = 0 if obs.episode != self.episode else self.t + 1
         x, y = float(obs.pos[0]), float(obs.pos[1])
+        self._positions = ((x, y), {j: (float(b.pos[0]), float(b.pos[1])) for j, b in beacons.items()})
         kept = {}
         for j, b in beacons.items():
             ok = beacon_delivered(links.table, links.step_m, x, y, float(b.pos[0]), float(b.pos[1]), self.seed,
@@ -81,6 +86,21 @@ class TruavDecision:
             if ok:
                 kept[j] = b
         return kept
+
+    def hear_share(self, peer: int, episode: int) -> bool:
+        """Whether peer's federated share after ``episode`` reaches this UAV: decided as the trainer does
+        (agents.controller), as beacon T + 1 of the episode between the positions of its last observation."""
+        links = self.links
+        if not links.table.size:
+            return True
+        (x, y), peers = self._positions if self._positions is not None else ((0.0, 0.0), {})
+        if peer not in peers:  # no position known (its beacon never came): nothing to decide the link by
+            return False
+        px, py = peers[peer]
+        ok = beacon_delivered(links.table, links.step_m, x, y, px, py, self.seed, episode,
+                              self.cfg.scenario.steps_per_episode + 1, peer, self.uav)
+        self.share_counts.setdefault(peer, [0, 0])[0 if ok else 1] += 1
+        return ok
 
     def learn(self, obs: schema.Obs, peers: np.ndarray, heard: np.ndarray) -> np.ndarray | None:
         """Encode the state of ``obs`` with the peers' positions; at an episode's first observation start

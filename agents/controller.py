@@ -97,8 +97,12 @@ class TruavController:
     def _end_episode(self) -> None:
         """Federated TRUAV: the agents share and merge their tables after the episodes of a share round."""
         if self.train and share_due(self._episode, self.cfg.federated):
-            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated,
-                     self.cfg.scenario.steps_per_episode)
+            T = self.cfg.scenario.steps_per_episode
+            heard = None
+            if self.links.table.size:  # a share is decided as beacon T + 1 of the episode, at its last positions
+                heard = heard_masks(self.links.table, self.links.step_m, np.ascontiguousarray(self.pos, np.float64),
+                                    self.link_seeds, self._episode, T + 1)
+            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated, T, heard)
 
     def act(self, t: int) -> np.ndarray:
         self.action = self.learners.act(self.state, t, self.pos)

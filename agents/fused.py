@@ -226,3 +226,4 @@ def run_episode(world, controller) -> None:
     steps = world._draws.turn_u.shape[0]
     world.t = steps
     controller._steps = steps
+    controller.pos = world.uav_pos.copy()  # the episode's last positions (channel-driven federated shares)

@@ -32,3 +32,22 @@ def test_lockstep_swarm_with_channel_links_equals_the_trainer(tmp_path):
         heard += sum(c["heard"] for c in links.values())
         lost += sum(c["lost"] for c in links.values())
     assert heard > 0 and lost > 0, (heard, lost)
+
+
+def test_lockstep_federated_swarm_with_channel_links_equals_the_trainer(tmp_path):
+    """Federated TRUAV's shares ride the same links: a share the channel loses is not merged, in the swarm
+    as in the trainer, and the Q-tables agree entry for entry."""
+    cfg = CFG.replace(scenario={"n_uavs": 3}, learner={"episodes": 6}, links={"model": "channel"},
+                      channel={"noise_w": 1e-12}, federated={"every": 1})
+    expected = run_chunk("truav", cfg, [SEED], cfg.learner.episodes)
+    out = run_swarm(tmp_path, "channel-fed", cfg=cfg)
+    q, _ = agent_tables(out, cfg)
+    assert np.array_equal(q, expected.q[0])
+    merged = lost = 0
+    for i in range(cfg.scenario.n_uavs):
+        fed = json.loads((out / f"agent{i}.json").read_text())["federated"]
+        assert not fed["missing"] and not fed["refused"]
+        merged += fed["shares_merged"]
+        lost += sum(fed.get("channel_lost", {}).values())
+    assert merged + lost == cfg.learner.episodes * 3 * 2  # every peer's share of every round decided once
+    assert merged > 0 and lost > 0, (merged, lost)
