@@ -16,7 +16,7 @@ from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav.bus import schema
 from truav.config import Config
-from world.link_phy import beacon_delivered, link_params
+from world.link_phy import beacon_delivered, link_params, link_probability, link_uniform
 from world.uavs import action_velocity
 
 DONE_ACK_ACTION = 0
@@ -41,12 +41,13 @@ class TruavDecision:
         self.seed = seed
         """The run's seed: the channel-driven links' draws (world.link_phy), as the trainer's env of this seed."""
         self.links = link_params(cfg)
-        self.link_counts: dict[int, list[int]] = {}
+        self.link_counts: dict[int, list[float]] = {}
+        """Channel-driven links: per peer, [beacons heard, beacons the channel lost, the model's expected heard
+        count (sum of P_deliver), its variance (sum of P (1 - P))] (links.model "channel")."""
         self.share_counts: dict[int, list[int]] = {}
         """Channel-driven links, federated TRUAV: per peer, [shares heard, shares the channel lost]."""
         self._positions: tuple[tuple[float, float], dict[int, tuple[float, float]]] | None = None
         """This UAV's and its peers' positions at the last observation (a federated share's link)."""
-        """Channel-driven links: per peer, [beacons heard, beacons the channel lost] (links.model "channel")."""
         self.encoder = encoder if encoder is not None else StateEncoder(cfg)
         self.reward = reward if reward is not None else Reward(cfg)
         self.predict = predict_params(cfg)
@@ -80,9 +81,13 @@ class TruavDecision:
         self._positions = ((x, y), {j: (float(b.pos[0]), float(b.pos[1])) for j, b in beacons.items()})
         kept = {}
         for j, b in beacons.items():
-            ok = beacon_delivered(links.table, links.step_m, x, y, float(b.pos[0]), float(b.pos[1]), self.seed,
-                                  obs.episode, k, j, self.uav)
-            self.link_counts.setdefault(j, [0, 0])[0 if ok else 1] += 1
+            # beacon_delivered's two halves: the trainer's decision, and the probability for the counts
+            p = link_probability(links.table, links.step_m, x, y, float(b.pos[0]), float(b.pos[1]))
+            ok = link_uniform(self.seed, obs.episode, k, j, self.uav) < p
+            c = self.link_counts.setdefault(j, [0, 0, 0.0, 0.0])
+            c[0 if ok else 1] += 1
+            c[2] += p
+            c[3] += p * (1.0 - p)
             if ok:
                 kept[j] = b
         return kept

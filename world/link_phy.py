@@ -146,10 +146,15 @@ def deliver_probability_at(table, step_m, distance):
 
 
 @njit(cache=True)
+def link_probability(table, step_m, x, y, px, py):
+    """P_deliver between UAVs at (x, y) and (px, py)."""
+    return deliver_probability_at(table, step_m, np.sqrt((px - x) ** 2 + (py - y) ** 2))
+
+
+@njit(cache=True)
 def beacon_delivered(table, step_m, x, y, px, py, seed, episode, k, src, dst):
     """Whether beacon k of `episode` from UAV src at (px, py) reaches UAV dst at (x, y)."""
-    d = np.sqrt((px - x) ** 2 + (py - y) ** 2)
-    return link_uniform(seed, episode, k, src, dst) < deliver_probability_at(table, step_m, d)
+    return link_uniform(seed, episode, k, src, dst) < link_probability(table, step_m, x, y, px, py)
 
 
 @njit(cache=True)

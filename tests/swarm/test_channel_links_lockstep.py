@@ -51,3 +51,30 @@ def test_lockstep_federated_swarm_with_channel_links_equals_the_trainer(tmp_path
         lost += sum(fed.get("channel_lost", {}).values())
     assert merged + lost == cfg.learner.episodes * 3 * 2  # every peer's share of every round decided once
     assert merged > 0 and lost > 0, (merged, lost)
+
+
+def test_realtime_per_link_delivery_matches_the_model(tmp_path):
+    """A real-time run (20 Hz): each directed link's delivered beacon count is within four standard deviations
+    (plus one for the count's discreteness) of the model's prediction, the sum of P_deliver over the beacons the
+    receiver decided on, at the distances it decided them by."""
+    import sys
+
+    from tests.support.runs import run_to_end
+    from truav.config import to_toml
+    cfg = CFG.replace(scenario={"n_uavs": 3}, learner={"episodes": 6}, links={"model": "channel"},
+                      channel={"noise_w": 1e-12})
+    scenario = tmp_path / "rt.toml"
+    scenario.write_text(to_toml(cfg))
+    out = tmp_path / "rt"
+    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--rate", "20", "--seed", str(SEED), "--run", "rt",
+           "--episodes", str(cfg.learner.episodes), "--scenario", str(scenario), "--out", str(out), "--quiet",
+           "--no-plot"]
+    assert run_to_end(cmd, tmp_path / "rt.log", 180.0) == 0, (tmp_path / "rt.log").read_text(errors="replace")
+    decided = 0
+    for i in range(cfg.scenario.n_uavs):
+        links = json.loads((out / f"agent{i}.json").read_text())["channel_links"]
+        assert sorted(links) == [str(j) for j in range(cfg.scenario.n_uavs) if j != i]
+        for j, c in links.items():
+            decided += c["heard"] + c["lost"]
+            assert abs(c["heard"] - c["expected"]) <= 4.0 * c["variance"] ** 0.5 + 1.0, (i, j, c)
+    assert decided >= cfg.learner.episodes * cfg.scenario.steps_per_episode * 6 // 2  # most beacons came in time
