@@ -137,8 +137,8 @@ def federate(q: np.ndarray, visits: np.ndarray, since: np.ndarray, episode: int,
         shares = [make_share(u, episode, q[b, u], visits[b, u], since[b, u], fc.max_rows) for u in range(n_uavs)]
         shares = [sh for sh in shares if check_share(sh, n_states, n_actions, episode, most, fc.q_bound) is None]
         for u in range(n_uavs):
-            merge(q[b, u], visits[b, u], [sh for sh in shares if sh.uav != u and (heard is None or heard[b, u, sh.uav])],
-                  fc.max_weight)
+            reaching = [sh for sh in shares if sh.uav != u and (heard is None or heard[b, u, sh.uav])]
+            merge(q[b, u], visits[b, u], reaching, fc.max_weight)
     since[...] = visits
 
 

@@ -1,13 +1,14 @@
 """Env-steps/s of the TRUAV trainer with ideal and with channel-driven beacon links (links.model), runs
 alternated (the machine may be shared: they see the same load), one thread, the default scenario.
 
-    python bench/bench_links.py                 # 6 rounds of batch-10, 30-episode runs
+    python bench/bench_links.py                 # 6 rounds of batch-10, 30-episode runs of each variant
     python bench/bench_links.py --rounds 10 --batch 10 --episodes 50
 
 Three variants: ``ideal``; ``channel-all``, channel links whose table says every beacon is delivered
 (P_deliver = 1 at every distance, patched in), so the agents learn what ideal links teach them (checked)
-and the difference is the cost of the links' draws alone; ``channel``, the default channel (noise 1e-9 W: beacons reach ~60 m), where the UAVs
-also fly differently, which changes the world's own cost per step. Each figure times from the end of the
+and the difference is the cost of the links' draws alone; ``channel``, the default channel (noise 1e-9 W:
+beacons reach ~60 m), where the UAVs also fly differently, which changes the world's own cost per step.
+Each figure times from the end of the
 first episode to the end of the last (start-up excluded), as bench/bench_trainer.py's batch figures do;
 the ratios are of the medians. Time is this process's CPU time (one thread), not wall time: on a shared
 machine (load 5-8 on 2 cores while this was written) wall-clock rates of the same run varied 3x.

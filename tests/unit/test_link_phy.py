@@ -36,7 +36,8 @@ def test_delivery_falls_with_distance_from_one_to_zero():
 def test_documented_threshold_distances():
     """docs/channel-models.md, "Beacon links": the 50% distances under the default channel (noise 1e-9 W)."""
     assert link_phy.threshold_distance_m(CHANNEL) == pytest.approx(59.51, abs=0.01)
-    assert link_phy.threshold_distance_m(CHANNEL.replace(channel={"model": "al-hourani"})) == pytest.approx(66.77, abs=0.01)
+    free_space = CHANNEL.replace(channel={"model": "al-hourani"})
+    assert link_phy.threshold_distance_m(free_space) == pytest.approx(66.77, abs=0.01)
     assert link_phy.threshold_distance_m(CHANNEL.replace(channel={"noise_w": 1e-11})) == pytest.approx(595.02, abs=0.05)
 
 
