@@ -16,6 +16,7 @@ from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
 from truav.bus import schema
 from truav.config import Config
+from world.link_phy import beacon_delivered, link_params, link_probability, link_uniform
 from world.uavs import action_velocity
 
 DONE_ACK_ACTION = 0
@@ -35,8 +36,18 @@ class TruavDecision:
 
     def __init__(self, cfg: Config, uav: int, learners: QLearners | None, train: bool = True,
                  encoder: StateEncoder | None = None, reward: Reward | None = None,
-                 density_map: np.ndarray | None = None):
+                 density_map: np.ndarray | None = None, seed: int = 0):
         self.cfg, self.uav, self.learners, self.train = cfg, uav, learners, train
+        self.seed = seed
+        """The run's seed: the channel-driven links' draws (world.link_phy), as the trainer's env of this seed."""
+        self.links = link_params(cfg)
+        self.link_counts: dict[int, list[float]] = {}
+        """Channel-driven links: per peer, [beacons heard, beacons the channel lost, the model's expected heard
+        count (sum of P_deliver), its variance (sum of P (1 - P))] (links.model "channel")."""
+        self.share_counts: dict[int, list[int]] = {}
+        """Channel-driven links, federated TRUAV: per peer, [shares heard, shares the channel lost]."""
+        self._positions: tuple[tuple[float, float], dict[int, tuple[float, float]]] | None = None
+        """This UAV's and its peers' positions at the last observation (a federated share's link)."""
         self.encoder = encoder if encoder is not None else StateEncoder(cfg)
         self.reward = reward if reward is not None else Reward(cfg)
         self.predict = predict_params(cfg)
@@ -57,6 +68,44 @@ class TruavDecision:
     def beacon(self, obs: schema.Obs) -> schema.Beacon:
         """This UAV's beacon for the tick of ``obs`` (its velocity: that of its last action)."""
         return schema.Beacon(uav=self.uav, tick=obs.tick, pos=obs.pos, vel=self.velocity)
+
+    def hear(self, obs: schema.Obs, beacons: dict[int, schema.Beacon]) -> dict[int, schema.Beacon]:
+        """The beacons of ``obs``'s tick that the channel delivers to this UAV (all of them with ideal links),
+        decided as the trainer decides them: beacon k of the episode (0 at its first observation, else one
+        more than the last step learned) from peer j, by distance, seed, episode, k and the two ids."""
+        links = self.links
+        if not links.table.size:
+            return beacons
+        k = 0 if obs.episode != self.episode else self.t + 1
+        x, y = float(obs.pos[0]), float(obs.pos[1])
+        self._positions = ((x, y), {j: (float(b.pos[0]), float(b.pos[1])) for j, b in beacons.items()})
+        kept = {}
+        for j, b in beacons.items():
+            # beacon_delivered's two halves: the trainer's decision, and the probability for the counts
+            p = link_probability(links.table, links.step_m, x, y, float(b.pos[0]), float(b.pos[1]))
+            ok = link_uniform(self.seed, obs.episode, k, j, self.uav) < p
+            c = self.link_counts.setdefault(j, [0, 0, 0.0, 0.0])
+            c[0 if ok else 1] += 1
+            c[2] += p
+            c[3] += p * (1.0 - p)
+            if ok:
+                kept[j] = b
+        return kept
+
+    def hear_share(self, peer: int, episode: int) -> bool:
+        """Whether peer's federated share after ``episode`` reaches this UAV: decided as the trainer does
+        (agents.controller), as beacon T + 1 of the episode between the positions of its last observation."""
+        links = self.links
+        if not links.table.size:
+            return True
+        (x, y), peers = self._positions if self._positions is not None else ((0.0, 0.0), {})
+        if peer not in peers:  # no position known (its beacon never came): nothing to decide the link by
+            return False
+        px, py = peers[peer]
+        ok = beacon_delivered(links.table, links.step_m, x, y, px, py, self.seed, episode,
+                              self.cfg.scenario.steps_per_episode + 1, peer, self.uav)
+        self.share_counts.setdefault(peer, [0, 0])[0 if ok else 1] += 1
+        return ok
 
     def learn(self, obs: schema.Obs, peers: np.ndarray, heard: np.ndarray) -> np.ndarray | None:
         """Encode the state of ``obs`` with the peers' positions; at an episode's first observation start

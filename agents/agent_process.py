@@ -211,7 +211,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         observation overtaken by a later one): learning from it would pair the wrong transition."""
         self.learners = self._make_learners()
         self.decision = TruavDecision(cfg, opts.uav, self.learners, opts.train, self.encoder, self.reward,
-                                      self._density_map)
+                                      self._density_map, seed=opts.seed)
         self._snapshot_too_large = False  # said once
         self._steps_at_start = self.steps
         self._earlier_incarnations = self._read_earlier_incarnations()
@@ -416,7 +416,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         self._send_beacon(obs)
         if o.debug_delay_s:
             self._stop.wait(o.debug_delay_s)
-        peers, heard = self._peers(obs.tick)
+        peers, heard = self._peers(obs)
         s_prev = d.state  # the state the update below learns in: its visit is counted (federated TRUAV)
         r = d.learn(obs, peers, heard)
         if r is not None:
@@ -482,11 +482,14 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
                 else:
                     self._keep_freshest_beacon(b)
 
-    def _peers(self, tick: int) -> tuple[np.ndarray, np.ndarray]:
-        """Neighbour positions from beacons, in UAV-id order (as the trainer sums them)."""
+    def _peers(self, obs: schema.Obs) -> tuple[np.ndarray, np.ndarray]:
+        """Neighbour positions from the beacons the channel delivers (all with ideal links), in UAV-id order
+        (as the trainer sums them). Lock-step waits for every peer's beacon, then the channel decides which
+        of them this UAV heard, as the trainer does: a lost beacon costs no wait."""
         self._take_beacons()
+        tick = obs.tick
         fresh = self._lockstep_beacons(tick) if self.opts.lockstep else self._realtime_beacons_in_range(tick)
-        return peer_arrays(fresh)
+        return peer_arrays(self.decision.hear(obs, fresh))
 
     def checkpoint(self) -> None:
         """Atomically write the Q-table, step count and generator state."""

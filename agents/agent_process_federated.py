@@ -161,7 +161,10 @@ class FederatedShares:
         n_states, n_actions = self.learners.q.shape[2:]
         most = max_count(episode, self.cfg.scenario.steps_per_episode)
         accepted: list[Share] = []
+        decision = getattr(self, "decision", None)
         for peer in sorted(done):
+            if decision is not None and not decision.hear_share(peer, episode):
+                continue  # channel-driven links: this share did not reach this UAV (the trainer loses it too)
             msgs = done[peer]
             try:
                 share = join_parts([Share(peer, m.episode, m.states, m.counts, m.q.reshape(-1, n_actions))
@@ -177,11 +180,12 @@ class FederatedShares:
                 continue
             accepted.append(share)
         self.fed_stats["rows_changed"] += merge(self.learners.q[0, 0], self.visits, accepted, self.fed.max_weight)
-        decision = getattr(self, "decision", None)
         if decision is not None:  # rows a merge changed belong in a snapshot of the table too (agents.decision_state)
             decision.touched.update(int(s) for sh in accepted for s in sh.states)
         self.fed_stats["shares_merged"] += len(accepted)
 
     def federated_stats(self) -> dict:
         """For the stats file: what it shared (bytes and messages as put on the bus) and merged."""
-        return {**self.fed_stats, "every": self.fed.every}
+        decision = getattr(self, "decision", None)
+        lost = {} if decision is None else {str(j): c[1] for j, c in sorted(decision.share_counts.items())}
+        return {**self.fed_stats, "every": self.fed.every, **({"channel_lost": lost} if lost else {})}

@@ -18,6 +18,7 @@ from agents.state import StateEncoder, all_peers, neighbour_features
 from truav import seeding
 from truav.config import Config
 from world.env import LocalObs
+from world.link_phy import IDEAL, heard_masks, link_params
 
 
 class TruavController:
@@ -48,6 +49,10 @@ class TruavController:
         """The driver runs whole episodes through run_episode; False steps through act/observe."""
         self.draws_in_kernel = True
         """run_episode's kernel makes the world's per-episode draws (in parallel over envs)."""
+        self.links = link_params(cfg)
+        """Who hears whose beacon (world.link_phy): IDEAL, or the channel's table."""
+        self.link_seeds = np.array(seeds, np.int64)
+        """Each env's run seed: the channel's draws are those of a swarm run with it (--seed)."""
 
     def __setstate__(self, state: dict) -> None:
         """A controller pickled before federated TRUAV (a training checkpoint of an earlier version) gets
@@ -57,9 +62,15 @@ class TruavController:
             self.visits = np.zeros(self.learners.q.shape[:3], np.int64)
             self.visits_at_share = np.zeros_like(self.visits)
             self._episode = 0
+        if "links" not in state:  # pickled before channel-driven links: ideal ones
+            self.links, self.link_seeds = IDEAL, np.zeros(len(self._reward_sum), np.int64)
 
-    def _features(self, obs: LocalObs):
+    def _features(self, obs: LocalObs, k: int):
+        """State and overlap from the beacons number k of the episode (0 at its start, t + 1 after step t)."""
         peers, heard = all_peers(obs.pos)
+        if self.links.table.size:
+            heard = heard_masks(self.links.table, self.links.step_m, np.ascontiguousarray(obs.pos, np.float64),
+                                self.link_seeds, self._episode, k)
         nearest, overlap = neighbour_features(obs.pos, peers, heard, self.cfg.scenario.comm_range_m)
         predicted = predict_batch(self.maps, np.ascontiguousarray(obs.pos, np.float64),
                                   np.asarray(obs.vehicles_in_range, np.float64), self.predict)
@@ -69,12 +80,12 @@ class TruavController:
 
     def begin_episode(self, episode: int, obs: LocalObs) -> None:
         self.learners.begin_episode(episode, self.cfg.scenario.steps_per_episode, greedy=not self.train)
-        self.state, _ = self._features(obs)
+        self._episode = episode
+        self.state, _ = self._features(obs, 0)
         self.pos = obs.pos
         self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()
         self._reward_sum[:] = 0.0
         self._steps = 0
-        self._episode = episode
 
     def run_episode(self, world) -> None:
         """Steps 0..T-1 of the world's current episode in one compiled kernel
@@ -86,15 +97,19 @@ class TruavController:
     def _end_episode(self) -> None:
         """Federated TRUAV: the agents share and merge their tables after the episodes of a share round."""
         if self.train and share_due(self._episode, self.cfg.federated):
-            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated,
-                     self.cfg.scenario.steps_per_episode)
+            T = self.cfg.scenario.steps_per_episode
+            heard = None
+            if self.links.table.size:  # a share is decided as beacon T + 1 of the episode, at its last positions
+                heard = heard_masks(self.links.table, self.links.step_m, np.ascontiguousarray(self.pos, np.float64),
+                                    self.link_seeds, self._episode, T + 1)
+            federate(self.learners.q, self.visits, self.visits_at_share, self._episode, self.cfg.federated, T, heard)
 
     def act(self, t: int) -> np.ndarray:
         self.action = self.learners.act(self.state, t, self.pos)
         return self.action
 
     def observe(self, obs: LocalObs, done: bool) -> None:
-        next_state, overlap = self._features(obs)
+        next_state, overlap = self._features(obs, self._steps + 1)
         r = self.reward(obs.relayed, obs.covered, obs.energy_j, overlap, obs.exclusive, obs.vehicles_in_range,
                         self.prev_in_range)
         self.prev_in_range = np.asarray(obs.vehicles_in_range, np.float64).copy()

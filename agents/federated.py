@@ -125,18 +125,20 @@ def merge(q: np.ndarray, visits: np.ndarray, shares: list[Share], max_weight: fl
 
 
 def federate(q: np.ndarray, visits: np.ndarray, since: np.ndarray, episode: int, fc: FederatedConfig,
-             steps_per_episode: int) -> None:
+             steps_per_episode: int, heard: np.ndarray | None = None) -> None:
     """The in-process round after ``episode``: in each environment b, every UAV shares (tables q (B, U, S, 16),
     visits and since (B, U, S)), then every UAV merges all the others' shares (all-to-all) that
     :func:`check_share` passes, as a swarm agent does (a row beyond ``fc.q_bound`` refuses its share in
-    both); since := visits."""
+    both); since := visits. ``heard`` (B, U, U), if given: which peers' shares reach each UAV (channel-driven
+    links, world.link_phy); None: all."""
     batch, n_uavs, n_states, n_actions = q.shape
     most = max_count(episode, steps_per_episode)
     for b in range(batch):
         shares = [make_share(u, episode, q[b, u], visits[b, u], since[b, u], fc.max_rows) for u in range(n_uavs)]
         shares = [sh for sh in shares if check_share(sh, n_states, n_actions, episode, most, fc.q_bound) is None]
         for u in range(n_uavs):
-            merge(q[b, u], visits[b, u], [sh for sh in shares if sh.uav != u], fc.max_weight)
+            reaching = [sh for sh in shares if sh.uav != u and (heard is None or heard[b, u, sh.uav])]
+            merge(q[b, u], visits[b, u], reaching, fc.max_weight)
     since[...] = visits
 
 

@@ -30,6 +30,7 @@ from agents.prediction import predict_one
 from agents.qlearning import act_one, q_update_one
 from agents.reward import full_one
 from agents.state import encode_one, nearest_sector_one, neighbour_one
+from world.link_phy import beacon_delivered
 from world.draws import pcg64_episode_draws
 from world.network import COVERED, DENSEST, EXCLUSIVE, IN_RANGE, QUEUED, RELAYED
 from world.roads import mobility_scratch, move_hotspots_env
@@ -45,8 +46,8 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 
 @njit(parallel=True, nogil=True, cache=True)
-def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, comm_range, sp, rp_reward,
-                  maps, prev_in_range, pp, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
+def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, links, link_step,
+                  link_seeds, episode, comm_range, sp, rp_reward, maps, prev_in_range, pp, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0, slots,
                   total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum, visits):
     """Run steps 0..T-1 of the current episode for every env b, in place.
@@ -62,7 +63,10 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
     density maps and pp their agents.prediction.PredictParams; prev_in_range (B, U)
     the vehicles in range at each agent's last observation (the shaping's phi), both
     left as the last step leaves them;
-    others (U, U) which peers each UAV hears (all but itself); turn_u
+    others (U, U) which peers each UAV hears (all but itself); links, link_step the channel-driven beacon
+    links' table (world.link_phy.LinkParams; size 0: ideal links, others alone), link_seeds (B,) the envs'
+    run seeds and episode the episode's number for their draws (the beacons after step t are number t + 1);
+    turn_u
     (T, B, N, 2) and arrivals (T, B, N) the world's draws; the world arrays
     as in `step.env_step`, with a leading B (trace and row0 as in
     `step.world_step`); reward_sum (B,) adds each step's
@@ -78,6 +82,7 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
         actions = np.empty(n_uav, np.int64)
         rewards = np.empty(n_uav)
         no_delay = np.zeros(n_uav)
+        heard_u = np.zeros(n_uav, np.bool_)
         work_f, work_i, work_b = mobility_scratch(s.shape[1], mp.n_roads)  # the steps' scratch, per env
         # Env b's views, once per episode rather than per step: each view of a
         # batch array counts a reference on that array, shared by all threads.
@@ -95,8 +100,14 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                      up, mp, rp, ch, o, out_env_b, energy_b, above_hover_b, totals_b, work_f, work_i, work_b)
             for u in range(n_uav):
                 x, y = pos_b[u, 0], pos_b[u, 1]
-                nearest, overlap = neighbour_one(x, y, pos_b, others[u], comm_range)
-                nb_sector = nearest_sector_one(x, y, pos_b, others[u], sp.neighbour_sectors) \
+                heard = others[u]
+                if links.size > 0:  # channel-driven beacons: as world.link_phy.heard_masks decides them
+                    for m in range(n_uav):
+                        heard_u[m] = others[u, m] and beacon_delivered(links, link_step, x, y, pos_b[m, 0],
+                                                                       pos_b[m, 1], link_seeds[b], episode, t + 1, m, u)
+                    heard = heard_u
+                nearest, overlap = neighbour_one(x, y, pos_b, heard, comm_range)
+                nb_sector = nearest_sector_one(x, y, pos_b, heard, sp.neighbour_sectors) \
                     if sp.neighbour_sectors > 0 else 0
                 predicted = predict_one(maps[b, u], x, y, o[u, IN_RANGE], pp)
                 s_next = encode_one(x, y, o[u, IN_RANGE], o[u, QUEUED], nearest, nb_sector, int(o[u, DENSEST]),
@@ -204,7 +215,9 @@ def run_episode(world, controller) -> None:
     deferred = world.deferred_draws()
     truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), ln.fence,
                   bool(controller.train),
-                  float(lc.learning_rate), float(lc.discount), others, float(cfg.scenario.comm_range_m),
+                  float(lc.learning_rate), float(lc.discount), others, controller.links.table,
+                  float(controller.links.step_m), controller.link_seeds, int(controller._episode),
+                  float(cfg.scenario.comm_range_m),
                   controller.encoder.params, controller.reward.params, controller.maps, controller.prev_in_range,
                   controller.predict,
                   *_draw_args(world, deferred), *_world_args(world), controller._reward_sum, controller.visits)
@@ -213,3 +226,4 @@ def run_episode(world, controller) -> None:
     steps = world._draws.turn_u.shape[0]
     world.t = steps
     controller._steps = steps
+    controller.pos = world.uav_pos.copy()  # the episode's last positions (channel-driven federated shares)

@@ -178,7 +178,8 @@ class Resimulation:
         encoder = StateEncoder(cfg)
         self.agents = [
             TruavDecision(cfg, i, QLearners(cfg.learner, encoder.n_states, [seeding.agent_rng(seed, i)], 1, 1,
-                                            q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg))
+                                            q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg),
+                          seed=seed)
             for i in range(n)]
         self.tick = 0
         self.episode = 0
@@ -204,7 +205,7 @@ class Resimulation:
         by_uav = {b.uav: b for b in beacons}
         actions = []
         for agent, o in zip(self.agents, obs):
-            peers, heard = peer_arrays({j: b for j, b in by_uav.items() if j != agent.uav})
+            peers, heard = peer_arrays(agent.hear(o, {j: b for j, b in by_uav.items() if j != agent.uav}))
             agent.learn(o, peers, heard)
             actions.append(agent.acknowledge(o) if done else agent.act(o))
         summary = None

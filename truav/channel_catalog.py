@@ -43,6 +43,15 @@ TR36777_HEIGHTS: dict[str, tuple[float, float]] = {
 """Aerial-UE heights (lo exclusive, hi inclusive, m) where Annex B's aerial formulas apply."""
 
 
+LINK_MODELS: dict[str, str] = {
+    "ideal": "every UAV hears every other's beacon (the paper)",
+    "channel": "each beacon delivered or lost by channel.model's UAV-UAV path loss, SNR with channel.noise_w and "
+               "the packet error rate of 802.11p 6 Mbit/s QPSK 1/2 (ns-3's NIST OFDM error model), counter-based "
+               "seeded draws shared by the trainer and the swarm; world/link_phy.py",
+}
+"""links.model: who hears whose beacon."""
+
+
 def describe() -> str:
     """TOML comment lines listing the models (`truav config show`)."""
     lines = ["# channel.model choices (world/channel_models.py, docs/explanation/channel-models.md):"]
@@ -50,4 +59,5 @@ def describe() -> str:
         lines.append(f"#   {name}: vehicle-UAV {m.uplink}; UAV-RSU {m.backhaul}; UAV-UAV {m.relay}. Source: {m.source}")
     envs = ", ".join(f"{k} {v}" for k, v in ENVIRONMENTS.items())
     lines.append(f"# channel.environment (a, b, eta_LoS dB, eta_NLoS dB): {envs}")
+    lines += ["# links.model choices:"] + [f"#   {name}: {text}" for name, text in LINK_MODELS.items()]
     return "\n".join(lines) + "\n\n"

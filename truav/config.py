@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from truav.errors import UserError
-from truav.channel_catalog import ENVIRONMENTS, MODELS, TR36777_HEIGHTS
+from truav.channel_catalog import ENVIRONMENTS, LINK_MODELS, MODELS, TR36777_HEIGHTS
 
 
 UAV_STARTS = ("random", "persist", "center")
@@ -196,6 +196,19 @@ class ChannelConfig:
     a2a_los_probability: float = param(1.0, 0.0, 1.0)
     """UAV-to-UAV LoS probability: both ends fly above the rooftops, so air-to-air
     links are modelled as LoS (Mozaffari et al., IEEE COMST 2019)."""
+
+
+@dataclass(frozen=True)
+class LinksConfig:
+    """Who hears whose beacon (issue 46): "ideal", every UAV every other's (the paper, and the
+    default: every number as before), or "channel": each beacon delivered or lost by the channel
+    model's UAV-UAV link at the UAVs' distance through an 802.11p PHY abstraction, the same draws
+    in the trainer and the swarm (world/link_phy.py, docs/channel-models.md "Beacon links")."""
+
+    model: str = param("ideal")
+    """Link model of the beacons: "ideal" or "channel"."""
+    beacon_bytes: int = param(100, 1, 4095)
+    """Size of a beacon frame on the air (bytes: MAC header, payload, FCS), for its error rate and airtime."""
 
 
 @dataclass(frozen=True)
@@ -454,6 +467,7 @@ class Config:
     idm: IDMConfig = field(default_factory=IDMConfig)
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
     channel: ChannelConfig = field(default_factory=ChannelConfig)
+    links: LinksConfig = field(default_factory=LinksConfig)
     energy: EnergyConfig = field(default_factory=EnergyConfig)
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     patrol: PatrolConfig = field(default_factory=PatrolConfig)
@@ -582,6 +596,8 @@ PAPER_CHANNEL_KEYS = ("los_a", "los_b", "eta_los_db", "eta_nlos_db", "a2a_los_pr
 
 def _check_channel(cfg: Config) -> None:
     ch, default = cfg.channel, ChannelConfig()
+    if cfg.links.model not in LINK_MODELS:
+        raise ConfigError(f"links.model: {cfg.links.model!r} is not one of {', '.join(LINK_MODELS)}")
     if ch.model not in MODELS:
         raise ConfigError(f"channel.model: {ch.model!r} is not one of {', '.join(MODELS)}")
     if ch.environment not in ENVIRONMENTS:
