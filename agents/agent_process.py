@@ -35,7 +35,6 @@ from __future__ import annotations
 import gc
 import json
 import logging
-import os
 import queue
 import threading
 import time
@@ -67,6 +66,7 @@ from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.snapshot_messages import agent_snapshot, fits, snapshot_due, snapshot_every_option
 from truav import jsonio
+from truav.atomic import write_atomic
 
 log = logging.getLogger("truav.agent")
 
@@ -493,13 +493,10 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         if not self.opts.checkpoint:
             return
         path = Path(self.opts.checkpoint)
-        tmp = path.with_name(path.name + ".tmp.npz")
         state = jsonio.dumps(self.learners.rngs[0].bit_generator.state)
-        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
-                 visits_at_share=self.visits_at_share, density_map=self.decision.density_map[0, 0])
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        write_atomic(path, lambda f: np.savez(f, q=self.learners.q[0, 0], steps=self.steps, rng_state=state,
+                                              visits=self.visits, visits_at_share=self.visits_at_share,
+                                              density_map=self.decision.density_map[0, 0]))
         log.info("uav %d: checkpoint at step %d -> %s", self.opts.uav, self.steps, path)
 
 

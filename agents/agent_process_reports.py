@@ -13,6 +13,7 @@ import numpy as np
 
 from truav.bus import keys, schema
 from truav import jsonio
+from truav.atomic import write_atomic_text
 
 HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
@@ -121,6 +122,4 @@ class AgentReports:
             data.update(run=self.opts.run, incarnation=me["inc"], sent=me["sent"],
                         incarnations=[*self._earlier_incarnations, me])
             p = Path(self.opts.stats_out)
-            tmp = p.with_name(p.name + ".tmp")
-            tmp.write_text(jsonio.dumps(data))
-            tmp.replace(p)
+            write_atomic_text(p, jsonio.dumps(data))

@@ -7,9 +7,15 @@ by PID and none may outlive its test.
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
-from tests.support.swarm_up import SMALL
+from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
 from truav.swarm import cli as swarm_cli
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.outdir import MARKER_FILE
@@ -39,3 +45,56 @@ def test_users_own_files_in_out_are_refused_and_force_removes_only_what_a_run_wr
     capsys.readouterr()
     assert swarm_cli.main(_up_argv(out)) == 2  # now an earlier run: the usual refusal
     assert "holds an earlier run" in capsys.readouterr().err
+
+
+# -- one process per identity -------------------------------------------------------------------
+def test_a_second_agent_for_a_live_uav_is_refused_before_it_flies(up, tmp_path):
+    u = up("dup", "--agents", "2", "--steps", "100", "--episodes", "20")  # real time: minutes, ended by close()
+    endpoint = u.wait_ticking()
+    dup = subprocess.run(  # by hand, as a user would: its own checkpoint path, the run's UAV 1
+[sys.executable, "-m", "truav.swarm.cli", "agent", "--run", "dup", "--id", "1", "-e",
+                          endpoint, "--scenario", str(u.out / "scenario.toml"), "--checkpoint",
+                          str(tmp_path / "dup1.npz")], capture_output=True, text=True, timeout=120)
+    assert dup.returncode == 2, dup.stderr[-3000:]
+    lines = dup.stderr.strip().splitlines()
+    assert "already has a live agent" in lines[-1] and "--id 1" in lines[-1] and "Traceback" not in dup.stderr
+    assert not (tmp_path / "dup1.npz").exists() and u.proc.poll() is None  # refused before it flew; the run flies on
+
+
+def test_checkpoint_temporaries_are_unique_per_process(tmp_path, monkeypatch):
+    from truav import atomic
+    target = tmp_path / "agent2.npz"
+    names = set()
+    for pid in (101, 202):  # two writers of one checkpoint: each its own temporary
+        monkeypatch.setattr(atomic.os, "getpid", lambda pid=pid: pid)
+        names.add(atomic.tmp_path(target).name)
+        atomic.write_atomic(target, lambda f: f.write(b"x"))
+    assert names == {"agent2.npz.101.tmp", "agent2.npz.202.tmp"} and target.read_bytes() == b"x"
+    assert [p.name for p in tmp_path.iterdir()] == ["agent2.npz"]
+
+
+# -- a stall is a fault -------------------------------------------------------------------------
+STALL_S = 3.0
+
+
+def test_a_stalled_world_resumes_without_a_burst_and_the_run_says_so(up):
+    u = up("stall", "--agents", "2", "--steps", "60", "--episodes", "3")  # real time, 10 Hz: 183 ticks
+    u.wait_ticking()
+    world = u.pids["world"]
+    os.kill(world, signal.SIGSTOP)
+    try:
+        time.sleep(STALL_S)  # the stall itself: the world's clock jumps this far
+    finally:
+        os.kill(world, signal.SIGCONT)
+    rc = u.wait(timeout=180)
+    summary = json.loads((u.out / "summary.json").read_text())
+    w = summary["world"]
+    assert rc == 1 and summary["outcome"]["result"] == "failed", u.output()[-3000:]
+    assert len(w["stalls"]) == 1 and w["stalls"][0]["s"] >= STALL_S - 0.5, w["stalls"]
+    assert w["stalls"][0]["ticks_skipped"] >= 10 * (STALL_S - 0.5)  # 10 Hz
+    assert w["ticks"] == 3 * 61  # no simulated step lost: the run took longer instead
+    # No burst: only the tick after the stall started late, not the ~25 that were due during it.
+    assert w["tick_lateness_ms"]["p99"] < 1000, w["tick_lateness_ms"]
+    assert w["losses"] == []  # no agent left
+    out = u.output()
+    assert "the world stalled 1 time(s)" in out and "tick(s) skipped" in out and "result: FAILED" in out

@@ -88,6 +88,14 @@ class SwarmEnd:
                 if missed > opts.max_missed_share:
                     o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
                            f"{opts.max_missed_share:g})")
+        stalls = stall_text(world)
+        if stalls and o.ticked:
+            planned = any(f.kind == "freeze" and f.params.get("target") == "world"
+                          for f in (self.plan.faults if self.plan else ()))
+            if planned:  # the plan froze it: expected, but still said
+                o.warnings.append(stalls)
+            else:
+                o.fail(stalls)
         killed_for_good = {process_of(f.params.get("target", f.params.get("uav")))
                            for f in (self.plan.faults if self.plan else ())
                            if f.kind == "crash" and "restart_after" not in f.params}
@@ -167,6 +175,18 @@ class SwarmEnd:
             print(f"result: {o.result}", flush=True)
 
 
+def stall_text(world: dict | None) -> str | None:
+    """The world's stalls (world.world_process.STALL_MIN_S), in one line, or None."""
+    stalls = (world or {}).get("stalls") or []
+    if not stalls:
+        return None
+    named = ", ".join(f"{st['s']:.1f} s before tick {st['tick']} ({st['ticks_skipped']} tick(s) skipped)"
+                      for st in stalls[:3])
+    more = f" and {len(stalls) - 3} more" if len(stalls) > 3 else ""
+    return (f"the world stalled {len(stalls)} time(s) (paused, or the host stalled): {named}{more}; it resumed "
+            f"from the current time, the skipped ticks' actions were never asked for")
+
+
 def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
@@ -180,7 +200,11 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
               f"missed (hovered) {world['deadline_misses']}"
               + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
-              + f", agent losses seen {len(world['losses'])}")
+              + f", agent losses seen {len(world['losses'])}"
+              + (f" (reconnections of live agents not counted: {world['rejoins']})" if world.get("rejoins") else ""))
+        if world.get("ticks_skipped"):
+            print(f"tick periods skipped (the world resumed from the current time after starting late): "
+                  f"{world['ticks_skipped']}")
     line = per_uav_line((world or {}).get("per_uav") or [])
     if line:
         print(line)
