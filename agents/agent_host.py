@@ -29,6 +29,7 @@ from agents.shared_beacons import BeaconBatcher, SharedBeacons  # noqa: F401 - S
 from truav.bus import keys
 from truav.bus.transport import Bus
 from truav.config import Config
+from truav.atomic import EXIT_NO_SPACE
 from truav.errors import UserError
 from truav.fault_filter import SharedPlan
 from truav.faults import load_plan
@@ -254,8 +255,9 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
             node.write_stats()
             if parts is not None:
                 parts.done(bus)  # the bus holding the shared parts closes last
-        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", uav, node.steps,
-                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)")
+        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s%s", uav, node.steps,
+                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)",
+                 " (a write found the disk full: the last complete copies, see above)" if node.no_space else "")
 
     stopping: list[str] = []
 
@@ -302,4 +304,6 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
                 t.join()
         if failed:
             raise failed[0]
-    return EXIT_ROUTER_LOST if any(r.router_lost for _, r in results.values()) else 0
+    if any(r.router_lost for _, r in results.values()):
+        return EXIT_ROUTER_LOST
+    return EXIT_NO_SPACE if any(getattr(node, "no_space", None) for node, _ in results.values()) else 0

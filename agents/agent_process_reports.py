@@ -13,7 +13,7 @@ import numpy as np
 
 from truav.bus import keys, schema
 from truav import jsonio
-from truav.atomic import write_atomic_text
+from truav.atomic import write_kept
 
 HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
@@ -122,4 +122,5 @@ class AgentReports:
             data.update(run=self.opts.run, incarnation=me["inc"], sent=me["sent"],
                         incarnations=[*self._earlier_incarnations, me])
             p = Path(self.opts.stats_out)
-            write_atomic_text(p, jsonio.dumps(data))
+            text = jsonio.dumps(data).encode()
+            write_kept(p, lambda f: f.write(text), self.say_no_space)

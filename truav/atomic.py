@@ -13,6 +13,9 @@ from pathlib import Path
 from typing import BinaryIO
 
 NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+EXIT_NO_SPACE = 28
+"""Exit code of a swarm process that could not write a checkpoint or statistics for want of space (ENOSPC's
+number): `truav-swarm up` names it "no space left", since the process's own log line may not fit either."""
 
 
 def tmp_path(path: str | os.PathLike) -> Path:
@@ -46,3 +49,16 @@ def no_space(exc: BaseException) -> bool:
 def no_space_line(path: str | os.PathLike) -> str:
     """What a process says when a write under ``path`` found the disk full (one line)."""
     return f"no space left on {Path(path).absolute().parent} (writing {Path(path).name}); the last complete copy is kept"
+
+
+def write_kept(path: str | os.PathLike, write: Callable[[BinaryIO], None], say: Callable[[str], None]) -> bool:
+    """:func:`write_atomic`; a full disk is ``say(no_space_line(path))`` and False (the old file kept), any
+    other error raises."""
+    try:
+        write_atomic(path, write)
+    except OSError as exc:
+        if not no_space(exc):
+            raise
+        say(no_space_line(path))
+        return False
+    return True

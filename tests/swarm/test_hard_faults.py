@@ -7,6 +7,7 @@ by PID and none may outlive its test.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -15,6 +16,9 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
+from tests.support.runs import run_to_end
 from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
 from truav.swarm import cli as swarm_cli
 from truav.swarm.children import free_loopback_endpoint
@@ -98,3 +102,52 @@ def test_a_stalled_world_resumes_without_a_burst_and_the_run_says_so(up):
     assert w["losses"] == []  # no agent left
     out = u.output()
     assert "the world stalled 1 time(s)" in out and "tick(s) skipped" in out and "result: FAILED" in out
+
+
+# -- disks fill up ------------------------------------------------------------------------------
+def test_a_full_disk_keeps_the_last_complete_file_and_says_where(tmp_path):
+    from truav.atomic import write_kept
+    ck = tmp_path / "agent0.npz"
+    ck.write_bytes(b"the last good checkpoint")
+
+    def half_then_full(f):
+        f.write(b"half a checkpoint")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    said = []
+    assert write_kept(ck, half_then_full, said.append) is False
+    assert ck.read_bytes() == b"the last good checkpoint"  # never replaced by a partial one
+    assert [p.name for p in tmp_path.iterdir()] == ["agent0.npz"]  # the temporary removed
+    assert len(said) == 1 and said[0].startswith(f"no space left on {tmp_path}")
+    with pytest.raises(PermissionError):  # any other failure is not hidden
+        write_kept(ck, lambda f: (_ for _ in ()).throw(PermissionError(errno.EACCES, "denied")), said.append)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1 MiB tmpfs (a checkpoint of the small city is 2 MB): mounted for the test, unmounted after."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    try:
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], check=True,
+                       capture_output=True, timeout=30)
+    except (OSError, subprocess.SubprocessError) as exc:
+        pytest.skip(f"cannot mount a small tmpfs here ({exc})")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=30)
+
+
+def test_up_on_a_full_disk_ends_failed_with_a_summary_that_says_so(small_disk, tmp_path):
+    out = small_disk / "swarm"
+    rc = run_to_end([sys.executable, "-m", "truav.swarm.cli", *_up_argv(out)], tmp_path / "up.log", 240)
+    text = (tmp_path / "up.log").read_text(errors="replace")
+    assert rc == 1, text[-3000:]
+    assert "Traceback" not in text and "no space left on" in text and "result: FAILED" in text
+    summary = json.loads((out / "summary.json").read_text())  # small: it fits, and is whole
+    assert any("no space left on" in f for f in summary["outcome"]["failures"]), summary["outcome"]
+    assert not list(out.glob("agent*.npz")) and not list(out.glob("*.tmp"))  # no partial file, no temporary
+    for i in (0, 1):
+        log = (out / "logs" / f"agent{i}.log").read_text(errors="replace")
+        assert log.count("no space left on") == 1 and "Traceback" not in log, log[-2000:]

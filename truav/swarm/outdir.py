@@ -29,6 +29,7 @@ import json
 import os
 from pathlib import Path
 from truav import jsonio
+from truav.atomic import write_kept
 
 PID_FILE = "pids.json"
 SCENARIO_FILE = "scenario.toml"
@@ -45,7 +46,8 @@ RESULT_PATTERNS = ("agent*.json", "agent*.json.tmp", "world.json", "world.json.t
 """Results of one run: removed at every start (with --resume too), so a summary never shows an earlier run's."""
 STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
 """What a resumed run continues from."""
-TEMP_PATTERNS = ("agent*.npz.tmp.npz", "agent*.*.tmp", "world.json.*.tmp", "summary.json.*.tmp")
+TEMP_PATTERNS = ("agent*.npz.tmp.npz", "agent*.*.tmp", "world.json.*.tmp", "summary.json.*.tmp", "pids.json.*.tmp",
+                 "swarm.json.*.tmp", ".swarm.json.tmp")
 """Temporaries a process killed while writing leaves (named with its PID: see truav.swarm.atomic)."""
 CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json", "nemesis-plan.toml", "invariants.txt", "invariants.json")
 CHAOS_RUNS = ("baseline", "faulted")
@@ -152,9 +154,8 @@ def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
 
 def write_run_file(out: Path, info: dict) -> None:
     """Atomically: `status`, `down` and tests read it while the run starts (a half-written file read as empty)."""
-    tmp = out / f".{RUN_FILE}.tmp"
-    tmp.write_text(jsonio.dumps(info, indent=1))
-    os.replace(tmp, out / RUN_FILE)
+    text = jsonio.dumps(info, indent=1).encode()
+    write_kept(out / RUN_FILE, lambda f: f.write(text), lambda line: print(f"warning: {line}", flush=True))
 
 
 def read_run_file(out: Path) -> dict | None:

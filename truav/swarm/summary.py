@@ -13,6 +13,7 @@ import numpy as np
 from recorder.record_modes import parts_index_path, snapshot_path
 from truav.bus import keys
 from truav.config import Config
+from truav.atomic import EXIT_NO_SPACE, write_kept
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
@@ -70,6 +71,8 @@ class SwarmEnd:
                 o.fail(f"a shutdown came from an unknown sender {src!r}")
         world = _read_json(self.out / "world.json")
         done = len((world or {}).get("episodes") or [])
+        full = [name for name in [*self.fleet, "world"]  # exited EXIT_NO_SPACE: their last log line may be missing
+                if name in self.children.procs and self.children.procs[name].returncode == EXIT_NO_SPACE]
         if not o.ended_by:
             if foreign:
                 first = foreign[0]
@@ -78,6 +81,8 @@ class SwarmEnd:
                     o.interrupted_by = SHUTDOWN_SENDERS[first]
             elif done == opts.episodes:
                 o.ended_by = f"the world finished its {done} episode(s) (shutdown from 'world')"
+            elif "world" in full:
+                o.ended_by = "the world's end (shutdown from 'world'; its statistics did not fit on the disk)"
             else:
                 o.fail(f"the world stopped after {done} of {opts.episodes} episode(s)")
         if world and o.ticked:
@@ -88,6 +93,9 @@ class SwarmEnd:
                 if missed > opts.max_missed_share:
                     o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
                            f"{opts.max_missed_share:g})")
+        if full:
+            o.fail(f"no space left on {self.out.absolute()}: {', '.join(full)} could not write {'its' if len(full) == 1 else 'their'} "
+                   f"checkpoint or statistics (the last complete copies are kept; free space and --resume)")
         stalls = stall_text(world)
         if stalls and o.ticked:
             planned = any(f.kind == "freeze" and f.params.get("target") == "world"
@@ -140,14 +148,15 @@ class SwarmEnd:
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
-        (out / SUMMARY_FILE).write_text(jsonio.dumps({
+        summary = jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1))
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1).encode()
+        write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             for entry in o.external:
