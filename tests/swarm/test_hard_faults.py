@@ -7,7 +7,6 @@ by PID and none may outlive its test.
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import signal
@@ -65,18 +64,6 @@ def test_a_second_agent_for_a_live_uav_is_refused_before_it_flies(up, tmp_path):
     assert not (tmp_path / "dup1.npz").exists() and u.proc.poll() is None  # refused before it flew; the run flies on
 
 
-def test_checkpoint_temporaries_are_unique_per_process(tmp_path, monkeypatch):
-    from truav import atomic
-    target = tmp_path / "agent2.npz"
-    names = set()
-    for pid in (101, 202):  # two writers of one checkpoint: each its own temporary
-        monkeypatch.setattr(atomic.os, "getpid", lambda pid=pid: pid)
-        names.add(atomic.tmp_path(target).name)
-        atomic.write_atomic(target, lambda f: f.write(b"x"))
-    assert names == {"agent2.npz.101.tmp", "agent2.npz.202.tmp"} and target.read_bytes() == b"x"
-    assert [p.name for p in tmp_path.iterdir()] == ["agent2.npz"]
-
-
 # -- a stall is a fault -------------------------------------------------------------------------
 STALL_S = 3.0
 
@@ -105,24 +92,6 @@ def test_a_stalled_world_resumes_without_a_burst_and_the_run_says_so(up):
 
 
 # -- disks fill up ------------------------------------------------------------------------------
-def test_a_full_disk_keeps_the_last_complete_file_and_says_where(tmp_path):
-    from truav.atomic import write_kept
-    ck = tmp_path / "agent0.npz"
-    ck.write_bytes(b"the last good checkpoint")
-
-    def half_then_full(f):
-        f.write(b"half a checkpoint")
-        raise OSError(errno.ENOSPC, "No space left on device")
-
-    said = []
-    assert write_kept(ck, half_then_full, said.append) is False
-    assert ck.read_bytes() == b"the last good checkpoint"  # never replaced by a partial one
-    assert [p.name for p in tmp_path.iterdir()] == ["agent0.npz"]  # the temporary removed
-    assert len(said) == 1 and said[0].startswith(f"no space left on {tmp_path}")
-    with pytest.raises(PermissionError):  # any other failure is not hidden
-        write_kept(ck, lambda f: (_ for _ in ()).throw(PermissionError(errno.EACCES, "denied")), said.append)
-
-
 @pytest.fixture
 def small_disk(tmp_path):
     """A 1 MiB tmpfs (a checkpoint of the small city is 2 MB): mounted for the test, unmounted after."""
