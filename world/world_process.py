@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.central import ControlCounters
+from truav.stats import shown
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.lograte import Every
@@ -411,8 +412,8 @@ class WorldNode:
             self.bus.publish(keys.metrics_episode(opts.run), schema.Metrics(
                 scope=schema.SCOPE_EPISODE, tick=tick, episode=episode,
                 values={k: v for k, v in summary.items() if np.isfinite(v)}))
-            log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
-                     summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
+            log.info("episode %d: coverage %s%% pdr %s delay %s ms", episode, shown(summary["coverage_pct"], ".1f"),
+                     shown(summary["pdr"], ".3f"), shown(summary["delay_ms"], ".0f"))
         self.stats.ticks = tick
         self.stats.last_tick_wall_s = time.time()
         if not opts.lockstep:  # let the last tick run its period: agents are still learning from it

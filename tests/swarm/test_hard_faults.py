@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -120,3 +121,12 @@ def test_up_on_a_full_disk_ends_failed_with_a_summary_that_says_so(small_disk, t
     for i in (0, 1):
         log = (out / "logs" / f"agent{i}.log").read_text(errors="replace")
         assert log.count("no space left on") == 1 and "Traceback" not in log, log[-2000:]
+
+
+# -- ranges that hold ---------------------------------------------------------------------------
+def test_a_run_without_packets_reports_pdr_as_no_data(tmp_path, capsys):
+    out = tmp_path / "quiet-roads"
+    assert swarm_cli.main(_up_argv(out, "--set", "traffic.packet_rate_hz=0")) == 0
+    text = capsys.readouterr().out
+    assert "PDR no data" in text and not re.search(r"\bnan\b", text, re.IGNORECASE), text[-2000:]
+    assert "pdr no data" in (out / "logs" / "world.log").read_text()

@@ -50,3 +50,52 @@ def test_a_command_whose_disk_fills_up_says_so_in_one_line(tmp_path, capsys):
     assert run_main("truav", body) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"truav: error: no space left on {tmp_path}"]
+
+
+# -- ranges that hold ---------------------------------------------------------------------------
+def _one_line_exit_2(argv, capsys) -> str:
+    from truav.cli import main as truav_main
+    assert truav_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    return err[0]
+
+
+def test_vehicles_that_do_not_fit_on_the_road_grid_are_refused_up_front(capsys):
+    line = _one_line_exit_2(["config", "show", "--set", "scenario.n_vehicles=100000"], capsys)
+    assert "scenario.n_vehicles" in line and "do not fit on the road grid" in line and "roads.block_m" in line
+    import numpy as np
+    from truav.config import Config, grid_vehicle_capacity
+    from world.roads import RoadGrid
+    cfg, rng = Config(), np.random.default_rng(0)
+    grid, most = RoadGrid(cfg), grid_vehicle_capacity(cfg)
+    assert grid.spawn(rng, most).road.shape == (1, most)  # the config's bound is the grid's own
+    with pytest.raises(ValueError, match="do not fit"):
+        grid.spawn(rng, most + 1)
+
+
+def test_q_tables_too_large_for_memory_are_refused_in_one_line(capsys):
+    line = _one_line_exit_2(["config", "show", "--set", "learner.grid_cells=1000"], capsys)
+    assert "learner.grid_cells" in line and "1000" in line
+    line = _one_line_exit_2(["train", "--seeds", "10", "--out", "/nonexistent/never-written", "--set",
+                             "learner.grid_cells=50", "--set", "learner.neighbour_sectors=8"], capsys)
+    assert "learner.grid_cells = 50" in line and "GiB" in line and "10 seed(s) x 5 UAV(s)" in line
+
+
+def test_a_deeply_nested_config_is_one_line(tmp_path, capsys):
+    deep = tmp_path / "deep.toml"
+    deep.write_text("[scenario]\nn_uavs = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    line = _one_line_exit_2(["config", "show", "--config", str(deep)], capsys)
+    assert str(deep) in line and "nested too deeply" in line
+    line = _one_line_exit_2(["config", "show", "--set", "scenario.n_uavs=" + "[" * 100_000 + "]" * 100_000], capsys)
+    assert "--set scenario.n_uavs" in line and "nested too deeply" in line
+
+
+def test_a_metric_without_data_is_no_data_not_nan():
+    import numpy as np
+    from truav.cli import format_table
+    from truav.stats import shown
+    table = format_table({"truav": {"coverage_pct": np.array([10.0, 12.0]), "pdr": np.array([np.nan, np.nan]),
+                                    "delay_ms": np.array([np.nan, np.nan]), "energy_j": np.array([1e3, 1e3])}})
+    assert "nan" not in table and table.count("no data") == 2
+    assert shown(float("nan"), ".3f") == "no data" and shown(0.25, ".3f") == "0.250"

@@ -14,6 +14,7 @@ from recorder.record_modes import parts_index_path, snapshot_path
 from truav.bus import keys
 from truav.config import Config
 from truav.atomic import EXIT_NO_SPACE, write_kept
+from truav.stats import shown
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
@@ -200,7 +201,8 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
         cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
-        print(f"episode {e}: coverage {cov:5.1f}%  PDR {pdr:.3f}  delay {delay:6.1f} ms  energy/UAV {energy / 1e3:6.2f} kJ")
+        print(f"episode {e}: coverage {shown(cov, '5.1f')}%  PDR {shown(pdr, '.3f')}  delay {shown(delay, '6.1f')} ms  "
+              f"energy/UAV {shown(energy / 1e3, '6.2f')} kJ")
     if world:
         lat = world.get("tick_lateness_ms")
         if lat:
