@@ -66,7 +66,9 @@ def test_a_second_agent_for_a_live_uav_is_refused_before_it_flies(up, tmp_path):
 
 
 # -- a stall is a fault -------------------------------------------------------------------------
-STALL_S = 3.0
+STALL_S = 12.0
+"""Longer than Zenoh's 10 s lease: the router drops the paused world's session, and on waking the world sees
+every agent's token vanish and come back (no agent left)."""
 
 
 def test_a_stalled_world_resumes_without_a_burst_and_the_run_says_so(up):
@@ -87,7 +89,7 @@ def test_a_stalled_world_resumes_without_a_burst_and_the_run_says_so(up):
     assert w["ticks"] == 3 * 61  # no simulated step lost: the run took longer instead
     # No burst: only the tick after the stall started late, not the ~25 that were due during it.
     assert w["tick_lateness_ms"]["p99"] < 1000, w["tick_lateness_ms"]
-    assert w["losses"] == []  # no agent left
+    assert w["losses"] == []  # no agent left (the issue's run said "agent losses seen 3")
     out = u.output()
     assert "the world stalled 1 time(s)" in out and "tick(s) skipped" in out and "result: FAILED" in out
 
