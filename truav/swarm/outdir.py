@@ -48,7 +48,7 @@ STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
 """What a resumed run continues from."""
 TEMP_PATTERNS = ("agent*.npz.tmp.npz", "agent*.*.tmp", "world.json.*.tmp", "summary.json.*.tmp", "pids.json.*.tmp",
                  "swarm.json.*.tmp", ".swarm.json.tmp")
-"""Temporaries a process killed while writing leaves (named with its PID: see truav.swarm.atomic)."""
+"""Temporaries a process killed while writing leaves (named with its PID: see truav.atomic)."""
 CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json", "nemesis-plan.toml", "invariants.txt", "invariants.json")
 CHAOS_RUNS = ("baseline", "faulted")
 
