@@ -29,6 +29,8 @@ from agents.shared_beacons import BeaconBatcher, SharedBeacons  # noqa: F401 - S
 from truav.bus import keys
 from truav.bus.transport import Bus
 from truav.config import Config
+from truav.atomic import EXIT_NO_SPACE
+from truav.errors import UserError
 from truav.fault_filter import SharedPlan
 from truav.faults import load_plan
 from truav.lifecycle import EXIT_ROUTER_LOST, StopReasons, watch_router, watch_supervisor
@@ -45,6 +47,22 @@ agent threads waiting for the GIL then wake 4x less often to ask for it (each a 
 time was most of such a process's); lock-step decisions do not depend on timing."""
 ID_PLACEHOLDER = "{id}"
 """In --checkpoint and --stats-out of a process hosting several agents: replaced by each UAV's id."""
+
+DUPLICATE_GRACE_S = 1.5
+"""A liveliness token of this agent's UAV still alive this long after its session opened is a live agent's
+(a crashed agent's token goes with its connection, within milliseconds): this one is refused."""
+
+
+def refuse_duplicate(bus: Bus, run: str, uav: int) -> None:
+    """One process per identity: two agents flying one UAV would both act, both checkpoint and both be counted
+    (raises UserError, before this agent loads, joins or writes anything)."""
+    key = keys.alive_uav(run, uav)
+    deadline = time.monotonic() + DUPLICATE_GRACE_S
+    while bus.alive(key, timeout=0.5):
+        if time.monotonic() >= deadline:
+            raise UserError(f"--id {uav}: UAV {uav} of run {run} already has a live agent (liveliness token {key}); "
+                            f"stop it first, or choose another --id or --run")
+        time.sleep(0.25)
 
 
 def path_of(template: str | None, uav: int) -> str | None:
@@ -200,6 +218,7 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
     def host(uav: int) -> None:
         opts = options_for(uav)
         with open_bus(uav) as bus:
+            refuse_duplicate(bus, run, uav)
             if batcher is not None:
                 batcher.attach(uav, bus)
             if parts is not None:
@@ -236,8 +255,9 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
             node.write_stats()
             if parts is not None:
                 parts.done(bus)  # the bus holding the shared parts closes last
-        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s", uav, node.steps,
-                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)")
+        log.info("uav %d stopped after %d step(s) (%s); final checkpoint %s, statistics %s%s", uav, node.steps,
+                 reasons.first or "shutdown", opts.checkpoint or "(none: no --checkpoint)", opts.stats_out or "(none)",
+                 " (a write found the disk full: the last complete copies, see above)" if node.no_space else "")
 
     stopping: list[str] = []
 
@@ -258,7 +278,10 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
                 host(uav)
             except BaseException as exc:  # noqa: BLE001 - reported below, the others stop
                 failed.append(exc)
-                log.exception("uav %d failed", uav)
+                if isinstance(exc, UserError):
+                    log.error("%s", exc)
+                else:
+                    log.exception("uav %d failed", uav)
                 if started.n_waiting:
                     started.abort()
                 stop_all(f"uav {uav} failed")
@@ -281,4 +304,6 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
                 t.join()
         if failed:
             raise failed[0]
-    return EXIT_ROUTER_LOST if any(r.router_lost for _, r in results.values()) else 0
+    if any(r.router_lost for _, r in results.values()):
+        return EXIT_ROUTER_LOST
+    return EXIT_NO_SPACE if any(getattr(node, "no_space", None) for node, _ in results.values()) else 0

@@ -35,7 +35,6 @@ from __future__ import annotations
 import gc
 import json
 import logging
-import os
 import queue
 import threading
 import time
@@ -67,6 +66,7 @@ from truav.bus.transport import Bus
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.snapshot_messages import agent_snapshot, fits, snapshot_due, snapshot_every_option
 from truav import jsonio
+from truav.atomic import write_kept
 
 log = logging.getLogger("truav.agent")
 
@@ -225,6 +225,7 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         self._health_thread = health_thread
         self._health_lock = threading.Lock()  # a shared health thread's publish vs the end of run()
         self._health_done = False  # run() ended: no more health reports (its stats file counts what was sent)
+        self.no_space: str | None = None  # a checkpoint or statistics write found the disk full: what it said
         self._stopped_ns: int | None = None  # beacons heard after this are not measured: no one waits for them
         self._episode = -1
         self._t = 0
@@ -496,14 +497,18 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         if not self.opts.checkpoint:
             return
         path = Path(self.opts.checkpoint)
-        tmp = path.with_name(path.name + ".tmp.npz")
         state = jsonio.dumps(self.learners.rngs[0].bit_generator.state)
-        np.savez(tmp, q=self.learners.q[0, 0], steps=self.steps, rng_state=state, visits=self.visits,
-                 visits_at_share=self.visits_at_share, density_map=self.decision.density_map[0, 0])
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-        log.info("uav %d: checkpoint at step %d -> %s", self.opts.uav, self.steps, path)
+        if write_kept(path, lambda f: np.savez(f, q=self.learners.q[0, 0], steps=self.steps, rng_state=state,
+                                               visits=self.visits, visits_at_share=self.visits_at_share,
+                                               density_map=self.decision.density_map[0, 0]), self.say_no_space):
+            log.info("uav %d: checkpoint at step %d -> %s", self.opts.uav, self.steps, path)
+
+    def say_no_space(self, line: str) -> None:
+        """A full disk: said once (it flies on, its last complete checkpoint kept), then the process exits
+        EXIT_NO_SPACE (agents.agent_host)."""
+        if self.no_space is None:
+            log.error("uav %d: %s", self.opts.uav, line)
+        self.no_space = line
 
 
 __all__ = ["AgentNode", "AgentOptions", "CONTROL_SHUTDOWN", "DELAY_ENV", "DONE_ACK_ACTION", "HEALTH_PERIOD_S",

@@ -13,6 +13,7 @@ import numpy as np
 
 from truav.bus import keys, schema
 from truav import jsonio
+from truav.atomic import write_kept
 
 HEALTH_PERIOD_S = schema.HEALTH_PERIOD_S
 """How often an agent publishes its health report (what it refused, by reason and sender) on uav/<i>/health."""
@@ -125,6 +126,5 @@ class AgentReports:
             data.update(run=self.opts.run, incarnation=me["inc"], sent=me["sent"],
                         incarnations=[*self._earlier_incarnations, me])
             p = Path(self.opts.stats_out)
-            tmp = p.with_name(p.name + ".tmp")
-            tmp.write_text(jsonio.dumps(data))
-            tmp.replace(p)
+            text = jsonio.dumps(data).encode()
+            write_kept(p, lambda f: f.write(text), self.say_no_space)

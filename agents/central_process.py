@@ -46,6 +46,7 @@ from truav.trainer import make_controller  # the in-process driver's controller 
 from truav.options import opt
 from world.env import LocalObs
 from truav import jsonio
+from truav.atomic import write_atomic_text
 
 log = logging.getLogger("truav.controller")
 
@@ -266,6 +267,4 @@ class ControllerNode:
         data["rejected"] = self.bus.rejections.as_dict()
         data["bus"] = {"filtered": self.bus.stats().filtered, "delayed": self.bus.stats().delayed}
         p = Path(self.opts.stats_out)
-        tmp = p.with_name(p.name + ".tmp")
-        tmp.write_text(jsonio.dumps(data, indent=1))
-        tmp.replace(p)
+        write_atomic_text(p, jsonio.dumps(data, indent=1))

@@ -204,3 +204,23 @@ class StateEncoder:
                              zeros if densest_sector is None else np.asarray(densest_sector, np.int64),
                              zeros if predicted_sector is None else np.asarray(predicted_sector, np.int64),
                              self.params)
+
+
+QTABLE_MAX_BYTES = 8 << 30
+"""What the Q-tables of one command (every seed's and UAV's) may take: a config whose tables would exceed it
+is refused in one line before anything is allocated, naming the keys that size them."""
+
+
+def check_qtable_memory(cfg: Config, tables: int, what: str) -> None:
+    """Refuse (ConfigError) a config whose ``tables`` Q-tables (``what``: e.g. "10 seeds x 5 UAVs") would
+    take more than QTABLE_MAX_BYTES: at grid_cells 50 with every sector factor at 16 a table is 800 GiB."""
+    from truav.config import ConfigError
+    from world.uavs import N_ACTIONS
+    n_states = StateEncoder(cfg).n_states
+    size = tables * n_states * N_ACTIONS * 8
+    if size > QTABLE_MAX_BYTES:
+        lc = cfg.learner
+        raise ConfigError(f"learner.grid_cells = {lc.grid_cells} with learner.neighbour_sectors, sense_sectors and "
+                          f"predict_sectors: {n_states:,} states x {N_ACTIONS} actions x {what}: the Q-tables would "
+                          f"take {size / 2**30:.1f} GiB, more than {QTABLE_MAX_BYTES / 2**30:.0f} GiB; use fewer "
+                          f"cells or sectors, or fewer seeds or UAVs")

@@ -43,14 +43,14 @@ def seed_list(args) -> list[int]:
 
 def format_table(rows: dict[str, dict[str, np.ndarray]]) -> str:
     """One line per scheme: mean ± 95% interval over seeds of the summary metrics."""
-    from truav.stats import mean_ci
+    from truav.stats import mean_ci, shown
     header = f"{'scheme':<10}" + "".join(f"{label:>22}" for _, label, _ in SUMMARY_METRICS)
     lines = [header, "-" * len(header)]
     for scheme, per_seed in rows.items():
         cells = []
         for name, _, scale in SUMMARY_METRICS:
             m, h = mean_ci(per_seed[name] * scale)
-            cells.append(f"{m:10.2f} ± {h:<9.2f}" if np.isfinite(h) else f"{m:10.2f}{'':12}")
+            cells.append(f"{m:10.2f} ± {h:<9.2f}" if np.isfinite(h) else f"{shown(m, '10.2f')}{'':12}")
         lines.append(f"{scheme:<10}" + "".join(f"{c:>22}" for c in cells))
     return "\n".join(lines)
 
@@ -130,6 +130,8 @@ def cmd_train(args) -> int:
     args.scheme = args.scheme or "truav"
     check_federated(cfg, args.scheme, learns=True)
     seeds = seed_list(args)
+    from agents.state import check_qtable_memory  # before anything is allocated or written
+    check_qtable_memory(cfg, len(seeds) * cfg.scenario.n_uavs, f"{len(seeds)} seed(s) x {cfg.scenario.n_uavs} UAV(s)")
     from truav.trainer import RESUMABLE, Checkpointing, split
     scheme = args.scheme
     episodes = cfg.learner.episodes

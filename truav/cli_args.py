@@ -17,11 +17,13 @@ import math
 import os
 import signal
 import sys
+from pathlib import Path
 from typing import Callable, NoReturn
 
 from truav.checks import (  # noqa: F401  (re-exported: the command lines take their checks from here)
     check_endpoint, check_in_file, check_out_dir, check_out_file, make_dir)
 from truav import options
+from truav.atomic import no_space
 from truav.lifecycle import signals_handled
 from truav.stopping import exit_code_for, forget_stop_signal, note_stop_signal, signal_name, stopped_by
 from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
@@ -74,6 +76,12 @@ def run_main(prog: str, body: Callable[[], int], say_interrupted: bool = True) -
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
             return EXIT_BROKEN_PIPE
+        except OSError as exc:  # a full disk: one line, exit 1 (not the user's mistake)
+            if not no_space(exc):
+                raise
+            where = Path(exc.filename).absolute().parent if exc.filename else "the disk it writes to"
+            print(f"{prog}: error: no space left on {where}", file=sys.stderr)
+            return 1
 
 
 # -- argparse types ------------------------------------------------------------------

@@ -32,6 +32,8 @@ def parse_sets(items: list[str]) -> dict[str, dict[str, Any]]:
             value = tomllib.loads(f"v = {raw}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw
+        except RecursionError:
+            raise UsageError(f"--set {dotted}: the value is nested too deeply") from None
         out.setdefault(section, {})[key] = value
     return out
 

@@ -255,8 +255,10 @@ class LearnerConfig:
     """gamma, weight of the energy penalty. Paper: 0.15."""
     w_overlap: float = param(0.20, -100.0, 100.0)
     """delta, weight of the overlap penalty. Paper: 0.20."""
-    grid_cells: int = param(10, 1, 1000)
-    """Cells per side of the state's spatial grid (10 -> 500 m cells)."""
+    grid_cells: int = param(10, 1, 50)
+    """Cells per side of the state's spatial grid (10 -> 500 m cells). At most 50 (100 m cells on the
+    paper's area, 44 MiB per Q-table with the other factors at their defaults): 1000 made every table
+    8.6 GiB. The tables' memory as a whole is checked too (agents.state.check_qtable_memory)."""
     density_edges: tuple[float, ...] = param((1.0, 5.0, 15.0))
     """Vehicles in range: level = number of edges <= count."""
     queue_edges: tuple[float, ...] = param((1.0, 10.0, 30.0))
@@ -581,6 +583,10 @@ def _check_consistency(cfg: Config) -> None:
         for i, j in sites:
             if not (0 <= i < n_roads and 0 <= j < n_roads):
                 raise ConfigError(f"{key}: ({i}, {j}) is outside the {n_roads}x{n_roads} grid")
+    if s.mobility == "builtin" and s.n_vehicles > grid_vehicle_capacity(cfg):
+        raise ConfigError(f"scenario.n_vehicles: {s.n_vehicles} vehicles do not fit on the road grid of "
+                          f"scenario.area_m {s.area_m:g} and roads.block_m {r.block_m:g} (at most "
+                          f"{grid_vehicle_capacity(cfg)}, one per {VEHICLE_SLOT_M:g} m of lane)")
     if cfg.idm.desired_speed_mps * s.step_s >= r.block_m:
         raise ConfigError("idm.desired_speed_mps: a vehicle must not cross a whole block in one step")
     if cfg.patrol.assignment not in PATROL_ASSIGNMENTS:
@@ -622,6 +628,16 @@ def n_grid_roads(cfg: Config) -> int:
     return int(math.floor(cfg.scenario.area_m / cfg.roads.block_m + 1e-9)) + 1
 
 
+VEHICLE_SLOT_M = 25.0
+"""The built-in mobility spawns each vehicle on its own slot of this much lane."""
+
+
+def grid_vehicle_capacity(cfg: Config) -> int:
+    """Vehicles the built-in road grid can spawn: one per slot of its 4 lanes per road."""
+    n_roads = n_grid_roads(cfg)
+    return 4 * n_roads * int((n_roads - 1) * cfg.roads.block_m // VEHICLE_SLOT_M)
+
+
 def read_toml(path: str | Path, what: str, error: type[Exception]) -> dict[str, Any]:
     """A TOML file as a dict; a missing or malformed file raises ``error`` with a one-line reason."""
     p = Path(path)
@@ -639,6 +655,8 @@ def read_toml(path: str | Path, what: str, error: type[Exception]) -> dict[str, 
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{what} {p}: not valid TOML ({exc})") from None
+    except RecursionError:  # tomllib recurses per level of nested arrays and inline tables
+        raise error(f"{what} {p}: nested too deeply to be a config (not valid here)") from None
 
 
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None,

@@ -26,6 +26,7 @@ import numpy as np
 from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
 from truav import jsonio
+from truav.atomic import write_atomic
 
 CHECKPOINT_EVERY_S = 60.0
 """Seconds between the checkpoints of a running `truav train` (its --checkpoint-every)."""
@@ -54,12 +55,7 @@ def fresh_dir(path: str | Path, force: bool = False) -> Path:
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, lambda f: f.write(data))
 
 
 def write_config(run: Path, cfg: Config) -> None:

@@ -134,3 +134,15 @@ def effect_text(e: Effect, digits: int = 2, noun: str = "pairs", size: float | N
     need = pairs_to_resolve(e.sd, target)
     more = f"; ~{need} {noun} would resolve a difference of {target:.{digits}f}" if need and target > 0 else ""
     return f"{f.format(e.diff)}: no effect detectable at this size (±{e.half:.{digits}f}, {e.n} {noun}){more}"
+
+
+NO_DATA = "no data"
+
+
+def shown(value: float, spec: str) -> str:
+    """``value`` formatted by ``spec``, or "no data" (right-aligned to the spec's width) for a metric that had
+    nothing to measure (a PDR without packets is NaN, which would print as ``nan``)."""
+    if value is not None and math.isfinite(value):
+        return format(value, spec)
+    width = "".join(ch for ch in spec.split(".")[0] if ch.isdigit())
+    return NO_DATA.rjust(int(width)) if width else NO_DATA

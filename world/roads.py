@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from truav.config import Config, n_grid_roads
+from truav.config import VEHICLE_SLOT_M, Config, n_grid_roads
 
 STRAIGHT, LEFT, RIGHT = 0, 1, 2
 # Unit steps of the four headings on the grid of intersections.
@@ -422,10 +422,10 @@ class RoadGrid:
     def spawn(self, rng: np.random.Generator, n: int) -> Vehicles:
         """N vehicles on distinct 25 m slots of random lanes, at rest, one env
         (arrays shaped (1, N)); clusters uniform over the major intersections."""
-        slot_m = 25.0
+        slot_m = VEHICLE_SLOT_M
         slots_per_lane = int(self.extent // slot_m)
         n_lanes = 4 * self.n_roads
-        if n > n_lanes * slots_per_lane:
+        if n > n_lanes * slots_per_lane:  # the config refuses it (truav.config.grid_vehicle_capacity)
             raise ValueError(f"{n} vehicles do not fit on the road grid")
         pick = rng.choice(n_lanes * slots_per_lane, size=n, replace=False)
         lane, slot = np.divmod(pick, slots_per_lane)

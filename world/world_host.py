@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 
+from truav.atomic import EXIT_NO_SPACE, no_space, no_space_line
 from truav.bus import keys
 from truav.bus.transport import Bus
 from truav.config import Config
@@ -37,14 +38,23 @@ def host_world(cfg: Config, opts: WorldOptions, conf, router_timeout_s: float | 
         stats.silent_at_end = sorted(node.silent())
         node.close_rejections()  # what is still pending goes out before the session closes
         stats.rejections_sent = node.notices.sent
+    full = None  # the disk under --stats-out was full: what the world said
     if opts.stats_out:
-        write_stats(opts.stats_out, stats)
+        try:
+            write_stats(opts.stats_out, stats)
+        except OSError as exc:
+            if not no_space(exc):
+                raise
+            full = no_space_line(opts.stats_out)
+            log.error("%s", full)
     log.info("world stopped after %d episode(s), %d tick(s) (%s)%s", len(stats.episodes), stats.ticks,
              reasons.first or ("finished its episodes" if len(stats.episodes) == opts.episodes
                                else "a shutdown request, see above"),
              f"; statistics in {opts.stats_out}" if opts.stats_out else "")
     if reasons.router_lost:
         return EXIT_ROUTER_LOST
+    if full is not None:
+        return EXIT_NO_SPACE
     share = missed_share({"ticks": stats.ticks, "episodes": stats.episodes,
                           "actions_received": stats.actions_received}, cfg.scenario.n_uavs)
     if share is not None and share > opts.max_missed_share:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.central import ControlCounters
+from truav.stats import shown
 from truav import seeding
 from truav.bus import guard, keys, schema, transport
 from truav.lograte import Every
@@ -54,6 +55,14 @@ MISS_LOG_PERIOD_S = 10.0
 the UAVs that missed since the last one (100 missing UAVs at 10 Hz do not flood the log)."""
 MISS_LOG_MAX_NAMED = 10
 """A missed-actions line names at most this many UAVs (the worst), and says how many more."""
+
+STALL_MIN_S = 1.0
+"""Real time: a tick starting this late (the world was paused, or the host stalled) is a stall, named in the
+statistics and the summary. Any start a whole period late resumes from the current time (the missed ticks
+are skipped, not published in a burst); shorter lateness is caught up."""
+REJOIN_S = 1.0
+"""An agent's token back within this long of vanishing was a connection that flapped (the world's own, after a
+stall, drops every token at once), not an agent that left: a restarted agent takes seconds to start."""
 
 CONTROL_SHUTDOWN = "shutdown"
 POSITIONS_EVERY_TICKS = 1
@@ -175,6 +184,7 @@ class WorldNode:
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
         self._tick = -1
+        self._left: dict[str, float] = {}  # token key -> when it vanished (a quick return is no loss)
         self._snapshot_too_large = False  # said once
         self._round = -1  # the latest tick published (its round may have closed: self._tick is then -1)
         self._answered = [-1] * self.n_uavs  # per UAV: the newest tick it answered
@@ -308,6 +318,10 @@ class WorldNode:
             self._alive.add(uav)
             self._silent.discard(uav)  # a (re)started agent is waited for again
             self.stats.joins.append(key)
+            left = self._left.pop(key, None)
+            if left is not None and self.clock() - left < REJOIN_S and key in self.stats.losses:
+                del self.stats.losses[len(self.stats.losses) - 1 - self.stats.losses[::-1].index(key)]  # its newest
+                self.stats.rejoins += 1
             self._cond.notify_all()
         log.info("agent joined: %s", key)
 
@@ -318,6 +332,7 @@ class WorldNode:
         with self._cond:
             self._alive.discard(uav)
             self.stats.losses.append(key)
+            self._left[key] = self.clock()
             self._cond.notify_all()
         log.warning("agent lost: %s", key)
 
@@ -371,8 +386,8 @@ class WorldNode:
             done = False
             while not done and not self._stop.is_set():
                 if not opts.lockstep:
-                    deadline = next_due + opts.deadline_frac * period
-                    next_due = self._await_tick(next_due, period)
+                    start, next_due = self._await_tick(next_due, period, tick)
+                    deadline = start + opts.deadline_frac * period
                 actions = self._tick_round(tick, episode, obs, False,
                                            None if opts.lockstep else deadline)
                 digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
@@ -385,7 +400,7 @@ class WorldNode:
             # waits for its own tick: sent at once, its 20 deliveries and learning steps would land
             # among the last tick's beacon slots.
             if not opts.lockstep:
-                next_due = self._await_tick(next_due, period)
+                _, next_due = self._await_tick(next_due, period, tick)
             self._tick_round(tick, episode, obs, True, None)
             tick += 1
             summary = {k: float(v[0]) for k, v in self.world.episode_summary().items()}
@@ -397,8 +412,8 @@ class WorldNode:
             self.bus.publish(keys.metrics_episode(opts.run), schema.Metrics(
                 scope=schema.SCOPE_EPISODE, tick=tick, episode=episode,
                 values={k: v for k, v in summary.items() if np.isfinite(v)}))
-            log.info("episode %d: coverage %.1f%% pdr %.3f delay %.0f ms", episode,
-                     summary["coverage_pct"], summary["pdr"], summary["delay_ms"])
+            log.info("episode %d: coverage %s%% pdr %s delay %s ms", episode, shown(summary["coverage_pct"], ".1f"),
+                     shown(summary["pdr"], ".3f"), shown(summary["delay_ms"], ".0f"))
         self.stats.ticks = tick
         self.stats.last_tick_wall_s = time.time()
         if not opts.lockstep:  # let the last tick run its period: agents are still learning from it
@@ -416,11 +431,22 @@ class WorldNode:
             return None, 0.0
         return self._plane.round(obs.pos)
 
-    def _await_tick(self, due: float, period: float) -> float:
-        """Real time: sleep until the tick due at ``due``, record how late it starts; the next one's due time."""
+    def _await_tick(self, due: float, period: float, tick: int) -> tuple[float, float]:
+        """Real time: sleep until the tick due at ``due``, record how late it starts; (when this tick starts,
+        the next one's due time). A start a whole period late or more resumes from now (see STALL_MIN_S)."""
         self._sleep_until(due)
-        self.stats.tick_lateness_ms.append((self.clock() - due) * 1e3)
-        return due + period
+        now = self.clock()
+        late = now - due
+        self.stats.tick_lateness_ms.append(late * 1e3)
+        if late < period:
+            return due, due + period
+        skipped = int(late // period)
+        self.stats.ticks_skipped += skipped
+        if late >= STALL_MIN_S:
+            self.stats.stalls.append({"tick": tick, "s": round(late, 3), "ticks_skipped": skipped})
+            log.warning("tick %d: the world's clock jumped %.1f s (it was paused, or the host stalled); resuming "
+                        "from now: %d tick(s) skipped, not sent in a burst", tick, late, skipped)
+        return now, now + period
 
     def _sleep_until(self, due: float) -> None:
         while not self._stop.is_set():

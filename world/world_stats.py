@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from truav import jsonio
+from truav.atomic import write_atomic_text
 
 
 @dataclass
@@ -57,6 +58,16 @@ class WorldStats:
     rejections_sent: int = 0
     """Rejection messages the world sent its agents (on uav/<i>/rejected; at most one per UAV per
     REJECTION_PERIOD_S, whatever the flood: truav.bus.rejection_notices)."""
+    stalls: list[dict] = field(default_factory=list)
+    """Real time: each time the world's clock jumped (it was paused, or the host stalled) at least
+    STALL_MIN_S past a tick's due time: {"tick", "s" (how late), "ticks_skipped"}. The world resumes from
+    the current time instead of publishing the missed ticks in a burst no agent could answer."""
+    ticks_skipped: int = 0
+    """Real time: tick periods that passed without a tick (every late start of a whole period or more,
+    stalls included): the run took this many periods longer; no simulated step was lost."""
+    rejoins: int = 0
+    """An agent's liveliness token that vanished and came back within REJOIN_S (the world's or its own
+    connection flapped, e.g. after a stall): not an agent that left, so not in ``losses``."""
     per_uav: list[dict] = field(default_factory=list)
     """Per UAV id 0..n_uavs-1: {"uav", "received", "applied", "late", "stale", "missed", "rejected": {reason: n}}
     (UavAccounts.per_uav); received = applied + late + stale, missed = acting ticks it hovered without an
@@ -155,6 +166,4 @@ def write_stats(path: str | Path, stats: WorldStats) -> None:
         data["tick_lateness_ms"] = {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
                                     "max": float(lat.max()), "n": int(lat.size)}
     p = Path(path)
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(jsonio.dumps(data, indent=1))
-    tmp.replace(p)
+    write_atomic_text(p, jsonio.dumps(data, indent=1))

@@ -79,6 +79,7 @@ def files(tmp_path_factory) -> dict[str, str]:
     (d / "earlier_run").mkdir()  # what a swarm run that ticked leaves
     (d / "earlier_run" / "world.json").write_text('{"ticks": 200}')
     (d / "earlier_run" / "agent0.npz").write_bytes(b"")
+    (d / "earlier_run" / "truav-run.json").write_text("{}")  # and its marker (truav.swarm.outdir)
     (d / "bad_run_dir" / "swarm.json").write_text('{"endpoint": "garbage"}')
     cfg = to_toml(Config())
     for name in ("run_empty", "run_trunc", "run_foreign", "run_shape"):

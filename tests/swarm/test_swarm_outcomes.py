@@ -72,6 +72,7 @@ def test_resume_refuses_a_run_of_another_scenario(tmp_path, capsys):
     out = tmp_path / "swarm"
     out.mkdir()
     (out / "scenario.toml").write_text("[scenario]\nn_uavs = 5\n")
+    (out / "truav-run.json").write_text("{}")
     rc = run_swarm(small_cfg(3), SwarmOptions(run="other", out=str(out), resume=True, quiet=True, plot=False))
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "another scenario" in err
@@ -279,6 +280,7 @@ def test_a_world_stopped_before_its_first_tick_does_not_make_a_run(tmp_path):
     out = tmp_path / "swarm"
     (out / "logs").mkdir(parents=True)
     (out / "logs" / "world.log").write_text("waiting for agents")
+    (out / "truav-run.json").write_text("{}")  # the marker every run writes first
     (out / "world.json").write_text(json.dumps({"ticks": 0, "episodes": []}))
     (out / "agent0.json").write_text("{}")
     prepare_swarm_dir(out, "x", resume=False, force=False)  # replaced, not refused

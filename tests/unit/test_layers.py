@@ -51,6 +51,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.errors",                    BASE),
     ("truav.stopping",                  BASE),
     ("truav.jsonio",                    BASE),
+    ("truav.atomic",                    BASE),
     ("truav.channel_catalog",           BASE),
     ("truav.actions",                   BASE),
     ("truav.checks",                    BASE),

@@ -16,6 +16,7 @@ import subprocess
 import time
 from pathlib import Path
 
+from truav.atomic import EXIT_NO_SPACE, write_kept
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.lifecycle import child_env
 from truav import jsonio
@@ -112,7 +113,8 @@ class Children:
         self.started_at[name] = time.monotonic()
         self.incarnations.append((name, proc, self.started_at[name]))
         if self.pid_file is not None:
-            self.pid_file.write_text(jsonio.dumps(self.pids()))
+            text = jsonio.dumps(self.pids()).encode()  # whole or not at all: `down` and tests read it
+            write_kept(self.pid_file, lambda f: f.write(text), lambda line: print(f"warning: {line}", flush=True))
         if self.on_start is not None:
             self.on_start(name, proc)
         return proc
@@ -226,6 +228,8 @@ def exit_text(code: int | None) -> str:
     if code is not None and code < 0:
         with contextlib.suppress(ValueError):
             return f"killed by {signal.Signals(-code).name}"
+    if code == EXIT_NO_SPACE:  # its own log line may not have fit on the full disk
+        return f"exit code {code}: no space left on its disk"
     return f"exit code {code}"
 
 

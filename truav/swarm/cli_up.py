@@ -86,6 +86,8 @@ def swarm_options(args):
         check_out_file("--record", args.record)
     check_scheme_flags(args)
     check_federated(cfg, args.scheme, learns=not getattr(args, "greedy", False))
+    from agents.state import check_qtable_memory  # each agent process holds its UAV's table
+    check_qtable_memory(cfg, cfg.scenario.n_uavs, f"{cfg.scenario.n_uavs} UAV(s)")
     fit = None
     if args.qtable is not None:
         fit = check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch)

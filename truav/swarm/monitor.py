@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agents.shared_beacons import batch_sender_verdict, split_batch
+from truav.stats import shown
 from truav.bus import keys, schema
 from truav.bus.inbox import Inbox
 from truav.bus.transport import Bus
@@ -147,7 +148,7 @@ class Monitor:
             energy = np.mean(self.energy[-10:]) if self.energy else float("nan")
         return [f"tick {tick:6d}  {rate:5.1f} ticks/s  agents alive {len(agents)}/{self.n_uavs}  "
                 f"missed actions {int(misses)}",
-                f"coverage {cov:5.1f}%  PDR so far {pdr:6.3f}  energy/UAV/step {energy:6.1f} J",
+                f"coverage {shown(cov, '5.1f')}%  PDR so far {shown(pdr, '6.3f')}  energy/UAV/step {shown(energy, '6.1f')} J",
                 "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
 
     def debug_line(self) -> str:

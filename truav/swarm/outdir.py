@@ -10,9 +10,14 @@ run into the same directory would silently continue the first (and mix a
 * ``--force``: delete the earlier run's files first (only files a swarm run
   writes: anything else in the directory is left alone).
 
-A run that failed before its first tick (logs, a summary, no checkpoint and
+Every run marks its directory with ``MARKER_FILE`` before it writes anything
+else. A directory without it holds no run (a user's own ``summary.json`` or
+``scenario.toml`` share a run's names by chance): the refusal says so.
+
+A run that failed before its first tick (its marker, logs, a summary, no checkpoint and
 no tick in the world's statistics) holds nothing to mix with: it is replaced without
---force, so the corrected command just runs.
+--force, so the corrected command just runs. Without the marker, nothing is
+replaced without --force.
 
 Within one run a crashed agent that is restarted still resumes from its own
 checkpoint: nothing is deleted after the start.
@@ -24,6 +29,7 @@ import json
 import os
 from pathlib import Path
 from truav import jsonio
+from truav.atomic import write_kept
 
 PID_FILE = "pids.json"
 SCENARIO_FILE = "scenario.toml"
@@ -32,12 +38,17 @@ RUN_FILE = "swarm.json"
 (`truav-swarm status/down --out DIR` read the endpoint from it)."""
 SUMMARY_FILE = "summary.json"
 LOG_DIR = "logs"
+MARKER_FILE = "truav-run.json"
+"""Written first by every run into its --out: the files in the directory matching its patterns are the run's."""
 
 RESULT_PATTERNS = ("agent*.json", "agent*.json.tmp", "world.json", "world.json.tmp", "summary.json", "summary.png",
                    PID_FILE, RUN_FILE)
 """Results of one run: removed at every start (with --resume too), so a summary never shows an earlier run's."""
 STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
 """What a resumed run continues from."""
+TEMP_PATTERNS = ("agent*.npz.tmp.npz", "agent*.*.tmp", "world.json.*.tmp", "summary.json.*.tmp", "pids.json.*.tmp",
+                 "swarm.json.*.tmp", ".swarm.json.tmp")
+"""Temporaries a process killed while writing leaves (named with its PID: see truav.atomic)."""
 CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json", "nemesis-plan.toml", "invariants.txt", "invariants.json")
 CHAOS_RUNS = ("baseline", "faulted")
 
@@ -55,7 +66,7 @@ def _remove(out: Path, patterns) -> None:
 
 def clear_swarm_files(out: Path) -> None:
     """Delete every file an earlier swarm run wrote into ``out`` (logs included)."""
-    _remove(out, RESULT_PATTERNS + STATE_PATTERNS + ("agent*.npz.tmp.npz",))
+    _remove(out, RESULT_PATTERNS + STATE_PATTERNS + TEMP_PATTERNS + (MARKER_FILE,))
     logs = out / LOG_DIR
     if logs.is_dir():
         _remove(logs, ("*.log",))
@@ -66,7 +77,11 @@ def clear_swarm_files(out: Path) -> None:
 def _never_ran(out: Path) -> bool:
     """True if ``out`` holds only what a run that failed before its first tick leaves: logs, a summary,
     statistics of processes stopped while waiting (the world's with 0 ticks), and no checkpoint."""
+    if not (out / MARKER_FILE).is_file():
+        return False
     for path in out.iterdir():
+        if path.name == MARKER_FILE:
+            continue
         if path.name == LOG_DIR and path.is_dir():
             if any(not (p.is_file() and p.suffix == ".log") for p in path.iterdir()):
                 return False
@@ -88,6 +103,12 @@ def check_swarm_dir(out: Path, *, resume: bool, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise OutDirError(f"--out {out} is a file, not a directory")
     if out.is_dir() and any(out.iterdir()):
+        legacy_resume = resume and any(out.glob("agent*.npz"))  # a run from before the marker: its checkpoints show it
+        if not (out / MARKER_FILE).is_file() and not force and not legacy_resume:
+            names = sorted(p.name for p in out.iterdir())
+            shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+            raise OutDirError(f"--out {out} holds files that are not a TRUAV swarm run's ({shown}); choose another "
+                              f"--out, or --force to let the run replace the files of its own names in it")
         if not (force or resume or _never_ran(out)):
             raise OutDirError(f"--out {out} holds an earlier run; pass --resume to continue it, --force to replace "
                               f"it, or choose another --out")
@@ -107,6 +128,9 @@ def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: boo
                 raise OutDirError(f"--resume: {out} holds a run with another scenario (agents, steps or --set "
                                   f"differ from {old}); use the same options, or --force to start afresh")
             _remove(out, RESULT_PATTERNS)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MARKER_FILE).write_text(jsonio.dumps({"writer": "truav-swarm up", "files": list(
+        RESULT_PATTERNS + STATE_PATTERNS + TEMP_PATTERNS + (f"{LOG_DIR}/*.log",))}, indent=1))
     (out / LOG_DIR).mkdir(parents=True, exist_ok=True)
     (out / SCENARIO_FILE).write_text(scenario_toml)
 
@@ -130,9 +154,8 @@ def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
 
 def write_run_file(out: Path, info: dict) -> None:
     """Atomically: `status`, `down` and tests read it while the run starts (a half-written file read as empty)."""
-    tmp = out / f".{RUN_FILE}.tmp"
-    tmp.write_text(jsonio.dumps(info, indent=1))
-    os.replace(tmp, out / RUN_FILE)
+    text = jsonio.dumps(info, indent=1).encode()
+    write_kept(out / RUN_FILE, lambda f: f.write(text), lambda line: print(f"warning: {line}", flush=True))
 
 
 def read_run_file(out: Path) -> dict | None:

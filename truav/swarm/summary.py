@@ -13,6 +13,8 @@ import numpy as np
 from recorder.record_modes import parts_index_path, snapshot_path
 from truav.bus import keys
 from truav.config import Config
+from truav.atomic import EXIT_NO_SPACE, write_kept
+from truav.stats import shown
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
@@ -70,6 +72,8 @@ class SwarmEnd:
                 o.fail(f"a shutdown came from an unknown sender {src!r}")
         world = _read_json(self.out / "world.json")
         done = len((world or {}).get("episodes") or [])
+        full = [name for name in [*self.fleet, "world"]  # exited EXIT_NO_SPACE: their last log line may be missing
+                if name in self.children.procs and self.children.procs[name].returncode == EXIT_NO_SPACE]
         if not o.ended_by:
             if foreign:
                 first = foreign[0]
@@ -78,6 +82,8 @@ class SwarmEnd:
                     o.interrupted_by = SHUTDOWN_SENDERS[first]
             elif done == opts.episodes:
                 o.ended_by = f"the world finished its {done} episode(s) (shutdown from 'world')"
+            elif "world" in full:
+                o.ended_by = "the world's end (shutdown from 'world'; its statistics did not fit on the disk)"
             else:
                 o.fail(f"the world stopped after {done} of {opts.episodes} episode(s)")
         if world and o.ticked:
@@ -88,6 +94,17 @@ class SwarmEnd:
                 if missed > opts.max_missed_share:
                     o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
                            f"{opts.max_missed_share:g})")
+        if full:
+            o.fail(f"no space left on {self.out.absolute()}: {', '.join(full)} could not write {'its' if len(full) == 1 else 'their'} "
+                   f"checkpoint or statistics (the last complete copies are kept; free space and --resume)")
+        stalls = stall_text(world)
+        if stalls and o.ticked:
+            planned = any(f.kind == "freeze" and f.params.get("target") == "world"
+                          for f in (self.plan.faults if self.plan else ()))
+            if planned:  # the plan froze it: expected, but still said
+                o.warnings.append(stalls)
+            else:
+                o.fail(stalls)
         killed_for_good = {process_of(f.params.get("target", f.params.get("uav")))
                            for f in (self.plan.faults if self.plan else ())
                            if f.kind == "crash" and "restart_after" not in f.params}
@@ -132,14 +149,15 @@ class SwarmEnd:
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
-        (out / SUMMARY_FILE).write_text(jsonio.dumps({
+        summary = jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1))
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1).encode()
+        write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             for entry in o.external:
@@ -167,11 +185,24 @@ class SwarmEnd:
             print(f"result: {o.result}", flush=True)
 
 
+def stall_text(world: dict | None) -> str | None:
+    """The world's stalls (world.world_process.STALL_MIN_S), in one line, or None."""
+    stalls = (world or {}).get("stalls") or []
+    if not stalls:
+        return None
+    named = ", ".join(f"{st['s']:.1f} s before tick {st['tick']} ({st['ticks_skipped']} tick(s) skipped)"
+                      for st in stalls[:3])
+    more = f" and {len(stalls) - 3} more" if len(stalls) > 3 else ""
+    return (f"the world stalled {len(stalls)} time(s) (paused, or the host stalled): {named}{more}; it resumed "
+            f"from the current time, the skipped ticks' actions were never asked for")
+
+
 def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
         cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
-        print(f"episode {e}: coverage {cov:5.1f}%  PDR {pdr:.3f}  delay {delay:6.1f} ms  energy/UAV {energy / 1e3:6.2f} kJ")
+        print(f"episode {e}: coverage {shown(cov, '5.1f')}%  PDR {shown(pdr, '.3f')}  delay {shown(delay, '6.1f')} ms  "
+              f"energy/UAV {shown(energy / 1e3, '6.2f')} kJ")
     if world:
         lat = world.get("tick_lateness_ms")
         if lat:
@@ -180,7 +211,11 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
         print(f"ticks {world['ticks']}, actions received {world['actions_received']}, "
               f"missed (hovered) {world['deadline_misses']}"
               + (f" (answers that came late {late}, out of order {stale})" if late or stale else "")
-              + f", agent losses seen {len(world['losses'])}")
+              + f", agent losses seen {len(world['losses'])}"
+              + (f" (reconnections of live agents not counted: {world['rejoins']})" if world.get("rejoins") else ""))
+        if world.get("ticks_skipped"):
+            print(f"tick periods skipped (the world resumed from the current time after starting late): "
+                  f"{world['ticks_skipped']}")
     line = per_uav_line((world or {}).get("per_uav") or [])
     if line:
         print(line)

@@ -61,6 +61,7 @@ from truav.swarm.external import instructions
 from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import Healer
 from truav.swarm.monitor import Monitor
+from truav.atomic import no_space
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, OutDirError, check_record_path, prepare_swarm_dir,
                                 write_run_file)
 from truav.swarm.summary import SwarmEnd, _print_central  # noqa: F401 - _print_central: tests
@@ -121,6 +122,9 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
         if opts.record:
             Path(opts.record).absolute().parent.mkdir(parents=True, exist_ok=True)
     except (OutDirError, ListenError, OSError) as exc:
+        if no_space(exc):  # not a mistake of the user's command: exit 1
+            print(f"truav-swarm: error: no space left on {out.absolute()}: {exc.filename or ''}", file=sys.stderr)
+            return 1
         print(f"truav-swarm: error: {exc}", file=sys.stderr)
         return 2
     interrupts = _Interrupts()

@@ -12,6 +12,7 @@ from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.lograte import Every
 from truav.swarm import external
+from truav.atomic import EXIT_NO_SPACE
 from truav.swarm.children import exit_text
 from truav.swarm.healing import RESTART_BACKOFF_MAX_S, RESTART_RECORD, ROUTER_BACKOFF_MAX_S, Restart
 from truav.swarm.swarm_options import (RECORDER_START_TIMEOUT_S, ROUTER_RECONNECT_WAIT_S, ROUTER_START_TIMEOUT_S,
@@ -209,7 +210,7 @@ class SwarmWatch:
                     return False
                 with monitor.lock:
                     shut_down = bool(monitor.shutdowns)
-                if p.returncode == 0 and shut_down:  # left on a shutdown request: not news
+                if p.returncode in (0, EXIT_NO_SPACE) and shut_down:  # left on a shutdown request (a full disk: judged at the end)
                     continue
                 if p.pid in self.planned_exits:
                     if opts.verbose or name == "controller":
