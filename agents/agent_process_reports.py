@@ -114,7 +114,8 @@ class AgentReports:
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed, "rejected": st.rejected},
                     "scheme": self.opts.scheme, **self.scheme_stats()}
-            if self.decision.links.table.size:  # channel-driven links: per peer, what the channel let through
+            links = getattr(self.decision, "links", None)  # TRUAV's decision; an agent API class has none yet
+            if links is not None and links.table.size:  # channel-driven links: per peer, what the channel let through
                 data["channel_links"] = {str(j): {"heard": c[0], "lost": c[1], "expected": round(c[2], 6),
                                                   "variance": round(c[3], 6)}
                                          for j, c in sorted(self.decision.link_counts.items())}

@@ -373,7 +373,7 @@ def _lockstep(path: Path, run: str = "r", config: str | None = None, **settings)
 
 
 @pytest.mark.parametrize("case, kwargs, named", [
-    ("grid-1000", {"config": to_toml(Config()).replace("grid_cells = 10", "grid_cells = 1000")}, "GiB"),
+    ("grid-1000", {"config": to_toml(Config()).replace("grid_cells = 10", "grid_cells = 1000")}, "grid_cells"),
     ("run-dotdot", {"run": "../../etc"}, "run name"),
     ("qtable-list", {"qtable": ["a", "b"]}, "qtable"),
     ("seed-string", {"seed": "abc"}, "seed"),
