@@ -16,6 +16,7 @@ from truav.config import Config
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
+from truav.swarm.restart_cost import restart_costs, restart_lines
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
@@ -126,6 +127,9 @@ class SwarmEnd:
         events = self.controller.events if self.controller is not None else []
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        with monitor.lock:
+            costs = restart_costs(self.deaths, self.children.incarnations, monitor.live_up, monitor.step_times,
+                                  monitor.missed_at, dict(zip(self.agents, self.groups)), monitor.t0)
         fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
         if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
             o.warnings.append(fit_line)
@@ -139,7 +143,8 @@ class SwarmEnd:
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1))
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
+            "restart_costs": costs}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
             for entry in o.external:
@@ -157,6 +162,8 @@ class SwarmEnd:
         for r in o.restarts:
             print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
                   f"{r['cause']}; restart {r['number']})")
+        for line in restart_lines(costs):
+            print(line)
         for note in o.warnings:
             print(f"warning: {note}")
         print(f"ended by: {o.ended_by}")
