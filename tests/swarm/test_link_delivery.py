@@ -39,3 +39,8 @@ def test_receiver_side_beacon_loss_is_counted_by_the_agents_and_shown_per_link(t
     assert heard[0] == 0 and 0.6 * stats["steps"] < np.mean(heard[1:]) < 0.8 * stats["steps"] + 2, heard
     report_dir, lines = report(rec, tmp_path / "rep")
     assert (report_dir / LINKS_FILE).is_file(), lines
+    # the run's numbers end with a scale: hover and patrol on the same scenario, seed and episode count
+    refs = json.loads((out / "summary.json").read_text())["references"]
+    assert refs["seed"] == 0 and refs["episodes"] == 1 and set(refs) >= {"hover", "patrol"}
+    assert "references on the same scenario, seed 0, 1 episode, without the faults" in \
+        (tmp_path / "links.log").read_text()

@@ -16,6 +16,7 @@ from truav.config import Config
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
+from truav.swarm.references import references_for, references_line
 from truav.swarm.restart_cost import restart_costs, restart_lines
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
@@ -130,6 +131,7 @@ class SwarmEnd:
         with monitor.lock:
             costs = restart_costs(self.deaths, self.children.incarnations, monitor.live_up, monitor.step_times,
                                   monitor.missed_at, dict(zip(self.agents, self.groups)), monitor.t0)
+        refs, no_refs = references_for(cfg, opts.scheme, opts.seed, world, opts.references) if o.ticked else (None, None)
         fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
         if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
             o.warnings.append(fit_line)
@@ -144,9 +146,10 @@ class SwarmEnd:
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
             "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
-            "restart_costs": costs}, indent=1))
+            "restart_costs": costs, "references": refs}, indent=1))
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            print(references_line(opts.scheme, world, refs, no_refs, bool(self.plan and self.plan.faults)))
             for entry in o.external:
                 print(external.summary_line(entry))
             if self.central:
