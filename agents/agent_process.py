@@ -221,6 +221,9 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
         self._gone: set[int] = set()  # peers whose liveliness token vanished
         self._latency_ms = SampleLog()  # a list of floats, kept in numpy chunks (1,000 agents hear 10^6 a tick)
         self._latency_from = SampleLog(width=2)  # (sender uav, tick) of each latency sample
+        self.heard_from = np.zeros(self.n_uavs, np.int64)
+        """Beacons this process heard from each peer (past its link filter), by sender id: the receiving end
+        of each link, which the recorder (hearing every beacon) cannot see (health reports, stats file)."""
         self._stop = threading.Event()
         self._health_thread = health_thread
         self._health_lock = threading.Lock()  # a shared health thread's publish vs the end of run()
@@ -473,6 +476,8 @@ class AgentNode(LockstepBeacons, RealtimeBeacons, AgentReports, FederatedShares)
                 b: schema.Beacon = r.msg
                 if b.uav == self.opts.uav:
                     continue
+                if b.uav < self.n_uavs:
+                    self.heard_from[b.uav] += 1
                 if self._stopped_ns is None or r.recv_ns <= self._stopped_ns:
                     self._latency_ms.append((r.recv_ns - b.t) / 1e6)
                     self._latency_from.append((b.uav, b.tick))

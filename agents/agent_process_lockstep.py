@@ -75,6 +75,9 @@ class LockstepBeacons:
             stopped = self._stopped_ns
             for c in parts:
                 keep = c.uav != me
+                counted = c.uav[keep & (c.uav < self.n_uavs)]
+                if len(counted):
+                    self.heard_from += np.bincount(counted, minlength=self.n_uavs)
                 timed = keep if stopped is None else keep & (c.recv_ns <= stopped)
                 if timed.any():
                     self._latency_ms.extend_array(c.latency_ms[timed])

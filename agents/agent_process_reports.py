@@ -39,7 +39,13 @@ class AgentReports:
         top = sorted(by_sender.items(), key=lambda kv: (-kv[1], kv[0]))[:schema.MAX_HEALTH_SENDERS]
         return schema.Health(uav=self.opts.uav, last_tick=self._last_tick, steps=self.steps,
                              stale_obs_skipped=self.stale_obs_skipped,
-                             rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top))
+                             rejected=dict(by_reason[:schema.MAX_HEALTH_REASONS]), senders=dict(top),
+                             heard=self.heard_counts())
+
+    def heard_counts(self) -> tuple[int, ...]:
+        """Beacons heard so far from each UAV, by sender id (the health report's ``heard``)."""
+        with self._lock:
+            return tuple(self.heard_from.tolist())
 
     def _take_rejections(self) -> None:
         drain = getattr(self, "drain_rejections", None)
@@ -110,6 +116,7 @@ class AgentReports:
                     "refused_by_world": dict(self.refused_by_world),
                     **({"lockstep": self.inexact.as_dict()} if self.opts.lockstep else {}),
                     "beacon_latency_ms": self.latency_stats(),
+                    "beacons_heard": list(self.heard_counts()),
                     "beacon_latency_samples_ms": samples, "beacon_latency_from": senders,
                     "bus": {"received": st.received, "filtered": st.filtered, "delayed": st.delayed,
                             "malformed": self.bus.dropped_malformed, "rejected": st.rejected},

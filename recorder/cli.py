@@ -353,7 +353,8 @@ def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
     rep = subparsers.add_parser(
         "report", help=help,
         description="Write map.png (roads, RSUs, vehicle density, UAV tracks, coverage), metrics.png (step "
-                    "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent) "
+                    "metrics over time, faults shaded), agents.png (beacon rate and one-way latency per agent), "
+                    "links.png (beacon delivery per link, sender x receiver, from the agents' own counts) "
                     "and metrics.csv from a recording.",
         epilog="Exit codes: 0 written; 1 a damaged recording (refused; see docs/reference/untrusted-recordings.md), no message, or "
                "writing failed; 2 a user mistake (missing or non-MCAP file, --out under a file).")

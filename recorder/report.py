@@ -9,10 +9,14 @@ Writes into ``--out`` (default ``<file stem>_report/`` next to the file):
                   none) and coverage discs at its last position;
 ``metrics.png``   every step metric over time, fault intervals shaded,
                   episode starts dotted;
-``agents.png``    beacon rate per agent over time (a heat map: silent agents
-                  show as gaps), one-way beacon latency per agent
+``agents.png``    beacon rate per agent over time as the recorder heard it (a
+                  heat map: agents that sent none show as gaps; the recorder
+                  hears every beacon, so receiver-side loss is in links.png), one-way beacon latency per agent
                   (receive time - sender timestamp: same-host clocks, so it is
                   the bus latency) and its median/p99 over time;
+``links.png``     beacon delivery per link (sender x receiver, share heard) from the
+                  agents' own counts in their health reports: receiver-side loss,
+                  partitions and restarts show here (recorder.report_links);
 ``metrics.csv``   one row per metrics message (step and episode scope).
 
 Only what is in the file is drawn; a figure with nothing to show is skipped
@@ -40,8 +44,10 @@ from recorder.report_data import (  # noqa: F401  (re-exported: the tests read a
     load_recording,
 )
 from recorder.report_figures import agents_figure, map_figure, metrics_figure
+from recorder.report_links import links_figure
 
 MAP_FILE, METRICS_FIG_FILE, AGENTS_FILE, METRICS_CSV_FILE = "map.png", "metrics.png", "agents.png", "metrics.csv"
+LINKS_FILE = "links.png"
 REPORT_DIR_SUFFIX = "_report"
 CSV_FIXED = ("time_s", "log_time_ns", "publish_time_ns", "src", "scope", "episode", "tick")
 
@@ -83,7 +89,8 @@ def report(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = No
     lines = [f"{path}: {rec.messages} messages over {rec.duration_s:.1f} s"
              + ("" if state.finished else " (unfinished file: read up to its last complete chunk)")]
     for fname, make, what in ((MAP_FILE, map_figure, "no positions"), (METRICS_FIG_FILE, metrics_figure, "no metrics"),
-                              (AGENTS_FILE, agents_figure, "no beacons")):
+                              (AGENTS_FILE, agents_figure, "no beacons"),
+                              (LINKS_FILE, links_figure, "no agent counted the beacons it heard")):
         done = make(rec, out_dir / fname)
         lines.append(f"  {out_dir / fname}  ({done})" if done else f"  {fname}: skipped, {what} in the recording")
     lines.append(f"  {out_dir / METRICS_CSV_FILE}  ({write_metrics_csv(rec, out_dir / METRICS_CSV_FILE)})")

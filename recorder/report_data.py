@@ -26,6 +26,8 @@ from recorder.reader import iter_messages
 NS = 1e9
 MAX_VEHICLE_POINTS = 4_000_000  # keep every k-th positions message beyond this (bounded memory)
 MAX_METRIC_NAMES = 200  # values kept per metrics message (the world publishes about a dozen)
+MAX_HEALTH_STREAMS = 10_000  # agent processes (uav, incarnation) whose beacon counts are kept
+MAX_HEARD = 1024  # senders per count list (the schema's MAX_UAVS)
 
 
 class ReportError(ValueError):
@@ -75,6 +77,11 @@ class Recording:
     positions_seen: int = 0
     metrics: list[dict[str, Any]] = field(default_factory=list)  # decoded metrics bodies + times
     faults: list[tuple[int, dict[str, Any]]] = field(default_factory=list)  # (log_ns, body)
+    batched_sent_ns: dict[int, list[int]] = field(default_factory=lambda: defaultdict(list))
+    """Send times of the beacons that came in batches (--batch-beacons), by sender."""
+    heard: dict[tuple[int, int], tuple[int, tuple[int, ...]]] = field(default_factory=dict)
+    """(receiver uav, incarnation) -> (send time, beacons heard by sender id) of that agent process's
+    latest health report: what each receiver heard (report_links)."""
     config: Optional[MapConfig] = None
 
     def t(self, ns: int) -> float:
@@ -172,8 +179,28 @@ def load_recording(path: Path) -> Recording:
             rec.metrics.append({**body, "values": _numbers(body["values"]), "_log_ns": log_ns, "_pub_ns": pub_ns})
         elif kind == "fault":
             rec.faults.append((log_ns, body))
+        elif kind == "health":
+            _add_heard(rec, body, key, pub_ns)
+        elif kind == "beacons" and isinstance(body.get("entries"), list):
+            for e in body["entries"][:MAX_HEARD]:
+                if isinstance(e, list) and e and type(e[0]) is int and 0 <= e[0] < MAX_HEARD:
+                    rec.batched_sent_ns[e[0]].append(pub_ns)
     rec.config = _map_config(path)
     return rec
+
+
+def _add_heard(rec: Recording, body: dict, key: str, pub_ns: int) -> None:
+    """Keep an agent process's latest beacon counts (a health report's ``heard``; older ones have none)."""
+    uav, inc, heard = _uav(body, key), body.get("inc", 0), body.get("heard")
+    if uav is None or type(inc) is not int or not isinstance(heard, list) or not heard or len(heard) > MAX_HEARD:
+        return
+    if not all(type(n) is int and n >= 0 for n in heard):
+        return
+    stream = (uav, inc)
+    if stream in rec.heard and rec.heard[stream][0] > pub_ns:
+        return
+    if stream in rec.heard or len(rec.heard) < MAX_HEALTH_STREAMS:
+        rec.heard[stream] = (pub_ns, tuple(heard))
 
 
 def _add_positions(rec: Recording, body: dict, log_ns: int, pub_ns: int) -> None:

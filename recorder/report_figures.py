@@ -332,8 +332,10 @@ def agents_figure(rec: Recording, path: Path) -> Optional[str]:
         ax_rate.axvspan(span.start_s, end, facecolor="none", edgecolor=FAULT_COLORS.get(span.fault, "white"),
                         hatch="//", lw=1.0)
     ax_rate.set_yticks(range(n), [f"UAV {u}" for u in agents], fontsize=8 if n < 25 else 6)
-    ax_rate.set_title(f"Beacon rate per agent ({width:.3g} s bins; dark = agent silent or beacons lost"
-                      + ("; hatched = fault" if spans else "") + ")", fontsize=10, loc="left")
+    ax_rate.set_title(f"Beacons sent per agent, as the recorder heard them ({width:.3g} s bins; dark = agent sent "
+                      "none: crashed, frozen or stopped" + ("; hatched = fault" if spans else "")
+                      + ")\nThe recorder hears every beacon: what each receiver lost is in links.png",
+                      fontsize=10, loc="left")
     t_all, l_all = np.concatenate(all_t), np.concatenate(lat_ms)
     idx = np.clip(np.digitize(t_all, edges) - 1, 0, len(edges) - 2)
     mids, p50, p99 = [], [], []
@@ -352,7 +354,8 @@ def agents_figure(rec: Recording, path: Path) -> Optional[str]:
     _latency_scale(ax_time, "y", l_all)
     ax_time.grid(alpha=0.3)
     ax_time.legend(fontsize=8, loc="upper left", ncol=4, frameon=False)
-    ax_time.set_title("One-way beacon latency, all agents (receive time - sender timestamp)", fontsize=10, loc="left")
+    ax_time.set_title("One-way beacon latency at the recorder, all agents (receive time - sender timestamp)",
+                      fontsize=10, loc="left")
     ax_rate.set_xlim(edges[0], edges[-1])
     ax_box.boxplot(lat_ms, positions=range(n), showfliers=False, whis=(1, 99), widths=0.6,
                    medianprops={"color": "C0"})

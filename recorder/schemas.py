@@ -131,7 +131,9 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
     "health": {"uav": _INT, "last_tick": {**_INT, "description": "last tick answered, -1 none yet"}, "steps": _INT,
                "stale_obs_skipped": _INT,
                "rejected": {"type": "object", "additionalProperties": _INT, "description": "refused messages by reason"},
-               "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"}},
+               "senders": {"type": "object", "additionalProperties": _INT, "description": "the most refused senders"},
+               "heard": {"type": "array", "items": _INT, "description": "beacons heard so far from each UAV "
+                         "(index: sender id), after link faults; absent in older recordings"}},
     "qshare": {"uav": _INT, "tick": _INT,
                "episode": {**_INT, "description": "the episode the share was made after (its round)"},
                "part": {**_INT, "description": "this part's index, also the key's last chunk"},

@@ -87,6 +87,10 @@ def _reference_from_map(obj: dict[Any, Any], size: int) -> Message:
         raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
     if size > _SIZE_LIMIT[kind]:
         raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
+    added = {f: getattr(MESSAGE_CLASSES[kind], "__dataclass_fields__")[f].default
+             for f in MESSAGE_CLASSES[kind].ADDED if f not in obj}
+    if added and {**obj, **added}.keys() in (_WIRE_KEYS[kind], _LEGACY_WIRE_KEYS[kind]):  # before fields added since
+        obj = {**obj, **added}
     if obj.keys() != _WIRE_KEYS[kind]:
         if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
             obj = {**obj, "inc": 0}

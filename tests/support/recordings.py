@@ -35,11 +35,18 @@ def msg(seq: Seq, kind: str, src: str, t: int, **body: object) -> bytes:
 
 
 def make_swarm_recording(path: Path, *, config: bool = True, beacons: bool = True, crash_uav: int = 2,
-                         finish: bool = True) -> dict[str, int]:
+                         finish: bool = True, heard_loss: float | None = None) -> dict[str, int]:
     """A 4-UAV run: UAVs circle, vehicles on two roads, a loss fault (start/end) and a crash
-    (start only) during which UAV ``crash_uav`` stops beaconing.  Returns counts."""
+    (start only) during which UAV ``crash_uav`` stops beaconing.  Returns counts.
+
+    With ``heard_loss``, each agent also sends a health report every 10 ticks with the beacons it heard
+    per sender, each of its peers' beacons lost at the receiver with that probability (seeded draws)."""
+    import random
+
     seq = Seq()
     counts = {"metrics": 0, "beacons": 0}
+    draw = random.Random(45)
+    heard = [[0] * N_UAVS for _ in range(N_UAVS)]  # [receiver][sender]
     log = McapLog(path)
     if config:
         log.set_metadata(CONFIG_METADATA, config_metadata(to_toml(Config())))
@@ -62,6 +69,18 @@ def make_swarm_recording(path: Path, *, config: bool = True, beacons: bool = Tru
                 sent = t + 5 * MS
                 log.write(f"truav/{RUN}/uav/{u}/beacon", msg(seq, "beacon", f"uav/{u}", sent, uav=u, tick=et,
                                                              pos=xy, vel=[1.0, 0.0]), sent + (1 + u) * MS)
+                for r in range(N_UAVS):
+                    if heard_loss is not None and r != u and draw.random() >= heard_loss:
+                        heard[r][u] += 1
+        if heard_loss is not None and tick % 10 == 0:
+            for r in range(N_UAVS):
+                if crash_uav == r and tick >= 90:
+                    continue
+                sent = t + 50 * MS
+                log.write(f"truav/{RUN}/uav/{r}/health", msg(seq, "health", f"uav/{r}", sent, inc=7, uav=r,
+                                                             last_tick=et, steps=tick, stale_obs_skipped=0,
+                                                             rejected={}, senders={}, heard=list(heard[r])),
+                          sent + MS)
         if tick % 10 == 0:
             vehicles = [[250.0 * (k % 21), 1000.0] for k in range(21)] + [[2500.0, 100.0 * k] for k in range(50)]
             log.write(f"truav/{RUN}/world/positions", msg(seq, "positions", "world", t, tick=et, uavs=pos,

@@ -72,7 +72,7 @@ def test_report_without_config_or_beacons_and_unfinished(tmp_path: Path) -> None
 def test_empty_recording_still_reports(tmp_path: Path) -> None:
     McapLog(tmp_path / "empty.mcap").close()
     out, lines = report(tmp_path / "empty.mcap")
-    assert sum("skipped" in line for line in lines) == 3
+    assert sum("skipped" in line for line in lines) == 4  # map, metrics, agents, links
     assert (out / METRICS_CSV_FILE).read_text().startswith("time_s,log_time_ns")
 
 

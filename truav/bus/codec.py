@@ -14,8 +14,8 @@ import msgpack
 import numpy as np
 
 from truav.bus.field_checks import Check, _src, _uint63
-from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _SIZE_LIMIT, _UNPACK_LIMITS,
-                                _WIRE_KEYS, MESSAGE_CLASSES, M, Message)
+from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _OPTIONAL_FIELDS, _SIZE_LIMIT,
+                                _UNPACK_LIMITS, _WIRE_KEYS, MESSAGE_CLASSES, M, Message)
 from truav.bus.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
                                     R_MISSING_FIELD, R_NOT_BYTES, R_NOT_MAP, R_NOT_MSGPACK, R_TOO_LARGE, R_UNKNOWN_KIND,
                                     R_UNSTAMPED, R_VERSION, SCHEMA_VERSION, SchemaError)
@@ -156,6 +156,13 @@ def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
     """A wire map of ``kind`` whose keys are not the kind's: an older sender's (without ``inc``, taken as
     0), else SchemaError (a missing field first, else the extra ones). (The checks on the keys of
     ``decode`` as it was: ``obj.keys() != _WIRE_KEYS[kind]`` led here.)"""
+    added = {k: v for k, v in _OPTIONAL_FIELDS[kind].items() if k not in obj}
+    if added:  # an older sender, before fields added since: their defaults
+        filled = {**obj, **added}
+        if filled.keys() == _WIRE_KEYS[kind]:
+            return filled
+        if filled.keys() == _LEGACY_WIRE_KEYS[kind]:
+            return {**filled, "inc": 0}
     if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
         return {**obj, "inc": 0}
     expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])

@@ -244,6 +244,21 @@ def _count_map(max_entries: int, key_check: Check) -> Check:
     return check
 
 
+def _counts(max_n: int) -> Check:
+    """A list of at most ``max_n`` counts (ints in [0, 2^63-1]), as a tuple; numpy integer arrays accepted."""
+
+    def check(name: str, v: Any) -> tuple[int, ...]:
+        if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "iu":
+            v = v.tolist()
+        if not isinstance(v, (list, tuple)):
+            raise SchemaError(R_BAD_TYPE, f"{name} must be a list of counts")
+        if len(v) > max_n:
+            raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(v)} values, cap is {max_n}")
+        return tuple(_uint63(f"{name}[{k}]", x) for k, x in enumerate(v))
+
+    return check
+
+
 def _param_value(name: str, v: Any) -> float | int | str:
     if isinstance(v, str):
         return _param_text(name, v)

@@ -12,7 +12,7 @@ from typing import Any, ClassVar, TypeVar, Union
 import numpy as _np
 
 from truav.bus import keys
-from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _finite, _floats, _int, _ints,
+from truav.bus.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _counts, _finite, _floats, _int, _ints,
                                     _json_like, _n_uavs, _name, _nonneg, _pad, _param_value, _points, _positive,
                                     _printable_src, _sector, _src, _str_map, _text, _uav_id, _uint63, _uint64, _vec2)
 from truav.bus.keys import MAX_UAVS
@@ -37,6 +37,9 @@ class Envelope:
     """The key it is published on, after ``truav/<run>/``: its first chunks, named in :mod:`truav.bus.keys`
     (a ``uav`` key: ``uav``, then the UAV id, then its last chunk; see :mod:`truav.bus.placement`)."""
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({})
+    ADDED: ClassVar[tuple[str, ...]] = ()
+    """Body fields added since the kind first went on the wire: a payload without them (an older sender's)
+    decodes with their defaults."""
     _PLAN: ClassVar[tuple[tuple[str, str, Check], ...]] = ()
     """(field, "kind.field", check) for every field, envelope first; set by _build_registry."""
 
@@ -277,6 +280,7 @@ class Health(Envelope):
 
     KIND: ClassVar[str] = KIND_HEALTH
     PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.HEALTH)
+    ADDED: ClassVar[tuple[str, ...]] = ("heard",)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
         {
             "uav": _uav_id,
@@ -285,6 +289,7 @@ class Health(Envelope):
             "stale_obs_skipped": _uint63,
             "rejected": _count_map(MAX_HEALTH_REASONS, _name),
             "senders": _count_map(MAX_HEALTH_SENDERS, _printable_src),
+            "heard": _counts(MAX_UAVS),
         }
     )
     uav: int
@@ -295,6 +300,10 @@ class Health(Envelope):
     stale_obs_skipped: int
     rejected: dict[str, int]
     senders: dict[str, int]
+    heard: tuple[int, ...] = ()
+    """Beacons it heard so far (this process) from each UAV, indexed by sender id (one entry per UAV of
+    the swarm; its own is 0): what its link filter let through, so a report sees receiver-side loss.
+    Optional on the wire: a report from before it decodes with ``()``."""
 
 
 REJECTION_PERIOD_S = 0.1
@@ -543,6 +552,11 @@ _WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
 _LEGACY_WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
     {kind: keys_ - {"inc"} for kind, keys_ in _WIRE_KEYS.items()})
 """Payloads from before incarnations (older recordings): decoded with ``inc`` 0."""
+_OPTIONAL_FIELDS: Mapping[str, Mapping[str, Any]] = MappingProxyType(
+    {kind: MappingProxyType({f.name: f.default for f in fields(cls) if f.name in cls.ADDED})
+     for kind, cls in MESSAGE_CLASSES.items()})
+"""Each kind's ``ADDED`` fields with their value when an older sender's payload lacks them (a health report
+from before ``heard``): such a payload still decodes, so older recordings stay readable."""
 _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
     {
         kind: MAX_PAYLOAD_BYTES
@@ -574,7 +588,8 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_POSITIONS: {**_SMALL_LIMITS, "max_array_len": MAX_VEHICLE_POSITIONS},
     KIND_STATE: {**_SMALL_LIMITS, "max_map_len": 20, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
     KIND_COMMAND: {**_SMALL_LIMITS, "max_bin_len": MAX_SMALL_PAYLOAD_BYTES},
-    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 18), "max_array_len": 0},
+    KIND_HEALTH: {**_SMALL_LIMITS, "max_map_len": max(MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, 18),
+                  "max_array_len": MAX_UAVS},
     KIND_CONTROL: {**_SMALL_LIMITS, "max_map_len": MAX_ARGS_NODES, "max_array_len": MAX_ARGS_NODES,
                    "max_str_len": MAX_ARGS_STR_LEN},
     KIND_BEACONS: {**_SMALL_LIMITS, "max_array_len": MAX_BATCH_ENTRIES},

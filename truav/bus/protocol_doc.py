@@ -176,6 +176,8 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "stale_obs_skipped": ("", "real time: observations skipped because a newer one was waiting"),
         "rejected": ("", "messages it refused so far, by reason (the table of reasons)"),
         "senders": ("", "messages it refused so far, by sender: only the most refused"),
+        "heard": ("beacons", "beacons this process heard so far from each UAV (index: sender id; its own 0), "
+                             "after the fault plan's link faults; optional (an older report: empty)"),
     },
     "rejection": {
         "uav": ("", "the UAV of the key the refused messages came on (`uav/<i>/...`), never read from their "
@@ -321,6 +323,8 @@ def describe(check: Any) -> tuple[str, str]:
             f"data exactly 8 bytes per element")
     if name == "_ints.<locals>.check":
         return "array of int", f"at most {v['max_n']} values, each in [{_big(v['lo'])}, {_big(v['hi'])}]"
+    if name == "_counts.<locals>.check":
+        return "array of int", f"at most {v['max_n']} values, each in [0, 2^63-1]"
     if name == "_floats.<locals>.check":
         return "array of float64 (ints accepted)", f"at most {v['max_n']} values, each finite"
     if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)

@@ -88,7 +88,7 @@ def run_point(cfg: Config, out: Path, seed: int, qtable: str, rate_hz: float, ep
         plan.write_text(plan_text(kind, level))
         print(f"[{n + 1}/{total}] beacon {kind} {level:g}", flush=True)
         rc = run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=episodes, rate_hz=rate_hz,
-                                         qtable=qtable, greedy=True, out=str(out / name), plot=False,
+                                         qtable=qtable, greedy=True, out=str(out / name), plot=False, references=False,
                                          quiet=True, fault_plan=str(plan), force=True,  # unfinished: afresh
                                          # Real time on a busy host misses actions: that is reported
                                          # (missed_actions, a warning), not a reason to lose the sweep.

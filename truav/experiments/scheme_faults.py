@@ -145,7 +145,7 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
                               learner={"epsilon_start": cfg.learner.epsilon_end})
         rc = run_swarm(cfg, SwarmOptions(
             run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
-            plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True,
+            plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True, references=False,
             scheme="truav" if learning else scheme,
             qtable=policies["truav"] if scheme == "truav" or learning else None, greedy=scheme == "truav",
             policy=policies["central"] if scheme == "central" else None,

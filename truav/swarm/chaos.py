@@ -178,6 +178,7 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str, plan: FaultPlan |
         print(f"== {name} run ==", flush=True)
         sub = out / name
         run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=path, plan=parsed if path else None, plot=False,
+                                       references=False,  # chaos compares the run with its own clean one
                                        record=str(out / f"{name}.mcap") if opts.record else None,
                                        resume=opts.resume and sub.is_dir() and any(sub.iterdir()))
         rc = run_swarm(cfg, run_opts)
@@ -247,6 +248,7 @@ def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float
         print(f"nemesis: --router-timeout {opts.router_timeout_s:g} raised to {timeout:g} s for its router kills "
               f"(a loaded host took 7 s to start a router, and clients reconnect with a backoff)", flush=True)
     run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=str(plan_path), plan=plan, plot=False, record=record,
+                                   references=False,
                                    resume=False, router_timeout_s=timeout)
     rc = run_swarm(cfg, run_opts)
     held = _check(out, sub, rc, plan, opts, record)

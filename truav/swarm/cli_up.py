@@ -145,7 +145,8 @@ def swarm_options(args):
                         share_beacons=args.share_beacons, batch_beacons=args.batch_beacons,
                         snapshot_every=args.snapshot_every,
                         restart=args.restart, restart_limit=args.restart_limit, external=external,
-                        external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait)
+                        external_wait_s=DEFAULT_EXTERNAL_WAIT_S if external_wait is None else external_wait,
+                        references=not getattr(args, "no_references", False))
     if cfg.scenario.mobility == "sumo":  # every flag checked: the trace the world replays, built once and cached
         try:  # a mistake in --out is told before the trace is built (minutes the first time), not after
             check_swarm_dir(opts.out_dir, resume=opts.resume, force=opts.force)
@@ -299,6 +300,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                     help=f"restarts of one process before it is left down and the run fails (default "
                          f"{DEFAULT_RESTART_LIMIT})")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
+    up.add_argument("--no-references", action="store_true",
+                    help="skip the references at the end (hover and patrol flown in process on the same scenario, "
+                         "seed and episodes, beside the run's coverage and PDR; about a second)")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                     help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")

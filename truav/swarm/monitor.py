@@ -17,6 +17,8 @@ from truav.bus.inbox import Inbox
 from truav.bus.transport import Bus
 
 CONTROL_SHUTDOWN = "shutdown"
+MAX_KEPT = 100_000
+"""Liveliness arrivals per identity and missed steps per UAV kept for the restarts' account (bounded)."""
 
 
 @dataclass
@@ -48,6 +50,10 @@ class Monitor:
     control_bytes: dict = field(default_factory=lambda: defaultdict(int))  # kind -> payload bytes
     control_span: list = field(default_factory=list)  # [first, last] receive time (s) of any of them
     command_ticks: set = field(default_factory=set)  # ticks commands were heard for (every controller incarnation)
+    live_up: dict = field(default_factory=lambda: defaultdict(list))  # identity -> monotonic times its token came
+    step_times: list = field(default_factory=list)  # monotonic arrival of each step's metrics
+    missed_at: dict = field(default_factory=lambda: defaultdict(list))  # uav -> (step arrival, ticks it missed)
+    missed_total: dict = field(default_factory=dict)  # uav -> the world's last uav.<i>.missed total
 
     def attach(self, bus: Bus, run: str, central: bool = False, tracks_from_world: bool = False) -> None:
         """central: also measure the state uploads and commands; tracks_from_world: UAV tracks from the
@@ -76,17 +82,37 @@ class Monitor:
 
     def _live(self, key: str, up: bool) -> None:
         with self.lock:
-            (self.alive.add if up else self.alive.discard)(key.split("/alive/", 1)[-1])
+            who = key.split("/alive/", 1)[-1]
+            (self.alive.add if up else self.alive.discard)(who)
+            if up and len(self.live_up[who]) < MAX_KEPT:  # a restart's "starting" phase ends here (restart_cost)
+                self.live_up[who].append(time.monotonic())
 
     def _on_step(self, key, msg: schema.Metrics, raw, recv_ns) -> None:
         v = msg.values
+        now = time.monotonic()
         with self.lock:
-            self.ticks.append((time.monotonic(), msg.tick))
+            self.ticks.append((now, msg.tick))
+            self.step_times.append(now)
+            self._note_missed(v, now)
             self.coverage.append((msg.tick, v.get("coverage_pct", 0.0)))
             self.hovering.append((msg.tick, v.get("hovering_uavs", 0.0)))
             self.generated += v.get("generated", 0.0)
             self.delivered += v.get("delivered", 0.0)
             self.energy.append(v.get("energy_j", 0.0))
+
+    def _note_missed(self, values: dict, now: float) -> None:
+        """The ticks each UAV missed at this step (its total went up), for the restarts' account."""
+        for name, total in values.items():
+            if not (name.startswith("uav.") and name.endswith(".missed")):
+                continue
+            uav = name[4:-7]
+            if not uav.isdigit():
+                continue
+            uav, total = int(uav), int(total)
+            new = total - self.missed_total.get(uav, 0)
+            self.missed_total[uav] = total
+            if new > 0 and len(self.missed_at[uav]) < MAX_KEPT:
+                self.missed_at[uav].append((now, new))
 
     def _on_tick(self, key, msg: schema.Tick, raw, recv_ns) -> None:
         with self.lock:

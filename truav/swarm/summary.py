@@ -18,6 +18,8 @@ from truav.stats import shown
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
+from truav.swarm.references import references_for, references_line
+from truav.swarm.restart_cost import restart_costs, restart_lines
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
@@ -143,6 +145,10 @@ class SwarmEnd:
         events = self.controller.events if self.controller is not None else []
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
+        with monitor.lock:
+            costs = restart_costs(self.deaths, self.children.incarnations, monitor.live_up, monitor.step_times,
+                                  monitor.missed_at, dict(zip(self.agents, self.groups)), monitor.t0)
+        refs, no_refs = references_for(cfg, opts.scheme, opts.seed, world, opts.references) if o.ticked else (None, None)
         fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
         if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
             o.warnings.append(fit_line)
@@ -156,10 +162,12 @@ class SwarmEnd:
             "fault_events": events, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
-            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit}, indent=1).encode()
+            "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
+            "restart_costs": costs, "references": refs}, indent=1).encode()
         write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            print(references_line(opts.scheme, world, refs, no_refs, bool(self.plan and self.plan.faults)))
             for entry in o.external:
                 print(external.summary_line(entry))
             if self.central:
@@ -175,6 +183,8 @@ class SwarmEnd:
         for r in o.restarts:
             print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
                   f"{r['cause']}; restart {r['number']})")
+        for line in restart_lines(costs):
+            print(line)
         for note in o.warnings:
             print(f"warning: {note}")
         print(f"ended by: {o.ended_by}")

@@ -154,6 +154,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         self.controller: FaultController | None = None
         self.planned_exits: set[int] = set()  # PIDs the fault plan killed
         self.healer = Healer(opts.restart, opts.restart_limit)
+        self.deaths: list[tuple[str, float]] = []  # (process, monotonic) of each kill or death seen (restart_cost)
         self.bus: Bus | None = None  # the supervisor's session, once open (restarts are published on it)
         self.router_down_ns: int | None = None  # wall clock of the router's death, until it is back
         self.router_outages: list[tuple[int, int]] = []  # (died, listening again), wall-clock ns

@@ -121,6 +121,8 @@ class SwarmOptions:
     external: tuple[int, ...] = ()
     """UAVs flown by the user's own agent, not started here (truav.swarm.external)."""
     external_wait_s: float = DEFAULT_EXTERNAL_WAIT_S
+    references: bool = True
+    """At the end, hover and patrol flown in process on the same scenario, seed and episodes (truav.swarm.references)."""
     """How long to wait for the external UAVs' liveliness tokens before tick 0; past it the run fails."""
 
     @property

@@ -15,6 +15,7 @@ from truav.swarm import external
 from truav.atomic import EXIT_NO_SPACE
 from truav.swarm.children import exit_text
 from truav.swarm.healing import RESTART_BACKOFF_MAX_S, RESTART_RECORD, ROUTER_BACKOFF_MAX_S, Restart
+from truav.swarm.restart_cost import MAX_DEATHS
 from truav.swarm.swarm_options import (RECORDER_START_TIMEOUT_S, ROUTER_RECONNECT_WAIT_S, ROUTER_START_TIMEOUT_S,
                                        RSS_PERIOD_S, STATUS_PERIOD_S, process_of)
 
@@ -27,6 +28,8 @@ class SwarmWatch:
         p = self.children.procs.get(name)
         if p is not None:
             self.planned_exits.add(p.pid)
+        if len(self.deaths) < MAX_DEATHS:
+            self.deaths.append((name, time.monotonic()))
         if name == "router":
             self.router_down_ns = time.time_ns()
         self.children.send(name, signal.SIGKILL)
@@ -52,6 +55,8 @@ class SwarmWatch:
     def _died(self, name: str, p) -> bool:
         """A process died on its own mid-run: say how, restart it if the policy allows; False if it stays down."""
         cause = exit_text(p.returncode)
+        if len(self.deaths) < MAX_DEATHS:
+            self.deaths.append((name, time.monotonic()))
         if name == "router":
             self.router_down_ns = time.time_ns()
         r = self.healer.died(name, p.pid, cause, self._since(), time.monotonic(),

@@ -1,0 +1,37 @@
+"""Issue 45: `truav-swarm up` ends with a scale for its numbers: hover and patrol flown in process on the
+same scenario, seed and episode count (truav.swarm.references)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from truav.config import Config
+from truav.swarm.references import references_for, references_line
+from truav.trainer import run_chunk
+
+CFG = Config().replace(scenario={"n_vehicles": 40, "steps_per_episode": 40}, roads={"warmup_steps": 5})
+WORLD = {"episodes": [{"coverage_pct": 9.8, "pdr": 0.116}, {"coverage_pct": 10.2, "pdr": 0.124}]}
+
+
+def test_references_are_the_in_process_runs_of_the_same_seed_and_episodes() -> None:
+    refs, why = references_for(CFG, "truav", 3, WORLD, True)
+    assert why is None and refs["seed"] == 3 and refs["episodes"] == 2
+    for kind in ("hover", "patrol"):
+        m = run_chunk(kind, CFG, [3], 2, train=False).metrics
+        assert refs[kind]["coverage_pct"] == float(np.nanmean(m["coverage_pct"]))
+        assert refs[kind]["pdr"] == float(np.nanmean(m["pdr"]))
+    line = references_line("truav", WORLD, refs, None, faults=True)
+    assert line.startswith("coverage 10.0%, PDR 0.120 (truav)\n  references on the same scenario, seed 3, 2 episodes, "
+                           "without the faults")
+    assert f"hover {refs['hover']['coverage_pct']:.1f}%, PDR {refs['hover']['pdr']:.3f}; patrol" in line
+    assert "oracle ceiling: docs/results/reproduction.md" in line
+
+
+def test_no_references_when_asked_or_when_the_run_flew_one_or_finished_no_episode() -> None:
+    assert references_for(CFG, "truav", 0, WORLD, False) == (None, "--no-references")
+    assert references_for(CFG, "patrol", 0, WORLD, True) == (None, "the run flew patrol, itself a reference")
+    assert references_for(CFG, "truav", 0, {"episodes": []}, True) == (None, "no episode finished")
+    assert references_line("truav", WORLD, None, "--no-references", False) == \
+        "coverage 10.0%, PDR 0.120 (references not computed: --no-references)"
+    assert references_line("truav", {"episodes": []}, None, "no episode finished", False) == \
+        "references: none (no episode finished)"

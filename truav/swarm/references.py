@@ -1,0 +1,74 @@
+"""A scale for a run's numbers: the same scenario, seed and episode count flown in process by the
+reference policies (hover: the UAVs stay where they start; patrol: the hand-written baseline,
+agents.patrol, its fused kernel), printed beside the run's coverage and PDR.
+
+They take well under a second at the demo's size (the compiled kernels are loaded already), so
+`truav-swarm up` computes them at its end unless --no-references. They fly without the run's
+faults and without its bus: a scale for the result, not a replay of it. The oracle ceiling (what no
+planner can beat) is too slow to run here; docs/results/reproduction.md ("The ceiling of each
+scenario") gives it per preset.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from truav import jsonio
+from truav.config import Config
+
+REFERENCE_SCHEMES = ("hover", "patrol")
+CEILING_DOC = "docs/results/reproduction.md, \"The ceiling of each scenario\""
+
+
+def reference_metrics(cfg: Config, seed: int, episodes: int) -> dict:
+    """Mean coverage (%) and PDR over ``episodes`` episodes of seed ``seed``, per reference scheme, and the
+    seconds it took."""
+    from truav.trainer import run_chunk
+
+    started = time.monotonic()
+    out: dict = {"seed": seed, "episodes": episodes}
+    for kind in REFERENCE_SCHEMES:
+        metrics = run_chunk(kind, cfg, [seed], episodes, train=False).metrics
+        out[kind] = {name: float(np.nanmean(metrics[name])) for name in ("coverage_pct", "pdr")}
+    out["elapsed_s"] = round(time.monotonic() - started, 2)
+    return out
+
+
+def run_metrics(world: dict | None) -> dict | None:
+    """The run's own mean coverage and PDR over its finished episodes (world.json), None without any."""
+    episodes = (world or {}).get("episodes") or []
+    if not episodes:
+        return None
+    return {name: float(np.nanmean([jsonio.num(e.get(name)) for e in episodes])) for name in ("coverage_pct", "pdr")}
+
+
+def references_line(scheme: str, world: dict | None, refs: dict | None, why_not: str | None, faults: bool) -> str:
+    """The summary's line: the run's coverage and PDR beside the references', or why there are none."""
+    own = run_metrics(world)
+    if own is None:
+        return "references: none (no episode finished)"
+    head = f"coverage {own['coverage_pct']:.1f}%, PDR {own['pdr']:.3f}"
+    if refs is None:
+        return f"{head} (references not computed: {why_not})"
+    n = refs["episodes"]
+    return (f"{head} ({scheme})\n  references on the same scenario, seed {refs['seed']}, {n} episode{'s' if n != 1 else ''}"
+            + (", without the faults" if faults else "") + f" (flown in process, {refs['elapsed_s']:.1f} s): "
+            + "; ".join(f"{k} {refs[k]['coverage_pct']:.1f}%, PDR {refs[k]['pdr']:.3f}" for k in REFERENCE_SCHEMES)
+            + f"; the oracle ceiling: {CEILING_DOC}")
+
+
+def references_for(cfg: Config, scheme: str, seed: int, world: dict | None, wanted: bool) -> tuple[dict | None, str | None]:
+    """(references, None) or (None, why they were not computed)."""
+    if not wanted:
+        return None, "--no-references"
+    if scheme in REFERENCE_SCHEMES:
+        return None, f"the run flew {scheme}, itself a reference"
+    episodes = len((world or {}).get("episodes") or [])
+    if not episodes:
+        return None, "no episode finished"
+    try:
+        return reference_metrics(cfg, seed, episodes), None
+    except Exception as exc:  # a scale for the numbers must never cost the run its summary
+        return None, f"{type(exc).__name__}: {exc}"
