@@ -125,6 +125,7 @@ LAYERS: list[tuple[str, int]] = [
     ("recorder.summary",                ANALYSIS),
     ("recorder.report_data",            ANALYSIS),
     ("recorder.report_figures",         ANALYSIS),
+    ("recorder.report_links",           ANALYSIS),
     ("recorder.check",                  ANALYSIS),
     ("recorder.recover",                ANALYSIS),
     ("recorder.report",                 ANALYSIS),
