@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from truav import jsonio
+from truav.stats import shown
 from truav.config import Config
 
 REFERENCE_SCHEMES = ("hover", "patrol")
@@ -31,7 +32,7 @@ def reference_metrics(cfg: Config, seed: int, episodes: int) -> dict:
     out: dict = {"seed": seed, "episodes": episodes}
     for kind in REFERENCE_SCHEMES:
         metrics = run_chunk(kind, cfg, [seed], episodes, train=False).metrics
-        out[kind] = {name: float(np.nanmean(metrics[name])) for name in ("coverage_pct", "pdr")}
+        out[kind] = {name: _mean(list(np.ravel(metrics[name]))) for name in ("coverage_pct", "pdr")}
     out["elapsed_s"] = round(time.monotonic() - started, 2)
     return out
 
@@ -41,7 +42,13 @@ def run_metrics(world: dict | None) -> dict | None:
     episodes = (world or {}).get("episodes") or []
     if not episodes:
         return None
-    return {name: float(np.nanmean([jsonio.num(e.get(name)) for e in episodes])) for name in ("coverage_pct", "pdr")}
+    return {name: _mean([jsonio.num(e.get(name)) for e in episodes]) for name in ("coverage_pct", "pdr")}
+
+
+def _mean(values: list[float]) -> float:
+    """The mean of the finite values; NaN (shown as "no data") when there are none, without numpy's warning."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
 
 
 def references_line(scheme: str, world: dict | None, refs: dict | None, why_not: str | None, faults: bool) -> str:
@@ -49,13 +56,14 @@ def references_line(scheme: str, world: dict | None, refs: dict | None, why_not:
     own = run_metrics(world)
     if own is None:
         return "references: none (no episode finished)"
-    head = f"coverage {own['coverage_pct']:.1f}%, PDR {own['pdr']:.3f}"
+    head = f"coverage {shown(own['coverage_pct'], '.1f')}%, PDR {shown(own['pdr'], '.3f')}"
     if refs is None:
         return f"{head} (references not computed: {why_not})"
     n = refs["episodes"]
     return (f"{head} ({scheme})\n  references on the same scenario, seed {refs['seed']}, {n} episode{'s' if n != 1 else ''}"
             + (", without the faults" if faults else "") + f" (flown in process, {refs['elapsed_s']:.1f} s): "
-            + "; ".join(f"{k} {refs[k]['coverage_pct']:.1f}%, PDR {refs[k]['pdr']:.3f}" for k in REFERENCE_SCHEMES)
+            + "; ".join(f"{k} {shown(refs[k]['coverage_pct'], '.1f')}%, PDR {shown(refs[k]['pdr'], '.3f')}"
+                        for k in REFERENCE_SCHEMES)
             + f"; the oracle ceiling: {CEILING_DOC}")
 
 
