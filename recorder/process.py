@@ -404,6 +404,14 @@ class Recorder:
         return self._pause.skip if self._pause is not None else self._log.write  # type: ignore[union-attr]
 
     # -- the writer thread --
+    def _write_waiting(self, pull, write) -> int:
+        """Write the samples already waiting, at most one FIFO's worth; how many were written."""
+        n = 0
+        while n < transport.DEFAULT_PULL_CAPACITY and (item := pull()) is not None:
+            write(*item)
+            n += 1
+        return n
+
     def _write_loop(self) -> None:
         """Sole owner of the McapLog: pull samples in bursts, flush on the log's timer.
 
@@ -415,6 +423,10 @@ class Recorder:
             write = self._write_fn()
             while True:
                 if not requests.empty():
+                    # A command takes effect after the samples that reached this process before it: the control
+                    # callback runs once Zenoh has put the earlier samples of its link in the FIFO, so a split
+                    # or pause applies in arrival order. Bounded by the FIFO's size, so a flood cannot starve it.
+                    self.written += self._write_waiting(pull, write)
                     if self._apply_requests():  # stop: the samples still waiting, then done
                         write = self._write_fn()
                         while (item := pull()) is not None:

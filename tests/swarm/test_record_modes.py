@@ -345,7 +345,7 @@ def test_split_on_bus_command_and_sighup_and_by_duration(tmp_path: Path, endpoin
     proc = start(children, endpoint, out, "--run-info", json.dumps(info), modes=RecordModes(split_on_command=True),
                  config=config)
     world, operator, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
-    world.subscribe_raw(keys.everything(RUN), counter)
+    bus_factory("view").subscribe_raw(keys.everything(RUN), counter)  # its own session: crossed the router
     ready(world, proc)
     sent: list[tuple[str, bytes]] = []
     send(world, sent, counter, 20)
@@ -375,7 +375,7 @@ def test_split_by_duration_in_the_process(tmp_path: Path, endpoint: str, bus_fac
     out = tmp_path / "run.mcap"
     proc = start(children, endpoint, out, modes=RecordModes(split_duration_s=0.5))
     world, counter = bus_factory("world"), Counter()
-    world.subscribe_raw(keys.everything(RUN), counter)
+    bus_factory("view").subscribe_raw(keys.everything(RUN), counter)  # its own session: crossed the router
     ready(world, proc)
     sent: list[tuple[str, bytes]] = []
     deadline = time.monotonic() + 20.0
@@ -393,7 +393,7 @@ def test_remote_pause_and_resume(tmp_path: Path, endpoint: str, bus_factory, chi
     out = tmp_path / "run.mcap"
     proc = start(children, endpoint, out)
     world, operator, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
-    world.subscribe_raw(keys.everything(RUN), counter)
+    bus_factory("view").subscribe_raw(keys.everything(RUN), counter)  # its own session: crossed the router
     ready(world, proc)
     nobody = subprocess.run([sys.executable, "-m", "truav.cli", "log", "record-ctl", "pause", "--run", "other",
                              "--wait", "0.5", "-e", endpoint], capture_output=True, text=True, timeout=60, cwd=REPO)
@@ -432,7 +432,7 @@ def test_snapshot_on_a_fault_window_in_the_process(tmp_path: Path, endpoint: str
     out = tmp_path / "run.mcap"
     proc = start(children, endpoint, out, modes=RecordModes(snapshot="1:1"))
     world, sup, counter = bus_factory("world"), bus_factory("supervisor"), Counter()
-    world.subscribe_raw(keys.everything(RUN), counter)
+    bus_factory("view").subscribe_raw(keys.everything(RUN), counter)  # its own session: crossed the router
     ready(world, proc)
     sent: list[tuple[str, bytes]] = []
     send(world, sent, counter, 10)
@@ -495,7 +495,7 @@ def test_split_by_size_in_the_process(tmp_path: Path, endpoint: str, bus_factory
     out = tmp_path / "run.mcap"
     proc = start(children, endpoint, out, modes=RecordModes(split_size_mb=0.002))
     world, counter = bus_factory("world"), Counter()
-    world.subscribe_raw(keys.everything(RUN), counter)
+    bus_factory("view").subscribe_raw(keys.everything(RUN), counter)  # its own session: crossed the router
     ready(world, proc)
     sent: list[tuple[str, bytes]] = []
     for _ in range(8):  # a burst every 0.1 s: chunks close every 50 ms, so parts fill up chunk by chunk
