@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from truav import policy_scenario, runio
+from truav.stats import nan_mean
 from truav.checks import check_federated
 from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
@@ -203,7 +204,7 @@ def cmd_train(args) -> int:
     steps = (len(seeds) * episodes - done_before) * cfg.scenario.steps_per_episode  # this run's own, not the resumed
     print(f"done in {elapsed:.1f} s ({steps / elapsed:,.0f} env-steps/s"
           + (f" over the {len(seeds) * episodes - done_before:,} env-episodes after the resume)" if done_before else ")"))
-    last = {k: np.nanmean(v[-window:], axis=0) for k, v in result.metrics.items()}
+    last = {k: nan_mean(v[-window:], axis=0) for k, v in result.metrics.items()}
     print(f"last {window} episodes, mean ± 95% interval over seeds:")
     print(format_table({label: last}))
     state_file = {"truav": runio.QTABLE_FILE, "central": runio.POLICY_FILE}.get(scheme, AGENT_FILE)
@@ -323,7 +324,7 @@ def cmd_evaluate(args) -> int:
         except AgentFailure as exc:
             print(f"truav: error: {exc}", file=sys.stderr)
             return 1
-        rows[label] = {k: np.nanmean(v, axis=0) for k, v in result.metrics.items()}
+        rows[label] = {k: nan_mean(v, axis=0) for k, v in result.metrics.items()}
     print(f"greedy evaluation: {len(seeds)} seeds x {args.episodes} episodes on held-out traffic "
           f"at {cfg.scenario.uav_speed_mps:g} m/s; mean ± 95% interval over seeds"
           + ("; the swarm starts where training left it" if start is not None else ""))

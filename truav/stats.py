@@ -28,6 +28,13 @@ def t95(dof: int) -> float:
     return _T95[dof - 1] if dof <= len(_T95) else 1.96
 
 
+def nan_mean(values, axis: int = 0) -> np.ndarray:
+    """Mean over `axis` ignoring NaNs; an all-NaN column (no packet delivered, say) is NaN without a warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(np.asarray(values, dtype=np.float64), axis=axis)
+
+
 def mean_ci(values, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """Mean and 95% half-width over `axis`, ignoring NaNs."""
     v = np.asarray(values, dtype=np.float64)

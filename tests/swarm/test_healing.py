@@ -20,9 +20,9 @@ from tests.support.swarm_up import up  # noqa: F401  (the fixture: `up` runs, ea
 from truav.swarm.healing import Healer, backoff_s
 
 
-# Long enough that a restart on a busy machine comes back before the world's last tick (30 s at 20 Hz:
+# Long enough that a restart on a busy machine comes back before the world's last tick (20 s at 20 Hz:
 # the kill comes after the first checkpoint, 2.5 s in; a restart takes 3-10 s on a busy machine).
-RUN = ["--agents", "2", "--steps", "100", "--episodes", "6", "--rate", "20"]
+RUN = ["--agents", "2", "--steps", "100", "--episodes", "4", "--rate", "20"]
 
 
 def test_an_agent_killed_outside_any_plan_is_restarted_and_resumes_from_its_checkpoint(up, tmp_path):

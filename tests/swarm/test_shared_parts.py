@@ -57,7 +57,7 @@ def test_agents_hosted_three_per_process_with_shared_parts_learn_what_the_traine
 def test_a_peer_killed_is_seen_lost_by_the_agents_hosted_together(tmp_path):
     """7 agents in processes of 3, 3 and 1: agent 6 (alone in its process) SIGKILLed mid-run is seen as
     lost through the hosted processes' one shared watch, and the run still ends (the supervisor restarts it)."""
-    u = Up(tmp_path, "partslost", "--agents", "7", "--steps", "100", "--episodes", "6", "--rate", "20",
+    u = Up(tmp_path, "partslost", "--agents", "7", "--steps", "100", "--episodes", "4", "--rate", "20",
            "--agents-per-process", "3", "--share-beacons", "--max-missed", "1")
     try:
         u.wait_ticking()
