@@ -97,6 +97,11 @@ class UavAgent:
     api_version: ClassVar[int] = API_VERSION
     batched: ClassVar[type | None] = None
     """Optional: a :class:`BatchedAgents` subclass computing the same as this class for all UAVs at once."""
+    call_limit_s: ClassVar[float] = 1.0
+    """The longest one call (begin_episode, act, learn, beacon_fields, state_dict, load_state_dict) may take,
+    in seconds, at most 60. A call past it fails like a call that raised: in a swarm this UAV hovers for that
+    tick (counted, logged), in training the run stops resumably with one line. (In real time at 10 Hz an
+    action later than the tick's deadline is missed anyway.)"""
 
     def __init__(self, cfg: Config, uav: int, rng: np.random.Generator):
         self.cfg, self.uav, self.rng = cfg, uav, rng
@@ -133,6 +138,9 @@ class BatchedAgents:
 
     ``rngs[b][u]`` is the generator the per-UAV instance of seed b, UAV u would get. state_dict
     returns each per-UAV array stacked to (B, U, ...), under the per-UAV names."""
+
+    call_limit_s: ClassVar[float] = 10.0
+    """As UavAgent.call_limit_s, for one call over all B x U UAVs."""
 
     def __init__(self, cfg: Config, rngs: list[list[np.random.Generator]]):
         self.cfg, self.rngs = cfg, rngs

@@ -18,6 +18,7 @@ from agents.api import BatchedViews, HeardBeacon, LocalView, action_problem, bea
 from agents.reward import Reward
 from agents.state import all_peers, neighbour_features
 from truav import seeding
+from truav.call_limit import CallTooLong, call_limited
 from truav.actions import HOVER, N_ACTIONS
 from truav.config import Config
 from world.env import LocalObs
@@ -74,8 +75,11 @@ class ApiController:
         return "" if b is None else f" (UAV {u} of seed {self.seeds[b]})"
 
     def _call(self, b, u, what, fn, *args):
+        limit = getattr(self.batched if b is None and self.batched is not None else self.cls, "call_limit_s", 1.0)
         try:
-            return fn(*args)
+            return call_limited(limit, fn, *args)
+        except CallTooLong as exc:
+            raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} {exc}") from None
         except Exception as exc:
             raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} raised "
                                f"{type(exc).__name__}: {exc}".replace("\n", " ")) from None

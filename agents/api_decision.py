@@ -18,6 +18,7 @@ from agents.api_controller import nearest_rsu_m
 from agents.reward import Reward
 from agents.state import neighbour_features
 from truav import seeding
+from truav.call_limit import call_limited
 from truav.bus import schema
 from truav.config import Config
 from world.network import rsu_positions
@@ -34,7 +35,9 @@ class ApiDecision:
     def __init__(self, cls: type, cfg: Config, uav: int, seed: int, train: bool = True):
         self.cfg, self.uav, self.train = cfg, uav, train
         self.rng = seeding.agent_rng(seed, uav)
-        self.agent = cls(cfg, uav, self.rng)
+        self.limit_s = float(getattr(cls, "call_limit_s", 1.0))
+        """Every call into the class is bounded by it: truav.call_limit.CallTooLong past it."""
+        self.agent = call_limited(self.limit_s, cls, cfg, uav, self.rng)
         self.reward = Reward(cfg)
         self.rsu = rsu_positions(cfg)
         self.episode, self.t = -1, 0
@@ -64,19 +67,20 @@ class ApiDecision:
                               obs.densest_sector, obs.exclusive, float(nearest_rsu_m(pos, self.rsu)[0, 0]), heard)
         r = None
         if new:
-            self.agent.begin_episode(obs.episode, self.train)
+            call_limited(self.limit_s, self.agent.begin_episode, obs.episode, self.train)
         else:
             overlap = neighbour_features(pos, *peer_arrays(beacons), self.cfg.scenario.comm_range_m)[1]
             r = float(self.reward(np.array([[obs.relayed]]), np.array([[obs.covered]]), np.array([[obs.energy_j]]),
                                   overlap, np.array([[obs.exclusive]]), np.array([[obs.vehicles_in_range]]),
                                   np.array([[self.prev_in_range]]))[0, 0])
-            self.agent.learn(self.view, r, obs.done)
+            call_limited(self.limit_s, self.agent.learn, self.view, r, obs.done)
         self.prev_in_range = float(obs.vehicles_in_range)
         return r
 
     def act(self, obs: schema.Obs) -> schema.Action:
-        """The action for a (not `done`) observation already learned from; IllegalAction for an illegal one."""
-        a = self.agent.act(self.view)
+        """The action for a (not `done`) observation already learned from; IllegalAction for an illegal one,
+        CallTooLong for a late one."""
+        a = call_limited(self.limit_s, self.agent.act, self.view)
         problem = action_problem(a)
         if problem:
             raise IllegalAction(problem)

@@ -3,8 +3,9 @@
 The same process as TRUAV's (agents.agent_process.AgentNode: observations in, a beacon and one action
 per tick out, the lock-step protocol, fault plans, health and stats), deciding with
 agents.api_decision.ApiDecision. The class was checked before the swarm started (truav.agent_loader).
-When it raises or returns an illegal action during the run, this UAV hovers for that tick, the error
-is counted and its first occurrence logged with the class's message, and the run goes on.
+When it raises, returns an illegal action or takes longer than its call_limit_s during the run, this UAV
+hovers for that tick, the error is counted and its first occurrence logged with the class's message, and
+the run goes on.
 Its checkpoint (--checkpoint) holds the agent's state_dict, its generator and its step count: a
 restarted agent resumes from it.
 """
@@ -21,6 +22,7 @@ import numpy as np
 from agents.agent_process import AgentNode, checkpoint_due
 from agents.api_decision import ApiDecision, IllegalAction
 from truav.agent_loader import AGENT_KIND_PREFIX, resolve
+from truav.call_limit import CallTooLong, call_limited
 from truav.bus import keys, schema
 
 log = logging.getLogger("truav.agent")
@@ -40,8 +42,8 @@ class ApiAgentNode(AgentNode):
                 state = {k[len(STATE_PREFIX):]: ck[k] for k in ck.files if k.startswith(STATE_PREFIX)}
                 rng_state, steps = json.loads(str(ck["rng_state"])), int(ck["steps"])
             try:
-                self.api.agent.load_state_dict(state)
-            except Exception as exc:  # the class's own failure: this UAV flies on, from a fresh agent
+                call_limited(self.api.limit_s, self.api.agent.load_state_dict, state)
+            except (Exception, CallTooLong) as exc:  # the class's own failure: this UAV flies on, from a fresh agent
                 log.error("uav %d: agent %s: load_state_dict raised %s: %s; not resumed from %s, starting afresh",
                           o.uav, self.agent_name, type(exc).__name__, " ".join(str(exc).split()), o.checkpoint)
                 return None
@@ -61,7 +63,7 @@ class ApiAgentNode(AgentNode):
 
     def _failed(self, obs: schema.Obs, what: str, exc: BaseException) -> None:
         self.agent_errors += 1
-        line = str(exc) if isinstance(exc, IllegalAction) else \
+        line = str(exc) if isinstance(exc, IllegalAction) else f"{what} {exc}" if isinstance(exc, CallTooLong) else \
             f"{what} raised {type(exc).__name__}: {' '.join(str(exc).split())}"
         if self.first_agent_error is None:
             self.first_agent_error = line
@@ -77,7 +79,7 @@ class ApiAgentNode(AgentNode):
         beacons = self._lockstep_beacons(obs.tick) if o.lockstep else self._realtime_beacons_in_range(obs.tick)
         try:
             r = d.learn(obs, beacons)
-        except Exception as exc:
+        except (Exception, CallTooLong) as exc:
             self._failed(obs, "learn", exc)
             r = 0.0 if d.view is not None and d.episode == obs.episode and d.t > 0 else None
         if r is not None:
@@ -90,7 +92,7 @@ class ApiAgentNode(AgentNode):
             return
         try:
             action = d.act(obs)
-        except Exception as exc:
+        except (Exception, CallTooLong) as exc:
             self._failed(obs, "act", exc)
             action = d.hover(obs)
         self.bus.publish(keys.uav_action(o.run, o.uav), action)
@@ -100,8 +102,9 @@ class ApiAgentNode(AgentNode):
         if not self.opts.checkpoint:
             return
         try:
-            state = {STATE_PREFIX + k: np.asarray(v) for k, v in self.api.agent.state_dict().items()}
-        except Exception as exc:
+            state = {STATE_PREFIX + k: np.asarray(v)
+                     for k, v in call_limited(self.api.limit_s, self.api.agent.state_dict).items()}
+        except (Exception, CallTooLong) as exc:
             log.error("uav %d: agent %s: state_dict raised %s: %s; no checkpoint written", self.opts.uav,
                       self.agent_name, type(exc).__name__, exc)
             return

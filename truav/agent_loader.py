@@ -2,8 +2,8 @@
 
 A name is ``pkg.module:Class``, or a name an installed package registers in the entry-point group
 ``truav.agents`` (TRUAV registers ``random`` and ``patrol``; pyproject.toml). Every problem (not importable,
-no such class, a missing method, an API version this TRUAV does not drive, an __init__ or state_dict that
-raises) is a UserError: one line naming the class and what is wrong, exit 2.
+no such class, a missing method, an API version this TRUAV does not drive, a trial step whose calls raise,
+take too long or return an illegal action) is a UserError: one line naming the class and what is wrong, exit 2.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import inspect
 
 import numpy as np
 
+from truav.call_limit import CallTooLong, call_limited, limit_problem
 from truav.config import Config
 from truav.errors import UserError
 
@@ -71,25 +72,66 @@ def resolve(name: str, flag: str = "--agent") -> type:
 
 
 def check_instance(name: str, cls: type, cfg: Config, flag: str = "--agent") -> None:
-    """Build one agent (UAV 0, a throwaway generator) and take its state: a class whose __init__ or state_dict
-    raises, or whose state is not named arrays, fails here, before a run starts."""
+    """Build one throwaway agent (UAV 0, its own generator), run it for one step of a trial view and take its
+    state: a class whose calls raise, take longer than its call_limit_s, return an illegal action or a state
+    that is not named arrays fails here, before a run starts. (A trial step cannot show every failure: one
+    during the run is handled where it happens.)"""
+    from agents.api import action_problem, beacon_problem
     where = f"{flag} {name}"
-    try:
-        agent = cls(cfg, 0, np.random.default_rng(0))
-    except Exception as exc:
-        raise UserError(f"{where}: {cls.__name__}(cfg, uav, rng) raised {type(exc).__name__}: "
-                        f"{_one_line(exc)}") from None
-    try:
-        state = agent.state_dict()
-    except Exception as exc:
-        raise UserError(f"{where}: {cls.__name__}.state_dict() raised {type(exc).__name__}: "
-                        f"{_one_line(exc)}") from None
+    for owner in (cls, getattr(cls, "batched", None) or cls):
+        problem = limit_problem(getattr(owner, "call_limit_s", 1.0))
+        if problem:
+            raise UserError(f"{where}: {owner.__name__}.{problem}")
+    limit = float(getattr(cls, "call_limit_s", 1.0))
+
+    def call(what: str, fn, *args):
+        label = f"{cls.__name__}{what}"
+        try:
+            return call_limited(limit, fn, *args)
+        except CallTooLong as exc:
+            raise UserError(f"{where}: {label} {exc}") from None
+        except Exception as exc:
+            raise UserError(f"{where}: {label} raised {type(exc).__name__}: {_one_line(exc)}") from None
+
+    agent = call("(cfg, uav, rng)", cls, cfg, 0, np.random.default_rng(0))
+    view = trial_view(cfg)
+    call(".begin_episode(0, True)", getattr(agent, "begin_episode", lambda *a: None), 0, True)
+    problem = action_problem(call(".act(view)", agent.act, view))
+    if problem:
+        raise UserError(f"{where}: {cls.__name__}.{problem} (on a trial view)")
+    if callable(getattr(agent, "beacon_fields", None)):
+        problem = beacon_problem(call(".beacon_fields()", agent.beacon_fields))
+        if problem:
+            raise UserError(f"{where}: {cls.__name__}.{problem} (on a trial view)")
+    call(".learn(view, 0.0, False)", agent.learn, view, 0.0, False)
+    state = call(".state_dict()", agent.state_dict)
     if not isinstance(state, dict) or not all(isinstance(k, str) and k.isidentifier() for k in state):
         raise UserError(f"{where}: {cls.__name__}.state_dict() must return a dict of named arrays "
                         f"(identifier names), got {type(state).__name__}")
     batched = getattr(cls, "batched", None)
     if batched is not None and not (inspect.isclass(batched) and callable(getattr(batched, "act", None))):
         raise UserError(f"{where}: {cls.__name__}.batched must be a class with act (an agents.api.BatchedAgents)")
+
+
+def checkpoint_problem(cls: type, cfg: Config) -> str | None:
+    """Why a training of ``cls`` cannot be checkpointed (its instance does not pickle), or None. The trainer
+    checkpoints an API class by pickling its instances: their attributes, and the class by its import path."""
+    import pickle
+    try:
+        agent = call_limited(float(getattr(cls, "call_limit_s", 1.0)), cls, cfg, 0, np.random.default_rng(0))
+        pickle.dumps(agent, protocol=pickle.HIGHEST_PROTOCOL)
+    except (Exception, CallTooLong) as exc:
+        return f"its instances cannot be pickled ({type(exc).__name__}: {_one_line(exc)})"
+    return None
+
+
+def trial_view(cfg: Config):
+    """The view of UAV 0 hovering at the area's centre at the first step, nothing around it: the trial step."""
+    from agents.api import LocalView
+    centre = cfg.scenario.area_m / 2.0
+    return LocalView(uav=0, episode=0, step=0, pos=(centre, centre), vehicles_in_range=0, queued_packets=0,
+                     relayed=0, covered=0, energy_j=0.0, speed_max=float(cfg.scenario.uav_speed_mps),
+                     densest_sector=0, exclusive=0, nearest_rsu_m=centre, beacons=())
 
 
 def load(name: str, cfg: Config, flag: str = "--agent") -> type:
@@ -103,4 +145,4 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or "(no message)"
 
 
-__all__ = ["AGENT_KIND_PREFIX", "ENTRY_POINT_GROUP", "check_instance", "load", "registered", "resolve"]
+__all__ = ["AGENT_KIND_PREFIX", "ENTRY_POINT_GROUP", "check_instance", "checkpoint_problem", "load", "registered", "resolve"]

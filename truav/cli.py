@@ -121,20 +121,28 @@ def cmd_train(args) -> int:
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav import sumo_traffic
         sumo_traffic.sumo_home()
-    agent_cls = None
+    agent_cls, unpicklable = None, None
     if args.agent is not None:  # an agents.api class: found and checked before anything starts
         from truav import agent_loader
         if args.scheme is not None:
             raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
         agent_cls = agent_loader.load(args.agent, cfg)
         args.scheme = agent_loader.AGENT_KIND_PREFIX + args.agent
+        unpicklable = agent_loader.checkpoint_problem(agent_cls, cfg)
+        if unpicklable:
+            if args.resume:
+                raise UsageError(f"--resume: --agent {args.agent}: {unpicklable}, so its training keeps no "
+                                 f"checkpoint; train it again with --force")
+            print(f"note: --agent {args.agent}: {unpicklable}; this training keeps no checkpoint and cannot resume",
+                  file=sys.stderr)
     args.scheme = args.scheme or "truav"
     check_federated(cfg, args.scheme, learns=True)
     seeds = seed_list(args)
     from agents.state import check_qtable_memory  # before anything is allocated or written
     check_qtable_memory(cfg, len(seeds) * cfg.scenario.n_uavs, f"{len(seeds)} seed(s) x {cfg.scenario.n_uavs} UAV(s)")
-    from truav.trainer import RESUMABLE, Checkpointing, split
+    from truav.trainer import Checkpointing, resumable, split
     scheme = args.scheme
+    checkpointed = resumable(scheme) and not unpicklable
     episodes = cfg.learner.episodes
     out_arg = args.out if args.out is not None else f"runs/train-{cfg.scenario.uav_speed_mps:g}mps"
     chunks = _resume_chunks(args, out_arg, cfg, seeds) if args.resume else None
@@ -149,13 +157,13 @@ def cmd_train(args) -> int:
         runio.remove_resume_state(out)
         runio.write_config(out, cfg)
         chunks = split(seeds, min(args.workers, len(seeds)))
-        if scheme in RESUMABLE:
+        if checkpointed:
             runio.write_resume_info(out, {"scheme": scheme, "seeds": seeds, "chunks": chunks})
     else:
         out = Path(out_arg)
     workers = len(chunks)
     done_before = _resumed_episodes(out, chunks) if args.resume else 0
-    ckpt = None if scheme not in RESUMABLE else Checkpointing(
+    ckpt = None if not checkpointed else Checkpointing(
         every_s=args.checkpoint_every, save=lambda i, data: runio.write_chunk_state(out, i, data),
         load=(lambda i: runio.read_chunk_state(out, i)) if args.resume else (lambda i: None))
     print(f"{'resuming' if args.resume else 'training'} {scheme}: {len(seeds)} seeds x {episodes} episodes x "
@@ -168,8 +176,15 @@ def cmd_train(args) -> int:
     try:
         result = run_with_progress(scheme, cfg, seeds, episodes, workers, True, None, "train", args.quiet, ckpt=ckpt,
                                    chunks=chunks, done=done_before)
-    except AgentFailure as exc:  # the class broke during the run: its one line, exit 1
-        print(f"truav: error: {exc}", file=sys.stderr)
+    except AgentFailure as exc:  # the class broke during the run: its one line, exit 1, its checkpoints stand
+        if ckpt is None:
+            print(f"truav: error: {exc}", file=sys.stderr)
+        else:
+            from truav.trainer import saved_episodes
+            kept = min(0 if (saved := runio.read_chunk_state(out, i)) is None else saved_episodes(saved)
+                       for i in range(len(chunks)))
+            print(f"truav: error: {exc}; {out / runio.RESUME_DIR} keeps what was checkpointed ({kept} of {episodes} "
+                  f"episodes for every seed): fix the class and run the same command with --resume", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         if ckpt is not None:  # a second Ctrl-C: the checkpoints written so far stand
@@ -217,12 +232,10 @@ def cmd_train(args) -> int:
 
 def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[list[int]]:
     """--resume: the seed chunks of the interrupted training in --out, once its options are checked equal."""
-    from truav.trainer import RESUMABLE
+    from truav.trainer import resumable
     if args.force:
         raise UsageError("--resume and --force exclude each other (continue the training in --out, or replace it)")
-    if args.agent is not None:
-        raise UsageError(f"--resume: --agent {args.agent} runs keep no checkpoint yet; train it again with --force")
-    if args.scheme not in RESUMABLE:
+    if not resumable(args.scheme):
         raise UsageError(f"--resume: --scheme {args.scheme} cannot continue exactly (its SAC's torch state is not "
                          f"checkpointed); train it again with --force")
     out = Path(out_arg)
@@ -369,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--force", action="store_true", help="write into a non-empty --out")
     tr.add_argument("--resume", action="store_true",
                     help="continue the interrupted training in --out (Ctrl-C checkpoints it at the episodes' end) "
-                         "exactly as if it had not stopped; same options only (scheme truav)")
+                         "exactly as if it had not stopped; same options only (scheme truav or an --agent class)")
     tr.add_argument("--checkpoint-every", type=positive_float, default=runio.CHECKPOINT_EVERY_S, metavar="SECONDS",
                     help="seconds between checkpoints of a running training (default %(default)g); Ctrl-C, "
                          "SIGTERM and SIGHUP also checkpoint, at the episode's end")

@@ -51,8 +51,12 @@ class RunResult:
     """Stopped early (Checkpointing.stop): metrics hold the episodes every chunk finished; q is None."""
 
 
-RESUMABLE = ("truav",)
-"""Schemes whose training continues exactly from a checkpoint (the central SAC's torch state is not pickled)."""
+def resumable(kind: str) -> bool:
+    """Whether a training of controller ``kind`` continues exactly from a checkpoint: TRUAV's and an agent
+    API class's (its instances pickled; truav.agent_loader.checkpoint_problem), not the central SAC's (its
+    torch state is not pickled) nor the fixed baselines' (nothing to continue)."""
+    from truav.agent_loader import AGENT_KIND_PREFIX
+    return kind == "truav" or kind.startswith(AGENT_KIND_PREFIX)
 
 
 @dataclass
@@ -261,11 +265,11 @@ def run_parallel(kind: str, cfg: Config, seeds: list[int], episodes: int, worker
     one by one, so the split changes no number. A single chunk (one seed, or
     one worker) gives the kernel every thread instead.
 
-    ckpt (TRUAV only, RESUMABLE): checkpoint each chunk (see Checkpointing); SIGINT then stops the
+    ckpt (resumable kinds only): checkpoint each chunk (see Checkpointing); SIGINT then stops the
     run at the chunks' next episode ends, checkpointed, and the result says ``stopped``. chunks: the
     seed split to use (a resumed run's, whatever ``workers`` is now)."""
-    if ckpt is not None and kind not in RESUMABLE:
-        raise ValueError(f"{kind}: training cannot be checkpointed (only {', '.join(RESUMABLE)})")
+    if ckpt is not None and not resumable(kind):
+        raise ValueError(f"{kind}: training cannot be checkpointed (only truav and agent API classes)")
     chunks = chunks or split(list(seeds), workers)
     if cfg.scenario.mobility == "sumo":  # built (if not cached) once, before the workers load it
         from truav.sumo_traffic import build_trace

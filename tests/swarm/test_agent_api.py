@@ -52,6 +52,36 @@ BAD_MODULE = textwrap.dedent('''
         def learn(self, view, reward, done):
             if view.step == 4:
                 raise KeyError("lost")
+
+    class Hangs(UavAgent):
+        call_limit_s = 0.2
+        def act(self, view):
+            while view.step == 2 and self.uav == 1:
+                pass
+            return 0
+
+    class SlowAtOnce(UavAgent):
+        call_limit_s = 0.2
+        def act(self, view):
+            import time
+            time.sleep(5)
+            return 0
+
+    class IllegalAtOnce(UavAgent):
+        def act(self, view): return "north"
+
+    class Swallows(UavAgent):
+        call_limit_s = 0.2
+        def act(self, view):
+            try:
+                while True:
+                    pass
+            except Exception:
+                return 0
+
+    class BadLimit(UavAgent):
+        call_limit_s = 0
+        def act(self, view): return 0
 ''')
 
 
@@ -115,6 +145,10 @@ def bad_module(tmp_path, monkeypatch):
     ("badagents:Future", "API version 99"),
     ("badagents:Boom", "Boom(cfg, uav, rng) raised RuntimeError: no GPU"),
     ("notregistered", "no agent registered under that name"),
+    ("badagents:SlowAtOnce", "SlowAtOnce.act(view) took longer than 0.2 s (its call_limit_s)"),
+    ("badagents:Swallows", "Swallows.act(view) took longer than 0.2 s (its call_limit_s)"),
+    ("badagents:IllegalAtOnce", "act returned 'north' (str), not an int action"),
+    ("badagents:BadLimit", "BadLimit.call_limit_s must be a number of seconds in (0, 60], got 0"),
 ])
 def test_mistakes_are_one_line_before_the_start(bad_module, tmp_path, capsys, agent, says):
     out = tmp_path / "run"
@@ -129,6 +163,8 @@ def test_mistakes_are_one_line_before_the_start(bad_module, tmp_path, capsys, ag
     # each seed's worker fails: the first to tell the parent is named
     ("badagents:Illegal", "2", r"\(UAV 3 of seed [01]\): act returned 16, not an action"),
     ("badagents:Raises", "1", r"\(UAV 0 of seed 0\): learn raised KeyError: 'lost'"),
+    ("badagents:Hangs", "1", r"\(UAV 1 of seed 0\): act took longer than 0.2 s \(its call_limit_s\)"),
+    ("badagents:Hangs", "2", r"\(UAV 1 of seed [01]\): act took longer than 0.2 s \(its call_limit_s\)"),
 ])
 def test_a_class_breaking_during_training_is_one_line_exit_1(bad_module, tmp_path, capsys, agent, workers, says):
     two_seeds = ["--seeds", "2", *TINY[2:]]  # with 2 workers: the failure comes from a worker process
@@ -188,3 +224,59 @@ def test_the_calls_follow_the_documented_order_and_state_round_trips():
     assert np.array_equal(greedy.agents[1][3].loaded["w"], np.full(3, 3.0))
     run_episodes(TINY_CFG, [0, 1], greedy, 1)
     assert greedy.agents[0][0].calls[0] == ("begin", 0, False)
+
+
+FAILS_ONCE = textwrap.dedent('''
+    import os
+    from agents.api import UavAgent
+
+    class Picky(UavAgent):
+        """Counts its steps; breaks in episode 4 while the file named by PICKY_BREAK exists."""
+        def __init__(self, cfg, uav, rng):
+            super().__init__(cfg, uav, rng)
+            self.steps = 0
+        def act(self, view):
+            if view.episode == 4 and os.path.exists(os.environ.get("PICKY_BREAK", "")):
+                raise ValueError("bug")
+            return int(self.rng.integers(16))
+        def learn(self, view, reward, done):
+            self.steps += 1
+        def state_dict(self):
+            return {"steps": self.steps}
+        def load_state_dict(self, d):
+            self.steps = int(d["steps"])
+
+    class Unpicklable(Picky):
+        def __init__(self, cfg, uav, rng):
+            super().__init__(cfg, uav, rng)
+            self.callback = lambda: None
+''')
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_class_breaking_during_training_stops_resumably(tmp_path, monkeypatch, capsys, workers):
+    """A class that breaks mid-training stops with one line; fixed, the same command with --resume ends where
+    an unbroken training ends, file for file."""
+    (tmp_path / "picky.py").write_text(FAILS_ONCE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    flag = tmp_path / "break"
+    monkeypatch.setenv("PICKY_BREAK", str(flag))
+    args = ["train", "--agent", "picky:Picky", "--seeds", "2", "--episodes", "6", *TINY[4:], "--workers", workers,
+            "--checkpoint-every", "0.000001"]
+    try:
+        assert cli.main([*args, "--out", str(tmp_path / "whole")]) == 0
+        flag.touch()
+        assert cli.main([*args, "--out", str(tmp_path / "cut")]) == 1
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "act raised ValueError: bug" in err and "(4 of 6 episodes" in err \
+            and "--resume" in err, err
+        flag.unlink()  # the fix
+        assert cli.main([*args, "--out", str(tmp_path / "cut"), "--resume"]) == 0
+        for name in ("metrics.csv", "agent.npz"):
+            assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+        assert not (tmp_path / "cut" / "resume").exists()
+        # a class whose instances do not pickle trains, without checkpoints, and says so
+        assert cli.main([*args[:2], "picky:Unpicklable", *args[3:], "--out", str(tmp_path / "u")]) == 0
+        assert "note: --agent picky:Unpicklable: its instances cannot be pickled" in capsys.readouterr().err
+    finally:
+        sys.modules.pop("picky", None)

@@ -57,16 +57,20 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
         from agents.api import UavAgent
 
         class Flaky(UavAgent):
+            call_limit_s = 0.3
             def act(self, view):
                 if self.uav == 1 and view.step == 3:
                     raise RuntimeError("lost the plot")
+                while self.uav == 3 and view.step == 6:
+                    pass  # hangs: the call limit ends it
                 return 8 if self.uav == 2 and view.step == 5 else 0
     '''))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
     out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", env=env)
     agents = [json.loads((out / f"agent{i}.json").read_text()) for i in range(CFG.scenario.n_uavs)]
-    assert [a["agent_errors"] for a in agents] == [0, EPISODES, 0, 0]
+    assert [a["agent_errors"] for a in agents] == [0, EPISODES, 0, EPISODES]
     assert agents[1]["first_agent_error"] == "act raised RuntimeError: lost the plot"
+    assert agents[3]["first_agent_error"] == "act took longer than 0.3 s (its call_limit_s)"
     assert "agent flaky:Flaky: act raised RuntimeError: lost the plot" in (out / "logs" / "agent1.log").read_text()
     world = json.loads((out / "world.json").read_text())
     assert len(world["episodes"]) == EPISODES

@@ -52,6 +52,7 @@ LAYERS: list[tuple[str, int]] = [
     ("truav.stopping",                  BASE),
     ("truav.jsonio",                    BASE),
     ("truav.atomic",                    BASE),
+    ("truav.call_limit",                BASE),
     ("truav.channel_catalog",           BASE),
     ("truav.actions",                   BASE),
     ("truav.checks",                    BASE),
