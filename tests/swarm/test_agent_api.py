@@ -280,3 +280,33 @@ def test_a_class_breaking_during_training_stops_resumably(tmp_path, monkeypatch,
         assert "note: --agent picky:Unpicklable: its instances cannot be pickled" in capsys.readouterr().err
     finally:
         sys.modules.pop("picky", None)
+
+
+def test_a_user_class_is_a_scheme_of_the_velocity_experiment(tmp_path):
+    """`truav experiment velocity --schemes pkg.module:Class`: trained, evaluated greedily on held-out traffic,
+    in the tables and figures beside the built-in schemes; a second run resumes its finished cells."""
+    mods = tmp_path / "mylab"
+    mods.mkdir()
+    (mods / "bandit_agent.py").write_text(USER_MODULE)
+    env = {**os.environ, "PYTHONPATH": f"{mods}{os.pathsep}{REPO}"}
+    out = tmp_path / "vel"
+    cmd = [sys.executable, "-m", "truav.cli", "experiment", "velocity", "--quick", "--speeds", "15", "--schemes",
+           "bandit_agent:Bandit", "patrol", "--workers", "2", "--quiet", "--out", str(out)]
+    first = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    rows = (out / "summary.csv").read_text().splitlines()
+    assert any(r.startswith("bandit_agent:Bandit,") for r in rows) and any(r.startswith("patrol,") for r in rows)
+    assert "| bandit_agent:Bandit | 15 |" in (out / "summary.md").read_text()
+    assert len(list((out / "cells").glob("bandit_agent-Bandit_v15_*.npz"))) == 1
+    again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and "2 cells, 2 already finished, 0 to run" in again.stdout, again.stdout
+
+
+@pytest.mark.parametrize("agent, says", [("badagents:Boom", "Boom(cfg, uav, rng) raised RuntimeError: no GPU"),
+                                         ("nosuch", "no agent registered under that name")])
+def test_a_bad_scheme_of_the_velocity_experiment_is_one_line(bad_module, tmp_path, capsys, agent, says):
+    out = tmp_path / "vel"
+    assert cli.main(["experiment", "velocity", "--quick", "--schemes", "truav", agent, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"--schemes {agent}: {says}" in err, err
+    assert not out.exists()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,14 @@ from truav.config import Config, to_dict
 from truav.seeding import EVAL_SEED_OFFSET
 
 CELLS_DIR = "cells"
+BUILTIN_SCHEMES = ("truav", "central", "patrol", "patrol_ctrl")
+"""The experiments' own schemes; any other name in --schemes is an agents.api class (truav.agent_loader)."""
+
+
+def controller_kind(scheme: str) -> str:
+    """The trainer's controller kind (trainer.make_controller) of an experiment scheme."""
+    from truav.agent_loader import AGENT_KIND_PREFIX
+    return scheme if scheme in BUILTIN_SCHEMES else AGENT_KIND_PREFIX + scheme
 UNUSED_SECTIONS = {"truav": ("patrol", "central"), "patrol": ("learner", "central"), "central": ("patrol",),
                    "patrol_ctrl": ("learner",),
                    "random": ("learner", "patrol", "central"), "hover": ("learner", "patrol", "central")}
@@ -58,7 +67,8 @@ class Cell:
                 and not (k in KEYED_ONLY_IF_CHANGED and v == defaults[k])}
         digest = hashlib.sha256(f"{used!r}|{self.eval_episodes}".encode()).hexdigest()[:10]
         sc = cfg.scenario
-        return (f"{self.scheme}_v{self.speed:g}_u{sc.n_uavs}_n{sc.n_vehicles}_s{self.seeds[0]}-{self.seeds[-1]}"
+        name = re.sub(r"[^A-Za-z0-9_.-]", "-", self.scheme)  # an agent class's name holds ':'
+        return (f"{name}_v{self.speed:g}_u{sc.n_uavs}_n{sc.n_vehicles}_s{self.seeds[0]}-{self.seeds[-1]}"
                 f"_e{self.episodes}_{digest}")
 
     @property
@@ -89,8 +99,9 @@ def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: 
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     if scheme == "truav":
         ctrl = make_controller("truav", cfg, eval_seeds, False, controller.learners.q)
-    elif scheme == "central":
-        controller.train = False  # the trained actor, greedy; its control plane still runs
+    elif scheme == "central" or scheme not in BUILTIN_SCHEMES:
+        # the trained actor (an agent class: its trained instances, told train=False), greedy
+        controller.train = False
         ctrl = controller
     else:
         ctrl = make_controller(scheme, cfg, eval_seeds, False, None)
@@ -108,7 +119,7 @@ def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None 
     seeds = list(cell.seeds)
     cb = None if on_episode is None else (lambda e, m: on_episode(len(seeds)))
     t0 = time.perf_counter()
-    controller = make_controller(cell.scheme, cfg, seeds, True, None)
+    controller = make_controller(controller_kind(cell.scheme), cfg, seeds, True, None)
     world = make_world(cfg, len(seeds))
     train = run_episodes(cfg, seeds, controller, cell.episodes, cb, world=world)
     t_train = time.perf_counter() - t0

@@ -57,7 +57,12 @@ def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, in
     return out
 
 
-def _check_schemes(schemes) -> None:
+def _check_schemes(schemes, cfg) -> None:
+    """Each --schemes name a built-in scheme or an agent class, found and checked (one line, exit 2)."""
+    from truav import agent_loader
+    for name in schemes:
+        if name not in velocity.CHOICES:
+            agent_loader.load(name, cfg, flag="--schemes")
     if "central" in schemes and importlib.util.find_spec("torch") is None:
         raise UsageError("the centralized baseline needs PyTorch: pip install -e '.[central]' "
                          "(or leave it out: --schemes truav patrol)")
@@ -68,8 +73,10 @@ def _common(p: argparse.ArgumentParser, schemes, default_schemes, episodes_help:
     p.add_argument("--mobility", choices=MOBILITIES,
                    help="vehicle mobility: builtin (the grid's IDM) or sumo (SUMO traces, built and cached before "
                         "the cells run; `truav traffic build`) (default: scenario.mobility, builtin)")
-    p.add_argument("--schemes", nargs="+", choices=schemes, default=list(default_schemes),
-                   help=f"schemes to run (default: {' '.join(default_schemes)})")
+    p.add_argument("--schemes", nargs="+", default=list(default_schemes), metavar="SCHEME",
+                   help=f"schemes to run: {', '.join(schemes)}, or an agent class (pkg.module:Class or a name "
+                        f"registered in the entry-point group truav.agents, e.g. random; docs/how-to/your-own-agent.md) "
+                        f"(default: {' '.join(default_schemes)})")
     p.add_argument("--seeds", type=positive_int, help=f"number of seeds (default {FULL['seeds']})")
     p.add_argument("--seed-start", type=seed_int, default=0, help="first seed (default %(default)s)")
     p.add_argument("--episodes", type=positive_int, help=episodes_help)
@@ -128,13 +135,14 @@ def _setup(args, default_out: str, default_episodes: int | None):
     n_seeds = pick(args.seeds, QUICK["seeds"], FULL["seeds"])
     seeds = list(range(args.seed_start, args.seed_start + n_seeds))
     base_ep = pick(args.episodes, QUICK["episodes"], default_episodes or cfg.learner.episodes)
-    episodes = _parse_episodes_for(args.episodes_for, velocity.CHOICES, base_ep)
+    if not args.report_only:
+        _check_schemes(args.schemes, cfg)
+        check_executor(args)
+    episodes = _parse_episodes_for(args.episodes_for, tuple(dict.fromkeys((*velocity.CHOICES, *args.schemes))),
+                                   base_ep)
     eval_episodes = pick(args.eval_episodes, QUICK["eval_episodes"], FULL["eval_episodes"])
     window = pick(args.window, QUICK["window"], FULL["window"])
     out = check_out_dir("--out", args.out if args.out is not None else default_out + ("-quick" if quick else ""))
-    if not args.report_only:
-        _check_schemes(args.schemes)
-        check_executor(args)
     return cfg, seeds, episodes, eval_episodes, window, out
 
 

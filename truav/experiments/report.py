@@ -66,6 +66,15 @@ def _label(scheme: str) -> str:
     return SCHEME_STYLE.get(scheme, (scheme, None, None))[0]
 
 
+def _style(scheme: str, index: int) -> tuple[str, str, str]:
+    """(label, colour, marker) of a scheme; one without a style (an agent class) gets a free colour."""
+    if scheme in SCHEME_STYLE:
+        return SCHEME_STYLE[scheme]
+    used = {c for _, c, _ in SCHEME_STYLE.values()}
+    free = [c for c in (f"C{i}" for i in range(10)) if c not in used]
+    return scheme, free[index % len(free)], "D"
+
+
 def _column(metrics: dict[str, np.ndarray], name: str, shape) -> np.ndarray:
     if name in metrics:
         return metrics[name]
@@ -206,7 +215,7 @@ def versus_figure(rows: list[dict[str, object]], x: str, xlabel: str, path: Path
     groups = [None] if group is None else sorted({r.get(group) for r in rows})
     for ax, (name, label, scale) in zip(axes.ravel(), PANELS):
         for s in schemes:
-            lab, color, marker = SCHEME_STYLE.get(s, (s, None, "o"))
+            lab, color, marker = _style(s, schemes.index(s) - sum(k in SCHEME_STYLE for k in schemes))
             for gi, gv in enumerate(groups):
                 sel = sorted((r for r in rows if r["scheme"] == s and (group is None or r.get(group) == gv)),
                              key=lambda r: r[x])
@@ -253,7 +262,8 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
             col = _column(r.train, name, next(iter(r.train.values())).shape)
             d[name] = col if name not in d else _hcat(d[name], col)
     speeds = sorted({k[1] for k in data})
-    schemes = [s for s in SCHEME_STYLE if any(k[0] == s for k in data)]
+    schemes = [s for s in SCHEME_STYLE if any(k[0] == s for k in data)] + \
+        sorted({k[0] for k in data} - set(SCHEME_STYLE))
     plt = _pyplot()
     # at one or two speeds the columns alone are narrower than the title and the legend: a minimum width
     width, height = max(3.3 * len(speeds), CONVERGENCE_MIN_WIDTH_IN), 2.5 * len(PANELS)
@@ -264,7 +274,7 @@ def convergence_figure(results: list[CellResult], path: Path, window: int, title
             for s in schemes:
                 if (s, v) not in data:
                     continue
-                lab, color, _ = SCHEME_STYLE[s]
+                lab, color, _ = _style(s, schemes.index(s) - sum(k in SCHEME_STYLE for k in schemes))
                 raw = data[(s, v)][name] * scale
                 smooth = sliding_mean(raw, window, axis=0)
                 m, h = mean_ci(smooth, axis=1)

@@ -1,7 +1,8 @@
 """The paper's figure "Performance versus UAV velocity": schemes x speeds x
 seeds, each trained for the paper's episodes, then evaluated greedily.
 Schemes: truav, central, patrol (the paper's three) and, on request,
-patrol_ctrl (the patrol under the centralized control plane).
+patrol_ctrl (the patrol under the centralized control plane) and agent API
+classes by name (pkg.module:Class, or a name an installed package registers).
 
 Outputs under the run directory:
 
@@ -21,12 +22,13 @@ from pathlib import Path
 from truav.config import Config
 from truav.experiments import report
 from truav.stats import MIN_SEEDS_FOR_BAND
-from truav.experiments.cells import Cell, CellResult
+from truav.experiments.cells import BUILTIN_SCHEMES, Cell, CellResult
 from truav.experiments.runner import seed_chunks
 
 SCHEMES = ("truav", "central", "patrol")
-CHOICES = SCHEMES + ("patrol_ctrl",)
-"""patrol_ctrl: the patrol under the centralized control plane, what the control plane alone costs."""
+CHOICES = BUILTIN_SCHEMES
+"""patrol_ctrl: the patrol under the centralized control plane, what the control plane alone costs.
+Besides these, an agents.api class by name (pkg.module:Class or a registered name)."""
 SPEEDS = (5.0, 10.0, 15.0, 20.0, 25.0)
 FILES = ("velocity.csv", "summary.csv", "summary.md", "velocity.png", "convergence.png", "config.toml")
 
