@@ -3,6 +3,7 @@ through the CLI; the built-in random and patrol agents through it; one line for 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import subprocess
@@ -128,6 +129,42 @@ def test_batched_form_equals_per_uav_form_and_patrol_equals_the_controller():
     own = run_chunk("patrol", TINY_CFG, [0, 1], 3).metrics
     for k in ("coverage_pct", "pdr", "delay_ms", "energy_j", "delivered", "generated"):
         assert np.array_equal(api[k], own[k], equal_nan=True), k
+
+
+@pytest.mark.parametrize("geofence", [False, True])
+def test_truav_through_the_api_trains_what_truav_trains(geofence):
+    """TRUAV's learner as an API class (agents/truav_agent.py, registered as `truav`): every metric of every
+    episode and every Q-table entry equal to the trainer's own TRUAV, at the start of a training (epsilon
+    high) and with the geofence the paper preset turns on."""
+    from truav.trainer import run_chunk
+    cfg = TINY_CFG.replace(learner={"geofence": geofence, "episodes": 6})
+    own = run_chunk("truav", cfg, [0, 1], 6)
+    api = run_chunk("agent:truav", cfg, [0, 1], 6)
+    assert set(api.metrics) == set(own.metrics) - {"epsilon"}  # the trainer's own columns: its epsilon
+    for k in api.metrics:
+        assert np.array_equal(api.metrics[k], own.metrics[k], equal_nan=True), k
+    assert np.array_equal(api.policy["q"], own.q)
+    assert not np.array_equal(own.q, run_chunk("truav", cfg, [0, 1], 5).q)  # the last episode learned something
+
+
+def test_truav_through_the_api_resumes_from_its_state_dict():
+    """A TruavAgent rebuilt from another's state_dict mid-episode goes on as the original does."""
+    from agents.truav_agent import TruavAgent
+    from truav import seeding
+    from truav.agent_loader import trial_view
+    cfg = TINY_CFG
+    a = TruavAgent(cfg, 0, seeding.agent_rng(0, 0))
+    view = trial_view(cfg)
+    a.begin_episode(0, True)
+    a.act(view)
+    b = TruavAgent(cfg, 0, seeding.agent_rng(9, 0))
+    b.load_state_dict(a.state_dict())
+    for step in range(1, 6):
+        v = dataclasses.replace(view, step=step, pos=(view.pos[0] + 10 * step, view.pos[1]), vehicles_in_range=step)
+        a.learn(v, 0.0, False)
+        b.learn(v, 0.0, False)
+        assert a.act(v) == b.act(v)
+    assert all(np.array_equal(x, b.state_dict()[k]) for k, x in a.state_dict().items())
 
 
 @pytest.fixture

@@ -103,6 +103,21 @@ def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reac
                 assert np.array_equal(ck[f"state.{k}"], trained.policy[k][0, uav]), (uav, k)
 
 
+def test_a_lockstep_swarm_of_truav_through_the_api_ends_with_truav_trains_q_tables(tmp_path):
+    """`truav-swarm up --lockstep --agent truav` (TRUAV's learner as an API class, one process per UAV) ends
+    with the Q-tables of the trainer's own TRUAV, entry for entry."""
+    from truav.trainer import run_chunk
+    trained = run_chunk("truav", CFG, [SEED], EPISODES)
+    out = up(tmp_path, "apitruav", "--agent", "truav")
+    world = json.loads((out / "world.json").read_text())
+    for e, got in enumerate(world["episodes"]):
+        for k in METRICS:
+            assert np.array_equal(got[k], trained.metrics[k][e, 0], equal_nan=True), (e, k)
+    for uav in range(CFG.scenario.n_uavs):
+        with np.load(out / f"agent{uav}.npz") as ck:
+            assert np.array_equal(ck["state.q"], trained.q[0, uav]), uav
+
+
 def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(tmp_path):
     """Real time, 10 Hz: UAV 1's process is SIGKILLed at 6 s and restarted 2 s later; it resumes from its
     checkpoint (taken every 50 steps), so its state counts every step it learned, before and after."""

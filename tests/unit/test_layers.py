@@ -89,6 +89,7 @@ LAYERS: list[tuple[str, int]] = [
     ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
     ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
     ("agents.decision_state",           ANALYSIS),
+    ("agents.truav_agent",              ANALYSIS),   # TRUAV through the API: agent_decision's cycle per UAV
     ("agents.api_decision",             ANALYSIS),   # an agents.api class's cycle over wire messages   # that cycle's state captured and restored (snapshots)
     # -- 2 model: the pure simulation and the learners -----------------------------------------
     ("world.*",                         MODEL),
