@@ -51,6 +51,9 @@ def add_resim_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "snapshots (by default from the latest one at or before TICK)")
     p.add_argument("--out", metavar="DIR", help="branch: where whatif.csv and whatif.png go (default: "
                                                 "<FILE stem>_whatif next to FILE)")
+    p.add_argument("--agent", metavar="NAME",
+                   help="a run flown by an agent API class (`up --agent NAME`): re-simulating it imports and runs "
+                        "that class, so it is done only when NAME is given and equals the recorded one")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -88,8 +91,9 @@ def cmd_resim(args: argparse.Namespace) -> int:
                             f"re-simulation checks every tick from 0; check the recording it was cut from, or "
                             f"branch with --from TICK (restored from a state snapshot it holds)")
         n = rec.cfg.scenario.n_uavs
+        agent_cls = _agent_class(args, rec, branch)
         sim = Resimulation(rec.cfg, rec.seed, rec.episodes, start_tables(rec.qtable, rec.qtable_index, n),
-                           train=not rec.greedy)
+                           train=not rec.greedy, agent_cls=agent_cls)
         if branch:
             if args.from_tick >= sim.total_ticks:
                 raise UserError(f"--from {args.from_tick}: the run has ticks 0-{sim.total_ticks - 1}")
@@ -102,7 +106,8 @@ def cmd_resim(args: argparse.Namespace) -> int:
         return _fail(damage_line(args.file, exc), EXIT_DAMAGED)
     print(f"{args.file}: run {rec.run!r}, seed {rec.seed}, {n} UAVs, {rec.episodes} episode(s) of "
           f"{rec.cfg.scenario.steps_per_episode} steps, lock-step"
-          f"{', from ' + rec.qtable if rec.qtable else ''}{', greedy' if rec.greedy else ''}", flush=True)
+          f"{', from ' + rec.qtable if rec.qtable else ''}{', greedy' if rec.greedy else ''}"
+          f"{', agent class ' + rec.agent if rec.agent else ''}", flush=True)
     bar = _progress(sim.total_ticks, args.quiet)
     try:
         if branch:
@@ -133,12 +138,36 @@ def _on_round(bar, word: str = "divergent"):
     return on_round
 
 
+def _agent_class(args, rec, branch: bool):
+    """The agent API class of an `up --agent NAME` recording, loaded only when --agent names it (a recording
+    from elsewhere must not pick the code this command runs); None for TRUAV's own agents."""
+    from truav import agent_loader
+    from truav.errors import UserError
+    if rec.agent is None:
+        if args.agent is not None:
+            raise UserError(f"--agent {args.agent}: {args.file} was flown by TRUAV's own agents; leave --agent out")
+        return None
+    if args.agent is None:
+        raise UserError(f"{args.file}: flown by the agent class {rec.agent[:100]!r}; re-simulating it imports and "
+                        f"runs that class: give --agent {rec.agent[:100]} to do so")
+    if args.agent != rec.agent:
+        raise UserError(f"--agent {args.agent}: {args.file} was flown by {rec.agent[:100]!r}")
+    if branch:
+        raise UserError("--from: what-if branches restore TRUAV's agents from state snapshots; an agent class's "
+                        "run is re-simulated from tick 0 only")
+    return agent_loader.load(args.agent, rec.cfg)
+
+
 def _verify(args, rec, sim, bar) -> int:
     from recorder.resim_verify import verify
 
-    result = verify(args.file, rec.run, sim, on_round=_on_round(bar))
+    result = verify(args.file, rec.run, sim, on_round=_on_round(bar), check_snapshots=not sim.api)
     bar.close()
     print("\n".join(result.summary_lines()))
+    if sim.api:
+        errors = sum(a.errors for a in sim.agents)
+        print(f"recorded state snapshots: not checked (an agent class's state is its own); the class failed "
+              f"{errors} call(s) in the re-simulation (each a hovered tick, as in the run)")
     if result.exact:
         print("result: reproduced (every recorded observation, beacon and action, bit for bit)")
         return EXIT_OK

@@ -25,6 +25,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from agents.agent_decision import TruavDecision, peer_arrays
+from agents.api_decision import ApiDecision
 from agents.decision_state import decision_state, restore_decision
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
@@ -33,7 +34,9 @@ from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_inf
 from recorder.reader import read_metadata
 from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX, REASON_END
 from truav import seeding
+from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.bus import keys, schema
+from truav.call_limit import CallTooLong
 from truav.config import Config, ConfigError, config_from_dict
 from truav.errors import UserError
 from truav.runio import read_qtables
@@ -57,6 +60,8 @@ class RecordedRun:
     qtable_index: int
     info: dict = field(default_factory=dict)
     """The run settings as recorded (RUN_METADATA)."""
+    agent: str | None = None
+    """The agents.api class the run's agents flew (`up --agent NAME`), or None for TRUAV's own agents."""
 
 
 def load_run(path: str | os.PathLike[str]) -> RecordedRun:
@@ -76,9 +81,12 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
     if not info.get("lockstep"):
         raise UserError(f"{name}: a real-time run (not --lockstep): its timing decided which actions and beacons "
                         f"counted, so it cannot be re-simulated")
-    if info.get("scheme", "truav") != "truav":
-        raise UserError(f"{name}: a --scheme {str(info.get('scheme'))[:60]} run; only the TRUAV agents are "
-                        f"re-simulated")
+    scheme = info.get("scheme", "truav")
+    agent = scheme[len(AGENT_KIND_PREFIX):] if isinstance(scheme, str) and scheme.startswith(AGENT_KIND_PREFIX) \
+        else None
+    if scheme != "truav" and not agent:
+        raise UserError(f"{name}: a --scheme {str(scheme)[:60]} run; only TRUAV's agents and agent API classes "
+                        f"are re-simulated")
     if info.get("resume"):
         raise UserError(f"{name}: a --resume run: its agents started from checkpoints the recording does not hold")
     if info.get("external"):
@@ -99,13 +107,13 @@ def load_run(path: str | os.PathLike[str]) -> RecordedRun:
         keys.validate_run(run)
     except ValueError as exc:
         raise UserError(f"{name}: recorded run name {run[:80]!r}: {exc}") from None
-    table_bytes = cfg.scenario.n_uavs * StateEncoder(cfg).n_states * N_ACTIONS * 8
+    table_bytes = 0 if agent else cfg.scenario.n_uavs * StateEncoder(cfg).n_states * N_ACTIONS * 8
     if table_bytes > MAX_RESIM_TABLE_BYTES:
         raise UserError(f"{name}: its recorded config (learner.grid_cells {cfg.learner.grid_cells}, "
                         f"{cfg.scenario.n_uavs} UAVs) needs {table_bytes / 2**30:.1f} GiB of Q-tables; resim "
                         f"allocates at most {MAX_RESIM_TABLE_BYTES / 2**30:.0f} GiB")
     return RecordedRun(cfg=cfg, run=run, seed=seed, episodes=episodes, greedy=info.get("greedy") is True,
-                       qtable=qtable, qtable_index=qtable_index, info=info)
+                       qtable=qtable, qtable_index=qtable_index, info=info, agent=agent)
 
 
 MAX_RESIM_TABLE_BYTES = 2**30
@@ -170,17 +178,20 @@ class Resimulation:
     """The world and every agent of a lock-step run, stepped in process (see the module docstring)."""
 
     def __init__(self, cfg: Config, seed: int, episodes: int, tables: list[np.ndarray | None] | None = None,
-                 train: bool = True):
+                 train: bool = True, agent_cls: type | None = None):
+        """``agent_cls``: the agents.api class the run's agents flew (its recording's ``agent``), run through
+        agents.api_decision.ApiDecision as agents.api_process runs it; else TRUAV's own agents."""
         self.cfg, self.seed, self.episodes = cfg, seed, episodes
         n = cfg.scenario.n_uavs
         tables = tables if tables is not None else [None] * n
         self.world = World(cfg, 1)
         encoder = StateEncoder(cfg)
-        self.agents = [
-            TruavDecision(cfg, i, QLearners(cfg.learner, encoder.n_states, [seeding.agent_rng(seed, i)], 1, 1,
-                                            q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg),
-                          seed=seed)
-            for i in range(n)]
+        self.api = agent_cls is not None
+        self.agents = [ApiResimAgent(ApiDecision(agent_cls, cfg, i, seed, train)) for i in range(n)] if self.api \
+            else [TruavDecision(cfg, i, QLearners(cfg.learner, encoder.n_states, [seeding.agent_rng(seed, i)], 1, 1,
+                                                  q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg),
+                                seed=seed)
+                  for i in range(n)]
         self.tick = 0
         self.episode = 0
         self._obs = self.world.reset([seeding.world_rng(seed)])
@@ -205,8 +216,11 @@ class Resimulation:
         by_uav = {b.uav: b for b in beacons}
         actions = []
         for agent, o in zip(self.agents, obs):
-            peers, heard = peer_arrays(agent.hear(o, {j: b for j, b in by_uav.items() if j != agent.uav}))
-            agent.learn(o, peers, heard)
+            heard = agent.hear(o, {j: b for j, b in by_uav.items() if j != agent.uav})
+            if self.api:
+                actions.append(agent.answer(o, heard))
+                continue
+            agent.learn(o, *peer_arrays(heard))
             actions.append(agent.acknowledge(o) if done else agent.act(o))
         summary = None
         self.tick += 1
@@ -225,6 +239,8 @@ class Resimulation:
     def snapshot(self) -> tuple[int, dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
         """The state before the next tick, as a lock-step run's snapshot holds it: (tick, the world's state,
         each agent's state)."""
+        if self.api:
+            raise UserError("state snapshots and what-if branches are TRUAV's: an agent API class's state is its own")
         return self.tick, world_state(self.world, self._obs), [decision_state(a) for a in self.agents]
 
     def restore(self, tick: int, world: dict[str, np.ndarray], agents: list[dict[str, np.ndarray]]) -> None:
@@ -265,6 +281,36 @@ class Resimulation:
             agent.learners.fence = geofence(cfg)
 
 
+class ApiResimAgent:
+    """One UAV of an agent API class's run, answering as agents.api_process.ApiAgentNode.handle does in
+    lock-step: a call that raises, runs past its limit or returns an illegal action costs that tick's action
+    (the UAV hovers), and the run goes on; ``errors`` counts them."""
+
+    def __init__(self, decision: ApiDecision):
+        self.decision, self.uav = decision, decision.uav
+        self.errors = 0
+
+    def beacon(self, obs: schema.Obs) -> schema.Beacon:
+        return self.decision.beacon(obs)
+
+    def hear(self, obs: schema.Obs, beacons: dict[int, schema.Beacon]) -> dict[int, schema.Beacon]:
+        return beacons  # the agent process hears every beacon of its tick (no channel-driven links for a class)
+
+    def answer(self, obs: schema.Obs, beacons: dict[int, schema.Beacon]) -> schema.Action:
+        d = self.decision
+        try:
+            d.learn(obs, beacons)
+        except (Exception, CallTooLong):
+            self.errors += 1
+        if obs.done:
+            return d.acknowledge(obs)
+        try:
+            return d.act(obs)
+        except (Exception, CallTooLong):
+            self.errors += 1
+            return d.hover(obs)
+
+
 def payload_fields(msg: Any) -> dict[str, Any]:
     """A message's payload fields: everything but the envelope (sender, sequence, time stamp, incarnation)."""
     return {name: getattr(msg, name) for name in type(msg).__dataclass_fields__ if name not in _ENVELOPE}
@@ -273,4 +319,4 @@ def payload_fields(msg: Any) -> dict[str, Any]:
 _ENVELOPE = frozenset(schema.Envelope.__dataclass_fields__)
 
 
-__all__ = ["RecordedRun", "Resimulation", "Round", "load_run", "payload_fields", "start_tables"]
+__all__ = ["ApiResimAgent", "RecordedRun", "Resimulation", "Round", "load_run", "payload_fields", "start_tables"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -66,7 +67,8 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
                 return 8 if self.uav == 2 and view.step == 5 else 0
     '''))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
-    out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", env=env)
+    rec = tmp_path / "flaky.mcap"
+    out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", "--record", str(rec), env=env)
     agents = [json.loads((out / f"agent{i}.json").read_text()) for i in range(CFG.scenario.n_uavs)]
     assert [a["agent_errors"] for a in agents] == [0, EPISODES, 0, EPISODES]
     assert agents[1]["first_agent_error"] == "act raised RuntimeError: lost the plot"
@@ -74,6 +76,16 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
     assert "agent flaky:Flaky: act raised RuntimeError: lost the plot" in (out / "logs" / "agent1.log").read_text()
     world = json.loads((out / "world.json").read_text())
     assert len(world["episodes"]) == EPISODES
+    # Its recording re-simulates, the class's failures (a hovered tick each) included, once --agent names it.
+    resim = [sys.executable, "-m", "truav.cli", "log", "resim", str(rec), "--quiet"]
+    refused = subprocess.run(resim, env=env, capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "give --agent flaky:Flaky" in refused.stderr \
+        and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+    other = subprocess.run([*resim, "--agent", "random"], env=env, capture_output=True, text=True, timeout=120)
+    assert other.returncode == 2 and "was flown by 'flaky:Flaky'" in other.stderr, other.stderr
+    ok = subprocess.run([*resim, "--agent", "flaky:Flaky"], env=env, capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0 and "result: reproduced" in ok.stdout, ok.stdout + ok.stderr
+    assert f"the class failed {2 * EPISODES} call(s)" in ok.stdout, ok.stdout
 
 
 def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
