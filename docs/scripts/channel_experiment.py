@@ -79,7 +79,49 @@ def main(runs_dir: Path, out: Path) -> None:
             rb = {s: v * scale for s, v in data[b][sb][key].items()}
             cells.append(effect_text(paired(ra, rb), digits=digits, noun="seeds"))
         print(f"| {title} | " + " | ".join(cells) + " |")
+    _designs(runs_dir)
     _figure(data, out)
+
+
+# Beacon-dependent TRUAV designs (run as `--schemes truav --set ...`, ideal and channel links: RUNS_DIR/<run>-ideal
+# and <run>-channel), at the paper's noise and at 1e-11 W, where beacons carry ~600 m instead of ~60 m.
+DESIGNS = (("default state (nearest-neighbour distance level)", "paper", "quiet"),
+           ("learner.neighbour_sectors=4", "sectors", "quietsec"), ("learner.w_overlap=1.0", "overlap", None),
+           ("federated.every=10", "federated", "quietfed"))
+NOISES = ((1, "noise 1e-9 W (paper)"), (2, "noise 1e-11 W"))
+
+
+def _designs(runs_dir: Path) -> None:
+    """Prints, per design and noise, channel links minus ideal links and the design minus the default state
+    (all paired on the same seeds)."""
+    def run(name, links):
+        path = runs_dir / f"{name}-{links}"
+        return per_seed(path).get("truav") if name and (path / "cells").is_dir() else None
+
+    rows = []
+    for col, noise in NOISES:
+        default = DESIGNS[0][col]
+        for label, *names in DESIGNS:
+            name = names[col - 1]
+            rows.append((f"{noise}: {label}, channel links minus ideal", run(name, "ideal"), run(name, "channel")))
+        for label, *names in DESIGNS[1:]:
+            name = names[col - 1]
+            for links in ("ideal", "channel"):
+                rows.append((f"{noise}: {label} minus default state, {links} links", run(default, links),
+                             run(name, links)))
+    rows = [r for r in rows if r[1] and r[2]]
+    if not rows:
+        return
+    print("\n| TRUAV design, paper channel, paired on the same seeds | " +
+          " | ".join(label for _, label, _, _ in METRICS) + " |")
+    print("|---|" + "---|" * len(METRICS))
+    for title, a, b in rows:
+        cells = []
+        for key, _, scale, digits in METRICS:
+            ra = {s: v * scale for s, v in a[key].items()}
+            rb = {s: v * scale for s, v in b[key].items()}
+            cells.append(effect_text(paired(ra, rb), digits=digits, noun="seeds"))
+        print(f"| {title} | " + " | ".join(cells) + " |")
 
 
 def _figure(data, out: Path) -> None:
