@@ -27,7 +27,7 @@ import sys
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, ROOT)
 
-from truav.cli_args import int_in  # noqa: E402
+from truav.cli.args import int_in  # noqa: E402
 
 BEFORE_S_PER_EPISODE = 0.32
 """Wall seconds per 10-seed episode of learning at commit d2daf94 (2026-12-01, load 0.7, before the

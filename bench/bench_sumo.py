@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from truav import jsonio  # noqa: E402
-from truav.cli_args import int_in  # noqa: E402
+from truav.cli.args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
 
 

@@ -25,7 +25,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from truav.cli_args import int_in  # noqa: E402
+from truav.cli.args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.trainer import run_chunk, run_parallel  # noqa: E402
 

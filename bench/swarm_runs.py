@@ -85,12 +85,16 @@ def _voluntary_switches(status: str) -> int:
 
 def cli_module(code: Path) -> str:
     """The module of ``truav-swarm`` in checkout ``code`` (it moved in the swarm package's history)."""
+    if (code / "truav" / "cli" / "swarm.py").exists():
+        return "truav.cli.swarm"
+    # older checkouts (historical layouts, not this tree's): truav/swarm/cli.py, before it truav/swarm_cli.py
     return "truav.swarm.cli" if (code / "truav" / "swarm" / "cli.py").exists() else "truav.swarm_cli"
 
 
 def accepts_force_agents(code: Path) -> bool:
     """Whether checkout ``code``'s `up` has --force-agents (older ones had no limit to lift)."""
-    sources = [*(code / "truav" / "swarm").glob("cli*.py"), code / "truav" / "swarm_cli.py"]
+    sources = [*(code / "truav" / "cli").glob("swarm*.py"), *(code / "truav" / "swarm").glob("cli*.py"),
+               code / "truav" / "swarm_cli.py"]
     return any(p.exists() and "--force-agents" in p.read_text() for p in sources)
 
 

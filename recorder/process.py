@@ -2,10 +2,10 @@
 
 This module is the recording node (:class:`Recorder`, its options and summary,
 and :func:`record`, the process's life); its command line is
-:mod:`recorder.cli_process`.  Run it alone, or let a supervisor start it as a
+:mod:`truav.cli.log_process`.  Run it alone, or let a supervisor start it as a
 subprocess (:func:`recorder_argv`)::
 
-    python -m recorder.cli_process --run RUN --out FILE -e tcp/127.0.0.1:PORT [--config-toml FILE]
+    python -m truav.cli.log_process --run RUN --out FILE -e tcp/127.0.0.1:PORT [--config-toml FILE]
 
 (``python -m recorder.process`` is the same command, its spelling before the
 split; ``truav log record`` and its alias ``truav-swarm record`` are the same
@@ -90,7 +90,7 @@ from truav import jsonio
 log = logging.getLogger("truav.recorder")
 
 # --- names other tools rely on ---------------------------------------------------------
-ENTRY_MODULE = "recorder.cli_process"  # `python -m ENTRY_MODULE` runs the recorder (recorder_argv)
+ENTRY_MODULE = "truav.cli.log_process"  # `python -m ENTRY_MODULE` runs the recorder (recorder_argv)
 CONTROL_PART = "recorder"  # commands arrive on keys.control(run, CONTROL_PART)
 CMD_STOP = "stop"
 CMD_SPLIT, CMD_PAUSE, CMD_RESUME, CMD_SNAPSHOT = "split", "pause", "resume", "snapshot"
@@ -117,7 +117,7 @@ class RecorderUsageError(ValueError):
 
 @dataclass(frozen=True)
 class RecorderOptions:
-    """What to record and how; see ``python -m recorder.cli_process --help``."""
+    """What to record and how; see ``python -m truav.cli.log_process --help``."""
 
     run: str
     out: Path
@@ -542,7 +542,7 @@ def recorder_argv(run: str, out: str | os.PathLike[str], connect: Sequence[str] 
                   modes: RecordModes | None = None, python: str = sys.executable,
                   run_info: dict | None = None) -> list[str]:
     """The command line that runs the recorder as a subprocess (see the module docstring): the
-    :class:`RecorderOptions` a supervisor sets, as the flags of :mod:`recorder.cli_process`
+    :class:`RecorderOptions` a supervisor sets, as the flags of :mod:`truav.cli.log_process`
     (``config_toml`` here is the file; ``modes``: split or snapshot, their flags as declared in
     :class:`recorder.record_modes.RecordModes`; ``run_info``: the run's settings, RUN_METADATA; ``extra``:
     more flags, e.g. credentials or ``-v``)."""
@@ -601,7 +601,7 @@ def stop_recorder(proc: subprocess.Popen, timeout: float = STOP_GRACE_S) -> int:
     return proc.wait()
 
 
-if __name__ == "__main__":  # `python -m recorder.process`, the spelling before recorder.cli_process: the same command
+if __name__ == "__main__":  # `python -m recorder.process`, the spelling before truav.cli.log_process: the same command
     import runpy
 
-    runpy.run_module("recorder.cli_process", run_name="__main__", alter_sys=True)
+    runpy.run_module("truav.cli.log_process", run_name="__main__", alter_sys=True)

@@ -133,7 +133,7 @@ def _file_info(path: Path) -> "_FileInfo":
                 first = message.log_time if first is None else min(first, message.log_time)
                 last = message.log_time if last is None else max(last, message.log_time)
     except DamagedRecording:
-        raise  # exit 1 (recorder.cli), not a user mistake
+        raise  # exit 1 (truav.cli.log), not a user mistake
     except ValueError as exc:  # probe: "not an MCAP file"
         raise ReplayUsageError(f"{path}: {exc}") from None
     return _FileInfo(first, last, topics)

@@ -1,7 +1,7 @@
 """The error a user sees: a mistake in a flag or a file, printed as one line with exit code 2.
 
 Raised anywhere (config, fault plans, run directories); only the command-line modules catch it
-(:func:`truav.cli_args.run_main`), so lower layers depend on this small module, not on the CLI.
+(:func:`truav.cli.args.run_main`), so lower layers depend on this small module, not on the CLI.
 """
 
 from __future__ import annotations

@@ -6,10 +6,10 @@ with :func:`opt` instead of a bare default::
     checkpoint_every: int = opt(100, flag="--checkpoint-every", type="positive_int",
                                 help="steps between checkpoints (default 100)")
 
-The command line adds the flag from it (``truav.cli_args.add_options``) and fills the dataclass
-from the parsed flags (``truav.cli_args.options_from``); the supervisor builds the child's argv
+The command line adds the flag from it (``truav.cli.args.add_options``) and fills the dataclass
+from the parsed flags (``truav.cli.args.options_from``); the supervisor builds the child's argv
 from an options object with :func:`to_argv`. ``type`` names one of the argument checks of
-truav.cli_args (``"positive_int"``, ...): this base module imports no argparse and no CLI.
+truav.cli.args (``"positive_int"``, ...): this base module imports no argparse and no CLI.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ class Flag:
     flag: str
     help: str | None = None
     type: str | None = None
-    """The name of an argument check in truav.cli_args (its argparse ``type``); None: a string."""
+    """The name of an argument check in truav.cli.args (its argparse ``type``); None: a string."""
     metavar: str | None = None
     choices: tuple | None = None
     action: str | None = None

@@ -15,7 +15,7 @@ import numpy as np
 
 from agents.controller import TruavController
 from truav import seeding
-from truav.cli_config import parse_sets
+from truav.cli.config import parse_sets
 from truav.config import load_config
 from truav.driver import run_episodes
 from truav.presets import preset_overrides

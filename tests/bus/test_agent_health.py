@@ -16,7 +16,7 @@ from recorder.reader import iter_messages, read_schemas
 from tests.support.waits import wait_until
 from truav.bus import guard, keys, schema, security
 from truav.config import Config
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 
 RUN = "health"
 

@@ -19,7 +19,7 @@ import pytest
 from tests.support.waits import free_port, wait_matched
 import zenoh
 
-from truav import cli_args
+from truav.cli import args as cli_args
 from tests.support.waits import wait_until as _wait_until
 from truav.bus import keys, schema, transport
 from truav.bus.schema import Action, Beacon, Obs, SchemaError

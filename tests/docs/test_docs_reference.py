@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from truav import cli_reference
-from truav.cli_reference import COMMAND, PAGES, cli_page, config_page, fault_plan_page
+from truav.cli import reference as cli_reference
+from truav.cli.reference import COMMAND, PAGES, cli_page, config_page, fault_plan_page
 
 
 @pytest.mark.parametrize("name", ["cli.md", "config.md", "fault-plan-format.md"])

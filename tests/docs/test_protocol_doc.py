@@ -24,7 +24,7 @@ from truav.bus import acl, guard, keys, placement, protocol_doc, schema_names
 from truav.bus.codec import unpack_limits
 from truav.bus.field_checks import _uint63
 from truav.bus.messages import MESSAGE_CLASSES, Envelope, size_limit
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 from world.world_process import WorldOptions
 
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "reference" / "protocol.md"

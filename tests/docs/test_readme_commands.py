@@ -23,7 +23,7 @@ import pytest
 from tests.support.readme_commands import commands, key
 
 REPO = Path(__file__).resolve().parents[2]
-ENTRY = {"truav": "truav.cli", "truav-swarm": "truav.swarm.cli"}
+ENTRY = {"truav": "truav.cli", "truav-swarm": "truav.cli.swarm"}
 
 SMALL_CITY = ["--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5"]
 # --max-missed 1: how many of a 5-tick real-time run's actions a loaded CI host misses is not what this test
@@ -166,8 +166,8 @@ TIMEOUT_S = 240
 
 def _parse(argv: list[str]) -> None:
     """Our own commands go through their real parser (a renamed or misspelt flag fails here)."""
-    from truav.cli import build_parser as truav_parser
-    from truav.swarm.cli import build_parser as swarm_parser
+    from truav.cli.main import build_parser as truav_parser
+    from truav.cli.swarm import build_parser as swarm_parser
     parser = {"truav": truav_parser, "truav-swarm": swarm_parser}[argv[0]]()
     parser.parse_args(argv[1:argv.index(">")] if ">" in argv else argv[1:])
 

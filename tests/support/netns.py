@@ -1,7 +1,7 @@
 """Hosts on one machine: network namespaces joined by veth pairs through a bridge.
 
     with Hosts.create({"a": "198.51.100.1", "b": "198.51.100.2"}) as hosts:
-        proc = hosts.popen("a", [sys.executable, "-m", "truav.swarm.cli", "router", ...])
+        proc = hosts.popen("a", [sys.executable, "-m", "truav.cli.swarm", "router", ...])
         hosts.cut("b")       # host b's cable out of the bridge (ip link set ... down)
         hosts.restore("b")
 

@@ -12,7 +12,7 @@ from truav.lifecycle import child_env
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "examples" / "outside_agent.py"
-CLI = [sys.executable, "-m", "truav.swarm.cli"]
+CLI = [sys.executable, "-m", "truav.cli.swarm"]
 
 
 class Swarm:

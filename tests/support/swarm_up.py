@@ -35,7 +35,7 @@ class Up:
         self.log_path = tmp / "up.log"
         self.run = run
         log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "up", "--run", run, "--out",
+        self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--run", run, "--out",
                                       str(self.out), "-l", free_loopback_endpoint(), "--quiet", "--no-plot",
                                       *SMALL, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         log.close()

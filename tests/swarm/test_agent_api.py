@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from truav import cli, runio
+from truav import runio
+from truav.cli import main as cli
 from truav.agent_run import read_agent_state
 from truav.config import Config
 

@@ -33,7 +33,7 @@ def up(tmp: Path, name: str, *extra: str, env: dict | None = None) -> Path:
     scenario = tmp / f"{name}.toml"
     scenario.write_text(to_toml(CFG))
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
     rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=env or dict(os.environ), term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
@@ -143,7 +143,7 @@ def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(t
     scenario.write_text(to_toml(CFG.replace(scenario={"steps_per_episode": 120})))
     out = tmp_path / "rt"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(mods), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--seed", str(SEED), "--run", "rt", "--episodes", "1",
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--seed", str(SEED), "--run", "rt", "--episodes", "1",
            "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", "--agent", "bandit_agent:Bandit",
            "--fault-plan", str(plan)]
     assert run_to_end(cmd, tmp_path / "rt.log", SWARM_TIMEOUT_S, env=env) == 0, (tmp_path / "rt.log").read_text()

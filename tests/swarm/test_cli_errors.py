@@ -23,9 +23,9 @@ from recorder.mcap_log import McapLog
 from recorder.metadata import (CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, config_metadata,
                                run_info_metadata)
 from recorder.record_modes import PART_METADATA
-from truav.cli import main as truav_main
+from truav.cli.main import main as truav_main
 from truav.config import Config, to_toml
-from truav.swarm.cli import main as swarm_main
+from truav.cli.swarm import main as swarm_main
 
 GOOD_PLAN = '[[fault]]\nkind = "crash"\nstart = 1.0\nuav = 1\n'
 
@@ -119,15 +119,15 @@ def nothing_starts(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # default output directories (runs/...) land here, not in the repository
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
-    import recorder.cli_process
+    import truav.cli.log_process
     import recorder.replay_bus
     import truav.experiments.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
     import agents.agent_host
     import agents.controller_host
-    import truav.swarm.cli_ops
-    import truav.swarm.cli_processes
+    import truav.cli.swarm_ops
+    import truav.cli.swarm_processes
     import world.world_host
     import truav.swarm.supervisor
     import truav.trainer
@@ -135,8 +135,8 @@ def nothing_starts(monkeypatch, tmp_path):
     for module, name in ((truav.trainer, "run_parallel"), (truav.sumo_traffic, "checked_trace"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
                          (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
-                         (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.swarm.cli_ops, "Bus"),
-                         (truav.swarm.cli_processes, "run_router"), (recorder.cli_process, "cmd_record"),
+                         (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.cli.swarm_ops, "Bus"),
+                         (truav.cli.swarm_processes, "run_router"), (truav.cli.log_process, "cmd_record"),
                          (recorder.replay_bus, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)
@@ -316,7 +316,7 @@ def test_bad_invocation_is_one_line(files, nothing_starts, capsys, main, argv, c
 
 def test_quick_does_not_override_explicit_settings(files, tmp_path, monkeypatch) -> None:
     """--quick fills in what the user left out; --set and flags given explicitly win."""
-    from truav.experiments import cli as ex_cli
+    from truav.cli import experiment as ex_cli
     seen = {}
 
     def capture(args, cfg, out, cells, label):
@@ -382,7 +382,7 @@ def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:
     (["truav", "log", "record-ctl", "split", "-e", "tcp/127.0.0.1:1", "--wait", "0.5"], 1, "cannot open a session"),
 ])
 def test_real_entry_points(files, tmp_path, cmd, code, names) -> None:
-    proc = _run([sys.executable, "-c", f"import sys; from {'truav.cli' if cmd[0] == 'truav' else 'truav.swarm.cli'} "
+    proc = _run([sys.executable, "-c", f"import sys; from {'truav.cli.main' if cmd[0] == 'truav' else 'truav.cli.swarm'} "
                  f"import main; sys.exit(main())", *_argv(cmd[1:], files)], cwd=tmp_path)
     assert "Traceback" not in proc.stderr
     assert proc.returncode == code, proc.stderr
@@ -401,7 +401,7 @@ def test_log_check_into_a_closed_pipe_ends_quietly(files, tmp_path) -> None:
     read_end, write_end = os.pipe()
     os.close(read_end)  # nobody reads: the first write fails with EPIPE
     try:
-        proc = subprocess.run([sys.executable, "-c", "import sys; from truav.cli import main; sys.exit(main())",
+        proc = subprocess.run([sys.executable, "-c", "import sys; from truav.cli.main import main; sys.exit(main())",
                                "log", "check", files["good_mcap"]], stdout=write_end, stderr=subprocess.PIPE,
                               text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path,
                               env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})

@@ -26,7 +26,7 @@ def test_world_survives_a_controller_sigkill_and_the_summary_says_so(tmp_path):
     plan = tmp_path / "plan.toml"
     plan.write_text('[[fault]]\nkind = "crash"\nstart = 1.5\ntarget = "controller"\n')  # never restarted
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--scheme", "central", "--scenario", str(scenario),
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "central", "--scenario", str(scenario),
            "--episodes", "1", "--out", str(out), "--fault-plan", str(plan), "--command-hold", "1", "--quiet",
            "--no-plot",
            # a busy host makes real-time agents miss actions: not what this test is about (it finishes, and

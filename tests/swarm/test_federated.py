@@ -278,7 +278,7 @@ def _fed_swarm(tmp, name, cfg, plan_toml, *extra):
     (tmp / f"{name}.toml").write_text(to_toml(cfg))
     (tmp / f"{name}-plan.toml").write_text(plan_toml)
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(cfg.learner.episodes), "--scenario", str(tmp / f"{name}.toml"), "--out", str(out),
            "--fault-plan", str(tmp / f"{name}-plan.toml"), "--quiet", "--no-plot", *extra]
     return run_to_end(cmd, tmp / f"{name}.log", 180.0, term_wait_s=30), out

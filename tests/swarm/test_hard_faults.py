@@ -20,7 +20,7 @@ import pytest
 
 from tests.support.runs import run_to_end
 from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.outdir import MARKER_FILE
 
@@ -56,7 +56,7 @@ def test_a_second_agent_for_a_live_uav_is_refused_before_it_flies(up, tmp_path):
     u = up("dup", "--agents", "2", "--steps", "100", "--episodes", "20")  # real time: minutes, ended by close()
     endpoint = u.wait_ticking()
     dup = subprocess.run(  # by hand, as a user would: its own checkpoint path, the run's UAV 1
-[sys.executable, "-m", "truav.swarm.cli", "agent", "--run", "dup", "--id", "1", "-e",
+[sys.executable, "-m", "truav.cli.swarm", "agent", "--run", "dup", "--id", "1", "-e",
                           endpoint, "--scenario", str(u.out / "scenario.toml"), "--checkpoint",
                           str(tmp_path / "dup1.npz")], capture_output=True, text=True, timeout=120)
     assert dup.returncode == 2, dup.stderr[-3000:]
@@ -113,7 +113,7 @@ def small_disk(tmp_path):
 
 def test_up_on_a_full_disk_ends_failed_with_a_summary_that_says_so(small_disk, tmp_path):
     out = small_disk / "swarm"
-    rc = run_to_end([sys.executable, "-m", "truav.swarm.cli", *_up_argv(out)], tmp_path / "up.log", 240)
+    rc = run_to_end([sys.executable, "-m", "truav.cli.swarm", *_up_argv(out)], tmp_path / "up.log", 240)
     text = (tmp_path / "up.log").read_text(errors="replace")
     assert rc == 1, text[-3000:]
     assert "Traceback" not in text and "no space left on" in text and "result: FAILED" in text

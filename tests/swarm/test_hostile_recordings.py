@@ -307,7 +307,7 @@ def test_every_file_reading_log_action_is_tried() -> None:
     """The table above covers every `truav log` action that reads a recording (a new one must be added)."""
     import argparse
 
-    from recorder.cli import add_log_commands
+    from truav.cli.log import add_log_commands
     parser = argparse.ArgumentParser()
     add_log_commands(parser.add_subparsers())
     log = parser._subparsers._group_actions[0].choices["log"]

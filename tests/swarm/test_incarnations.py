@@ -68,7 +68,7 @@ def runtime_fault_changes(ep: str, world_log: Path, plans: list[Path], results: 
     while time.monotonic() < deadline and not (world_log.exists() and "starting" in world_log.read_text()):
         time.sleep(0.2)
     for plan in plans:
-        results.append(subprocess.run([sys.executable, "-m", "truav.swarm.cli", "faults", "--run", "inc", "-e", ep,
+        results.append(subprocess.run([sys.executable, "-m", "truav.cli.swarm", "faults", "--run", "inc", "-e", ep,
                                        "--plan", str(plan)], capture_output=True, text=True, timeout=60).returncode)
 
 

@@ -41,7 +41,7 @@ def run_up(tmp: Path, name: str, freeze_s: float, *extra: str) -> tuple[int, Pat
     plan = tmp / f"{name}-plan.toml"
     plan.write_text(f'[[fault]]\nkind = "freeze"\nstart = 1.0\nduration = {freeze_s}\nuav = 1\n')
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--fault-plan", str(plan),
            "--quiet", "--no-plot", *extra]
     log = tmp / f"{name}.log"

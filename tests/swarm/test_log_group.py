@@ -20,10 +20,10 @@ import pytest
 
 from tests.support.readme_commands import README, commands
 from tests.support.recordings import make_swarm_recording
-from truav.cli import build_parser as truav_parser
-from truav.cli import main as truav_main
-from truav.swarm.cli import build_parser as swarm_parser
-from truav.swarm.cli import main as swarm_main
+from truav.cli.main import build_parser as truav_parser
+from truav.cli.main import main as truav_main
+from truav.cli.swarm import build_parser as swarm_parser
+from truav.cli.swarm import main as swarm_main
 
 REPO = Path(__file__).resolve().parents[2]
 LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info", "play-ctl",
@@ -102,7 +102,7 @@ def test_replay_help_options_are_play_help_options() -> None:
         assert done.returncode == 0, done.stderr
         return done.stdout
 
-    replay = help_of("truav.swarm.cli", "replay")
+    replay = help_of("truav.cli.swarm", "replay")
     play = help_of("truav.cli", "log", "play")
     assert _help_options(replay) == _help_options(play)
     assert replay.split("\n\n", 1)[1] == play.split("\n\n", 1)[1]  # all but the usage (its program name)
@@ -197,7 +197,7 @@ def test_the_docs_name_the_log_group_and_its_aliases() -> None:
 def test_replay_ctl_is_play_ctl() -> None:
     """`truav-swarm replay-ctl` and `truav log play-ctl` are one parser and one command (its actions are
     subcommands, which the flag comparison above cannot hold side by side)."""
-    from truav.swarm.cli import build_parser as swarm_parser
+    from truav.cli.swarm import build_parser as swarm_parser
 
     for argv in (["seek", "--tick", "40"], ["rate", "2"], ["step"], ["burst", "5"], ["status"], ["seek", "--by", "-5"]):
         old = vars(swarm_parser().parse_args(["replay-ctl", "--run", "r", *argv]))

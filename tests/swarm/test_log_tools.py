@@ -27,7 +27,7 @@ from recorder.merge import MERGE_METADATA, PART_METADATA, merge
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, config_metadata
 from recorder.reader import iter_messages, read_metadata
 from truav.bus import keys, schema
-from truav.cli import main as truav_main
+from truav.cli.main import main as truav_main
 from truav.config import Config, to_toml
 from truav.errors import UserError
 

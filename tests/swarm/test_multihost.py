@@ -61,7 +61,7 @@ START_TIMEOUT_S = 30.0
 RUN_TIMEOUT_S = 90.0
 EPISODE_LINE = re.compile(r"^(\S+ \S+) truav\.world\S* INFO episode (\d+):", re.M)
 LOST_OR_SKIPPED = re.compile(r"going on without them|deciding without them|agent lost|peer uav \d+ lost|router lost")
-CLI = [sys.executable, "-m", "truav.swarm.cli"]
+CLI = [sys.executable, "-m", "truav.cli.swarm"]
 
 
 @pytest.fixture

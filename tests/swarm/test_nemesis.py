@@ -10,7 +10,7 @@ import pytest
 
 from truav.faults import PlanError, load_plan, plan_from_dict
 from truav.nemesis import FIRST_FAULT_S, RESTART_SETTLE_S, heal_at, quiet_tail_s, random_plan
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 from truav.swarm import invariants
 
 
@@ -160,7 +160,7 @@ def test_a_short_nemesis_run_heals_and_its_checker_reports_every_invariant(tmp_p
     from truav.swarm.children import free_loopback_endpoint
     import sys
     out = tmp_path / "chaos"
-    rc = run_to_end([sys.executable, "-m", "truav.swarm.cli", "chaos", "--nemesis", "random",
+    rc = run_to_end([sys.executable, "-m", "truav.cli.swarm", "chaos", "--nemesis", "random",
                      "--duration", f"{SOAK_S:g}s", "--seed", str(SOAK_SEED), "--agents", "3", "--run", "soak",
                      "--out", str(out), "--quiet",
                      "-l", free_loopback_endpoint(), "--set", "scenario.n_vehicles=40",

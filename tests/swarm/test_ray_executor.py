@@ -3,7 +3,7 @@ Runs on a local Ray instance (2 CPUs, loopback, no dashboard)."""
 
 import pytest
 
-from truav.cli import main
+from truav.cli.main import main
 
 ray = pytest.importorskip("ray")
 

@@ -178,13 +178,13 @@ def test_parts_of_an_earlier_recording_are_not_overwritten_without_force(tmp_pat
 
 def test_up_passes_the_flags_and_checks_them() -> None:
     import argparse
-    from recorder.cli_process import add_record_args
+    from truav.cli.log_process import add_record_args
     from recorder.process import recorder_argv
-    from truav.cli_args import options_from
+    from truav.cli.args import options_from
     modes = RecordModes(split_size_mb=5.0, split_duration_s=60.0, split_on_command=True)
     argv = recorder_argv(RUN, "r.mcap", modes=modes)
     assert options_from(RecordModes, add_record_args(argparse.ArgumentParser()).parse_args(argv[3:])) == modes
-    proc = subprocess.run([sys.executable, "-m", "truav.swarm.cli", "up", "--split-size", "5"], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "truav.cli.swarm", "up", "--split-size", "5"], capture_output=True,
                           text=True, timeout=60, cwd=REPO)
     assert proc.returncode == 2 and "--split-size" in proc.stderr and "--record" in proc.stderr, proc.stderr
 

@@ -29,7 +29,7 @@ from mcap.reader import make_reader
 from recorder.check import check
 from recorder.mcap_log import MIRROR_PREFIX, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA
-from recorder.cli_process import main
+from truav.cli.log_process import main
 from recorder.process import (
     CMD_STOP,
     CONTROL_PART,

@@ -24,7 +24,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from recorder.cli import add_swarm_commands
+from truav.cli.log import add_swarm_commands
 from recorder.mcap_log import McapLog
 from recorder.process import Recorder, RecorderOptions
 from recorder.reader import iter_messages
@@ -466,7 +466,7 @@ def test_replayed_world_stream_drives_a_live_agent(tmp_path: Path, endpoint: str
     subscribe_ready(watcher, keys.uav_prefix(run, uav) + "/**", actions, run)
     repo = Path(__file__).resolve().parents[2]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")])}
-    agent = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "agent", "--id", str(uav), "--run", run,
+    agent = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "agent", "--id", str(uav), "--run", run,
                               "--greedy", "--accept-replay", "-e", endpoint], env=env, stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
@@ -506,7 +506,7 @@ def test_help_example_of_a_replay_driven_agent_gives_it_accept_replay(capsys) ->
     import re
     import shlex
 
-    from truav.swarm.cli import build_parser
+    from truav.cli.swarm import build_parser
     with pytest.raises(SystemExit):
         build_parser().parse_args(["replay", "--help"])
     text = " ".join(capsys.readouterr().out.split()).replace("truav- swarm", "truav-swarm")  # wrapped at the hyphen

@@ -22,8 +22,8 @@ from recorder.replay import ReplayOptions
 from recorder.replay_bus import ask_replay, replay_on_bus
 from truav.bus import acl, keys, schema, transport
 from truav.bus.transport import Bus, QueryRefused
-from truav.cli_config import UsageError
-from truav.swarm.cli import build_parser
+from truav.cli.config import UsageError
+from truav.cli.swarm import build_parser
 from tests.support.ticks import PER_TICK, last_before, make_ticks, of_tick
 from tests.support.waits import wait_until as _wait_until
 
@@ -223,7 +223,7 @@ def test_lockstep_replay_paces_the_recorded_world_by_a_live_agent(tmp_path: Path
     repo = Path(__file__).resolve().parents[2]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")]),
            DELAY_ENV: f"{uav}:100"}
-    agent = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "agent", "--id", str(uav), "--run", run,
+    agent = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "agent", "--id", str(uav), "--run", run,
                               "--greedy", "--accept-replay", "-e", endpoint], env=env, stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     lines: list[str] = []

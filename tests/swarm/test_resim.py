@@ -23,7 +23,7 @@ from recorder.metadata import RUN_METADATA
 from recorder.resim import Resimulation, load_run, payload_fields
 from recorder.resim_branch import run_branch
 from truav.bus import keys
-from truav.cli import main as truav_main
+from truav.cli.main import main as truav_main
 from truav.config import Config
 
 RUN = "resim"

@@ -36,7 +36,7 @@ def up(tmp: Path, name: str, *extra: str) -> Path:
     scenario = tmp / f"{name}.toml"
     scenario.write_text(to_toml(CFG))
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
     rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=dict(os.environ), term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")

@@ -27,7 +27,7 @@ from tests.support.waits import free_port, wait_matched
 from agents.agent_process import DELAY_ENV
 from truav.bus import guard, keys, schema, security, transport
 from truav.config import Config
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 
 RUN = "sec"
 N = 3
@@ -328,7 +328,7 @@ class Swarm:
         self.out = out
         self.log_path = out.parent / f"{out.name}.log"
         with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "up", "--out", str(out),
+            self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--out", str(out),
                                           "--quiet", "--no-plot", *SWARM_SET, *args],
                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 

@@ -133,7 +133,7 @@ def test_train_mobility_sumo_runs(tiny, tmp_path):
 
 def test_without_sumo_asking_for_it_is_one_line(tmp_path):
     """A machine without the extra: `sumo` cannot be imported (a None in sys.modules)."""
-    code = ("import sys; sys.modules['sumo'] = None; sys.modules['libsumo'] = None; from truav.cli import main; "
+    code = ("import sys; sys.modules['sumo'] = None; sys.modules['libsumo'] = None; from truav.cli.main import main; "
             "sys.exit(main(sys.argv[1:]))")
     for args in (["train", "--mobility", "sumo", "--out", "runs/x"], ["traffic", "build"]):
         done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=tmp_path,
@@ -158,7 +158,7 @@ def test_lockstep_swarm_on_sumo_traffic_learns_the_trainers_tables(tiny, tmp_pat
     plain = Config().replace(**{**TINY, "scenario": {k: v for k, v in TINY["scenario"].items() if k != "mobility"}})
     (tmp_path / "tiny.toml").write_text(to_toml(plain))
     out = tmp_path / "swarm"
-    cmd = [sys.executable, "-m", "truav.swarm.cli", "up", "--lockstep", "--mobility", "sumo", "--seed", str(seed),
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--mobility", "sumo", "--seed", str(seed),
            "--run", "sumo", "--episodes", str(episodes), "--scenario", str(tmp_path / "tiny.toml"), "--out", str(out),
            "--quiet", "--no-plot"]
     rc = run_to_end(cmd, tmp_path / "swarm.log", 180.0, term_wait_s=30)
@@ -227,7 +227,7 @@ def test_a_damaged_cached_trace_is_one_line_before_anything_starts(tiny, tmp_pat
     env = {**os.environ, "TRUAV_TRACE_CACHE": str(cache)}
     for cmd in (["truav.cli", "train", "--mobility", "sumo", "--config", "tiny.toml", "--seeds", "1", "--episodes",
                  "1", "--out", "runs/t"],
-                ["truav.swarm.cli", "up", "--mobility", "sumo", "--scenario", "tiny.toml", "--episodes", "1",
+                ["truav.cli.swarm", "up", "--mobility", "sumo", "--scenario", "tiny.toml", "--episodes", "1",
                  "--out", "runs/u"],
                 ["truav.cli", "traffic", "build", "--config", "tiny.toml", "--set", "scenario.mobility=sumo"]):
         done = subprocess.run([sys.executable, "-m", *cmd], capture_output=True, text=True, env=env, cwd=tmp_path,

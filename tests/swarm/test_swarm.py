@@ -20,7 +20,7 @@ import pytest
 from agents.agent_process import checkpoint_due
 from agents.controller import TruavController
 from truav.bus import keys
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 from truav.config import Config, to_toml
 from truav.driver import run_episodes
 from truav.swarm.supervisor import free_loopback_endpoint, wait_for_port
@@ -39,7 +39,7 @@ class Procs:
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
         log = open(self.tmp / f"{name}.log", "wb")
-        p = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", *args], stdout=log, stderr=subprocess.STDOUT)
+        p = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", *args], stdout=log, stderr=subprocess.STDOUT)
         log.close()
         self.procs[name] = p
         return p
@@ -182,7 +182,7 @@ def test_no_swarm_process_outlives_its_supervisor(tmp_path, signum):
     children notice it is gone and stop by themselves, cleanly (agents write their statistics)."""
     out = tmp_path / "swarm"
     log = open(tmp_path / "up.log", "wb")
-    sup = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", "up", "--run", "lifeline", "--agents", "2",
+    sup = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--run", "lifeline", "--agents", "2",
                             "--steps", "100", "--episodes", "50", "--set", "scenario.n_vehicles=40",
                             "--out", str(out), "--quiet", "--no-plot"],
                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
@@ -210,5 +210,5 @@ def test_no_swarm_process_outlives_its_supervisor(tmp_path, signum):
             sup.kill()
             sup.wait()
         for pid in children.values():  # only our own children, should the test have failed
-            if _running(pid) and b"truav.swarm.cli" in Path(f"/proc/{pid}/cmdline").read_bytes():
+            if _running(pid) and b"truav.cli.swarm" in Path(f"/proc/{pid}/cmdline").read_bytes():
                 os.kill(pid, signal.SIGKILL)

@@ -21,7 +21,7 @@ from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` r
 from truav.bus import keys, schema
 from truav.bus.transport import Bus, make_config
 from truav.config import Config
-from truav.swarm import cli as swarm_cli
+from truav.cli import swarm as swarm_cli
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.outdir import prepare_swarm_dir
 from truav.swarm.supervisor import SwarmOptions, run_swarm
@@ -207,7 +207,7 @@ def test_parts_started_by_hand_checkpoint_and_exit_when_their_router_is_gone(tmp
 
     def start(name: str, *args: str) -> None:
         with open(tmp_path / f"{name}.log", "wb") as log:
-            procs[name] = subprocess.Popen([sys.executable, "-m", "truav.swarm.cli", *args], stdout=log,
+            procs[name] = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", *args], stdout=log,
                                            stderr=subprocess.STDOUT)
 
     try:

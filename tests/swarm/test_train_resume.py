@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-import truav.cli
-from truav.cli import main as truav_main
+import truav.cli.main
+from truav.cli.main import main as truav_main
 
 ARGS = ["--seeds", "2", "--episodes", "30", "--quiet", "--set", "scenario.n_vehicles=60",
         "--set", "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10"]
@@ -57,7 +57,7 @@ def test_interrupted_then_resumed_training_equals_an_uninterrupted_one(tmp_path,
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(whole)]) == 0
     with monkeypatch.context() as m:
-        m.setattr(truav.cli, "progress_bar", _SigintAfter(6))
+        m.setattr(truav.cli.main, "progress_bar", _SigintAfter(6))
         assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(cut)]) == 130
     err = capsys.readouterr().err
     assert "interrupted:" in err and "--resume" in err, err
@@ -68,7 +68,7 @@ def test_interrupted_then_resumed_training_equals_an_uninterrupted_one(tmp_path,
     bar = _SigintAfter(10 ** 9)  # never fires: records where the resumed run's bar starts
     starts = []
     with monkeypatch.context() as m:
-        m.setattr(truav.cli, "progress_bar", lambda total, desc, quiet, initial=0: starts.append(initial) or bar)
+        m.setattr(truav.cli.main, "progress_bar", lambda total, desc, quiet, initial=0: starts.append(initial) or bar)
         assert truav_main(["train", *ARGS, "--workers", str(workers), "--out", str(cut), "--resume"]) == 0
     resumed_from = starts[0]  # env-episodes the checkpoints hold: the bar goes on from there, not from 0
     assert len(starts) == 1 and 0 < resumed_from < 2 * 30 and bar.seen == 2 * 30 - resumed_from
@@ -82,7 +82,7 @@ def test_interrupted_then_resumed_training_equals_an_uninterrupted_one(tmp_path,
 def test_resume_with_another_config_or_scheme_is_refused(tmp_path, monkeypatch, capsys):
     cut = tmp_path / "cut"
     with monkeypatch.context() as m:
-        m.setattr(truav.cli, "progress_bar", _SigintAfter(2))
+        m.setattr(truav.cli.main, "progress_bar", _SigintAfter(2))
         assert truav_main(["train", *ARGS, "--workers", "1", "--out", str(cut)]) == 130
     capsys.readouterr()
     for extra, names in ((["--set", "scenario.n_vehicles=61"], "another config"), (["--seeds", "3"], "seeds"),

@@ -21,7 +21,7 @@ from tests.support.waits import free_port
 from truav.lifecycle import child_env
 
 REPO = Path(__file__).resolve().parents[2]
-CLI = [sys.executable, "-m", "truav.swarm.cli"]
+CLI = [sys.executable, "-m", "truav.cli.swarm"]
 STEPS = 10
 RUN_TIMEOUT_S = 240.0
 

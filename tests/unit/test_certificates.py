@@ -46,7 +46,7 @@ def test_issued_certificates_chain_to_the_ca_and_name_the_right_hosts(tmp_path: 
 
 def test_certs_command_works_with_this_release(tmp_path: Path, capsys) -> None:
     """`truav-swarm certs` end to end, with whatever cryptography the environment resolved."""
-    from truav.swarm.cli import main
+    from truav.cli.swarm import main
     out = tmp_path / "creds"
     assert main(["certs", "--run", "demo", "--agents", "2", "--out", str(out)]) == 0, capsys.readouterr().err
     assert (out / "ca.pem").is_file() and (out / "router.pem").is_file()

@@ -121,7 +121,7 @@ def test_config_mistakes_name_the_key(channel, scenario, key):
 
 
 def test_every_model_is_accepted_and_listed(capsys):
-    from truav.cli import main
+    from truav.cli.main import main
     for model in cm.MODELS:
         assert Config().replace(channel={"model": model}).channel.model == model
     assert main(["config", "show"]) == 0
@@ -159,7 +159,7 @@ def test_set_channel_model_reaches_the_commands(argv, capsys, monkeypatch, tmp_p
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(truav.trainer, "run_parallel", trap)
     monkeypatch.setattr(truav.experiments.runner, "run_cells", trap)
-    from truav.cli import main
+    from truav.cli.main import main
     try:
         rc = main(argv)
     except SystemExit as exc:
@@ -175,7 +175,7 @@ def test_set_channel_model_reaches_swarm_up(capsys, monkeypatch, tmp_path):
         raise AssertionError("the swarm started before the mistake was caught")
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(truav.swarm.supervisor, "run_swarm", trap)
-    from truav.swarm.cli import main
+    from truav.cli.swarm import main
     try:
         rc = main(["up", "--set", "channel.model=3gpp-umi-av", "--set", "scenario.uav_altitude_m=15"])
     except SystemExit as exc:
@@ -185,16 +185,16 @@ def test_set_channel_model_reaches_swarm_up(capsys, monkeypatch, tmp_path):
 
 
 def test_evaluate_runs_a_policy_under_another_channel(tmp_path, monkeypatch, capsys):
-    import truav.cli
+    import truav.cli.main
     seen = []
 
     def fake_run(kind, cfg, *_a, **_k):
         seen.append(cfg.channel.model)
         raise SystemExit(0)
     run = _run_dir(tmp_path)
-    monkeypatch.setattr(truav.cli, "run_with_progress", fake_run)
+    monkeypatch.setattr(truav.cli.main, "run_with_progress", fake_run)
     with pytest.raises(SystemExit):
-        truav.cli.main(["evaluate", str(run), "--set", "channel.model=3gpp-rma-av", "--quiet"])
+        truav.cli.main.main(["evaluate", str(run), "--set", "channel.model=3gpp-rma-av", "--quiet"])
     assert seen == ["3gpp-rma-av"]
 
 

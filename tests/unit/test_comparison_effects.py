@@ -65,7 +65,7 @@ def test_the_scheme_comparison_pairs_schemes_at_each_point_and_points_with_no_fa
 
 
 def test_evaluate_against_references_pairs_them_over_seeds(tmp_path, capsys):
-    from truav.cli import main
+    from truav.cli.main import main
     run = tmp_path / "run"
     assert main(["train", "--seeds", "3", "--episodes", "2", "--workers", "1", "--quiet", "--out", str(run),
                  "--set", "scenario.n_vehicles=30", "--set", "scenario.steps_per_episode=10",

@@ -5,7 +5,7 @@ import csv
 
 import numpy as np
 
-from truav.cli import main
+from truav.cli.main import main
 from truav.experiments import runner
 
 

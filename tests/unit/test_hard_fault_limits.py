@@ -7,7 +7,7 @@ import errno
 
 import pytest
 
-from truav.cli_args import run_main
+from truav.cli.args import run_main
 
 
 def test_checkpoint_temporaries_are_unique_per_process(tmp_path, monkeypatch):
@@ -54,7 +54,7 @@ def test_a_command_whose_disk_fills_up_says_so_in_one_line(tmp_path, capsys):
 
 # -- ranges that hold ---------------------------------------------------------------------------
 def _one_line_exit_2(argv, capsys) -> str:
-    from truav.cli import main as truav_main
+    from truav.cli.main import main as truav_main
     assert truav_main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Traceback" not in err[0], err
@@ -93,7 +93,7 @@ def test_a_deeply_nested_config_is_one_line(tmp_path, capsys):
 
 def test_a_metric_without_data_is_no_data_not_nan():
     import numpy as np
-    from truav.cli import format_table
+    from truav.cli.main import format_table
     from truav.stats import shown
     table = format_table({"truav": {"coverage_pct": np.array([10.0, 12.0]), "pdr": np.array([np.nan, np.nan]),
                                     "delay_ms": np.array([np.nan, np.nan]), "energy_j": np.array([1e3, 1e3])}})

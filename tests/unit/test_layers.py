@@ -6,7 +6,9 @@ those inside functions too, relative imports resolved, and the test fails:
 (a) on an import cycle among project modules (the cycle is named);
 (b) when a module imports a module of a higher layer than its own (LAYERS below);
 (c) when a non-CLI module imports argparse, or a pure layer (base, model, wire, analysis) imports zenoh;
-(d) when a non-CLI module imports a CLI module.
+(d) when a non-CLI module imports a CLI module;
+(e) when argparse is imported, or truav.cli is imported, outside the folder truav/cli/ (bench/'s
+    scripts, command lines of their own, aside).
 
 Every project module must match a pattern of LAYERS: an unmatched module fails the test, so a new
 module is placed deliberately. Imports that break a rule today and are being removed (issue 27)
@@ -35,11 +37,8 @@ LAYERS: list[tuple[str, int]] = [
     # -- 9 bench: scripts above everything (may import anything; no cycles among them) -------
     ("bench.*",                         BENCH),
     # -- 8 cli: command-line modules (argparse lives only here) --------------------------------
-    ("truav.cli",                       CLI),
-    ("truav.cli_*",                     CLI),
-    ("*.cli",                           CLI),
-    ("*.cli_*",                         CLI),
-    ("*_cli",                           CLI),
+    ("truav.cli",                       CLI),    # the command-line package: every parser of
+    ("truav.cli.*",                     CLI),    # truav, truav-swarm and truav log, nothing else
     # -- 1 base: errors, checks, seeds, statistics, config, fault model ------------------------
     ("truav",                           BASE),   # package __init__ files hold nothing above base
     ("truav.bus",                       BASE),
@@ -374,13 +373,13 @@ def test_known_violations_still_occur(graph, mods):
 
 def test_checker_catches_a_planted_upward_import(mods):
     """world/env.py importing the swarm's command line (inside a function): an upward import and a cycle."""
-    planted = "import numpy\n\ndef f():\n    import truav.swarm.cli\n"
+    planted = "import numpy\n\ndef f():\n    import truav.cli.swarm\n"
     graph = import_graph(mods)
     graph["world.env"] = imports_of("world.env", planted, mods)
-    assert "truav.swarm.cli" in graph["world.env"]
+    assert "truav.cli.swarm" in graph["world.env"]
     found = {(a, b, why) for a, b, why in violations(graph, mods) if a == "world.env"}
-    assert ("world.env", "truav.swarm.cli", "model imports cli") in found
-    # truav.swarm.cli imports world (through its process modules), so the planted import closes a cycle
+    assert ("world.env", "truav.cli.swarm", "model imports cli") in found
+    # truav.cli.swarm imports world (through its process modules), so the planted import closes a cycle
     assert any("world.env" in c for c in components(_graph_without_known(graph)))
 
 
@@ -393,3 +392,21 @@ def test_checker_catches_argparse_zenoh_and_relative_imports(mods):
     assert ("argparse", "non-CLI module imports argparse") in found
     assert ("zenoh", "pure layer model imports zenoh") in found
     assert layer_of("truav.experiments.something_new") is None   # new modules must be placed
+
+
+def _in_cli_folder(module: str) -> bool:
+    return module == "truav.cli" or module.startswith("truav.cli.")
+
+
+def test_argparse_only_under_truav_cli(graph):
+    """The folder rule: argparse is imported only by modules under truav/cli/ (and bench/'s scripts)."""
+    found = sorted(m for m, deps in graph.items()
+                   if "argparse" in deps and not _in_cli_folder(m) and not m.startswith("bench."))
+    assert not found, f"argparse imported outside truav/cli/: {found}"
+
+
+def test_no_module_outside_truav_cli_imports_it(graph):
+    """The folder rule: nothing outside truav/cli/ (but bench/'s scripts) imports truav.cli.*."""
+    found = sorted((m, d) for m, deps in graph.items() for d in deps
+                   if _in_cli_folder(d) and not _in_cli_folder(m) and not m.startswith("bench."))
+    assert not found, f"modules outside truav/cli/ importing it: {found}"

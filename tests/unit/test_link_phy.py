@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-import truav.cli
+import truav.cli.main
 from agents.agent_decision import TruavDecision
 from agents.controller import TruavController
 from agents.qlearning import QLearners
@@ -122,12 +122,12 @@ def test_ideal_links_are_todays_numbers():
 
 
 def test_a_bad_link_model_is_one_line(capsys):
-    assert truav.cli.main(["train", "--set", "links.model=radio", "--quiet"]) == 2
+    assert truav.cli.main.main(["train", "--set", "links.model=radio", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "links.model" in err and "ideal, channel" in err
 
 
 def test_config_show_lists_the_link_models(capsys):
-    truav.cli.main(["config", "show"])
+    truav.cli.main.main(["config", "show"])
     out = capsys.readouterr().out
     assert "links.model choices" in out and "#   channel:" in out and '[links]\nmodel = "ideal"' in out

@@ -8,7 +8,7 @@ import pytest
 from agents.agent_process import AgentOptions
 from agents.central_process import ControllerOptions
 from truav import options
-from truav.cli_args import add_options, options_from
+from truav.cli.args import add_options, options_from
 from world.world_process import WorldOptions
 
 EXAMPLES = {

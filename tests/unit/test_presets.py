@@ -3,7 +3,7 @@
 import numpy as np
 
 from truav import seeding
-from truav.cli import main
+from truav.cli.main import main
 from truav.config import Config, load_config
 from truav.presets import PRESETS, preset_overrides
 from world.env import World

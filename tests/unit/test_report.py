@@ -11,7 +11,7 @@ from matplotlib.image import imread
 
 from recorder.mcap_log import McapLog
 from recorder.report import AGENTS_FILE, MAP_FILE, METRICS_CSV_FILE, METRICS_FIG_FILE, load_recording, report
-from truav.cli import main as truav_main
+from truav.cli.main import main as truav_main
 from tests.support.recordings import MS, N_UAVS, make_swarm_recording
 
 MIN_PNG_PIXELS = 400 * 300

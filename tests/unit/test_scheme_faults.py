@@ -91,7 +91,7 @@ def test_rows_count_the_federated_shares_and_zero_for_the_others():
 
 
 def test_the_faults_command_takes_the_learning_variants_and_refuses_others():
-    from truav.cli import build_parser
+    from truav.cli.main import build_parser
     parser = build_parser()
     args = parser.parse_args(["experiment", "faults", "--quick", "--schemes", "federated", "truav_online"])
     assert args.schemes == ["federated", "truav_online"]

@@ -4,7 +4,7 @@ tests/swarm/test_worker_processes.py)."""
 import numpy as np
 
 from truav import runio
-from truav.cli import main
+from truav.cli.main import main
 from truav.trainer import run_chunk
 
 

@@ -1,7 +1,7 @@
 """What the bus refused, as the world's step metrics: the ``rejected`` values of ``metrics/step``.
 
 The world publishes them each tick (world.world_process); `truav-swarm status` reads them back
-(truav.swarm.secure_cli). Pure: it only reads a :class:`~truav.bus.guard.Rejections`.
+(truav.cli.swarm_secure). Pure: it only reads a :class:`~truav.bus.guard.Rejections`.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@
 * :mod:`truav.bus.zenoh_config` builds a ``zenoh.Config`` with multicast scouting
   always off (:func:`make_config`; defaults are loopback-only: clients connect to,
   and the router listens on, :data:`DEFAULT_ENDPOINT`); the command-line flags are
-  ``truav.cli_args.add_transport_args``.
+  ``truav.cli.args.add_transport_args``.
 * :mod:`truav.bus.placement` says which kind belongs on which key;
   :mod:`truav.bus.router` runs an in-process Zenoh router (zenoh-python 1.x can
   open a session in ``router`` mode) for ``truav-swarm router``.

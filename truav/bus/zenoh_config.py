@@ -2,7 +2,7 @@
 
 :func:`make_config` builds a ``zenoh.Config`` (defaults loopback-only: clients connect to, and the router
 listens on, :data:`DEFAULT_ENDPOINT`); :func:`config_from_args` and :func:`apply_creds` read the values of
-the shared transport flags (``truav.cli_args.add_transport_args``) from a parsed namespace;
+the shared transport flags (``truav.cli.args.add_transport_args``) from a parsed namespace;
 :func:`open_session` opens a session with the lean Zenoh runtime."""
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ def apply_replay_creds(args: Any, identity: str) -> None:
 
 
 def config_from_args(args: Any) -> zenoh.Config:
-    """The config for the flags of ``truav.cli_args.add_transport_args``."""
+    """The config for the flags of ``truav.cli.args.add_transport_args``."""
     mode = args.mode if args.mode is not None else (None if args.config else MODE_CLIENT)
     return make_config(mode, args.connect or (), args.listen or (), args.config)
 

@@ -1,1 +1,1 @@
-"""The paper's experiments: the velocity sweep and the scalability study (see cli.py)."""
+"""The paper's experiments: the velocity sweep and the scalability study (the command line: truav/cli/experiment.py)."""

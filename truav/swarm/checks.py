@@ -2,7 +2,7 @@
 
 Fault plans, trained Q-tables and controllers, agent checkpoints, beacon cells, the flags that belong
 to one scheme, the central scheme's message sizes, transport endpoints and credentials. The command
-line (truav/swarm/cli*.py) calls them; nothing here parses arguments.
+line (truav/cli/swarm*.py) calls them; nothing here parses arguments.
 """
 
 from __future__ import annotations

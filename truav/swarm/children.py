@@ -239,7 +239,7 @@ def truav_process(pid: int) -> bool:
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return False
-    return b"truav.swarm.cli" in cmdline or b"recorder.process" in cmdline or b"recorder.cli_process" in cmdline
+    return b"truav.cli.swarm" in cmdline or b"recorder.process" in cmdline or b"truav.cli.log_process" in cmdline
 
 
 def stop_recorded_pids(out: Path, wait_s: float = 0.0, pid_file: str = "pids.json") -> int:

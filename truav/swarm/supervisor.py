@@ -2,7 +2,7 @@
 
 The supervisor starts a Zenoh router on loopback (tcp/127.0.0.1:7447 when
 free), optionally the recorder, the world process and one process per UAV
-agent (all `python -m truav.swarm.cli ...`, logs under <out>/logs/), watches
+agent (all `python -m truav.cli.swarm ...`, logs under <out>/logs/), watches
 the bus (liveliness, step metrics, beacons, shutdown requests) for a live
 status table, and at the end (or on Ctrl-C, SIGTERM or SIGHUP) stops every
 process it started, by PID, and prints a summary; it also draws
@@ -209,7 +209,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 self.out, self.opts, self.n, self.endpoint,
                 self.cfg.federated.every * self.cfg.scenario.steps_per_episode)
             self.endpoint = tls_endpoint(self.endpoint)
-        proc = self.children.start("router", _python_module("truav.swarm.cli", "router", *router_args))
+        proc = self.children.start("router", _python_module("truav.cli.swarm", "router", *router_args))
         return self._wait_router(proc, timeout)
 
     def _wait_router(self, proc, timeout: float) -> tuple[bool, str]:
@@ -248,7 +248,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 modes=opts.record_modes,
                 extra=[*self.creds_args, *(["-v"] if opts.verbose else [])], run_info=run_info(opts)))
         if opts.foxglove_port is not None:
-            self.children.start("view", _python_module("truav.swarm.cli", "view", *scenario_args, *origin,
+            self.children.start("view", _python_module("truav.cli.swarm", "view", *scenario_args, *origin,
                                                         "--port", str(opts.foxglove_port)))
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
             self.bus = bus
@@ -268,7 +268,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 controller = ControllerOptions(policy=str(Path(opts.policy).resolve()) if opts.policy else None,
                                                policy_index=opts.policy_index, stats_out=str(out / "controller.json"))
                 self.children.start("controller", _python_module(
-                    "truav.swarm.cli", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
+                    "truav.cli.swarm", "controller", *common, *timing, *faults_args, "--rate", str(opts.rate_hz),
                     *to_argv(controller, (["policy", "policy_index"] if opts.policy else []) + ["stats_out"])))
             # Snapshots only where a recording keeps them and a re-simulation can use them.
             snapshot_every = opts.snapshot_every if opts.record and opts.lockstep and opts.scheme == "truav" else 0
@@ -278,7 +278,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                                  max_missed_share=1.0,  # up judges the missed share itself (summary, chaos)
                                  snapshot_every=snapshot_every)
             self.children.start("world", _python_module(
-                "truav.swarm.cli", "world", *common, *timing, *faults_args, *scheme,
+                "truav.cli.swarm", "world", *common, *timing, *faults_args, *scheme,
                 *to_argv(world, ["episodes", "rate_hz", "stats_out", "wait_agents_s", "max_missed_share",
                                  "snapshot_every"])))
             for ids in self.groups:
@@ -298,7 +298,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
                 extra += ["--share-beacons"] if opts.share_beacons and len(ids) > 1 else []
                 extra += ["--batch-beacons"] if opts.batch_beacons else []
                 self.children.start(group_name(ids), _python_module(
-                    "truav.swarm.cli", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
+                    "truav.cli.swarm", "agent", *[a for i in ids for a in ("--id", str(i))], *common, *timing,
                     *faults_args, "--rate", str(opts.rate_hz), *extra))
             self._announce()
             ok = self._watch()

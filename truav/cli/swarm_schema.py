@@ -17,7 +17,7 @@ from pathlib import Path
 from truav.bus import protocol_doc
 from truav.bus.messages import MESSAGE_CLASSES
 from truav.checks import check_in_file, check_out_dir, make_dir
-from truav.cli_config import UsageError
+from truav.cli.config import UsageError
 from truav import jsonio
 
 INDEX_FILE = "index.json"

@@ -26,14 +26,14 @@ import sys
 import zenoh
 
 from truav.bus.security import answers_tls
-from truav.cli_args import OneLineParser, UserError, run_main
+from truav.cli.args import OneLineParser, UserError, run_main
 from truav.swarm.checks import check_central_sizes, check_policy, check_transport  # noqa: F401 - check_*: truav.experiments.faults
-from truav.swarm.cli_ops import add_ops_commands
-from truav.swarm.cli_processes import add_process_commands
-from truav.swarm.cli_replay import add_replay_ctl
-from truav.swarm.cli_schema import add_schema_commands
-from truav.swarm.cli_up import add_up_commands
-from truav.swarm.secure_cli import add_security_commands
+from truav.cli.swarm_ops import add_ops_commands
+from truav.cli.swarm_processes import add_process_commands
+from truav.cli.swarm_replay import add_replay_ctl
+from truav.cli.swarm_schema import add_schema_commands
+from truav.cli.swarm_up import add_up_commands
+from truav.cli.swarm_secure import add_security_commands
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_replay_ctl(sub)
 
     try:
-        from recorder.cli import add_swarm_commands
+        from truav.cli.log import add_swarm_commands
     except ImportError:  # recorder commands not installed
         pass
     else:

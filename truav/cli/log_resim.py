@@ -15,7 +15,7 @@ from typing import Any
 
 from recorder.log_copy import damage_errors, not_mcap_reason
 from recorder.mcap_guard import EXIT_DAMAGED, damage_line
-from truav.cli_args import non_negative_int
+from truav.cli.args import non_negative_int
 
 RESIM_HELP = "re-run a lock-step recording in process and check every observation, beacon and action bit for bit"
 EXIT_OK, EXIT_DIVERGED, EXIT_USAGE = 0, 1, 2
@@ -68,7 +68,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
     from recorder.resim_branch import branch_config
     from recorder.resim_verify import first_tick
     from truav.checks import check_out_dir
-    from truav.cli_config import parse_sets
+    from truav.cli.config import parse_sets
     from truav.errors import UserError
 
     problem = not_mcap_reason(args.file)

@@ -6,7 +6,7 @@ import argparse
 import time
 
 from truav.checks import check_out_dir
-from truav.cli_config import add_config_args, config_from
+from truav.cli.config import add_config_args, config_from
 
 
 def cmd_traffic_build(args) -> int:

@@ -23,13 +23,13 @@ from pathlib import Path
 from typing import Any
 
 from truav import runio
-from truav.cli_args import check_out_dir, make_dir, positive_float, positive_int, seed_int
-from truav.cli_config import UsageError, add_config_args, config_from
+from truav.cli.args import check_out_dir, make_dir, positive_float, positive_int, seed_int
+from truav.cli.config import UsageError, add_config_args, config_from
 from truav.config import MOBILITIES, LearnerConfig
 from truav.experiments import runner, scale, velocity
-from truav.experiments.cli_executor import (  # noqa: F401  (re-exported)
+from truav.cli.experiment_executor import (  # noqa: F401  (re-exported)
     RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
-from truav.experiments.cli_faults import add_fault_sweep_parser
+from truav.cli.experiment_faults import add_fault_sweep_parser
 
 QUICK_CONFIG: dict[str, dict[str, Any]] = {
     "scenario": {"n_vehicles": 60, "steps_per_episode": 20},

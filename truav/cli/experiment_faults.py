@@ -8,12 +8,12 @@ import json
 from pathlib import Path
 
 from truav import policy_scenario
-from truav.cli_args import check_out_dir, positive_float, seed_int
-from truav.cli_config import UsageError, add_config_args, config_from, parse_sets
+from truav.cli.args import check_out_dir, positive_float, seed_int
+from truav.cli.config import UsageError, add_config_args, config_from, parse_sets
 from truav.config import ConfigError, read_toml, to_dict
 from truav.experiments import fault_sweep
 from truav.experiments.scheme_faults import SCHEMES
-from truav.experiments.cli_executor import add_executor_args, check_executor
+from truav.cli.experiment_executor import add_executor_args, check_executor
 from truav import jsonio
 
 
@@ -51,7 +51,7 @@ def cmd_fault_sweep(args) -> int:
         from truav.swarm.checks import check_qtable
         fits.append(check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch))
     if args.policy is not None and "central" in (args.schemes or ()):
-        from truav.swarm.cli import check_policy
+        from truav.cli.swarm import check_policy
         fits.append(check_policy("--policy", args.policy, cfg, 0, args.allow_scenario_mismatch))
     check_executor(args)
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
@@ -71,7 +71,7 @@ def cmd_fault_sweep(args) -> int:
             if "central" not in schemes:
                 raise UsageError("--policy: only --schemes central flies a trained controller")
         if "central" in schemes:
-            from truav.swarm.cli import check_central_sizes
+            from truav.cli.swarm import check_central_sizes
             check_central_sizes(cfg)
         check_settings(out, settings)
         paths = run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable, policy=args.policy,

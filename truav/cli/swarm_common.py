@@ -11,9 +11,9 @@ from agents.central_process import ControllerOptions
 from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
 # the transport's command-line helpers, for every truav-swarm command (one place to import them from)
 from truav.bus.transport import apply_creds, config_from_args  # noqa: F401
-from truav.cli_args import add_transport_args  # noqa: F401
-from truav.cli_config import UsageError, parse_sets
-from truav.cli_args import add_options, positive_float, run_name, seed_int
+from truav.cli.args import add_transport_args  # noqa: F401
+from truav.cli.config import UsageError, parse_sets
+from truav.cli.args import add_options, positive_float, run_name, seed_int
 from truav.config import Config, load_config
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.agent_loader import AGENT_KIND_PREFIX

@@ -13,7 +13,7 @@ import argparse
 import sys
 from typing import Any
 
-from truav import cli_args
+from truav.cli import args as cli_args
 
 __all__ = ["add_record_ctl_parser", "cmd_record_ctl", "RECORDER_COMMANDS"]
 

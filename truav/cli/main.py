@@ -5,7 +5,7 @@
     truav evaluate runs/train-15mps --against random hover
     truav config show --set scenario.n_uavs=8
     truav traffic build                 # the scenario's SUMO trace, for truav train --mobility sumo
-    truav experiment velocity --quick   # the paper's velocity figure (see truav/experiments/cli.py)
+    truav experiment velocity --quick   # the paper's velocity figure (see truav/cli/experiment.py)
 """
 
 from __future__ import annotations
@@ -22,13 +22,13 @@ import numpy as np
 from truav import policy_scenario, runio
 from truav.stats import nan_mean
 from truav.checks import check_federated
-from truav.cli_args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
+from truav.cli.args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
-from truav.cli_config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
+from truav.cli.config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
     UsageError, add_config_args, add_preset_arg, config_from, parse_sets, preset_from)
 from truav.config import MOBILITIES, Config, LearnerConfig, ScenarioConfig, to_toml
-from truav.cli_traffic import add_traffic_parser
-from truav.experiments.cli import add_experiment_parser
+from truav.cli.traffic import add_traffic_parser
+from truav.cli.experiment import add_experiment_parser
 from truav.seeding import EVAL_SEED_OFFSET
 
 REFERENCE_POLICIES = ("random", "hover", "patrol")
@@ -407,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_experiment_parser(sub)  # truav experiment velocity | scale
     add_traffic_parser(sub)  # truav traffic build
-    from recorder.cli import add_log_commands
+    from truav.cli.log import add_log_commands
     add_log_commands(sub)  # truav log record | play | report | check | recover, and truav report (an alias)
     return ap
 

@@ -1,7 +1,7 @@
-"""The recorder process's command line: ``python -m recorder.cli_process --run RUN --out FILE ...``.
+"""The recorder process's command line: ``python -m truav.cli.log_process --run RUN --out FILE ...``.
 
 :func:`add_record_args` declares the recorder's flags (shared with ``truav log
-record`` and ``truav-swarm record``, see :mod:`recorder.cli`);
+record`` and ``truav-swarm record``, see :mod:`truav.cli.log`);
 :func:`options_from_args` turns them into the :class:`recorder.process.RecorderOptions`
 the node runs with, and :func:`cmd_record` runs it.  ``recorder.process.recorder_argv``
 builds this command line for supervisors; ``python -m recorder.process`` (the
@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Optional
 from recorder.foxglove import DEFAULT_ORIGIN, parse_origin
 from recorder.mcap_writer import COMPRESSIONS, DEFAULT_COMPRESSION, DEFAULT_FLUSH_INTERVAL_S
 from recorder.record_modes import RecordModes
-from truav import cli_args
+from truav.cli import args as cli_args
 from truav.bus import keys, transport
 
 if TYPE_CHECKING:

@@ -12,17 +12,17 @@ import re
 
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_federated, check_out_dir, check_out_file
-from truav.cli_config import UsageError, parse_sets
+from truav.cli.config import UsageError, parse_sets
 from truav.config import MOBILITIES
 from agents.agent_process import AgentOptions
-from truav.cli_args import add_options, non_negative_int, positive_float, positive_int, tcp_port
+from truav.cli.args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav import policy_scenario
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
                                 check_scheme_flags)
-from truav.swarm.cli_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
+from truav.cli.swarm_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, check_agent_scheme, lockstep_wait,
                                     scenario_from)
 from truav.agent_loader import AGENT_KIND_PREFIX
@@ -32,7 +32,7 @@ from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, R
 from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
 from recorder.record_modes import RecordModes
-from truav.cli_args import options_from
+from truav.cli.args import options_from
 from truav.errors import UserError
 from world.world_process import WorldOptions
 
@@ -74,7 +74,7 @@ def swarm_options(args):
         raise UsageError(f"--agents {n}" + ("" if args.agents is not None else " (from scenario.n_uavs)")
                          + (f" at --agents-per-process {args.agents_per_process}" if args.agents_per_process > 1 else "")
                          + f": more than {MAX_AGENTS} agent processes is past what the reference machine runs in "
-                         f"real time (see MAX_AGENTS in truav/swarm/cli_up.py); host more agents per process "
+                         f"real time (see MAX_AGENTS in truav/cli/swarm_up.py); host more agents per process "
                          f"(--agents-per-process), or add --force-agents to start them anyway")
     if len(args.listen) > 1:
         raise UsageError(f"-l/--listen: the swarm's router listens on one endpoint, got {len(args.listen)}")

@@ -9,7 +9,7 @@ import importlib.util
 import re
 import socket
 
-from truav.cli_config import UsageError
+from truav.cli.config import UsageError
 
 
 def add_executor_args(p: argparse.ArgumentParser) -> None:

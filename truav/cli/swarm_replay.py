@@ -16,8 +16,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from truav.cli_args import non_negative_float, non_negative_int, positive_float, positive_int, run_name
-from truav.swarm.cli_common import add_transport_args, config_from_args
+from truav.cli.args import non_negative_float, non_negative_int, positive_float, positive_int, run_name
+from truav.cli.swarm_common import add_transport_args, config_from_args
 
 DEFAULT_RUN = "demo"
 CTL_IDENTITY = "supervisor"
@@ -58,7 +58,7 @@ def cmd_replay_ctl(args: argparse.Namespace) -> int:
     from truav.bus.transport import Bus, QueryRefused
 
     from truav.bus.zenoh_config import apply_replay_creds
-    from truav.cli_config import UsageError
+    from truav.cli.config import UsageError
 
     command, cargs = command_of(args)
     try:

@@ -23,12 +23,12 @@ from truav.bus import keys
 from truav.bus.transport import DEFAULT_ENDPOINT, run_router
 from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.checks import check_out_file
-from truav.cli_config import UsageError
-from truav.cli_args import add_options, non_negative_int, options_from, positive_float
+from truav.cli.config import UsageError
+from truav.cli.args import add_options, non_negative_int, options_from, positive_float
 from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_policy, check_qtable, check_scheme_flags)
-from truav.swarm.cli_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
+from truav.cli.swarm_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
                                     config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
                                     zenoh_reason)

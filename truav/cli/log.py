@@ -7,9 +7,9 @@
       truav log report FILE [--out DIR]  # map, metric timelines, agent latency; metrics.csv
       truav log check FILE               # per-sender messages and sequence gaps
       truav log recover IN OUT           # finish an unfinished MCAP (recorder killed)
-      truav log record-ctl split|pause|resume|snapshot --run RUN   # a running recorder (recorder.cli_record_ctl)
-      truav log play-ctl --run RUN seek --tick K|rate R|pause|step|status ...   # a running play (truav.swarm.cli_replay)
-      truav log cut IN OUT --from-tick A --to-tick B   # a window (recorder.cli_tools: cut, merge, info)
+      truav log record-ctl split|pause|resume|snapshot --run RUN   # a running recorder (truav.cli.log_record_ctl)
+      truav log play-ctl --run RUN seek --tick K|rate R|pause|step|status ...   # a running play (truav.cli.swarm_replay)
+      truav log cut IN OUT --from-tick A --to-tick B   # a window (truav.cli.log_tools: cut, merge, info)
       truav log merge OUT IN...          # parts, cuts or runs as one
       truav log info FILE...             # per topic, sender and kind; gaps, faults, run metadata
       truav log resim FILE [--from TICK --qtable RUN --greedy --set K=V]  # re-run a lock-step run, check it
@@ -37,12 +37,12 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-from recorder.cli_record_ctl import add_record_ctl_parser
-from recorder.cli_tools import add_tool_parsers
-from recorder.cli_resim import add_resim_parser, cmd_resim
+from truav.cli.log_record_ctl import add_record_ctl_parser
+from truav.cli.log_tools import add_tool_parsers
+from truav.cli.log_resim import add_resim_parser, cmd_resim
 from recorder.log_copy import damage_errors, not_mcap_reason
 from recorder.mcap_guard import EXIT_DAMAGED, DamagedRecording, damage_line
-from truav.cli_args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
+from truav.cli.args import (check_out_dir, check_out_file, make_dir, non_negative_float, non_negative_int,
                              positive_float)
 from truav.errors import UserError
 
@@ -151,9 +151,9 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_record(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     import math
 
-    from recorder.cli_process import cmd_record as run_record
+    from truav.cli.log_process import cmd_record as run_record
 
-    # The flags recorder.cli_process leaves to later (a NaN there reaches int() mid-start).
+    # The flags truav.cli.log_process leaves to later (a NaN there reaches int() mid-start).
     for flag, value, positive in (("--flush-ms", args.flush_ms, True), ("--router-wait", args.router_wait, False)):
         if not math.isfinite(value) or value < 0 or (positive and value == 0):
             return _fail(prog, f"{flag}: must be a finite number {'>' if positive else '>='} 0, got {value}")
@@ -291,8 +291,8 @@ def alias_help(new: str) -> str:
 
 
 def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
-    """``record``: the recorder process's flags (:func:`recorder.cli_process.add_record_args`)."""
-    from recorder.cli_process import add_record_args
+    """``record``: the recorder process's flags (:func:`truav.cli.log_process.add_record_args`)."""
+    from truav.cli.log_process import add_record_args
 
     rec = subparsers.add_parser(
         "record", help=help,
@@ -307,7 +307,7 @@ def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
 def add_play_parser(subparsers: Any, name: str, help: str) -> argparse.ArgumentParser:
     """``play`` (``truav log``) or ``replay`` (``truav-swarm``): re-publish a recording."""
     from recorder.replay import KEYS_HELP
-    from truav.cli_args import add_transport_args
+    from truav.cli.args import add_transport_args
 
     rp = subparsers.add_parser(
         name, help=help,
@@ -384,7 +384,7 @@ def cmd_log_play(args: argparse.Namespace) -> int:
 
 def cmd_log_play_ctl(args: argparse.Namespace) -> int:
     """``truav log play-ctl``: ``truav-swarm replay-ctl``'s command, its endpoints checked as there."""
-    from truav.swarm.cli_replay import cmd_replay_ctl
+    from truav.cli.swarm_replay import cmd_replay_ctl
     _check_endpoints(args)
     return cmd_replay_ctl(args)
 
@@ -435,7 +435,7 @@ def add_log_commands(subparsers: Any) -> None:
     add_tool_parsers(log_sub)
 
     add_record_ctl_parser(log_sub)
-    from truav.swarm.cli_replay import add_replay_ctl  # the same command as truav-swarm replay-ctl
+    from truav.cli.swarm_replay import add_replay_ctl  # the same command as truav-swarm replay-ctl
     add_replay_ctl(log_sub, "play-ctl", "truav log play-ctl", "steer a running play (seek, rate, pause, step by tick...) "
                                                              "and print its status").set_defaults(func=cmd_log_play_ctl)
 

@@ -15,17 +15,17 @@ from pathlib import Path
 from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.checks import check_endpoint, check_in_file, check_out_dir
-from truav.cli_config import UsageError
-from truav.cli_args import UserError, positive_float, run_name, tcp_port
+from truav.cli.config import UsageError
+from truav.cli.args import UserError, positive_float, run_name, tcp_port
 from truav.fault_filter import CONTROL_FAULTS
 from truav.faults import load_plan
 from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import check_tls_creds
-from truav.swarm.cli_common import (add_geo_origin_arg, add_scenario_args, add_transport_args, config_from_args, part_creds,
+from truav.cli.swarm_common import (add_geo_origin_arg, add_scenario_args, add_transport_args, config_from_args, part_creds,
                                     scenario_from, setup_logging)
 from truav.swarm.children import stop_recorded_pids
 from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
-from truav.swarm.secure_cli import rejections_heard
+from truav.cli.swarm_secure import rejections_heard
 from truav.swarm.swarm_options import DOWN_IDENTITY, default_out_dir
 
 log = logging.getLogger("truav.swarm")

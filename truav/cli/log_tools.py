@@ -1,5 +1,5 @@
 """``truav log cut|merge|info``: the parsers and commands of the recording tools (added to ``truav log``
-by :func:`recorder.cli.add_log_commands`)::
+by :func:`truav.cli.log.add_log_commands`)::
 
     truav log cut IN OUT [--start S] [--end S] [--start-ns NS] [--end-ns NS] [--from-tick A] [--to-tick B]
                          [--topics PAT ...] [--exclude PAT ...] [--force]
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from recorder.mcap_guard import EXIT_DAMAGED
-from truav.cli_args import non_negative_float, non_negative_int
+from truav.cli.args import non_negative_float, non_negative_int
 from truav.errors import EXIT_USAGE, UserError
 from truav import jsonio
 
