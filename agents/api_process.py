@@ -6,7 +6,8 @@ agents.api_decision.ApiDecision. The class was checked before the swarm started 
 When it raises, returns an illegal action or takes longer than its call_limit_s during the run, this UAV
 hovers for that tick, the error is counted and its first occurrence logged with the class's message, and
 the run goes on.
-Its checkpoint (--checkpoint) holds the agent's state_dict, its generator and its step count: a
+It can start from the state a run of `truav train --agent NAME` learned (--qtable RUN: seed
+--qtable-index's state of this UAV). Its checkpoint (--checkpoint) holds the agent's state_dict, its generator and its step count: a
 restarted agent resumes from it.
 """
 
@@ -22,6 +23,7 @@ import numpy as np
 from agents.agent_process import AgentNode, checkpoint_due
 from agents.api_decision import ApiDecision, IllegalAction
 from truav.agent_loader import AGENT_KIND_PREFIX, resolve
+from truav.agent_run import agent_start_states
 from truav.call_limit import CallTooLong, call_limited
 from truav.bus import keys, schema
 
@@ -52,6 +54,10 @@ class ApiAgentNode(AgentNode):
             self.resumed = True
             log.info("uav %d (agent %s) resumed from checkpoint %s at step %d", o.uav, self.agent_name,
                      o.checkpoint, self.steps)
+        elif o.qtable:  # a run of `truav train --agent NAME`, checked by the command before it started us
+            state = agent_start_states(o.qtable, self.agent_name, self.cfg.scenario.n_uavs, o.qtable_index)[o.uav]
+            call_limited(self.api.limit_s, self.api.agent.load_state_dict, state)
+            log.info("uav %d (agent %s) starts from the state trained in %s", o.uav, self.agent_name, o.qtable)
         return None
 
     def __init__(self, *args, **kwargs):

@@ -36,7 +36,7 @@ from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX, REASON_END
 from truav import seeding
 from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.bus import keys, schema
-from truav.call_limit import CallTooLong
+from truav.call_limit import CallTooLong, call_limited
 from truav.config import Config, ConfigError, config_from_dict
 from truav.errors import UserError
 from truav.runio import read_qtables
@@ -177,17 +177,18 @@ class Round:
 class Resimulation:
     """The world and every agent of a lock-step run, stepped in process (see the module docstring)."""
 
-    def __init__(self, cfg: Config, seed: int, episodes: int, tables: list[np.ndarray | None] | None = None,
+    def __init__(self, cfg: Config, seed: int, episodes: int, tables: list | None = None,
                  train: bool = True, agent_cls: type | None = None):
         """``agent_cls``: the agents.api class the run's agents flew (its recording's ``agent``), run through
-        agents.api_decision.ApiDecision as agents.api_process runs it; else TRUAV's own agents."""
+        agents.api_decision.ApiDecision as agents.api_process runs it; else TRUAV's own agents. ``tables``: each
+        UAV's start, a Q-table (S, 16) for TRUAV's agents or a state_dict for a class's, or None (fresh)."""
         self.cfg, self.seed, self.episodes = cfg, seed, episodes
         n = cfg.scenario.n_uavs
         tables = tables if tables is not None else [None] * n
         self.world = World(cfg, 1)
         encoder = StateEncoder(cfg)
         self.api = agent_cls is not None
-        self.agents = [ApiResimAgent(ApiDecision(agent_cls, cfg, i, seed, train)) for i in range(n)] if self.api \
+        self.agents = [self._api_agent(agent_cls, cfg, i, seed, train, tables[i]) for i in range(n)] if self.api \
             else [TruavDecision(cfg, i, QLearners(cfg.learner, encoder.n_states, [seeding.agent_rng(seed, i)], 1, 1,
                                                   q=tables[i], fence=geofence(cfg)), train, encoder, Reward(cfg),
                                 seed=seed)
@@ -196,6 +197,18 @@ class Resimulation:
         self.episode = 0
         self._obs = self.world.reset([seeding.world_rng(seed)])
         self._done = False  # the next round is the episode's `done` observation
+
+    @staticmethod
+    def _api_agent(cls: type, cfg: Config, uav: int, seed: int, train: bool, start) -> "ApiResimAgent":
+        """``start``: the state_dict its agent process loaded (`up --agent NAME --qtable RUN`), or None."""
+        decision = ApiDecision(cls, cfg, uav, seed, train)
+        if start is not None:
+            try:
+                call_limited(decision.limit_s, decision.agent.load_state_dict, start)
+            except (Exception, CallTooLong) as exc:
+                raise UserError(f"{cls.__name__}.load_state_dict refused UAV {uav}'s start state: "
+                                f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from None
+        return ApiResimAgent(decision)
 
     @property
     def total_ticks(self) -> int:

@@ -152,3 +152,60 @@ def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(t
     assert resumed_at > 0  # the restarted process started from the checkpoint's step count
     with np.load(out / "agent1.npz") as ck:
         assert int(ck["state.count"].sum()) == int(ck["steps"]) > resumed_at  # the state learned before the crash too
+
+
+def _train(tmp: Path, name: str, *extra: str) -> Path:
+    scenario = tmp / "train.toml"
+    scenario.write_text(to_toml(CFG))
+    out = tmp / name
+    cmd = [sys.executable, "-m", "truav.cli", "train", "--config", str(scenario), "--seeds", "1", "--seed-start",
+           str(SEED), "--episodes", "3", "--out", str(out), "--quiet", *extra]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=SWARM_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def test_a_swarm_of_a_class_starts_from_what_truav_train_agent_learned(tmp_path):
+    """`up --agent truav --qtable RUN` (RUN from `truav train --agent truav`) loads each UAV's trained state
+    (its Q-table, exploration generator and epsilon: where training stopped) and learns on: it flies, and
+    ends with, what the in-process adapter started from the same state flies, entry for entry; its
+    recording re-simulates bit for bit from the same start."""
+    from agents.truav_agent import TruavAgent
+    from truav.agent_run import read_agent_state
+    agent_run = _train(tmp_path, "trained-api", "--agent", "truav")
+    _, _, state, _ = read_agent_state(agent_run)
+    rec = Recorder(ApiController("truav", TruavAgent, CFG, [SEED], state=state))
+    expected = run_episodes(CFG, [SEED], rec, EPISODES)
+    recording = tmp_path / "api.mcap"
+    out = up(tmp_path, "apistart", "--agent", "truav", "--qtable", str(agent_run), "--record", str(recording))
+    world = json.loads((out / "world.json").read_text())
+    assert world["actions_digest"] == rec.digests
+    for e, got in enumerate(world["episodes"]):
+        for k in METRICS:
+            assert np.array_equal(got[k], expected[k][e, 0], equal_nan=True), (e, k)
+    for uav in range(CFG.scenario.n_uavs):
+        want = rec.inner.agents[0][uav].state_dict()["q"]
+        with np.load(out / f"agent{uav}.npz") as ck:
+            assert np.array_equal(ck["state.q"], want), uav
+            assert not np.array_equal(want, state["q"][0, uav])  # it learned on from the trained table
+    resim = [sys.executable, "-m", "truav.cli", "log", "resim", str(recording), "--agent", "truav", "--quiet"]
+    done = subprocess.run(resim, capture_output=True, text=True, timeout=SWARM_TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_a_swarm_refuses_a_start_state_of_another_class_or_size_in_one_line(tmp_path):
+    agent_run = _train(tmp_path, "trained-api", "--agent", "truav")
+    native_run = _train(tmp_path, "trained-native")
+    scenario = tmp_path / "up.toml"
+    scenario.write_text(to_toml(CFG))
+    base = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--scenario", str(scenario), "--episodes",
+            "1", "--out", str(tmp_path / "never"), "--quiet", "--no-plot"]
+    for extra, words in ((["--agent", "random", "--qtable", str(agent_run)], "trained by agent 'truav', not 'random'"),
+                         (["--agent", "truav", "--qtable", str(native_run)], "agent.npz"),
+                         (["--agent", "truav", "--qtable", str(agent_run), "--agents", "3"], "this swarm flies 3"),
+                         (["--scheme", "patrol", "--qtable", str(agent_run)], "--qtable")):
+        done = subprocess.run(base + extra, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2, (extra, done.stdout, done.stderr)
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0] and "Traceback" not in done.stderr, (extra, done.stderr)
+        assert not (tmp_path / "never").exists()

@@ -92,8 +92,12 @@ def cmd_resim(args: argparse.Namespace) -> int:
                             f"branch with --from TICK (restored from a state snapshot it holds)")
         n = rec.cfg.scenario.n_uavs
         agent_cls = _agent_class(args, rec, branch)
-        sim = Resimulation(rec.cfg, rec.seed, rec.episodes, start_tables(rec.qtable, rec.qtable_index, n),
-                           train=not rec.greedy, agent_cls=agent_cls)
+        if agent_cls is not None and rec.qtable:  # its agents started from a run of `truav train --agent`
+            from truav.agent_run import agent_start_states
+            starts = agent_start_states(rec.qtable, rec.agent, n, rec.qtable_index)
+        else:
+            starts = start_tables(rec.qtable, rec.qtable_index, n)
+        sim = Resimulation(rec.cfg, rec.seed, rec.episodes, starts, train=not rec.greedy, agent_cls=agent_cls)
         if branch:
             if args.from_tick >= sim.total_ticks:
                 raise UserError(f"--from {args.from_tick}: the run has ticks 0-{sim.total_ticks - 1}")

@@ -208,7 +208,7 @@ def cmd_train(args) -> int:
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
         runio.write_policy(out, seeds, result.policy, cfg)
     elif agent_cls is not None:  # its state_dicts, for `truav evaluate RUN`
-        write_agent_state(out, args.agent, agent_cls.api_version, seeds, result.policy, result.uav_pos)
+        write_agent_state(out, args.agent, agent_cls.api_version, seeds, result.policy, result.uav_pos, cfg)
     else:
         runio.write_qtables(out, seeds, result.q, result.uav_pos, cfg)
     window = min(500, episodes)
@@ -316,10 +316,11 @@ def cmd_evaluate(args) -> int:
             runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
-    if main_kind == "truav":  # an agent run's state records no scenario yet (truav.agent_run)
-        fit = policy_scenario.check("", args.run, runio.qtable_file(run), cfg, args.allow_scenario_mismatch)
-        if fit.line():
-            print(f"warning: {fit.line()}", flush=True)
+    from truav.agent_run import agent_file
+    policy_file = runio.qtable_file(run) if main_kind == "truav" else agent_file(run)
+    fit = policy_scenario.check("", args.run, policy_file, cfg, args.allow_scenario_mismatch)
+    if fit.line():
+        print(f"warning: {fit.line()}", flush=True)
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     workers = min(args.workers, len(seeds))
     # A persist swarm goes on from its station, as in training; a fresh random

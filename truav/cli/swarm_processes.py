@@ -27,7 +27,7 @@ from truav.cli.config import UsageError
 from truav.cli.args import add_options, non_negative_int, options_from, positive_float
 from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
-                                check_policy, check_qtable, check_scheme_flags)
+                                check_agent_start, check_policy, check_qtable, check_scheme_flags)
 from truav.cli.swarm_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
                                     config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
@@ -103,7 +103,10 @@ def cmd_agent(args) -> int:
         check_plan("--fault-plan", args.fault_plan, cfg.scenario.n_uavs, args.scheme)
     check_scheme_flags(args)
     check_agent_scheme(args, cfg)
-    if args.qtable:
+    if args.qtable and args.scheme.startswith(AGENT_KIND_PREFIX):  # read in full by the process anyway
+        check_agent_start("--qtable", args.qtable, args.scheme[len(AGENT_KIND_PREFIX):], cfg, allow_mismatch=True,
+                          index=args.qtable_index)
+    elif args.qtable:
         check_qtable("--qtable", args.qtable, cfg, args.qtable_index, full=False)
 
     for uav in ids:

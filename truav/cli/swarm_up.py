@@ -20,7 +20,7 @@ from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav import policy_scenario
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
-from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
+from truav.swarm.checks import (check_agent_start, check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
                                 check_scheme_flags)
 from truav.cli.swarm_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, check_agent_scheme, lockstep_wait,
@@ -89,7 +89,10 @@ def swarm_options(args):
     from agents.state import check_qtable_memory  # each agent process holds its UAV's table
     check_qtable_memory(cfg, cfg.scenario.n_uavs, f"{cfg.scenario.n_uavs} UAV(s)")
     fit = None
-    if args.qtable is not None:
+    if args.qtable is not None and args.scheme.startswith(AGENT_KIND_PREFIX):  # a run of `truav train --agent`
+        fit = check_agent_start("--qtable", args.qtable, args.scheme[len(AGENT_KIND_PREFIX):], cfg,
+                                allow_mismatch=args.allow_scenario_mismatch)
+    elif args.qtable is not None:
         fit = check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch)
     if args.policy is not None:
         fit = check_policy("--policy", args.policy, cfg, args.policy_index, args.allow_scenario_mismatch)
@@ -256,7 +259,8 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     add_lockstep_args(up, "the world waits for every live agent each tick")
     up.add_argument("--rate", type=positive_float, default=10.0, help="real-time tick rate in Hz (default 10)")
     up.add_argument("--record", metavar="FILE", help="record every message to this MCAP file")
-    up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output)")
+    up.add_argument("--qtable", metavar="RUN", help="start agents from a trained run (truav train output; with "
+                                                    "--agent NAME, a run of truav train --agent NAME)")
     up.add_argument("--greedy", action="store_true", help="agents act greedily and do not learn")
     policy_scenario.add_allow_arg(up)
     up.add_argument("--out", help="directory for stats, checkpoints and the picture (default runs/swarm-<run>)")

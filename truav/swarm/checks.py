@@ -98,6 +98,29 @@ def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, ful
     return policy_scenario.check(flag, run, runio.qtable_file(run), cfg, allow_mismatch, exact_uavs=False)
 
 
+def check_agent_start(flag: str, run: str, name: str, cfg: Config, allow_mismatch: bool = False,
+                      index: int = 0) -> Fit:
+    """A run of `truav train --agent NAME` to start a swarm of agent ``name`` from: trained by that name, for
+    this many UAVs, in a scenario that fits (truav.policy_scenario), and a state the class loads (tried on a
+    throwaway instance of UAV 0, within its call_limit_s)."""
+    from truav import agent_loader
+    from truav.agent_run import agent_file, agent_start_states
+    from truav.call_limit import CallTooLong, call_limited
+    try:
+        states = agent_start_states(run, name, cfg.scenario.n_uavs, index)
+    except runio.RunDirError as exc:
+        raise UserError(f"{flag}: {exc}") from None
+    fit = policy_scenario.check(flag, run, agent_file(run), cfg, allow_mismatch)
+    cls = agent_loader.resolve(name)
+    try:
+        agent = call_limited(float(getattr(cls, "call_limit_s", 1.0)), cls, cfg, 0, np.random.default_rng(0))
+        call_limited(float(getattr(cls, "call_limit_s", 1.0)), agent.load_state_dict, states[0])
+    except (Exception, CallTooLong) as exc:
+        raise UserError(f"{flag} {run}: {cls.__name__}.load_state_dict refused UAV 0's state: "
+                        f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from None
+    return fit
+
+
 def check_beacon_cell(cell_m: float | None, cfg: Config) -> None:
     """--beacon-cell only where a far neighbour cannot change the state (agents/beacon_cells.py)."""
     if cell_m is not None and cfg.learner.neighbour_sectors > 0:
@@ -109,10 +132,11 @@ def check_beacon_cell(cell_m: float | None, cfg: Config) -> None:
 def check_scheme_flags(args) -> None:
     """Flags that belong to one scheme only, given with another (one line, before anything starts)."""
     scheme = args.scheme
-    if scheme != "truav":
+    if scheme != "truav" and not scheme.startswith("agent:"):  # an agent class starts from its training run
         for flag, given in (("--qtable", args.qtable), ("--greedy", args.greedy)):
             if given:
-                raise UserError(f"{flag}: only --scheme truav flies Q-tables (this is --scheme {scheme})")
+                raise UserError(f"{flag}: only --scheme truav and --agent fly trained policies (this is --scheme "
+                                f"{scheme})")
     if scheme != "central":
         if getattr(args, "policy", None) is not None:
             raise UserError(f"--policy: only --scheme central flies a trained controller (this is --scheme {scheme})")
