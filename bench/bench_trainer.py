@@ -4,6 +4,11 @@ kernel.
 
     python bench/bench_trainer.py            # batch 1, 10, 50 on one thread; steady state and start-up on all cores
     python bench/bench_trainer.py --full     # plus the paper's full run: 10 seeds x 5000 x 100 steps, all cores
+    python bench/bench_trainer.py --agent truav   # TRUAV through the agent API against TRUAV's own trainer
+
+--agent NAME times `truav train --agent NAME`'s trainer (agents.api_controller: the class's batched form
+if it has one, else one call per UAV and step) against TRUAV's fused trainer, batch 10 on one thread,
+the two alternated --repeats times (so they see the same load), and prints the ratio of the medians.
 
 An env-step is one step of one environment (200 vehicles, 5 UAVs). Batch
 figures run on one thread and time from the end of the first episode to the
@@ -38,12 +43,12 @@ BEFORE_FULL_RUN_S = 153.0
 """The README's paper-scale `truav train` at 0cd7060: 153 s (32,600 env-steps/s)."""
 
 
-def batch_rate(batch: int, episodes: int) -> float:
+def batch_rate(batch: int, episodes: int, kind: str = "truav") -> float:
     from agents.fused import set_threads
     set_threads(1)
     cfg = Config().replace(learner={"episodes": episodes}, roads={"warmup_steps": 0})
     stamps: list[float] = []
-    run_chunk("truav", cfg, list(range(batch)), episodes + 1,
+    run_chunk(kind, cfg, list(range(batch)), episodes + 1,
               on_episode=lambda e, m: stamps.append(time.perf_counter()))
     return batch * episodes * cfg.scenario.steps_per_episode / (stamps[-1] - stamps[0])
 
@@ -59,6 +64,23 @@ def timed_run(episodes: int, workers: int) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
+def compare_agent(name: str, repeats: int, batch: int = 10, episodes: int = 3) -> None:
+    import statistics
+    from truav import agent_loader
+    agent_loader.load(name, Config())
+    kind = agent_loader.AGENT_KIND_PREFIX + name
+    batch_rate(batch, 1), batch_rate(batch, 1, kind)  # compile and import once, outside the figures
+    native, agent = [], []
+    for _ in range(repeats):
+        native.append(batch_rate(batch, episodes))
+        agent.append(batch_rate(batch, episodes, kind))
+    n, a = statistics.median(native), statistics.median(agent)
+    print(f"batch {batch}, 1 thread, {episodes} episodes, median of {repeats} alternated runs:")
+    print(f"  truav train (fused):   {n:9,.0f} env-steps/s  (runs: {', '.join(f'{r:,.0f}' for r in native)})")
+    print(f"  --agent {name}: {a:9,.0f} env-steps/s  (runs: {', '.join(f'{r:,.0f}' for r in agent)})")
+    print(f"  ratio: {a / n:.3f} of TRUAV's own trainer")
+
+
 def ratio(now: float, before: float | None) -> str:
     return f"x{now / before:.1f} vs {before:,} before" if before else "(no recorded before)"
 
@@ -69,9 +91,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int_in(1), default=os.cpu_count() or 1,
                     help="worker processes, one kernel thread each (default: all cores)")
     ap.add_argument("--repeats", type=int_in(1), default=3, help="best of this many runs per figure (default 3)")
+    ap.add_argument("--agent", metavar="NAME", help="compare an agent API class's trainer with TRUAV's (only that)")
     args = ap.parse_args()
     print(f"load: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} "
           f"on {os.cpu_count()} cores")
+    if args.agent:
+        compare_agent(args.agent, args.repeats)
+        return
     for batch, episodes in ((1, 20), (10, 6), (50, 2)):
         rate = max(batch_rate(batch, episodes) for _ in range(args.repeats))
         print(f"batch {batch:3d}, 1 thread: {rate:9,.0f} env-steps/s  ({1e6 / rate:6.1f} us/env-step)  "

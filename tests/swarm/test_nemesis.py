@@ -103,6 +103,21 @@ def test_the_checker_sees_a_restart_that_did_not_resume_from_its_last_checkpoint
     assert not row.held and "resumed at step 0, its last checkpoint was at step 50" in row.detail, row
 
 
+def test_the_checker_accepts_the_checkpoint_whose_log_line_the_kill_cut_off(tmp_path):
+    """Seen in a 10-minute nemesis soak: SIGKILL between a checkpoint's atomic replace and its log line; the
+    restart resumes from that checkpoint, one cadence after the last logged one. Two cadences on is not one."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    procs = [{"name": "agent0", "pid": 1}, {"name": "agent0", "pid": 2}]
+    head = ("uav 0 joined run r (learning)\nuav 0: checkpoint at step 3250 -> a.npz\n"
+            "uav 0: checkpoint at step 3300 -> a.npz\n")
+    for step, held in ((3350, True), (3300, True), (3400, False), (3325, False)):
+        (logs / "agent0.log").write_text(head + f"uav 0 resumed from checkpoint a.npz at step {step}\n"
+                                                "uav 0 joined run r (learning)\n")
+        row = invariants._resumed(tmp_path, procs)
+        assert row.held == held, (step, row)
+
+
 def test_the_checker_explains_every_exit_code_or_says_which_it_cannot():
     plan = plan_from_dict({"fault": [{"kind": "crash", "start": 5.0, "uav": 0, "restart_after": 2.0}]})
     outcome = {"exit_code": 0, "result": "ok", "restarts": [{"old_pid": 20}]}

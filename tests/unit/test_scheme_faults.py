@@ -95,6 +95,18 @@ def test_the_faults_command_takes_the_learning_variants_and_refuses_others():
     parser = build_parser()
     args = parser.parse_args(["experiment", "faults", "--quick", "--schemes", "federated", "truav_online"])
     assert args.schemes == ["federated", "truav_online"]
-    with pytest.raises(SystemExit) as err:
-        parser.parse_args(["experiment", "faults", "--schemes", "fedavg"])
-    assert err.value.code == 2
+
+
+
+def test_the_faults_command_takes_an_agent_class_and_names_one_it_cannot_load(tmp_path, capsys):
+    """Any other --schemes name is an agent class: found and checked before anything runs, or one line, exit 2."""
+    from truav.cli.main import build_parser, main
+    args = build_parser().parse_args(["experiment", "faults", "--quick", "--schemes", "random", "pkg.mod:Cls"])
+    assert args.schemes == ["random", "pkg.mod:Cls"]
+    out = tmp_path / "never"
+    assert main(["experiment", "faults", "--quick", "--schemes", "truav", "fedavg", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--schemes fedavg" in err[0], err
+    assert not out.exists()
+    assert cmp.is_agent_class("agents.random_agent:RandomAgent") and not cmp.is_agent_class("federated")
+    assert cmp.file_name("agents.random_agent:RandomAgent") == "agents.random_agent-RandomAgent"

@@ -30,8 +30,10 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--rate", type=positive_float, default=10.0, help="tick rate in Hz (default %(default)g)")
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running with the same "
                                  "options resumes (other options are refused)")
-    p.add_argument("--schemes", nargs="+", choices=SCHEMES,
-                   help="compare these schemes under the same link loss, latency and process crash levels "
+    p.add_argument("--schemes", nargs="+", metavar="SCHEME",
+                   help=f"compare these schemes under the same link loss, latency and process crash levels: "
+                        f"{', '.join(SCHEMES)}, or an agent class (pkg.module:Class or a name registered in the "
+                        f"entry-point group truav.agents: trained in process, then flown greedily) "
                         "(truav.experiments.scheme_faults: comparison.csv, comparison-<metric>.png); "
                         "federated and truav_online fly the TRUAV table learning online, with and without "
                         "Q-sharing (federated.every, 1 unless set); "
@@ -67,6 +69,10 @@ def cmd_fault_sweep(args) -> int:
     if args.schemes:
         from truav.experiments.scheme_faults import run_comparison
         schemes = tuple(dict.fromkeys(args.schemes))
+        for name in schemes:  # an agent class: found and checked (one line, exit 2) before anything runs
+            if name not in SCHEMES:
+                from truav import agent_loader
+                agent_loader.load(name, cfg, flag="--schemes")
         if args.policy is not None:
             if "central" not in schemes:
                 raise UsageError("--policy: only --schemes central flies a trained controller")

@@ -23,6 +23,10 @@ episode (``federated.every``, 1 unless the config sets it; the shares on
 ``uav/*/qshare/*`` are one of the links the faults hit), ``truav_online``
 shares nothing (the federated one's counterpart: what the beacon faults alone
 cost a learning swarm).
+Any other name in ``schemes`` is an agents.api class (pkg.module:Class or a registered name): trained in
+process first (``truav train --agent`` for ``train_episodes["truav"]`` episodes, its agent.npz under
+policy-<name>/), then flown greedily as one process per UAV (``up --agent NAME --qtable``), its crash
+hitting UAV 0 as TRUAV's does.
 Writes comparison.csv (tidy: scheme, kind, level and the metrics) and one figure
 per metric, comparison-<metric>.png (panels loss, latency, crash; a line per scheme).
 """
@@ -33,6 +37,7 @@ import csv
 import json
 import math
 import os
+import re
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -73,10 +78,21 @@ class CompareSize:
 
 
 SIZES = {
-    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 1, 60, {"truav": 200, "central": 150}, 3),
+    # 3 episodes a point even when quick: each effect's interval is paired over them (1 would give none)
+    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 3, 60, {"truav": 200, "central": 150}, 4),
     "full": CompareSize((0.0, 0.1, 0.3, 0.5), (0.0, 100.0, 300.0, 500.0), (0.0, 0.2, 0.4, 0.8), 2, 100,
                         {"truav": 2000, "central": 500}, 4),
 }
+
+
+def is_agent_class(scheme: str) -> bool:
+    """A name that is not one of SCHEMES: an agents.api class (checked by the command line)."""
+    return scheme not in SCHEMES
+
+
+def file_name(scheme: str) -> str:
+    """The scheme in a file name (an agent class's name holds ':')."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "-", scheme)
 
 
 def episodes_of(size: CompareSize, scheme: str) -> int:
@@ -126,11 +142,29 @@ def train_central(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     return run
 
 
+def train_agent(cfg: Config, out: Path, name: str, episodes: int, seed: int) -> Path:
+    """An agents.api class trained in process (one seed), as `truav train --agent NAME` does, for its swarm
+    to fly; kept for a re-run (its agent.npz is written last)."""
+    from truav import agent_loader, runio
+    from truav.agent_run import AGENT_FILE, write_agent_state
+    from truav.trainer import run_chunk
+    run = out / f"policy-{file_name(name)}"
+    if (run / AGENT_FILE).is_file():
+        return run
+    run.mkdir(parents=True, exist_ok=True)
+    cls = agent_loader.resolve(name, flag="--schemes")
+    result = run_chunk(agent_loader.AGENT_KIND_PREFIX + name, cfg, [seed], episodes)
+    runio.write_config(run, cfg)
+    runio.write_metrics(run / runio.METRICS_FILE, [seed], result.metrics)
+    write_agent_state(run, name, cls.api_version, [seed], result.policy, result.uav_pos, cfg)
+    return run
+
+
 def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None], rate_hz: float, size: CompareSize,
               total: int, n: int, scheme: str, kind: str, level: float) -> str:
     """One swarm run (skipped if finished); its summary.json text."""
     from truav.swarm.supervisor import SwarmOptions, run_swarm
-    name = f"{scheme}-{kind}-{level:g}"
+    name = f"{file_name(scheme)}-{kind}-{level:g}"
     done = out / name / "summary.json"
     if not done.is_file():
         text = plan_text(scheme, kind, level, run_seconds(size, rate_hz, scheme))
@@ -143,11 +177,14 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
         if learning:  # going on from the trained table: exploring as its training ended, not from epsilon_start
             cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0},
                               learner={"epsilon_start": cfg.learner.epsilon_end})
+        from truav.agent_loader import AGENT_KIND_PREFIX
+        agent = is_agent_class(scheme)
         rc = run_swarm(cfg, SwarmOptions(
             run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
             plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True, references=False,
-            scheme="truav" if learning else scheme,
-            qtable=policies["truav"] if scheme == "truav" or learning else None, greedy=scheme == "truav",
+            scheme="truav" if learning else AGENT_KIND_PREFIX + scheme if agent else scheme,
+            qtable=policies[scheme] if agent else policies["truav"] if scheme == "truav" or learning else None,
+            greedy=scheme == "truav" or agent,
             policy=policies["central"] if scheme == "central" else None,
             max_missed_share=1.0))  # a point whose actions went missing is a result here, not a failure
         if rc:
@@ -191,6 +228,10 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
         n = size.train_episodes["central"]
         print(f"training the centralized SAC in process ({n} episodes) for the controller to fly", flush=True)
         policies["central"] = str(train_central(cfg, out, n, seed))
+    for name in filter(is_agent_class, schemes):
+        n = size.train_episodes["truav"]
+        print(f"training {name} in process ({n} episodes) for its swarm to fly", flush=True)
+        policies[name] = str(train_agent(cfg, out, name, n, seed))
     todo = points(size, schemes)
     point = partial(run_point, cfg, out, seed, policies, rate_hz, size, len(todo))
     if executor == "ray":

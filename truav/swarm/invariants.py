@@ -207,8 +207,9 @@ _JOINED = re.compile(r"uav (\d+) joined run")
 
 def _resumed(out: Path, procs: list[dict]) -> Invariant:
     """From each restarted agent's log (its processes append to one file): every "resumed from checkpoint
-    at step N" names the last checkpoint written before it, and every later join that had a checkpoint
-    to resume from did.  (A process killed while still starting may leave only its resume line.)"""
+    at step N" names the last checkpoint written before it (the last logged one, or the one after it whose
+    log line the kill cut off), and every later join that had a checkpoint to resume from did.  (A process
+    killed while still starting may leave only its resume line.)"""
     name = "every restarted agent resumed from its checkpoint"
     restarted = sorted({p["name"] for p in procs if p["name"].startswith("agent")
                         and sum(q["name"] == p["name"] for q in procs) > 1})
@@ -219,13 +220,16 @@ def _resumed(out: Path, procs: list[dict]) -> Invariant:
         except OSError:
             bad.append(f"{agent}: no log")
             continue
-        last_ck, resumed, joins = None, False, 0
+        last_ck, prev_ck, resumed, joins = None, None, False, 0
         for line in text.splitlines():
             if m := _CHECKPOINT.search(line):
-                last_ck = int(m.group(2))
+                prev_ck, last_ck = last_ck, int(m.group(2))
             elif m := _RESUMED.search(line):
                 step = int(m.group(2))
-                if step != last_ck:
+                # The log line follows the file's atomic replace: a kill between the two leaves the next
+                # checkpoint (one cadence on) written but not logged, and that is the one to resume from.
+                unlogged = last_ck + (last_ck - prev_ck) if last_ck is not None and prev_ck is not None else None
+                if step not in (last_ck, unlogged):
                     bad.append(f"{agent}: resumed at step {step}, its last checkpoint was "
                                f"{'none' if last_ck is None else f'at step {last_ck}'}")
                 steps.append(step)
