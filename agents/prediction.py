@@ -1,4 +1,4 @@
-"""Prediction (issue 32): where a UAV expects the traffic to be, from what it has seen.
+"""Prediction: where a UAV expects the traffic to be, from what it has seen.
 
 Each UAV keeps its own map of the vehicle density it observed, over
 predict_cells x predict_cells cells of the area: every observation

@@ -13,7 +13,7 @@ normalisation):
 - R_ov = sum over heard neighbours of the coverage-disc overlap fraction
   (see agents.state.neighbour_features).
 
-Selectable terms (issue 32; off by default, r_i then exactly eq. (1)):
+Selectable terms (off by default, r_i then exactly eq. (1)):
 
 - difference reward: + w_difference x (vehicles in range that no other UAV
   covers) / the fair share: the coverage the swarm loses without UAV i;

@@ -8,13 +8,13 @@ The paper's four locally observable categories plus a fine spatial grid:
 - distance to the nearest neighbour UAV, from beacons (`neighbour_edges_m`),
 - distance to the nearest RSU, RSU sites being known a priori (`rsu_edges_m`).
 
-Selectable refinements (issue 16; all off by default, the index then being
+Selectable refinements (all off by default, the index then being
 exactly the five factors above):
 
 - direction of the nearest neighbour in `neighbour_sectors` sectors,
 - the densest direction beyond comm range, sensed by the world
   (`sense_range_m`, `sense_sectors`; world.network.DENSEST);
-- (issue 32) the direction of the densest cell of the UAV's own decayed
+- the direction of the densest cell of the UAV's own decayed
   density map, where it expects traffic (`predict_sectors`; agents/prediction.py).
 
 A level is the number of edges <= the value, so k edges give k+1 levels.

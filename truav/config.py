@@ -200,10 +200,10 @@ class ChannelConfig:
 
 @dataclass(frozen=True)
 class LinksConfig:
-    """Who hears whose beacon (issue 46): "ideal", every UAV every other's (the paper, and the
-    default: every number as before), or "channel": each beacon delivered or lost by the channel
-    model's UAV-UAV link at the UAVs' distance through an 802.11p PHY abstraction, the same draws
-    in the trainer and the swarm (world/link_phy.py, docs/channel-models.md "Beacon links")."""
+    """Who hears whose beacon: "ideal", every UAV every other's (the paper, and the default), or
+    "channel": each beacon delivered or lost by the channel model's UAV-UAV link at the UAVs'
+    distance through an 802.11p PHY abstraction, the same draws in the trainer and the swarm
+    (world/link_phy.py, docs/explanation/channel-models.md "Beacon links")."""
 
     model: str = param("ideal")
     """Link model of the beacons: "ideal" or "channel"."""

@@ -1,4 +1,4 @@
-"""`truav-swarm up --external IDS`: UAVs whose agent is not the project's but the user's (issue 29).
+"""`truav-swarm up --external IDS`: UAVs whose agent is not the project's but the user's.
 
 `up` starts everything but those UAVs' agents, prints for each the command that flies it with
 examples/outside_agent.py (endpoint and, under --secure, its credentials), waits up to --external-wait
