@@ -141,7 +141,7 @@ def _on_round(bar, word: str = "divergent"):
 def _agent_class(args, rec, branch: bool):
     """The agent API class of an `up --agent NAME` recording, loaded only when --agent names it (a recording
     from elsewhere must not pick the code this command runs); None for TRUAV's own agents."""
-    from truav import agent_loader
+    from truav.analysis import agent_loader
     from truav.errors import UserError
     if rec.agent is None:
         if args.agent is not None:

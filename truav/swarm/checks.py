@@ -17,15 +17,16 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from truav import policy_scenario, runio
-from truav.bus import schema, security
+from agents.process.agent_process import AgentOptions
+from agents.state import StateEncoder
+from truav.analysis import policy_scenario, runio
+from truav.analysis.policy_scenario import Fit
+from truav.bus import security
 from truav.checks import check_endpoint, check_in_file, check_out_file
 from truav.config import Config
 from truav.errors import UserError
 from truav.faults import check_plan_for, load_plan
-from truav.policy_scenario import Fit
-from agents.agent_process import AgentOptions
-from agents.state import StateEncoder
+from truav.wire import schema
 from world.uavs import N_ACTIONS
 
 SCHEMES = ("truav", "central", "patrol")
@@ -144,7 +145,7 @@ def check_central_sizes(cfg: Config) -> None:
 
 def check_checkpoint(path: str, cfg: Config, api_agent: bool = False) -> None:
     """An agent checkpoint: resumed from if it exists (then it must be one), else creatable. ``api_agent``:
-    of an agents.api class (agents.api_process: its state arrays, steps, rng_state; no Q-table)."""
+    of an agents.api class (agents.process.api_process: its state arrays, steps, rng_state; no Q-table)."""
     p = Path(path)
     if not p.exists():
         check_out_file("--checkpoint", path)
