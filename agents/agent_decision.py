@@ -1,6 +1,6 @@
 """One TRUAV agent's cycle over wire messages, without the bus: beacon, state, learn, act.
 
-An agent process (agents.agent_process.AgentNode) runs it for its UAV and publishes what it returns; the
+An agent process (agents.process.agent_process.AgentNode) runs it for its UAV and publishes what it returns; the
 re-simulation of a recording (recorder.resim) runs one per UAV in process and compares what they return with
 what was recorded. So a re-simulated beacon or action is what the process would have sent, field for field:
 one algorithm, two drivers (and the trainer's arithmetic: StateEncoder, Reward, QLearners with B = U = 1).
@@ -14,8 +14,8 @@ from agents.prediction import new_maps, predict_batch, predict_params
 from agents.qlearning import QLearners
 from agents.reward import Reward
 from agents.state import StateEncoder, neighbour_features
-from truav.bus import schema
 from truav.config import Config
+from truav.wire import schema
 from world.link_phy import beacon_delivered, link_params, link_probability, link_uniform
 from world.uavs import action_velocity
 

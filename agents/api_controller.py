@@ -1,4 +1,4 @@
-"""An API agent class (agents.api) as a controller of the in-process driver (truav.driver.Controller).
+"""An API agent class (agents.api) as a controller of the in-process driver (truav.analysis.driver.Controller).
 
 Its batched form when the class offers one (``batched``), else one instance per seed and UAV, looped.
 Each step builds every UAV's LocalView from the world's LocalObs, as TRUAV's trainer does: every UAV hears

@@ -1,6 +1,6 @@
 """One API agent's cycle (agents.api) over wire messages, without the bus: beacon, view, learn, act.
 
-The agent process of `truav-swarm up --agent NAME` (agents.api_process) runs it for its UAV, as
+The agent process of `truav-swarm up --agent NAME` (agents.process.api_process) runs it for its UAV, as
 TruavDecision runs TRUAV's: the view is built from the world's observation and the beacons of the
 tick (in UAV-id order), the reward is the paper's local reward with the overlap of the peers heard,
 exactly as agents.api_controller builds them in process, so a lock-step swarm flies what
@@ -19,8 +19,8 @@ from agents.reward import Reward
 from agents.state import neighbour_features
 from truav import seeding
 from truav.call_limit import call_limited
-from truav.bus import schema
 from truav.config import Config
+from truav.wire import schema
 from world.network import rsu_positions
 from world.uavs import action_velocity
 

@@ -28,7 +28,7 @@ cells): right after a jump of the receiver's position (an episode's random
 redeployment), beacons sent before its new subscriptions reach the router
 are not heard; the agent then decides as it would after a lost beacon.
 
-Pure computation: no bus here (agents.agent_process subscribes).
+Pure computation: no bus here (agents.process.agent_process subscribes).
 """
 
 from __future__ import annotations

@@ -156,7 +156,7 @@ class PatrolController:
 
     def act_one(self, t: int, b: int, u: int, pos) -> int:
         """act(t) for UAV u of env b alone, from its own position (2,): the same arithmetic, so the
-        swarm's patrol agent (agents.scheme_process) flies exactly what this controller flies."""
+        swarm's patrol agent (agents.process.scheme_process) flies exactly what this controller flies."""
         sc = self.cfg.scenario
         land = np.clip(np.asarray(pos, np.float64)[None, :] + self._cand * sc.step_s, 0.0, sc.area_m)
         miss = np.sum((land - self.plan[t + 1, b, u][None, :]) ** 2, axis=-1)  # (17,)

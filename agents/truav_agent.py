@@ -24,8 +24,8 @@ from agents.api import LocalView, UavAgent
 from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder
-from truav.bus import schema
 from truav.config import Config
+from truav.wire import schema
 from world.draws import rng_from_words, rng_words
 
 _SCALARS = {"episode": np.int64, "t": np.int64, "state": np.int64, "action": np.int64, "epsilon": np.float64,

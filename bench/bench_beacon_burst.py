@@ -37,7 +37,8 @@ def router(seconds: float) -> None:
 def publisher(n: int, spread: bool, seconds: float) -> None:
     import zenoh
 
-    from truav.bus import keys, schema, transport
+    from truav.bus import transport
+    from truav.wire import keys, schema
     session = transport.open_session(transport.make_config("client", [ENDPOINT]))
     pubs = [session.declare_publisher(keys.uav_beacon(RUN, j), congestion_control=zenoh.CongestionControl.DROP)
             for j in range(1, n + 1)]
@@ -75,8 +76,9 @@ def _threads() -> dict[str, int]:
 
 
 def receiver(n: int, seconds: float) -> None:
-    from truav.bus import keys, transport
-    from truav.bus.guard import Bounds, Guard
+    from truav.bus import transport
+    from truav.wire import keys
+    from truav.wire.guard import Bounds, Guard
     bus = transport.Bus("uav/0", RUN, transport.make_config("client", [ENDPOINT]))
     bus.guard = Guard(Bounds(n_uavs=n + 1, area_m=5000.0, max_count=100, max_packets=1000, max_speed=30.0,
                              max_energy_j=1e5))

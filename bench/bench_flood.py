@@ -34,8 +34,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import zenoh  # noqa: E402
 
 from bench.hostile import flood  # noqa: E402
-from truav.bus import schema, transport  # noqa: E402
 from truav import jsonio  # noqa: E402
+from truav.bus import transport
+from truav.wire import schema  # noqa: E402
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 

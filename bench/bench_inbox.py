@@ -21,8 +21,9 @@ import time
 
 
 def measure(n: int, rounds: int) -> dict[str, float]:
-    from truav.bus import keys, schema, transport
-    from truav.bus.guard import Bounds, Guard
+    from truav.bus import transport
+    from truav.wire import keys, schema
+    from truav.wire.guard import Bounds, Guard
 
     run = "bench-inbox"
     bus = transport.Bus("uav/0", run, transport.make_config("peer"))

@@ -27,9 +27,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import numpy as np  # noqa: E402
 
 from agents import controller  # noqa: E402
+from truav.analysis.trainer import run_chunk  # noqa: E402
 from truav.cli.args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
-from truav.trainer import run_chunk  # noqa: E402
 from world import link_phy  # noqa: E402
 
 

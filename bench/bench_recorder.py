@@ -12,7 +12,7 @@ and, for reference, mcap's own ``Writer.add_message`` on the same beacons (no
 envelope decoding, no stats, no mirrors).  Prints each figure against the
 100,000 msgs/s target and against what a 20-agent swarm at 10 Hz needs.
 Payloads are built with msgpack directly, with the same fields and sizes as
-``truav.bus.schema`` (so the bench does not depend on it).
+``truav.wire.schema`` (so the bench does not depend on it).
 
 ``--bus`` runs ``bench/bench_recorder_bus.py`` instead: the recorder
 *process* fed over Zenoh (router, recorder and publisher processes on

@@ -1,7 +1,7 @@
 """Recorder throughput *from the bus*: ``python bench/bench_recorder_bus.py [--quick]``.
 
 Processes on loopback: a Zenoh router, the recorder (``python -m
-recorder.process``, zstd, JSON mirrors on) and a publisher.  Cases:
+recorder.process.recorder``, zstd, JSON mirrors on) and a publisher.  Cases:
 
 * flood: the publisher puts N obs payloads (20 keys, ~200 B, congestion
   control BLOCK so Zenoh back-pressures instead of dropping) as fast as it
@@ -44,11 +44,12 @@ sys.path.insert(0, str(REPO))
 
 from recorder.check import check  # noqa: E402
 from recorder.mcap_log import McapLog  # noqa: E402
-from recorder.process import spawn_recorder, stop_recorder, wait_until_recording  # noqa: E402
+from recorder.process.recorder import spawn_recorder, stop_recorder, wait_until_recording  # noqa: E402
 from recorder.reader import iter_messages  # noqa: E402
-from truav.bus import keys, transport  # noqa: E402
-from truav.swarm.supervisor import RECORDER_STOP_TIMEOUT_S  # noqa: E402
 from recorder_payloads import N_UAVS, SWARM_MSGS_PER_TICK, TARGET_MSGS_S, TICK_HZ, swarm_mix  # noqa: E402
+from truav.bus import transport
+from truav.swarm.supervisor import RECORDER_STOP_TIMEOUT_S  # noqa: E402
+from truav.wire import keys  # noqa: E402
 
 RUN = "benchbus"
 READY_TIMEOUT_S = 20.0

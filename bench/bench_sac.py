@@ -38,8 +38,8 @@ by whole runs (this bench's --compare measures another checkout the same way as 
 _RUN = r"""
 import json, sys, time
 sys.path.insert(0, {root!r})
+from truav.analysis.trainer import run_chunk
 from truav.config import Config
-from truav.trainer import run_chunk
 import agents.sac as sac
 spent = [0.0, 0]
 update = sac.BatchedSAC.update
@@ -91,7 +91,7 @@ def main() -> None:
                     help="the paper preset (default) or the literal config, Config() (for checkouts without presets)")
     args = ap.parse_args()
     if args.compare and not os.path.isfile(os.path.join(args.compare, "truav", "trainer.py")):
-        ap.error(f"--compare {args.compare}: not a checkout of this project (no truav/trainer.py there)")
+        ap.error(f"--compare {args.compare}: not a checkout of this project (no truav/analysis/trainer.py there)")
     if args.compare and args.config == "paper" and not os.path.isfile(os.path.join(args.compare, "truav", "presets.py")):
         ap.error(f"--compare {args.compare}: that checkout has no presets (no truav/presets.py): use --config literal")
     seeds = 10

@@ -22,8 +22,8 @@ import msgpack
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from truav.bus import keys, schema  # noqa: E402
 from truav.bus.placement import check_placement as _check_placement  # noqa: E402
+from truav.wire import keys, schema  # noqa: E402
 
 
 def per_call_us(fn, number: int) -> float:

@@ -28,7 +28,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import zenoh  # noqa: E402
 
 from bench.hostile import GARBAGE  # noqa: E402
-from truav.bus import keys, schema, security  # noqa: E402
+from truav.bus import security
+from truav.wire import keys, schema  # noqa: E402
 
 
 def main() -> int:

@@ -34,7 +34,7 @@ from truav.config import Config  # noqa: E402
 
 def train_rate(cfg: Config, batch: int, episodes: int) -> float:
     from agents.fused import set_threads
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     set_threads(1)
     stamps: list[float] = []
     run_chunk("truav", cfg.replace(learner={"episodes": episodes + 1}), list(range(batch)), episodes + 1,
@@ -49,7 +49,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int_in(1), default=3, help="training runs per mobility, best kept (default 3)")
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     args = ap.parse_args()
-    from truav import sumo_traffic
+    from truav.analysis import sumo_traffic
     cfg = Config().replace(scenario={"mobility": "sumo"}, roads={"warmup_steps": 0})
     with tempfile.TemporaryDirectory() as cache:
         os.environ["TRUAV_TRACE_CACHE"] = cache

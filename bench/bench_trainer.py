@@ -30,9 +30,9 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from truav.analysis.trainer import run_chunk, run_parallel  # noqa: E402
 from truav.cli.args import int_in  # noqa: E402
 from truav.config import Config  # noqa: E402
-from truav.trainer import run_chunk, run_parallel  # noqa: E402
 
 BEFORE = {1: 10_700, 10: None, 50: 27_700, "steady": 44_000}
 """Measured at commit 0cd7060 (before the fused kernel) on the same 2-core
@@ -56,7 +56,7 @@ def batch_rate(batch: int, episodes: int, kind: str = "truav") -> float:
 def timed_run(episodes: int, workers: int) -> float:
     """Wall time of a fresh process training 10 seeds for `episodes` (start-up included)."""
     code = ("import time; t0 = time.perf_counter()\n"
-            "from truav.config import Config\nfrom truav.trainer import run_parallel\n"
+            "from truav.config import Config\nfrom truav.analysis.trainer import run_parallel\n"
             f"run_parallel('truav', Config(), list(range(10)), {episodes}, workers={workers})\n"
             "print(time.perf_counter() - t0)")
     root = os.path.join(os.path.dirname(__file__), "..")
@@ -66,7 +66,7 @@ def timed_run(episodes: int, workers: int) -> float:
 
 def compare_agent(name: str, repeats: int, batch: int = 10, episodes: int = 3) -> None:
     import statistics
-    from truav import agent_loader
+    from truav.analysis import agent_loader
     agent_loader.load(name, Config())
     kind = agent_loader.AGENT_KIND_PREFIX + name
     batch_rate(batch, 1), batch_rate(batch, 1, kind)  # compile and import once, outside the figures

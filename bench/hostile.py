@@ -19,7 +19,7 @@ import time
 import msgpack
 import zenoh
 
-from truav.bus import keys, schema
+from truav.wire import keys, schema
 
 GARBAGE = (b"", b"\xc1", b"\x00" * 7, b"\xde\xff\xff", msgpack.packb([1, 2, 3]), msgpack.packb({"v": 1}),
            msgpack.packb({"v": 1, "kind": "obs"}), msgpack.packb({"v": 2, "kind": "beacon"}),

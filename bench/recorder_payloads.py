@@ -1,5 +1,5 @@
 """The recorder benchmarks' messages: beacons and the 20-agent swarm mix, built with
-msgpack directly, with the same fields and sizes as ``truav.bus.schema`` (so the
+msgpack directly, with the same fields and sizes as ``truav.wire.schema`` (so the
 benches do not depend on it). Used by bench_recorder.py and bench_recorder_bus.py.
 """
 

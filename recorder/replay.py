@@ -14,7 +14,7 @@ What rosbag2 users expect, on the TRUAV bus:
 * ``--run NEW`` rewrites the key prefix ``truav/<old>/`` to ``truav/NEW/``;
 * ``--paused`` starts paused; while it plays, :meth:`Replayer.command` (any thread: the keyboard,
   a ``control`` message on ``truav/<run>/control/replay``, the ``truav/<run>/replay/ctl`` queryable
-  of :mod:`recorder.replay_bus`) pauses, resumes, sets the rate, steps one world tick (every message
+  of :mod:`recorder.process.replay_bus`) pauses, resumes, sets the rate, steps one world tick (every message
   up to the next world tick message: from a tick's start, that whole tick; paused in the middle of
   one, the rest of it), bursts N ticks, steps N messages, or seeks to a
   time (seconds from the recording's first message), to a tick, or by a time back or forward.
@@ -27,7 +27,7 @@ Recorded ``control`` keys are skipped unless ``--with-control`` (re-sending
 old ``stop``/``shutdown`` commands into a live run is rarely wanted), and
 ``control/replay`` and a recorded replay's own ``replay/*`` always are (a replay
 must not steer itself). ``--lockstep`` leaves out the recorded actions: the live
-agents answer (:class:`LockstepGate`, :mod:`recorder.replay_bus`).
+agents answer (:class:`LockstepGate`, :mod:`recorder.process.replay_bus`).
 
 Driving one live agent from a recorded world: replay only what the world
 sent to it, and let the live agent answer::
@@ -41,7 +41,7 @@ features are as recorded; ``[!3]*`` is fnmatch's "not starting with 3").
 
 :class:`Replayer` is the engine; it publishes through any callable, so it
 is tested without Zenoh too. Its options and the checks made before it starts are
-:mod:`recorder.replay_setup`; the replay on the bus, :mod:`recorder.replay_bus`.
+:mod:`recorder.replay_setup`; the replay on the bus, :mod:`recorder.process.replay_bus`.
 """
 
 from __future__ import annotations
@@ -60,8 +60,8 @@ from recorder.replay_setup import (  # noqa: F401  (re-exported: what a replay i
     ACTION_PATTERN, CONTROL_PART, CONTROL_PATTERN, NS, SELF_CONTROL_PATTERN, SELF_STATUS_PATTERN, RecordingInfo,
     ReplayOptions, ReplayStats, ReplayUsageError, effective_excludes, key_rewriter, recording_info, select_topics,
     split_patterns)
-from recorder.replay_source import TICK_PATTERN, ReplaySource, Timeline, resolve_parts, tick_of
-from truav.bus import schema
+from recorder.replay_source import ReplaySource, TICK_PATTERN, Timeline, resolve_parts, tick_of
+from truav.wire import schema
 
 CMD_PAUSE, CMD_RESUME, CMD_TOGGLE, CMD_STEP, CMD_QUIT = "pause", "resume", "toggle", "step", "quit"
 CMD_BURST, CMD_NEXT, CMD_SEEK, CMD_RATE, CMD_STATUS = "burst", "next", "seek", "rate", "status"
@@ -96,7 +96,7 @@ SPIN_S = 0.0005  # wait the last half millisecond by polling: Condition.wait ove
 
 
 class LockstepGate:
-    """What ``--lockstep`` needs from the bus (:class:`recorder.replay_bus.AnswerGate`): told of every
+    """What ``--lockstep`` needs from the bus (:class:`recorder.process.replay_bus.AnswerGate`): told of every
     message sent, it holds the next tick back until the live agents answered the last one."""
 
     def published(self, key: str, payload: bytes) -> None:

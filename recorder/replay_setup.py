@@ -12,12 +12,12 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any, NamedTuple, Optional
 
+from recorder.mcap_guard import DamagedRecording, LOG_TIME_MAX_NS, ReadDamage, Validator, read_summary
 from recorder.mcap_log import is_mirror_topic
-from recorder.mcap_guard import LOG_TIME_MAX_NS, DamagedRecording, ReadDamage, Validator, read_summary
 from recorder.reader import iter_messages, open_source, probe, read_schemas
 from recorder.replay_source import Paths, SourceError, resolve_parts
-from truav.bus import keys
-from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from truav.wire import keys
+from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
 
 CONTROL_PART = "replay"  # commands arrive on keys.control(run, CONTROL_PART)
 CONTROL_PATTERN = "truav/*/control/*"  # recorded control keys: skipped by default
@@ -44,7 +44,7 @@ class ReplayOptions:
     duration_s: Optional[float] = None
     paused: bool = False
     with_control: bool = False
-    lockstep: bool = False  # tick k goes out once the live agents answered tick k-1 (recorder.replay_bus)
+    lockstep: bool = False  # tick k goes out once the live agents answered tick k-1 (recorder.process.replay_bus)
     lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
 
 

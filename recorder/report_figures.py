@@ -164,7 +164,7 @@ def map_figure(rec: Recording, path: Path) -> Optional[str]:
                                       label="RSU"))
     radius = cfg.comm_range_m if cfg is not None else DEFAULT_RANGE_M
     cmap = plt.get_cmap("tab10" if len(tracks) <= 10 else "tab20")
-    from truav.swarm.plots import MAX_LABELLED_UAVS
+    from truav.analysis.swarm_plots import MAX_LABELLED_UAVS
     many = len(tracks) > MAX_LABELLED_UAVS  # thin tracks, no discs, no per-UAV legend: a hundred of them are clutter
     for n_uav, (uav, series) in enumerate(sorted(tracks.items())):
         color = cmap(n_uav % cmap.N)

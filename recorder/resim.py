@@ -3,9 +3,9 @@
 A lock-step swarm is exact by protocol (docs/explanation/architecture.md, "Lock-step is exact by protocol"): each tick
 the world publishes every observation, every agent sends its beacon, waits for its peers' beacons of the
 same tick, learns and answers; the world steps once every action is in. :class:`Resimulation` runs that
-same sequence without a bus: the world's ``World`` stepped as `world/world_process.py` steps it, one
+same sequence without a bus: the world's ``World`` stepped as `world/process/world_process.py` steps it, one
 agents.agent_decision.TruavDecision per UAV (the code an agent process runs), and the messages built by
-the processes' own builders (world.world_messages, TruavDecision.beacon/act/acknowledge). So each
+the processes' own builders (truav.wire.world_messages, TruavDecision.beacon/act/acknowledge). So each
 re-simulated observation, beacon and action is what the processes would have sent for it, field for
 field; recorder.resim_verify compares them with the recording.
 
@@ -32,17 +32,17 @@ from agents.reward import Reward
 from agents.state import StateEncoder
 from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_info
 from recorder.reader import read_metadata
-from recorder.record_modes import PART_METADATA, PARTS_INDEX_SUFFIX, REASON_END
+from recorder.record_modes import PARTS_INDEX_SUFFIX, PART_METADATA, REASON_END
 from truav import seeding
-from truav.agent_loader import AGENT_KIND_PREFIX
-from truav.bus import keys, schema
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
+from truav.analysis.runio import read_qtables
 from truav.call_limit import CallTooLong, call_limited
 from truav.config import Config, ConfigError, config_from_dict
 from truav.errors import UserError
-from truav.runio import read_qtables
+from truav.wire import keys, schema
+from truav.wire.world_messages import observation_messages
 from world.env import World
 from world.uavs import N_ACTIONS
-from world.world_messages import observation_messages
 from world.world_state import restore_world, world_state
 
 
@@ -180,7 +180,7 @@ class Resimulation:
     def __init__(self, cfg: Config, seed: int, episodes: int, tables: list | None = None,
                  train: bool = True, agent_cls: type | None = None):
         """``agent_cls``: the agents.api class the run's agents flew (its recording's ``agent``), run through
-        agents.api_decision.ApiDecision as agents.api_process runs it; else TRUAV's own agents. ``tables``: each
+        agents.api_decision.ApiDecision as agents.process.api_process runs it; else TRUAV's own agents. ``tables``: each
         UAV's start, a Q-table (S, 16) for TRUAV's agents or a state_dict for a class's, or None (fresh)."""
         self.cfg, self.seed, self.episodes = cfg, seed, episodes
         n = cfg.scenario.n_uavs
@@ -295,7 +295,7 @@ class Resimulation:
 
 
 class ApiResimAgent:
-    """One UAV of an agent API class's run, answering as agents.api_process.ApiAgentNode.handle does in
+    """One UAV of an agent API class's run, answering as agents.process.api_process.ApiAgentNode.handle does in
     lock-step: a call that raises, runs past its limit or returns an illegal action costs that tick's action
     (the UAV hovers), and the run goes on; ``errors`` counts them."""
 

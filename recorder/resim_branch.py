@@ -24,9 +24,9 @@ from recorder.reader import iter_messages
 from recorder.resim import RecordedRun, Resimulation, Round
 from recorder.resim_snapshots import latest_snapshot
 from recorder.resim_verify import Divergence, RecordedTicks, Verification, compare_round, verify
-from truav.bus import keys, schema
 from truav.config import Config, ConfigError, config_from_dict, to_dict
 from truav.errors import UserError
+from truav.wire import keys, schema
 
 BRANCH_LEARNER_KEYS = ("learning_rate", "discount", "epsilon_start", "epsilon_end", "epsilon_decay_fraction",
                        "episodes", "geofence", "w_relay", "w_coverage", "w_energy", "w_overlap")

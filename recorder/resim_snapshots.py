@@ -16,8 +16,8 @@ from typing import Iterator
 import numpy as np
 
 from recorder.reader import iter_messages
-from truav.bus import keys, schema
-from world.snapshot_messages import state_arrays
+from truav.wire import keys, schema
+from truav.wire.snapshot_messages import state_arrays
 
 
 MAX_PENDING_TICKS = 4

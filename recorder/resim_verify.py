@@ -20,7 +20,7 @@ from typing import Any, Callable
 from recorder.reader import iter_messages
 from recorder.resim import Resimulation, Round, payload_fields
 from recorder.resim_snapshots import differing_arrays, iter_snapshots
-from truav.bus import keys, schema
+from truav.wire import keys, schema
 
 LOOKAHEAD_TICKS = 2
 """A tick's recorded messages are taken once a message this many ticks later was read: the recorder receives

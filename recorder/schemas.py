@@ -1,10 +1,10 @@
 """What the recorder knows about TRUAV payloads, and the JSON it mirrors them to.
 
-Deliberately self-contained (msgpack only, no ``truav.bus.schema`` import): the
+Deliberately self-contained (msgpack only, no ``truav.wire.schema`` import): the
 recorder must record anything, including payloads the schema module would
 reject, so it only needs the envelope (``kind``, ``src``, ``seq``, ``t``, ``inc``) to
 route, sequence-check and timestamp a message.  The JSON Schemas document the
-fields of each kind as ``truav.bus.schema`` defines them (for MCAP viewers); the
+fields of each kind as ``truav.wire.schema`` defines them (for MCAP viewers); the
 mirror builder turns metrics into plain JSON for Foxglove's plots, which cannot
 decode msgpack (beacons and positions go to :mod:`recorder.foxglove`).
 """
@@ -66,7 +66,7 @@ def decode_envelope(payload: bytes) -> Optional[Envelope]:
 
     Usable means: msgpack of a map with a str ``kind``, a str ``src`` and an
     int ``seq``.  Anything else is recorded raw and counted as undecodable;
-    the full schema validation belongs to ``truav.bus.schema``, not the recorder.
+    the full schema validation belongs to ``truav.wire.schema``, not the recorder.
     """
     fields = envelope_fields(payload)
     return None if fields is None else Envelope(*fields)

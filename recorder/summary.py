@@ -1,6 +1,6 @@
 """What a recorder run did: :class:`RecorderSummary`, printed when the recorder stops and stored in the file.
 
-Pure (no bus): the recorder process (:mod:`recorder.process`) fills it from
+Pure (no bus): the recorder process (:mod:`recorder.process.recorder`) fills it from
 its :class:`recorder.mcap_log.LogSummary` and its Bus's statistics.
 """
 

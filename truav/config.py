@@ -453,7 +453,7 @@ class FederatedConfig:
     max_rows: int = param(960, 1, 1_000_000)
     """Rows a UAV shares at most per share: the most visited of the states it
     visited since its last share (ties: lower state first); the bus splits
-    them over messages of at most truav.bus.schema_names.MAX_QSHARE_ROWS rows."""
+    them over messages of at most truav.wire.schema_names.MAX_QSHARE_ROWS rows."""
     q_bound: float = param(1e4, 0.0, 1e12)
     """A share holding a Q value of magnitude above this (or NaN, inf) is
     refused whole: no reward of the scenario's reward design comes near it

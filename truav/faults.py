@@ -1,6 +1,6 @@
 """Fault plans: timed faults on a running swarm, like Jepsen's nemesis or
 toxiproxy's toxics: the plan (Fault, FaultPlan), its file format and its checks.
-The link filter that applies a plan to messages is truav.fault_filter.
+The link filter that applies a plan to messages is truav.bus.fault_filter.
 
 A plan is TOML, one `[[fault]]` table per fault, times in seconds from the
 start of the run:
@@ -62,7 +62,7 @@ Patterns are checked on load (chunks of key characters and the globs * ** ?
 plan naming a UAV the swarm does not have (`check_plan_for`).
 
 Loss, latency, partitions and observation loss act in the transport's link
-filter on the receiving side (truav.fault_filter), identically in every process. Their random
+filter on the receiving side (truav.bus.fault_filter), identically in every process. Their random
 draws are counter-based: a uniform for the n-th message on a (src, dst, key)
 link is a hash of (plan seed, fault index, link, n), so a plan means the same
 thing in every process and is deterministic under its seed. Crashes and

@@ -117,7 +117,7 @@ class World:
     [-1, 16); -1 (uavs.HOVER) hovers, e.g. when an agent's action is missing.
 
     trace: the vehicles' positions, replayed, when scenario.mobility is "sumo"
-    (world/trace.py; truav/sumo_traffic.py loads it): each env starts at a
+    (world/trace.py; truav/analysis/sumo_traffic.py loads it): each env starts at a
     window drawn from its generator at reset and takes the next window each
     episode; the grid's own mobility then does not run."""
 

@@ -1,7 +1,7 @@
 """The SUMO scenario of a config, pure: netgenerate's and randomTrips.py's
 arguments, the hotspot weights of trip destinations, the trace's cache key,
 and the driving loop that keeps every vehicle on the road. No I/O of its own:
-truav/sumo_traffic.py runs the tools and hands `drive` a simulation.
+truav/analysis/sumo_traffic.py runs the tools and hands `drive` a simulation.
 
 The network is the world's grid (scenario.area_m / roads.block_m + 1 roads
 per axis, junction (i, j) at (i, j) x block_m: netgenerate's ids "i/j", and

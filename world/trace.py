@@ -1,5 +1,5 @@
 """A mobility trace: vehicle positions recorded once per world step (by SUMO,
-truav/sumo_traffic.py), replayed by the world instead of its own car
+truav/analysis/sumo_traffic.py), replayed by the world instead of its own car
 following (scenario.mobility = "sumo"). Pure: arrays and their checks.
 
 Layout: positions (R, N, 2) float64 in the world's metres, vehicle slot n

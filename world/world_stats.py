@@ -33,7 +33,7 @@ class WorldStats:
     joins: list[str] = field(default_factory=list)
     losses: list[str] = field(default_factory=list)
     rejected: dict[str, dict[str, int]] = field(default_factory=dict)
-    """Messages the bus refused, {reason: {sender: count}} (truav.bus.guard)."""
+    """Messages the bus refused, {reason: {sender: count}} (truav.wire.guard)."""
     actions_digest: list[str] = field(default_factory=list)
     """Per episode: blake2b of the (U,) int64 actions applied at every step (HOVER where missing),
     to compare a run's actions with another's or the in-process driver's (action_digest)."""
@@ -57,7 +57,7 @@ class WorldStats:
     """Lock-step: the UAVs still marked silent when the run ended."""
     rejections_sent: int = 0
     """Rejection messages the world sent its agents (on uav/<i>/rejected; at most one per UAV per
-    REJECTION_PERIOD_S, whatever the flood: truav.bus.rejection_notices)."""
+    REJECTION_PERIOD_S, whatever the flood: truav.wire.rejection_notices)."""
     stalls: list[dict] = field(default_factory=list)
     """Real time: each time the world's clock jumped (it was paused, or the host stalled) at least
     STALL_MIN_S past a tick's due time: {"tick", "s" (how late), "ticks_skipped"}. The world resumes from

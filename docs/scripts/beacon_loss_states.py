@@ -2,8 +2,8 @@
 
 In process, no bus: the world and greedy agents of `truav experiment faults`, except
 that each agent builds its state from the beacons the sweep's link filter
-(truav.fault_filter.PlanFilter, plan ``keys = "uav/*/beacon"``) lets through, keeping each
-peer's freshest beacon for at most agents.agent_process.REALTIME_BEACON_MAX_AGE_TICKS
+(truav.bus.fault_filter.PlanFilter, plan ``keys = "uav/*/beacon"``) lets through, keeping each
+peer's freshest beacon for at most agents.process.agent_process.REALTIME_BEACON_MAX_AGE_TICKS
 ticks as a real-time agent does. Counts beacons heard, decisions whose state differs
 from the state with every beacon, and greedy actions that differ.
 
@@ -17,14 +17,14 @@ import tomllib
 
 import numpy as np
 
-from agents.agent_process import REALTIME_BEACON_MAX_AGE_TICKS
 from agents.controller import TruavController
+from agents.process.agent_process import REALTIME_BEACON_MAX_AGE_TICKS
 from agents.state import all_peers, neighbour_features
-from truav import runio
-from truav.driver import run_episodes
-from truav.experiments.fault_sweep import plan_text
-from truav.fault_filter import PlanFilter
+from truav.analysis import runio
+from truav.analysis.driver import run_episodes
+from truav.bus.fault_filter import PlanFilter
 from truav.faults import plan_from_dict
+from truav.swarm.fault_sweep import plan_text
 
 
 class LossyBeacons(TruavController):

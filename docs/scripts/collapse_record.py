@@ -1,10 +1,10 @@
 """Diagnose the greedy collapse under uav_start=persist: train, then run greedily
 while recording positions, states, actions; print stuck/self-loop stats; map."""
 import json, os, sys, time, numpy as np
-from truav.config import load_config
-from truav.driver import run_episodes
-from truav import seeding
 from agents.controller import TruavController
+from truav import seeding
+from truav.analysis.driver import run_episodes
+from truav.config import load_config
 from world.env import World
 
 os.makedirs("runs/diag", exist_ok=True)

@@ -4,7 +4,7 @@
         [--set learner.grid_cells=1 --set learner.sense_range_m=1500] [--every 1] [--max-weight 0.5]
 
 Under `--preset paper` at 15 m/s, for federated.every = 0 and the given sharing: trains the seeds in
-process (truav.trainer.run_chunk), then flies the trained tables greedily on held-out traffic from where
+process (truav.analysis.trainer.run_chunk), then flies the trained tables greedily on held-out traffic from where
 training left the swarm (seeds + 1000), stepping the driver to record every UAV's position, and prints
 per design: greedy coverage, how often the agents' greedy actions agree in the states two agents both
 learned in (pairs of the 5 agents, per seed), the mean distance between two UAVs, and the share of
@@ -20,10 +20,10 @@ import numpy as np
 from agents.controller import TruavController
 from agents.qlearning import states_visited  # noqa: F401  (the ablation's "rows known", for reference)
 from truav import seeding
+from truav.analysis.driver import run_episodes
+from truav.analysis.trainer import run_chunk
 from truav.config import Config
-from truav.driver import run_episodes
 from truav.presets import preset_overrides
-from truav.trainer import run_chunk
 
 
 def _parse_set(items: list[str]) -> dict:

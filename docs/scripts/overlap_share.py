@@ -15,12 +15,12 @@ import numpy as np
 
 from agents.controller import TruavController
 from truav import seeding
+from truav.analysis.driver import run_episodes
+from truav.analysis.sumo_traffic import make_world
 from truav.cli.config import parse_sets
 from truav.config import load_config
-from truav.driver import run_episodes
 from truav.presets import preset_overrides
 from truav.seeding import EVAL_SEED_OFFSET
-from truav.sumo_traffic import make_world
 
 
 class Recording(TruavController):

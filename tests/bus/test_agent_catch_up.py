@@ -7,9 +7,9 @@ import threading
 import numpy as np
 
 from tests.support.waits import wait_until
-from agents.agent_process import AgentNode, AgentOptions
-from truav.bus import guard, schema
+from agents.process.agent_process import AgentNode, AgentOptions
 from truav.config import Config
+from truav.wire import guard, schema
 
 RUN = "catchup"
 
@@ -89,7 +89,7 @@ def test_realtime_agent_never_learns_from_an_observation_older_than_one_answered
 def test_world_counts_late_and_out_of_order_actions_as_such(bus_factory) -> None:
     """Not as malformed duplicates: the guard passes an older tick's action, the world counts it
     (late: after its round closed; stale: behind a newer answer of the same agent) and never applies it."""
-    from world.world_process import WorldNode, WorldOptions
+    from world.process.world_process import WorldNode, WorldOptions
     cfg = Config().replace(scenario={"n_vehicles": 20, "n_uavs": 2, "steps_per_episode": 5})
     bus = bus_factory("world")
     node = WorldNode(cfg, WorldOptions(run=RUN), bus)

@@ -9,14 +9,15 @@ import time
 import msgpack
 import pytest
 
-from agents.agent_process import AgentNode, AgentOptions
+from agents.process.agent_process import AgentNode, AgentOptions
 from recorder.check import check
 from recorder.mcap_log import McapLog
 from recorder.reader import iter_messages, read_schemas
 from tests.support.waits import wait_until
-from truav.bus import guard, keys, schema, security
-from truav.config import Config
+from truav.bus import security
 from truav.cli import swarm as swarm_cli
+from truav.config import Config
+from truav.wire import guard, keys, schema
 
 RUN = "health"
 

@@ -7,11 +7,11 @@ from collections import deque
 
 import pytest
 
-from agents.agent_process import AgentOptions
-from agents.scheme_process import DEPLOY_REPEATS, PatrolAgentNode
+from agents.process.agent_process import AgentOptions
+from agents.process.scheme_process import DEPLOY_REPEATS, PatrolAgentNode
 from tests.support.waits import wait_until
-from truav.bus import guard, keys, schema
 from truav.config import Config
+from truav.wire import guard, keys, schema
 
 RUN = "clean"
 
@@ -68,7 +68,7 @@ def test_controller_stalled_beyond_the_tick_window_still_accepts_the_current_upl
     machine) used to refuse every later upload as tick_out_of_window, and decide nothing more all run:
     the world's ticks now keep its window current."""
     pytest.importorskip("torch")
-    from agents.central_process import ControllerNode, ControllerOptions
+    from agents.process.central_process import ControllerNode, ControllerOptions
     cfg = Config().replace(scenario={"n_uavs": 2, "n_vehicles": 60})
     node = ControllerNode(cfg, ControllerOptions(run=RUN), bus_factory("controller"))
     world, uav = bus_factory("world"), bus_factory("uav/0")

@@ -21,13 +21,14 @@ import numpy as np
 import pytest
 import zenoh
 
-from truav.bus import codec, guard as guard_mod, keys, placement, schema
-from truav.bus.guard import (CONTROL_SHUTDOWN, R_DUPLICATE, R_IMPLAUSIBLE, R_SENDER, R_TICK, SPEED_MARGIN,
+from truav.bus import placement
+from truav.wire import codec, guard as guard_mod, keys, schema
+from truav.wire.guard import (CONTROL_SHUTDOWN, R_DUPLICATE, R_IMPLAUSIBLE, R_SENDER, R_TICK, SPEED_MARGIN,
                              SUPERVISOR, Bounds, Guard)
 from truav.bus.inbox import Inbox
-from truav.bus.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _SIZE_LIMIT, _WIRE_KEYS, MESSAGE_CLASSES, Message)
+from truav.wire.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _SIZE_LIMIT, _WIRE_KEYS, MESSAGE_CLASSES, Message)
 from truav.bus.placement import R_KEY_MISMATCH, expected_kind
-from truav.bus.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
+from truav.wire.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
                                     R_MISSING_FIELD, R_NOT_BYTES, R_NOT_MAP, R_NOT_MSGPACK, R_TOO_LARGE,
                                     R_UNKNOWN_KIND, R_UNSTAMPED, R_VERSION, SCHEMA_VERSION, SchemaError)
 
@@ -37,7 +38,7 @@ WAIT_S = 5.0
 unpack_limits = codec.unpack_limits
 
 
-# --- the reference decoder (truav/bus/codec.py before the fast path, verbatim) -------------------------
+# --- the reference decoder (truav/wire/codec.py before the fast path, verbatim) -------------------------
 def reference_decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> Message:
     """Decode and validate one message; raises only SchemaError on bad input.
 
@@ -195,7 +196,7 @@ class ReferenceGuard(Guard):
                 if msg.tick == self._last_action[msg.uav]:
                     return R_DUPLICATE, f"second action of uav {msg.uav} for tick {msg.tick}"
                 # An older tick's action is an answer delayed behind a newer one, not malformed: passed on,
-                # the world counts it as stale (world.world_process).
+                # the world counts it as stale (world.process.world_process).
                 self._last_action[msg.uav] = max(self._last_action[msg.uav], msg.tick)
         elif isinstance(msg, schema.QShare):  # (added since, with the kind)
             if msg.part >= msg.parts or len(msg.counts) != len(msg.states) or len(msg.q) != 16 * len(msg.states):

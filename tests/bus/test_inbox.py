@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from truav.bus import keys, schema
-from truav.bus.schema import Action, Beacon
+from truav.wire import keys, schema
+from truav.wire.schema import Action, Beacon
 
 RUN = "test_inbox"
 WAIT_S = 3.0

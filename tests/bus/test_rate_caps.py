@@ -11,10 +11,11 @@ import time
 import zenoh
 
 from tests.support.waits import free_port, wait_matched
-from truav.bus import keys, security
+from truav.bus import security
 from truav.bus.rate_caps import MIN_CAP_HZ
-from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 from truav.swarm.supervisor import SwarmOptions
+from truav.wire import keys
+from truav.wire.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 
 RUN = "caps"
 N = 3

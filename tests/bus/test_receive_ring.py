@@ -8,7 +8,8 @@ import time
 import zenoh
 
 from tests.support.waits import wait_matched, wait_until
-from truav.bus import keys, schema, transport
+from truav.bus import transport
+from truav.wire import keys, schema
 
 RUN = "ring"
 

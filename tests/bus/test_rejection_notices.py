@@ -1,4 +1,4 @@
-"""Rejections told to their sender (truav/bus/rejection_notices.py, the `rejection` kind): bounded per UAV and
+"""Rejections told to their sender (truav/wire/rejection_notices.py, the `rejection` kind): bounded per UAV and
 period whatever the flood, the UAV only from the key, accepted by an agent only from the world, delivered by
 Bus.subscribe_rare (no pump thread), counted by the project's agent. The swarm-level checks (an out-of-range
 action told to its sender, plain and --secure; a flood) are in tests/swarm/test_world_accounting.py, the router's
@@ -10,10 +10,10 @@ import threading
 import time
 from types import SimpleNamespace
 
-from agents.agent_process import AgentNode
-from truav.bus import guard, keys, schema
-from truav.bus.rejection_notices import RejectionNotices
-from truav.bus.schema_names import MAX_DETAIL_LEN
+from agents.process.agent_process import AgentNode
+from truav.wire import guard, keys, schema
+from truav.wire.rejection_notices import RejectionNotices
+from truav.wire.schema_names import MAX_DETAIL_LEN
 from tests.support.waits import wait_matched
 
 RUN = "told"

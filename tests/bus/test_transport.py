@@ -21,8 +21,9 @@ import zenoh
 
 from truav.cli import args as cli_args
 from tests.support.waits import wait_until as _wait_until
-from truav.bus import keys, schema, transport
-from truav.bus.schema import Action, Beacon, Obs, SchemaError
+from truav.bus import transport
+from truav.wire import keys, schema
+from truav.wire.schema import Action, Beacon, Obs, SchemaError
 
 RUN = "test_run"
 WAIT_S = 3.0

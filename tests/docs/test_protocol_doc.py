@@ -16,16 +16,17 @@ from typing import ClassVar
 
 import pytest
 
-from agents.agent_process import DONE_ACK_ACTION, AgentOptions
-from agents.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS
+from agents.process.agent_process import AgentOptions, DONE_ACK_ACTION
+from agents.process.agent_process_realtime import REALTIME_BEACON_MAX_AGE_TICKS
 from recorder.schemas import bus_schema
 from truav.actions import HOVER, N_ACTIONS
-from truav.bus import acl, guard, keys, placement, protocol_doc, schema_names
-from truav.bus.codec import unpack_limits
-from truav.bus.field_checks import _uint63
-from truav.bus.messages import MESSAGE_CLASSES, Envelope, size_limit
+from truav.bus import acl, placement
 from truav.cli import swarm as swarm_cli
-from world.world_process import WorldOptions
+from truav.wire import guard, keys, protocol_doc, schema_names
+from truav.wire.codec import unpack_limits
+from truav.wire.field_checks import _uint63
+from truav.wire.messages import Envelope, MESSAGE_CLASSES, size_limit
+from world.process.world_process import WorldOptions
 
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "reference" / "protocol.md"
 DOC = DOC_PATH.read_text()

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from world.world_process import action_digest
+from world.process.world_process import action_digest
 
-from agents.agent_process import DELAY_ENV
+from agents.process.agent_process import DELAY_ENV
 from tests.support.runs import run_to_end
 from truav.config import Config, to_toml
 

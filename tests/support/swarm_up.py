@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from truav.bus import keys
 from truav.bus.transport import Bus, make_config
 from truav.swarm.children import free_loopback_endpoint
+from truav.wire import keys
 
 SMALL = ["--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5"]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import msgpack
 
 from recorder.mcap_log import McapLog
-from truav.bus import keys, schema
+from truav.wire import keys, schema
 
 RUN = "seek"
 T0 = 1_700_000_000_000_000_000

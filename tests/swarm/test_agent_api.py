@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from truav import runio
+from truav.analysis import runio
+from truav.analysis.agent_run import read_agent_state
 from truav.cli import main as cli
-from truav.agent_run import read_agent_state
 from truav.config import Config
 
 REPO = Path(__file__).resolve().parents[2]
@@ -122,7 +122,7 @@ def test_random_agent_is_seeded(tmp_path):
 
 
 def test_batched_form_equals_per_uav_form_and_patrol_equals_the_controller():
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     per_uav = run_chunk("agent:random", TINY_CFG, [0, 1], 3).metrics
     batched = run_chunk("agent:agents.random_agent:RandomAgentBatched", TINY_CFG, [0, 1], 3).metrics
     assert all(np.array_equal(per_uav[k], batched[k], equal_nan=True) for k in per_uav)
@@ -137,7 +137,7 @@ def test_truav_through_the_api_trains_what_truav_trains(geofence):
     """TRUAV's learner as an API class (agents/truav_agent.py, registered as `truav`): every metric of every
     episode and every Q-table entry equal to the trainer's own TRUAV, at the start of a training (epsilon
     high) and with the geofence the paper preset turns on."""
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     cfg = TINY_CFG.replace(learner={"geofence": geofence, "episodes": 6})
     own = run_chunk("truav", cfg, [0, 1], 6)
     api = run_chunk("agent:truav", cfg, [0, 1], 6)
@@ -152,7 +152,7 @@ def test_truav_through_the_api_resumes_from_its_state_dict():
     """A TruavAgent rebuilt from another's state_dict mid-episode goes on as the original does."""
     from agents.truav_agent import TruavAgent
     from truav import seeding
-    from truav.agent_loader import trial_view
+    from truav.analysis.agent_loader import trial_view
     cfg = TINY_CFG
     a = TruavAgent(cfg, 0, seeding.agent_rng(0, 0))
     view = trial_view(cfg)
@@ -243,7 +243,7 @@ class Probe:
 
 def test_the_calls_follow_the_documented_order_and_state_round_trips():
     from agents.api_controller import ApiController
-    from truav.driver import run_episodes
+    from truav.analysis.driver import run_episodes
     T, E = TINY_CFG.scenario.steps_per_episode, 2
     ctl = ApiController("probe", Probe, TINY_CFG, [0, 1])
     run_episodes(TINY_CFG, [0, 1], ctl, E)

@@ -18,8 +18,8 @@ import numpy as np
 from tests.support.runs import run_to_end
 from agents.api_controller import ApiController
 from agents.random_agent import RandomAgent
+from truav.analysis.driver import run_episodes
 from truav.config import Config, to_toml
-from truav.driver import run_episodes
 from tests.support.lockstep import Recorder
 
 SEED = 4
@@ -92,7 +92,7 @@ def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reac
     """The tutorial's Bandit (tests/swarm/test_agent_api.py), trained in process and flown as a lock-step swarm:
     every agent process ends with the state_dict training ends with, array for array."""
     from test_agent_api import USER_MODULE
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     mods = tmp_path / "mylab"
     mods.mkdir()
     (mods / "bandit_agent.py").write_text(USER_MODULE)
@@ -118,7 +118,7 @@ def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reac
 def test_a_lockstep_swarm_of_truav_through_the_api_ends_with_truav_trains_q_tables(tmp_path):
     """`truav-swarm up --lockstep --agent truav` (TRUAV's learner as an API class, one process per UAV) ends
     with the Q-tables of the trainer's own TRUAV, entry for entry."""
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     trained = run_chunk("truav", CFG, [SEED], EPISODES)
     out = up(tmp_path, "apitruav", "--agent", "truav")
     world = json.loads((out / "world.json").read_text())
@@ -171,7 +171,7 @@ def test_a_swarm_of_a_class_starts_from_what_truav_train_agent_learned(tmp_path)
     ends with, what the in-process adapter started from the same state flies, entry for entry; its
     recording re-simulates bit for bit from the same start."""
     from agents.truav_agent import TruavAgent
-    from truav.agent_run import read_agent_state
+    from truav.analysis.agent_run import read_agent_state
     agent_run = _train(tmp_path, "trained-api", "--agent", "truav")
     _, _, state, _ = read_agent_state(agent_run)
     rec = Recorder(ApiController("truav", TruavAgent, CFG, [SEED], state=state))

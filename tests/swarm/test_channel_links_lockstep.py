@@ -9,7 +9,7 @@ import json
 import numpy as np
 
 from tests.support.lockstep import CFG, SEED, agent_tables, run_swarm
-from truav.trainer import run_chunk
+from truav.analysis.trainer import run_chunk
 
 
 def test_lockstep_swarm_with_channel_links_equals_the_trainer(tmp_path):

@@ -120,24 +120,24 @@ def nothing_starts(monkeypatch, tmp_path):
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
     import truav.cli.log_process
-    import recorder.replay_bus
-    import truav.experiments.fault_sweep
+    import recorder.process.replay_bus
+    import truav.swarm.fault_sweep
     import truav.experiments.runner
     import truav.swarm.chaos
-    import agents.agent_host
-    import agents.controller_host
+    import agents.process.agent_host
+    import agents.process.controller_host
     import truav.cli.swarm_ops
     import truav.cli.swarm_processes
-    import world.world_host
+    import world.process.world_host
     import truav.swarm.supervisor
-    import truav.trainer
-    import truav.sumo_traffic
-    for module, name in ((truav.trainer, "run_parallel"), (truav.sumo_traffic, "checked_trace"), (truav.experiments.runner, "run_cells"),
+    import truav.analysis.trainer
+    import truav.analysis.sumo_traffic
+    for module, name in ((truav.analysis.trainer, "run_parallel"), (truav.analysis.sumo_traffic, "checked_trace"), (truav.experiments.runner, "run_cells"),
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
-                         (truav.experiments.fault_sweep, "run_sweep"), (world.world_host, "Bus"),
-                         (agents.agent_host, "Bus"), (agents.controller_host, "Bus"), (truav.cli.swarm_ops, "Bus"),
+                         (truav.swarm.fault_sweep, "run_sweep"), (world.process.world_host, "Bus"),
+                         (agents.process.agent_host, "Bus"), (agents.process.controller_host, "Bus"), (truav.cli.swarm_ops, "Bus"),
                          (truav.cli.swarm_processes, "run_router"), (truav.cli.log_process, "cmd_record"),
-                         (recorder.replay_bus, "replay_on_bus"),
+                         (recorder.process.replay_bus, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)
 
@@ -334,7 +334,7 @@ def test_quick_does_not_override_explicit_settings(files, tmp_path, monkeypatch)
 
 def test_fault_sweep_keeps_explicit_episode_length(tmp_path, monkeypatch) -> None:
     """The sweep's own episode length gives way to a scenario.steps_per_episode the user set."""
-    import truav.experiments.fault_sweep as sweep
+    import truav.swarm.fault_sweep as sweep
     seen = []
     monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: seen.append((cfg, kw)) or out / "f.png")
     for n, extra in enumerate(([], ["--set", "scenario.steps_per_episode=30"])):
@@ -347,8 +347,8 @@ def test_fault_experiment_resumes_its_out_only_with_the_same_settings(tmp_path, 
     """A re-run into --out keeps its finished points: with another seed or scenario it used to reuse them
     silently (a 2-UAV comparison relabelled as seed 9 with 3 UAVs in 1.5 s, exit 0); now refused in one line
     before anything runs, and the same options still resume."""
-    import truav.experiments.fault_sweep as sweep
-    import truav.experiments.scheme_faults as scheme_faults
+    import truav.swarm.fault_sweep as sweep
+    import truav.swarm.scheme_faults as scheme_faults
     runs = []
     monkeypatch.setattr(scheme_faults, "run_comparison", lambda cfg, size, out, schemes, **kw: runs.append(kw) or [])
     monkeypatch.setattr(sweep, "run_sweep", lambda cfg, size, out, **kw: runs.append(kw) or out / "f.png")

@@ -63,7 +63,7 @@ def test_the_cold_cache_check_finds_what_numba_cached(tmp_path, monkeypatch) -> 
 
     from truav import kernel_cache
     from truav.config import Config
-    from world.world_process import warm_up_kernels
+    from world.process.world_process import warm_up_kernels
     warm_up_kernels(Config().replace(scenario={"n_uavs": 2}))
     monkeypatch.setenv("NUMBA_CACHE_DIR", numba.config.CACHE_DIR)
     assert kernel_cache.uncached(["world/step.py"]) == []

@@ -64,9 +64,9 @@ def test_central_summary_counts_every_controller_incarnation(bus_factory, capsys
     """A crashed controller writes no statistics, so its restart's controller.json counts only itself
     (chaos --scheme central said "90 ticks decided"): the supervisor counts the commands every
     incarnation sent, as heard on the bus, and says how many incarnations there were."""
-    from truav.bus import keys, schema
     from truav.swarm.monitor import Monitor
     from truav.swarm.supervisor import SwarmOptions, _print_central
+    from truav.wire import keys, schema
     run = "incarnations"
     monitor = Monitor(n_uavs=2)
     monitor.attach(bus_factory("supervisor", run=run), run, central=True)

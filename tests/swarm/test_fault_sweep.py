@@ -3,9 +3,9 @@
 import csv
 import json
 
-from agents.agent_process import DELAY_ENV
-from truav.experiments import fault_sweep
+from agents.process.agent_process import DELAY_ENV
 from truav.config import Config
+from truav.swarm import fault_sweep
 
 
 def test_tiny_sweep_writes_csv_and_figure_and_resumes(tmp_path, monkeypatch, capsys):

@@ -6,9 +6,9 @@ import pytest
 from agents.controller import TruavController
 from agents.federated import (R_COUNT, R_ROUND, R_SHAPE, R_STATE, R_VALUE, Share, check_share, join_parts,
                               make_share, merge, split_share)
-from truav.config import ConfigError, Config
-from truav.driver import run_episodes
-from truav.trainer import run_chunk
+from truav.analysis.driver import run_episodes
+from truav.analysis.trainer import run_chunk
+from truav.config import Config, ConfigError
 
 S, A = 50, 16
 
@@ -145,7 +145,7 @@ def test_lockstep_federated_swarm_learns_the_federated_trainers_tables(tmp_path)
 
 
 def _qshare(uav=1, tick=5, n=2, **kw):
-    from truav.bus import schema
+    from truav.wire import schema
     fields = dict(uav=uav, tick=tick, episode=0, part=0, parts=1, states=np.arange(n), counts=np.ones(n, np.int64),
                   q=np.zeros(16 * n))
     return schema.QShare(**{**fields, **kw})
@@ -154,8 +154,9 @@ def _qshare(uav=1, tick=5, n=2, **kw):
 def test_guard_placement_and_acl_bound_a_qshare(small_cfg):
     """A share comes only from its UAV, on its own key and part, near the current tick, with whole rows; under
     --secure uav/i may put only its own shares; a share too large to send is refused before it goes out."""
-    from truav.bus import acl, guard, keys, placement, schema
-    from truav.bus.schema import SchemaError
+    from truav.bus import acl, placement
+    from truav.wire import guard, keys, schema
+    from truav.wire.schema import SchemaError
     g = guard.for_config(small_cfg)
     stamp = lambda src, m: schema.Sequencer(src).stamp(m)  # noqa: E731
     assert g.check("k", stamp("world", schema.Tick(tick=5, episode=0, sim_time=5.0, deadline_ms=100.0,
@@ -180,7 +181,7 @@ def test_guard_placement_and_acl_bound_a_qshare(small_cfg):
 
 
 def test_an_agent_refuses_hostile_and_stale_shares_and_bounds_the_rest(small_cfg):
-    """The swarm agent's receive side (agents.agent_process_federated): a share with an out-of-range value or a
+    """The swarm agent's receive side (agents.process.agent_process_federated): a share with an out-of-range value or a
     count no run could make is refused whole and counted; one of an older round is stale; a good one moves the
     agent's entries at most federated.max_weight of the way, and only in its rows."""
     node = _stub_node(small_cfg.replace(scenario={"n_uavs": 4}, federated={"every": 1, "max_weight": 0.25}))
@@ -227,11 +228,11 @@ def test_shares_of_rounds_far_ahead_cannot_push_out_the_present_round(small_cfg)
 
 
 def _stub_node(cfg):
-    """An agent node's federated part alone (agents.agent_process_federated), on no bus."""
+    """An agent node's federated part alone (agents.process.agent_process_federated), on no bus."""
     import threading
     from types import SimpleNamespace
 
-    from agents.agent_process_federated import FederatedShares
+    from agents.process.agent_process_federated import FederatedShares
     from agents.qlearning import QLearners
     from agents.state import StateEncoder
     node = FederatedShares()
@@ -246,7 +247,7 @@ def _stub_node(cfg):
 def test_a_share_split_over_parts_is_merged_whole_or_not_at_all(small_cfg):
     """A share of more rows than one message holds crosses the bus in parts: merged once every part came, as
     the unsplit share would be; with a part missing, not at all."""
-    from truav.bus import schema
+    from truav.wire import schema
     cfg = small_cfg.replace(scenario={"n_uavs": 3}, learner={"grid_cells": 20}, federated={"every": 1})
     rng = np.random.default_rng(1)
     n = schema.MAX_QSHARE_ROWS + 80

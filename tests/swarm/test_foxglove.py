@@ -250,7 +250,7 @@ def test_live_view_thread_stops_when_asked(endpoint: str, bus_factory) -> None:
     try:
         assert ready.wait(20)
         world = bus_factory("world")
-        from truav.bus import keys, schema
+        from truav.wire import keys, schema
 
         def publish() -> None:
             for tick in range(40):

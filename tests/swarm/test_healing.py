@@ -50,7 +50,7 @@ def test_an_agent_killed_outside_any_plan_is_restarted_and_resumes_from_its_chec
     assert not u.left_running(), out
     # the recording shows the restart as a span, from the death to the new process
     from recorder.reader import iter_messages
-    from truav.bus import schema
+    from truav.wire import schema
     spans = [schema.decode(payload) for key, payload, _, _ in iter_messages(record, include=["*/fault/restart"])]
     assert [(m.phase, m.target, m.params["cause"]) for m in spans] == [
         ("start", "uav/0", "killed by SIGKILL"), ("end", "uav/0", "killed by SIGKILL")], spans
@@ -91,8 +91,8 @@ def test_restarts_back_off_and_stop_at_the_limit():
 def test_after_a_router_outage_the_guard_follows_the_world_again(monkeypatch):
     """A router restart took longer than the guard's tick window: without the resync every later tick and
     observation was refused as out of window, and the agents hovered to the end (68% missed)."""
-    from truav.bus import guard, schema
     from truav.config import Config
+    from truav.wire import guard, schema
     now = [100.0]
     monkeypatch.setattr(guard.time, "monotonic", lambda: now[0])
     g = guard.for_config(Config())
@@ -108,7 +108,7 @@ def test_after_a_router_outage_the_guard_follows_the_world_again(monkeypatch):
     assert tick(10 + 70 + guard.TICK_WINDOW) is None and g.tick == 10 + 70 + guard.TICK_WINDOW
     assert tick(10)[0] == guard.R_TICK  # and the old window is gone
     # the supervisor hears step metrics first: they move the window too, once
-    from truav.bus import schema as sc
+    from truav.wire import schema as sc
     now[0] += 3.0
     before = g.tick
     metrics = sc.Metrics(src="world", seq=1, t=0, scope="step", tick=before + 100, episode=0, values={})

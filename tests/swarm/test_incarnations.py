@@ -136,7 +136,7 @@ def test_a_restarted_agent_keeps_the_sent_counts_of_its_earlier_processes(tmp_pa
     checkpoint) keeps the earlier entries; a fresh start, another run's file or junk does not."""
     from types import SimpleNamespace
 
-    from agents.agent_process import AgentNode
+    from agents.process.agent_process import AgentNode
 
     path = tmp_path / "agent1.json"
     earlier = {"inc": "00000000000000a1", "steps_from": 0, "steps_to": 40,

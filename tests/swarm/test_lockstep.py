@@ -19,8 +19,8 @@ import json
 import numpy as np
 
 from tests.support.lockstep import CFG, EPISODES, METRICS, SEED, agent_tables, run_swarm
-from truav import runio
-from truav.trainer import run_chunk
+from truav.analysis import runio
+from truav.analysis.trainer import run_chunk
 
 
 def test_lockstep_runs_and_trainer_learn_identical_q_tables(tmp_path):

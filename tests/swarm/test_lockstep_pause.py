@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from tests.support.runs import run_to_end
-from agents.agent_process import DELAY_ENV, AgentNode, AgentOptions
-from truav.bus import keys
+from agents.process.agent_process import AgentNode, AgentOptions, DELAY_ENV
+from truav.analysis.trainer import run_chunk
 from truav.config import Config, to_toml
-from truav.bus.schema import LOCKSTEP_JOIN_GRACE_S
-from truav.trainer import run_chunk
+from truav.wire import keys
+from truav.wire.schema import LOCKSTEP_JOIN_GRACE_S
 
 SEED = 5
 EPISODES = 40

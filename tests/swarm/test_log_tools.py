@@ -26,10 +26,10 @@ from recorder.mcap_log import McapLog
 from recorder.merge import MERGE_METADATA, PART_METADATA, merge
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, config_metadata
 from recorder.reader import iter_messages, read_metadata
-from truav.bus import keys, schema
 from truav.cli.main import main as truav_main
 from truav.config import Config, to_toml
 from truav.errors import UserError
+from truav.wire import keys, schema
 
 RUN = "cut"
 T0 = 1_700_000_000_000_000_000

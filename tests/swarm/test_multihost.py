@@ -38,11 +38,11 @@ import numpy as np
 import pytest
 
 from tests.support import netns
+from truav.analysis.trainer import run_chunk
 from truav.bus.secure_configs import inline_material
 from truav.config import Config, to_toml
-from truav.swarm import deploy
 from truav.lifecycle import child_env
-from truav.trainer import run_chunk
+from truav.swarm import deploy
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOYMENT = REPO / "deploy" / "three-hosts.toml"
@@ -145,7 +145,8 @@ def test_routers_relay_between_hosts_and_each_enforces_its_own_clients(tmp_path)
     import zenoh
 
     from tests.support.waits import free_port
-    from truav.bus import keys, security, transport
+    from truav.bus import security, transport
+    from truav.wire import keys
     sites = (security.Site("a", "127.0.0.1", free_port(), ("recorder",)),
              security.Site("b", "127.0.0.1", free_port(), ("uav/0",)))
     security.issue(tmp_path, PLAN.run, 2, sites=sites)

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from truav import policy_scenario, runio
+from truav.analysis import policy_scenario, runio
 from truav.cli.main import main as truav_main
-from truav.config import Config
 from truav.cli.swarm import main as swarm_main
+from truav.config import Config
 
 SMALL = ["--set", "scenario.n_vehicles=30", "--set", "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=5",
          "--set", "scenario.n_uavs=2"]
@@ -33,13 +33,13 @@ def run25(tmp_path_factory):
 @pytest.fixture
 def nothing_starts(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
-    import truav.experiments.fault_sweep
+    import truav.swarm.fault_sweep
     import truav.swarm.supervisor
     import truav.cli.main
 
     def trap(*_a, **_k):
         raise Started("work started before the mistake was caught")
-    for module, name in ((truav.swarm.supervisor, "run_swarm"), (truav.experiments.fault_sweep, "run_sweep"),
+    for module, name in ((truav.swarm.supervisor, "run_swarm"), (truav.swarm.fault_sweep, "run_sweep"),
                          (truav.cli.main, "run_with_progress")):
         monkeypatch.setattr(module, name, trap)
 

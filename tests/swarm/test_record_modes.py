@@ -2,7 +2,7 @@
 
 The writer-level tests drive recorder.parts.PartedLog and recorder.snapshot.SnapshotLog with
 made-up times (no bus, no clock); the process tests start the recorder as a supervisor does
-(recorder.process.spawn_recorder) on the module's loopback router and split, pause and snapshot
+(recorder.process.recorder.spawn_recorder) on the module's loopback router and split, pause and snapshot
 it over the bus and by signal. Every part and snapshot must be a finished file that the official
 mcap reader and `truav log check` read, and the parts together must hold exactly what was sent.
 """
@@ -26,15 +26,15 @@ from recorder.check import check
 from recorder.mcap_log import McapLog, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, read_run_info
 from recorder.parts import PartedLog, read_parts_index
-from recorder.process import CONTROL_PART, spawn_recorder, stop_recorder, wait_until_recording
+from recorder.process.recorder import CONTROL_PART, spawn_recorder, stop_recorder, wait_until_recording
 from recorder.reader import iter_messages, probe, read_metadata
 from recorder.record_modes import (PART_FIELDS, PART_METADATA, PAUSE_METADATA, SNAPSHOT_METADATA, RecordModes,
                                    part_path, parts_index_path, snapshot_path)
 from recorder.recover import recover
 from recorder.snapshot import SnapshotLog
-from truav.bus import keys, schema
 from truav.bus.transport import Bus
 from truav.config import Config, to_toml
+from truav.wire import keys, schema
 
 REPO = Path(__file__).resolve().parents[2]
 RUN = "modes"
@@ -178,9 +178,9 @@ def test_parts_of_an_earlier_recording_are_not_overwritten_without_force(tmp_pat
 
 def test_up_passes_the_flags_and_checks_them() -> None:
     import argparse
-    from truav.cli.log_process import add_record_args
-    from recorder.process import recorder_argv
+    from recorder.process.recorder import recorder_argv
     from truav.cli.args import options_from
+    from truav.cli.log_process import add_record_args
     modes = RecordModes(split_size_mb=5.0, split_duration_s=60.0, split_on_command=True)
     argv = recorder_argv(RUN, "r.mcap", modes=modes)
     assert options_from(RecordModes, add_record_args(argparse.ArgumentParser()).parse_args(argv[3:])) == modes

@@ -1,7 +1,7 @@
 """The recorder as a process on a real Zenoh bus (loopback router, free port).
 
 Each test starts ``python -m recorder.process`` the way a supervisor does
-(:func:`recorder.process.spawn_recorder`), waits for its liveliness token,
+(:func:`recorder.process.recorder.spawn_recorder`), waits for its liveliness token,
 publishes through real Buses, and stops it by signal or control message.
 Every child is killed by PID and reaped in a ``finally``; every wait is
 bounded.  The SIGKILL test measures the loss window: how long before the
@@ -30,7 +30,7 @@ from recorder.check import check
 from recorder.mcap_log import MIRROR_PREFIX, is_mirror_topic
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, SUMMARY_METADATA
 from truav.cli.log_process import main
-from recorder.process import (
+from recorder.process.recorder import (
     CMD_STOP,
     CONTROL_PART,
     EXIT_FAILED,
@@ -41,9 +41,9 @@ from recorder.process import (
 )
 from recorder.reader import iter_messages, probe
 from recorder.recover import recover
-from truav.bus import keys, schema
-from truav.config import Config, to_toml
 from truav.bus.transport import Bus
+from truav.config import Config, to_toml
+from truav.wire import keys, schema
 
 REPO = Path(__file__).resolve().parents[2]
 RUN = "rec_proc"

@@ -24,10 +24,10 @@ import msgpack
 import numpy as np
 import pytest
 
-from truav.cli.log import add_swarm_commands
 from recorder.mcap_log import McapLog
-from recorder.process import Recorder, RecorderOptions
+from recorder.process.recorder import Recorder, RecorderOptions
 from recorder.reader import iter_messages
+from truav.cli.log import add_swarm_commands
 from recorder.replay import (
     CMD_NEXT,
     CMD_RESUME,
@@ -39,10 +39,11 @@ from recorder.replay import (
     ReplayUsageError,
     split_patterns,
 )
-from recorder.replay_bus import replay_on_bus
+from recorder.process.replay_bus import replay_on_bus
 from tests.support.waits import wait_until as _wait_until
-from truav.bus import keys, schema, transport
+from truav.bus import transport
 from truav.bus.transport import Bus
+from truav.wire import keys, schema
 
 RUN = "rp"
 T0 = 1_700_000_000_000_000_000

@@ -18,12 +18,13 @@ import msgpack
 import pytest
 
 from recorder.mcap_log import McapLog
+from recorder.process.replay_bus import ask_replay, replay_on_bus
 from recorder.replay import ReplayOptions
-from recorder.replay_bus import ask_replay, replay_on_bus
-from truav.bus import acl, keys, schema, transport
+from truav.bus import acl, transport
 from truav.bus.transport import Bus, QueryRefused
 from truav.cli.config import UsageError
 from truav.cli.swarm import build_parser
+from truav.wire import keys, schema
 from tests.support.ticks import PER_TICK, last_before, make_ticks, of_tick
 from tests.support.waits import wait_until as _wait_until
 
@@ -207,7 +208,7 @@ def test_lockstep_replay_paces_the_recorded_world_by_a_live_agent(tmp_path: Path
     The agent takes 100 ms per observation (DELAY_ENV) and, in real time, answers only the newest of
     several waiting observations: it answers every tick once, in order, only if each observation waited
     for its answer to the last. Ticks recorded 2 s apart go out at the agent's pace, not the recording's."""
-    from agents.agent_process import DELAY_ENV
+    from agents.process.agent_process import DELAY_ENV
 
     uav, ticks, run, gap_ms = 1, 8, "lockstep", 2000.0
     world_ticks(tmp_path / "world.mcap", run, uav, ticks, gap_ms)

@@ -22,9 +22,9 @@ from tests.support.runs import up_to_end
 from recorder.metadata import RUN_METADATA
 from recorder.resim import Resimulation, load_run, payload_fields
 from recorder.resim_branch import run_branch
-from truav.bus import keys
 from truav.cli.main import main as truav_main
 from truav.config import Config
+from truav.wire import keys
 
 RUN = "resim"
 SEED = 3

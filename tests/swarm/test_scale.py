@@ -22,9 +22,10 @@ from tests.support.runs import up_to_end
 from agents.beacon_cells import BeaconCells, CellFollower, feature_range_m, subscription_radius_m
 from agents.beacon_schedule import sends_beacon
 from agents.state import StateEncoder, neighbour_features
-from truav.bus import keys, schema, transport
+from truav.analysis.trainer import run_chunk
+from truav.bus import transport
 from truav.config import Config
-from truav.trainer import run_chunk
+from truav.wire import keys, schema
 
 RUN = "scale"
 SWARM_TIMEOUT_S = 240.0

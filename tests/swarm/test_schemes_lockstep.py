@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from tests.support.runs import run_to_end
-from truav.bus import keys, schema
+from truav.analysis.driver import run_episodes
 from truav.config import Config, to_toml
-from truav.driver import run_episodes
+from truav.wire import keys, schema
 from tests.support.lockstep import Recorder
 
 SEED = 4
@@ -72,8 +72,8 @@ def test_lockstep_central_swarm_equals_the_in_process_central_driver(tmp_path):
     commands, the world applying the control-plane model: the in-process central driver's run."""
     pytest.importorskip("torch")
     from agents.central import CentralController
-    from truav import runio
-    from truav.trainer import run_chunk
+    from truav.analysis import runio
+    from truav.analysis.trainer import run_chunk
     policy_run = tmp_path / "policy"
     policy_run.mkdir()
     trained = run_chunk("central", CFG.replace(central={"learning_starts": 50}), [SEED], 8)

@@ -24,10 +24,11 @@ import zenoh
 
 from bench.hostile import flood, forged, live_keys
 from tests.support.waits import free_port, wait_matched
-from agents.agent_process import DELAY_ENV
-from truav.bus import guard, keys, schema, security, transport
-from truav.config import Config
+from agents.process.agent_process import DELAY_ENV
+from truav.bus import security, transport
 from truav.cli import swarm as swarm_cli
+from truav.config import Config
+from truav.wire import guard, keys, schema
 
 RUN = "sec"
 N = 3
@@ -281,7 +282,7 @@ def test_guard_keeps_forged_and_impossible_messages_out(small_cfg) -> None:
 
 def test_rejections_are_bounded_by_sender_and_logged_once(caplog) -> None:
     r = guard.Rejections("test", max_senders=10)
-    with caplog.at_level("WARNING", logger="truav.bus.guard"):
+    with caplog.at_level("WARNING", logger="truav.wire.guard"):
         for n in range(10_000):
             r.add("forbidden_sender", f"m{n}", "k")
             r.add("forbidden_sender", "m1", "k")
@@ -292,7 +293,7 @@ def test_rejections_are_bounded_by_sender_and_logged_once(caplog) -> None:
 
 
 def test_fault_filter_state_is_bounded_under_unique_senders() -> None:
-    from truav.fault_filter import MAX_LINK_STATES, PlanFilter
+    from truav.bus.fault_filter import MAX_LINK_STATES, PlanFilter
     from truav.faults import plan_from_dict
     f = PlanFilter(plan_from_dict({"fault": [{"kind": "loss", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5}]}), RUN, 0)
     for n in range(MAX_LINK_STATES + 5000):

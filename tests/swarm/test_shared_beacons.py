@@ -15,16 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.shared_beacons import SharedBeacons, split_batch
+from agents.process.shared_beacons import SharedBeacons, split_batch
 from tests.support.waits import wait_matched
 from tests.support.runs import up_to_end
-from truav.bus import acl, guard, keys, schema
+from truav.analysis.trainer import run_chunk
+from truav.bus import acl
+from truav.bus.fault_filter import PlanFilter
 from truav.bus.placement import R_KEY_MISMATCH, check_placement
 from truav.config import Config
-from truav.fault_filter import PlanFilter
 from truav.faults import plan_from_dict
 from truav.swarm.swarm_options import agent_groups
-from truav.trainer import run_chunk
+from truav.wire import guard, keys, schema
 
 RUN = "sharedb"
 SWARM_TIMEOUT_S = 300.0

@@ -1,4 +1,4 @@
-"""A process hosting several agents shares what need not be per agent (agents.agent_host._SharedParts):
+"""A process hosting several agents shares what need not be per agent (agents.process.agent_host._SharedParts):
 one peer watch, one health thread, one shutdown subscription, one fault-plan listener, one router
 watchdog. The run must stay what it was with one process per agent: lock-step Q-tables equal to the
 trainer's, every agent reporting its health on its own key, a peer killed seen as lost by hosted agents.
@@ -18,8 +18,8 @@ import numpy as np
 from tests.support.waits import wait_until
 from tests.support.runs import up_to_end
 from tests.support.swarm_up import Up
+from truav.analysis.trainer import run_chunk
 from truav.config import Config
-from truav.trainer import run_chunk
 
 SWARM_TIMEOUT_S = 300.0
 

@@ -14,7 +14,8 @@ import sys
 import numpy as np
 import pytest
 
-from truav import seeding, sumo_traffic
+from truav import seeding
+from truav.analysis import sumo_traffic
 from truav.config import Config, to_toml
 from truav.errors import UserError
 from world import sumo_scenario
@@ -96,7 +97,7 @@ def test_world_replays_the_trace(tiny):
 
 def test_fused_trainer_equals_the_step_path_on_sumo_traffic(tiny, monkeypatch):
     from agents.controller import TruavController
-    from truav.driver import run_episodes
+    from truav.analysis.driver import run_episodes
     cfg, root, _ = tiny
     monkeypatch.setenv("TRUAV_TRACE_CACHE", str(root))
     out = []
@@ -150,7 +151,7 @@ def test_lockstep_swarm_on_sumo_traffic_learns_the_trainers_tables(tiny, tmp_pat
     import json
 
     from tests.support.runs import run_to_end
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     cfg, root, _ = tiny
     monkeypatch.setenv("TRUAV_TRACE_CACHE", str(root))
     seed, episodes = 3, cfg.learner.episodes

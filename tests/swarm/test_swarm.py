@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.agent_process import checkpoint_due
 from agents.controller import TruavController
-from truav.bus import keys
+from agents.process.agent_process import checkpoint_due
+from truav.analysis.driver import run_episodes
+from truav.bus.transport import Bus, make_config
 from truav.cli import swarm as swarm_cli
 from truav.config import Config, to_toml
-from truav.driver import run_episodes
 from truav.swarm.supervisor import free_loopback_endpoint, wait_for_port
-from truav.bus.transport import Bus, make_config
+from truav.wire import keys
 from tests.support.waits import wait_until
 
 SMALL = {"scenario": {"n_vehicles": 60, "steps_per_episode": 15, "n_uavs": 5}, "roads": {"warmup_steps": 10}}

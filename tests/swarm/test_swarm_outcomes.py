@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
-from truav.bus import keys, schema
 from truav.bus.transport import Bus, make_config
-from truav.config import Config
 from truav.cli import swarm as swarm_cli
+from truav.config import Config
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.outdir import prepare_swarm_dir
 from truav.swarm.supervisor import SwarmOptions, run_swarm
+from truav.wire import keys, schema
 
 
 def small_cfg(agents: int = 2, steps: int = 10) -> Config:

@@ -98,7 +98,7 @@ def test_resume_with_another_config_or_scheme_is_refused(tmp_path, monkeypatch, 
 
 def test_a_damaged_checkpoint_is_one_line_before_anything_runs(tmp_path: Path) -> None:
     """A truncated chunk checkpoint is refused by --resume in one line (exit 2), not a worker's traceback."""
-    from truav.runio import RESUME_DIR, write_resume_info
+    from truav.analysis.runio import RESUME_DIR, write_resume_info
     out = tmp_path / "run"
     args = ["train", *ARGS, "--out", str(out)]
     assert subprocess.run([sys.executable, "-m", "truav.cli", *args], capture_output=True).returncode == 0

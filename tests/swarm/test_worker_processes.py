@@ -3,8 +3,8 @@
 
 import numpy as np
 
+from truav.analysis.trainer import run_parallel
 from truav.experiments import runner
-from truav.trainer import run_parallel
 
 
 def test_worker_processes_change_no_number(small_cfg):

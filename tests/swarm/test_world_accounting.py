@@ -177,8 +177,8 @@ def test_refusals_are_counted_for_the_uav_of_their_key_not_of_the_payload(bus_fa
     """A plain session's forgeries on uav/1's action key (another UAV's id and sender in the payload, the
     world's sender, bytes that are no message at all): counted for UAV 1, as the rejection it is told,
     never against UAV 0, whose name the payload borrowed."""
-    from truav.bus import keys, schema
-    from world.world_process import WorldNode, WorldOptions
+    from truav.wire import keys, schema
+    from world.process.world_process import WorldNode, WorldOptions
     bus = bus_factory("world")
     node = WorldNode(CFG, WorldOptions(run=RUN), bus)
     key = keys.uav_action(RUN, 1)
@@ -196,8 +196,8 @@ def test_a_liveliness_token_of_a_uav_outside_the_scenario_is_refused_not_waited_
     """An agent started with --id 7 beside a 2-UAV world (or a plain session's forged token): counted as
     refused and ignored. It was taken for a live agent: tick 0 came with one real agent missing, lock-step
     waited for it, and the world crashed (IndexError) accounting its missed `done` acknowledgement."""
-    from truav.bus import guard, keys
-    from world.world_process import WorldNode, WorldOptions
+    from truav.wire import guard, keys
+    from world.process.world_process import WorldNode, WorldOptions
     bus = bus_factory("world")
     node = WorldNode(CFG, WorldOptions(run=RUN, wait_agents_s=0.1), bus)
     for uav in (7, N_UAVS):

@@ -1,4 +1,4 @@
-"""The agent file of `truav train --agent NAME` (truav.agent_run) read as a file from elsewhere: what it
+"""The agent file of `truav train --agent NAME` (truav.analysis.agent_run) read as a file from elsewhere: what it
 declares is bounded before anything is inflated, and a start state that does not fit is one named line."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from truav import agent_run, policy_scenario
+from truav.analysis import agent_run, policy_scenario
 from truav.config import Config
 from truav.errors import UserError
-from truav.runio import RunDirError
+from truav.analysis.runio import RunDirError
 
 CFG = Config()
 

@@ -6,8 +6,8 @@ import pytest
 
 from agents.patrol import PatrolController, assign_slots, orbit_sites, orbit_slots, plan_trajectories
 from truav import seeding
+from truav.analysis.driver import run_episodes
 from truav.config import Config
-from truav.driver import run_episodes
 from world.env import World
 from world.uavs import HOVER
 
@@ -212,7 +212,7 @@ def test_central_is_deterministic_and_learns(small_cfg):
 def test_control_plane_on_a_fixed_policy(small_cfg):
     """The patrol under the centralized control plane: same counters, and the
     control airtime is charged on top of what the plain patrol spends."""
-    from truav.trainer import make_controller
+    from truav.analysis.trainer import make_controller
     cfg = small_cfg.replace(traffic={"packet_rate_hz": 0.0})  # no packets: energy = flight + control
     U, T = cfg.scenario.n_uavs, cfg.scenario.steps_per_episode
     m = run_episodes(cfg, [0, 1], make_controller("patrol_ctrl", cfg, [0, 1], True, None), 1)
@@ -269,7 +269,7 @@ def test_fenced_actions_keep_every_move_inside_the_area():
 def test_central_geofence_flies_only_allowed_moves_and_stores_the_command(small_cfg):
     pytest.importorskip("torch")
     from agents.central_fence import FencedCentralController
-    from truav.trainer import make_controller
+    from truav.analysis.trainer import make_controller
     cfg = small_cfg.replace(scenario={"uav_start": "persist"},
                             central={"hidden": 8, "batch_size": 8, "learning_starts": 10, "buffer_size": 200,
                                      "geofence": True})

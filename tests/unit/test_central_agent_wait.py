@@ -9,7 +9,7 @@ import threading
 import time
 from types import SimpleNamespace
 
-from agents.scheme_process import CentralAgentNode
+from agents.process.scheme_process import CentralAgentNode
 
 
 def _node(wait_s: float) -> CentralAgentNode:

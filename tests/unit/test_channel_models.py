@@ -134,7 +134,7 @@ def test_every_model_is_accepted_and_listed(capsys):
 def _run_dir(tmp_path):
     """A `truav train` run directory (config and Q-tables of the right shape) to evaluate."""
     from agents.state import StateEncoder
-    from truav import runio
+    from truav.analysis import runio
     from world.uavs import N_ACTIONS
     cfg = Config()
     run = tmp_path / "run"
@@ -151,13 +151,13 @@ def _run_dir(tmp_path):
 ])
 def test_set_channel_model_reaches_the_commands(argv, capsys, monkeypatch, tmp_path):
     import truav.experiments.runner
-    import truav.trainer
+    import truav.analysis.trainer
 
     def trap(*_a, **_k):
         raise AssertionError("work started before the mistake was caught")
     _run_dir(tmp_path)
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(truav.trainer, "run_parallel", trap)
+    monkeypatch.setattr(truav.analysis.trainer, "run_parallel", trap)
     monkeypatch.setattr(truav.experiments.runner, "run_cells", trap)
     from truav.cli.main import main
     try:
@@ -223,14 +223,14 @@ def _digest(result):
 
 @pytest.mark.parametrize("kind", ["truav", "patrol"])
 def test_paper_model_reproduces_the_numbers_of_before(kind):
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     default = run_chunk(kind, Config().replace(**SMALL), [0, 7], 3)
     explicit = run_chunk(kind, Config().replace(**SMALL, channel={"model": "paper"}), [0, 7], 3)
     assert _digest(default) == _digest(explicit) == GOLDEN[kind]
 
 
 def test_other_models_change_the_rates_and_stay_deterministic():
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     paper = run_chunk("truav", Config().replace(**SMALL), [0, 7], 2)
     for model in ("al-hourani", "3gpp-uma-av"):
         cfg = Config().replace(**SMALL, channel={"model": model})

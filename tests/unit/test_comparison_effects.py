@@ -3,9 +3,9 @@ episodes, or say that none is detectable at their size."""
 
 from __future__ import annotations
 
-from truav.experiments.fault_sweep import effects_text
-from truav.experiments.scheme_faults import comparison_effects
 from truav.swarm.chaos import effects, effects_table
+from truav.swarm.fault_sweep import effects_text
+from truav.swarm.scheme_faults import comparison_effects
 
 
 def summary(coverage, pdr):

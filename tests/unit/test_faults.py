@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from truav.fault_filter import PlanFilter, uniform
+from truav.bus.fault_filter import PlanFilter, uniform
 from truav.faults import FaultPlan, PlanError, load_plan, plan_from_dict
 
 RUN = "r"

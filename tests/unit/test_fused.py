@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from agents.controller import TruavController
-from truav.driver import run_episodes
+from truav.analysis.driver import run_episodes
 from world.step import pairwise_sum
 
 

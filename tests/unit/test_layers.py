@@ -1,169 +1,55 @@
-"""The layer order of the project's modules, read from their source with ast.
+"""The layer order of the project's folders, read from the modules' source with ast.
 
 Every import of every project module (truav/, agents/, world/, recorder/, bench/) is read,
-those inside functions too, relative imports resolved, and the test fails:
+those inside functions too, relative imports resolved. Each folder (package) holds one layer
+(FOLDERS below: a module's layer is its folder's) and the test fails:
 
 (a) on an import cycle among project modules (the cycle is named);
-(b) when a module imports a module of a higher layer than its own (LAYERS below);
+(b) when a module imports a module of a higher layer than its own;
 (c) when a non-CLI module imports argparse, or a pure layer (base, model, wire, analysis) imports zenoh;
 (d) when a non-CLI module imports a CLI module;
 (e) when argparse is imported, or truav.cli is imported, outside the folder truav/cli/ (bench/'s
-    scripts, command lines of their own, aside).
+    scripts, command lines of their own, aside);
+(f) when a folder holds both a module of a pure layer and a module that reaches zenoh (imports it,
+    or imports a project module that does, directly or through others);
+(g) when a folder is in no rule of FOLDERS: a new folder is placed deliberately (a new module
+    takes its folder's layer).
 
-Every project module must match a pattern of LAYERS: an unmatched module fails the test, so a new
-module is placed deliberately. Imports that break a rule today and are being removed (issue 27)
-are listed in KNOWN_VIOLATIONS; an entry that no longer occurs fails the test too, so the list
-only shrinks.
+There is no allowlist: an import that breaks a rule is fixed, not listed.
 """
 from __future__ import annotations
 
 import ast
-import fnmatch
+import functools
 from pathlib import Path
 
 import pytest
 
 # ---------------------------------------------------------------------------------------------
-# The layer map: module name pattern (fnmatch) -> layer. The FIRST matching row wins, so the
-# specific rows come before the catch-all rows of a package. A module may import its own layer
-# or a lower one, never a higher one.
+# The layer map: folder (package) -> layer. A module may import its own layer or a lower one,
+# never a higher one. Every package of the project is listed (subfolders are not inherited).
 # ---------------------------------------------------------------------------------------------
 BASE, MODEL, WIRE, ANALYSIS, BUS, PROCESS, ORCHESTRATION, CLI, BENCH = range(1, 10)
 LAYER_NAMES = {BASE: "base", MODEL: "model", WIRE: "wire", ANALYSIS: "analysis", BUS: "bus",
                PROCESS: "process", ORCHESTRATION: "orchestration", CLI: "cli", BENCH: "bench"}
 PURE = {BASE, MODEL, WIRE, ANALYSIS}   # may not import zenoh
 
-LAYERS: list[tuple[str, int]] = [
-    # -- 9 bench: scripts above everything (may import anything; no cycles among them) -------
-    ("bench.*",                         BENCH),
-    # -- 8 cli: command-line modules (argparse lives only here) --------------------------------
-    ("truav.cli",                       CLI),    # the command-line package: every parser of
-    ("truav.cli.*",                     CLI),    # truav, truav-swarm and truav log, nothing else
-    # -- 1 base: errors, checks, seeds, statistics, config, fault model ------------------------
-    ("truav",                           BASE),   # package __init__ files hold nothing above base
-    ("truav.bus",                       BASE),
-    ("truav.swarm",                     BASE),
-    ("truav.experiments",               BASE),
-    ("agents",                          BASE),
-    ("world",                           BASE),
-    ("recorder",                        BASE),
-    ("truav.errors",                    BASE),
-    ("truav.stopping",                  BASE),
-    ("truav.jsonio",                    BASE),
-    ("truav.atomic",                    BASE),
-    ("truav.call_limit",                BASE),
-    ("truav.channel_catalog",           BASE),
-    ("truav.actions",                   BASE),
-    ("truav.checks",                    BASE),
-    ("truav.seeding",                   BASE),
-    ("truav.stats",                     BASE),
-    ("truav.lograte",                   BASE),
-    ("truav.kernel_cache",              BASE),
-    ("truav.presets",                   BASE),
-    ("truav.config",                    BASE),
-    ("truav.config_*",                  BASE),
-    ("truav.options",                   BASE),
-    ("truav.bus.keys",                  BASE),
-    ("truav.faults",                    BASE),
-    ("truav.fault_*",                   BASE),
-    ("truav.nemesis",                   BASE),
-    # -- 6 process: the components' bus processes ----------------------------------------------
-    ("world.world_process",             PROCESS),
-    ("world.world_host",                PROCESS),
-    ("agents.controller_host",          PROCESS),
-    ("agents.agent_process",            PROCESS),
-    ("agents.agent_process_*",          PROCESS),
-    ("agents.agent_host",               PROCESS),
-    ("agents.shared_beacons",           PROCESS),
-    ("agents.scheme_process",           PROCESS),
-    ("agents.api_process",              PROCESS),    # an agents.api class flying one UAV on the bus
-    ("agents.central_process",          PROCESS),
-    ("recorder.process",                PROCESS),
-    ("recorder.replay",                 PROCESS),
-    ("recorder.replay_bus",             PROCESS),   # the replay on the bus: commands, queryable, status, lock-step
-    ("truav.swarm.view",                PROCESS),
-    ("truav.swarm.monitor",             PROCESS),
-    ("truav.swarm.fault_control",       PROCESS),
-    ("world.world_messages",            WIRE),       # the world's observation messages, from the model
-    ("world.snapshot_messages",         WIRE),       # snapshot messages from state arrays and back
-    ("agents.agent_decision",           ANALYSIS),   # one agent's cycle over wire messages (process and resim)
-    ("agents.decision_state",           ANALYSIS),
-    ("agents.truav_agent",              ANALYSIS),   # TRUAV through the API: agent_decision's cycle per UAV
-    ("agents.api_decision",             ANALYSIS),   # an agents.api class's cycle over wire messages   # that cycle's state captured and restored (snapshots)
-    # -- 2 model: the pure simulation and the learners -----------------------------------------
-    ("world.*",                         MODEL),
-    ("agents.*",                        MODEL),
-    # -- 3 wire: pure message definitions ------------------------------------------------------
-    ("truav.bus.schema",                WIRE),
-    ("truav.bus.schema_names",          WIRE),
-    ("truav.bus.field_checks",          WIRE),
-    ("truav.bus.messages",              WIRE),
-    ("truav.bus.codec",                 WIRE),
-    ("truav.bus.guard",                 WIRE),
-    ("truav.bus.rejection_notices",     WIRE),   # what the world tells a sender it refused (pure)
-    ("truav.bus.protocol_doc",          WIRE),   # docs/reference/protocol.md's tables, generated from the schema
-    # -- 4 analysis / drivers: pure or file I/O, no zenoh --------------------------------------
-    ("truav.driver",                    ANALYSIS),
-    ("truav.trainer",                   ANALYSIS),
-    ("truav.warmup",                    ANALYSIS),
-    ("truav.pettingzoo_env",            ANALYSIS),
-    ("truav.runio",                     ANALYSIS),
-    ("truav.policy_scenario",           ANALYSIS),
-    ("truav.agent_loader",              ANALYSIS),   # an agents.api class by name: imported and checked
-    ("truav.agent_run",                 ANALYSIS),   # a `truav train --agent` run's agent.npz
-    ("truav.sumo_traffic",              ANALYSIS),   # SUMO's tools and libsumo: builds, caches, loads traces
-    ("truav.plots",                     ANALYSIS),
-    ("truav.swarm.plots",               ANALYSIS),
-    ("recorder.mcap_log",               ANALYSIS),
-    ("recorder.reader",                 ANALYSIS),
-    ("recorder.mcap_guard",             ANALYSIS),  # the one guarded reading of MCAP records (untrusted files)
-    ("recorder.replay_source",          ANALYSIS),  # what a replay reads: parts resolved, the seek timeline
-    ("recorder.replay_setup",           ANALYSIS),  # a replay's options, checked before it starts
-    ("recorder.mcap_writer",            ANALYSIS),
-    ("recorder.mcap_chunk",             ANALYSIS),
-    ("recorder.mirror_channels",        ANALYSIS),
-    ("recorder.seq_stats",              ANALYSIS),
-    ("recorder.summary",                ANALYSIS),
-    ("recorder.report_data",            ANALYSIS),
-    ("recorder.report_figures",         ANALYSIS),
-    ("recorder.report_links",           ANALYSIS),
-    ("recorder.check",                  ANALYSIS),
-    ("recorder.recover",                ANALYSIS),
-    ("recorder.report",                 ANALYSIS),
-    ("recorder.metadata",               ANALYSIS),
-    ("recorder.resim",                  ANALYSIS),
-    ("recorder.resim_*",                ANALYSIS),
-    ("recorder.schemas",                ANALYSIS),
-    ("recorder.foxglove",               ANALYSIS),
-    ("recorder.record_modes",           ANALYSIS),
-    ("recorder.parts",                  ANALYSIS),
-    ("recorder.pause",                  ANALYSIS),
-    ("recorder.snapshot",               ANALYSIS),
-    ("recorder.snapshot_triggers",      ANALYSIS),
-    ("recorder.log_copy",               ANALYSIS),
-    ("recorder.cut",                    ANALYSIS),
-    ("recorder.merge",                  ANALYSIS),
-    ("recorder.info",                   ANALYSIS),
-    ("truav.experiments.cells",         ANALYSIS),
-    ("truav.experiments.runner",        ANALYSIS),
-    ("truav.experiments.report",        ANALYSIS),
-    ("truav.experiments.velocity",      ANALYSIS),
-    ("truav.experiments.scale",         ANALYSIS),
-    ("truav.experiments.ray_executor",  ANALYSIS),
-    # -- 5 bus: zenoh ---------------------------------------------------------------------------
-    ("truav.lifecycle",                 BUS),
-    ("truav.bus.*",                     BUS),
-    # -- 7 orchestration: the swarm's supervisor and what runs swarms --------------------------
-    ("truav.experiments.fault_sweep",   ORCHESTRATION),
-    ("truav.experiments.scheme_faults", ORCHESTRATION),
-    ("truav.swarm.*",                   ORCHESTRATION),
-]
-
-# Imports that break a rule today, in helpers' areas still being refactored (issue 27).
-# (importer, imported module, why it is allowed for now). The imported module may be an
-# external one (argparse, zenoh) for rule (c).
-KNOWN_VIOLATIONS: list[tuple[str, str, str]] = [
-]
+FOLDERS: dict[str, int] = {
+    "truav":             BASE,           # errors, checks, config, presets, options, seeding, stats, faults, lifecycle
+    "world":             MODEL,          # the numeric world: roads, vehicles, channel, network, step, env
+    "truav.wire":        WIRE,           # the messages: schema, codec, keys, guard, world and snapshot messages
+    "agents":            ANALYSIS,       # learners, policies, the agent API and its classes, the decision cycle
+    "truav.analysis":    ANALYSIS,       # driver, trainer, run files, agent loading, SUMO traffic, figures
+    "truav.experiments": ANALYSIS,       # the in-process experiments: cells, runner, velocity, scale
+    "recorder":          ANALYSIS,       # MCAP format, reader, replay engine, tools, re-simulation
+    "truav.bus":         BUS,            # Zenoh: Bus, router, security, link filter
+    "world.process":     PROCESS,        # the world process
+    "agents.process":    PROCESS,        # the agent processes
+    "recorder.process":  PROCESS,        # the recorder and replay processes
+    "truav.swarm":       ORCHESTRATION,  # supervisor, chaos, fault sweeps, live view
+    "truav.cli":         CLI,            # every argparse parser; nothing outside imports it
+    "bench":             BENCH,          # benchmark scripts, above everything
+}
 
 ROOTS = ("truav", "agents", "world", "recorder", "bench")
 REPO = Path(__file__).resolve().parents[2]
@@ -181,15 +67,25 @@ def project_modules(repo: Path = REPO) -> dict[str, Path]:
     return mods
 
 
-def layer_of(module: str) -> int | None:
-    for pattern, layer in LAYERS:
-        if fnmatch.fnmatchcase(module, pattern):
-            return layer
-    return None
+@functools.cache
+def _all_modules() -> dict[str, Path]:
+    return project_modules()
 
 
-def is_cli(module: str) -> bool:
-    return layer_of(module) in (CLI, BENCH)   # bench modules are command-line scripts
+def folder_of(module: str, mods=None) -> str:
+    """The package a module is in (a package's __init__ is in the package itself)."""
+    path = (_all_modules() if mods is None else mods).get(module)
+    if path is not None and path.name == "__init__.py":
+        return module
+    return module.rpartition(".")[0]
+
+
+def layer_of(module: str, mods=None) -> int | None:
+    return FOLDERS.get(folder_of(module, mods))
+
+
+def is_cli(module: str, mods=None) -> bool:
+    return layer_of(module, mods) in (CLI, BENCH)   # bench modules are command-line scripts
 
 
 def _resolve(name: str, mods) -> str | None:
@@ -243,17 +139,17 @@ def violations(graph: dict[str, set[str]], mods) -> list[tuple[str, str, str]]:
     """(importer, imported, rule broken) for every import that breaks rules (b), (c) or (d)."""
     found = []
     for importer, deps in sorted(graph.items()):
-        mine = layer_of(importer)
+        mine = layer_of(importer, mods)
         if mine is None:
-            continue                        # reported by test_every_module_has_a_layer
+            continue                        # reported by test_every_folder_has_a_layer
         for dep in sorted(deps):
             if dep in mods:
-                theirs = layer_of(dep)
+                theirs = layer_of(dep, mods)
                 if theirs is not None and theirs > mine:
                     found.append((importer, dep, f"{LAYER_NAMES[mine]} imports {LAYER_NAMES[theirs]}"))
-                elif theirs == CLI and not is_cli(importer):
+                elif theirs == CLI and not is_cli(importer, mods):
                     found.append((importer, dep, "non-CLI module imports a CLI module"))
-            elif dep == "argparse" and not is_cli(importer):
+            elif dep == "argparse" and not is_cli(importer, mods):
                 found.append((importer, dep, "non-CLI module imports argparse"))
             elif dep == "zenoh" and mine in PURE:
                 found.append((importer, dep, f"pure layer {LAYER_NAMES[mine]} imports zenoh"))
@@ -324,13 +220,30 @@ def _cycle_path(graph, scc: list[str]) -> list[str]:
     return scc
 
 
-def _known_edges() -> set[tuple[str, str]]:
-    return {(a, b) for a, b, _ in KNOWN_VIOLATIONS}
+def reaches_zenoh(graph: dict[str, set[str]]) -> set[str]:
+    """The project modules that import zenoh, or import (directly or through others) one that does."""
+    reach = {m for m, deps in graph.items() if "zenoh" in deps}
+    grew = True
+    while grew:
+        more = {m for m, deps in graph.items() if m not in reach and deps & reach}
+        grew = bool(more)
+        reach |= more
+    return reach
 
 
-def _graph_without_known(graph):
-    known = _known_edges()
-    return {m: {d for d in deps if (m, d) not in known} for m, deps in graph.items()}
+def mixed_folders(graph: dict[str, set[str]], mods) -> list[tuple[str, list[str], list[str]]]:
+    """(folder, its pure-layer modules, its modules reaching zenoh) of every folder holding both."""
+    reach = reaches_zenoh(graph)
+    by_folder: dict[str, list[str]] = {}
+    for m in graph:
+        by_folder.setdefault(folder_of(m, mods), []).append(m)
+    found = []
+    for folder, members in sorted(by_folder.items()):
+        pure = sorted(m for m in members if layer_of(m, mods) in PURE)
+        zenohy = sorted(m for m in members if m in reach)
+        if pure and zenohy:
+            found.append((folder, pure, zenohy))
+    return found
 
 
 @pytest.fixture(scope="module")
@@ -343,32 +256,31 @@ def graph(mods):
     return import_graph(mods)
 
 
-def test_every_module_has_a_layer(mods):
-    unplaced = sorted(m for m in mods if layer_of(m) is None)
-    assert not unplaced, f"modules matching no pattern of LAYERS (place them in tests/unit/test_layers.py): {unplaced}"
+def test_every_folder_has_a_layer(mods):
+    unplaced = sorted({folder_of(m, mods) for m in mods} - set(FOLDERS))
+    assert not unplaced, f"folders in no rule of FOLDERS (place them in tests/unit/test_layers.py): {unplaced}"
+    stale = sorted(set(FOLDERS) - {folder_of(m, mods) for m in mods})
+    assert not stale, f"FOLDERS rules for folders that hold no module (delete them): {stale}"
+    assert len(FOLDERS) <= 15, "a few folder rules, not a module map"
 
 
 def test_no_import_cycles(graph):
-    pruned = _graph_without_known(graph)
-    found = components(pruned)
+    found = components(graph)
     assert not found, "import cycles:\n" + "\n".join(
-        f"  {' -> '.join(_cycle_path(pruned, c))}   (all modules of the cycle: {c})" for c in found)
+        f"  {' -> '.join(_cycle_path(graph, c))}   (all modules of the cycle: {c})" for c in found)
 
 
 def test_layer_order(graph, mods):
-    known = _known_edges()
-    found = [v for v in violations(graph, mods) if (v[0], v[1]) not in known]
+    found = violations(graph, mods)
     assert not found, "imports breaking the layer rules:\n" + "\n".join(
         f"  {a} -> {b}: {why}" for a, b, why in found)
 
 
-def test_known_violations_still_occur(graph, mods):
-    """An allowlist entry whose import is gone (or no longer breaks a rule) must be deleted."""
-    broken = {(a, b) for a, b, _ in violations(graph, mods)}
-    sccs = [set(c) for c in components(graph)]
-    cyclic = {(a, b) for a, deps in graph.items() for b in deps if any(a in c and b in c for c in sccs)}
-    stale = [(a, b) for a, b, _ in KNOWN_VIOLATIONS if (a, b) not in broken and (a, b) not in cyclic]
-    assert not stale, f"KNOWN_VIOLATIONS entries that no longer occur (delete them): {stale}"
+def test_no_folder_mixes_pure_modules_and_zenoh(graph, mods):
+    """The numeric model and the messages never share a folder with what reaches Zenoh."""
+    found = mixed_folders(graph, mods)
+    assert not found, "folders holding pure-layer modules and modules reaching zenoh:\n" + "\n".join(
+        f"  {f}/: pure {p}; reaching zenoh {z}" for f, p, z in found)
 
 
 def test_checker_catches_a_planted_upward_import(mods):
@@ -379,8 +291,20 @@ def test_checker_catches_a_planted_upward_import(mods):
     assert "truav.cli.swarm" in graph["world.env"]
     found = {(a, b, why) for a, b, why in violations(graph, mods) if a == "world.env"}
     assert ("world.env", "truav.cli.swarm", "model imports cli") in found
-    # truav.cli.swarm imports world (through its process modules), so the planted import closes a cycle
-    assert any("world.env" in c for c in components(_graph_without_known(graph)))
+    # truav.cli.swarm imports world (through the processes), so the planted import closes a cycle
+    assert any("world.env" in c for c in components(graph))
+    # and world/ now holds a module reaching zenoh beside the numeric model
+    assert any(f == "world" and "world.env" in z for f, _, z in mixed_folders(graph, mods))
+
+
+def test_checker_catches_a_planted_bus_import_in_the_model(mods):
+    """agents/qlearning.py importing the Bus: an upward import, and agents/ mixing pure and zenoh."""
+    graph = import_graph(mods)
+    graph["agents.qlearning"] = imports_of("agents.qlearning", "from truav.bus import transport\n", mods)
+    found = {(a, b, why) for a, b, why in violations(graph, mods)}
+    assert ("agents.qlearning", "truav.bus.transport", "analysis imports bus") in found
+    mixed = {f: z for f, _, z in mixed_folders(graph, mods)}
+    assert "agents.qlearning" in mixed["agents"]   # (and every pure folder importing qlearning)
 
 
 def test_checker_catches_argparse_zenoh_and_relative_imports(mods):
@@ -391,7 +315,8 @@ def test_checker_catches_argparse_zenoh_and_relative_imports(mods):
     found = {(b, why) for _, b, why in violations(graph, mods)}
     assert ("argparse", "non-CLI module imports argparse") in found
     assert ("zenoh", "pure layer model imports zenoh") in found
-    assert layer_of("truav.experiments.something_new") is None   # new modules must be placed
+    assert layer_of("truav.experiments.something_new", mods) == ANALYSIS   # a new module takes its folder's layer
+    assert layer_of("truav.newfolder.module", mods) is None               # a new folder must be placed
 
 
 def _in_cli_folder(module: str) -> bool:

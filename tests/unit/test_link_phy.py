@@ -10,10 +10,10 @@ import truav.cli.main
 from agents.agent_decision import TruavDecision
 from agents.controller import TruavController
 from agents.qlearning import QLearners
-from truav.bus import schema
+from truav.analysis.driver import run_episodes
+from truav.analysis.trainer import run_chunk
 from truav.config import Config
-from truav.driver import run_episodes
-from truav.trainer import run_chunk
+from truav.wire import schema
 from world import link_phy
 from world.channel_models import fspl_db
 

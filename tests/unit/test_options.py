@@ -5,11 +5,11 @@ import dataclasses
 
 import pytest
 
-from agents.agent_process import AgentOptions
-from agents.central_process import ControllerOptions
+from agents.process.agent_process import AgentOptions
+from agents.process.central_process import ControllerOptions
 from truav import options
 from truav.cli.args import add_options, options_from
-from world.world_process import WorldOptions
+from world.process.world_process import WorldOptions
 
 EXAMPLES = {
     AgentOptions: {"checkpoint": "a.npz", "checkpoint_every": 7, "qtable": "runs/t", "qtable_index": 2,

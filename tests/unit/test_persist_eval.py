@@ -12,10 +12,10 @@ yet large enough that a fresh deployment lands in unvisited states.
 
 import numpy as np
 
+from truav.analysis.driver import run_episodes
+from truav.analysis.trainer import make_controller
 from truav.config import Config
-from truav.driver import run_episodes
 from truav.experiments.cells import Cell, _evaluate, run_cell
-from truav.trainer import make_controller
 from world.env import World
 
 EPISODES, WINDOW, EVAL_EPISODES, SEEDS = 600, 50, 20, tuple(range(6))
@@ -58,7 +58,7 @@ def test_runner_evaluates_a_persist_cell_in_its_training_world():
 def test_qtables_file_holds_what_the_learners_computed(tmp_path):
     """qtables.npz stores the learners' float64 values as they are (a swarm agent's checkpoint does too),
     so `np.array_equal` on the two files needs no cast; an older float32 file still loads."""
-    from truav import runio
+    from truav.analysis import runio
     q = np.random.default_rng(0).normal(size=(2, 3, 7, 16)) / 3.0  # not representable in float32
     runio.write_qtables(tmp_path, [0, 1], q)
     with np.load(tmp_path / runio.QTABLE_FILE) as saved:

@@ -7,7 +7,7 @@ pytest.importorskip("pettingzoo")
 
 from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
 
-from truav.pettingzoo_env import OBS_DIM, parallel_env  # noqa: E402
+from truav.analysis.pettingzoo_env import OBS_DIM, parallel_env  # noqa: E402
 
 
 @pytest.fixture

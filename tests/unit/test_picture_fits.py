@@ -32,9 +32,9 @@ def test_convergence_at_one_speed_keeps_its_title_and_legend_inside(tmp_path, mo
 
 def test_the_missed_panel_claims_no_miss_only_when_the_world_counted_none(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
+    from truav.analysis.swarm_plots import swarm_figure
     from truav.config import Config
     from truav.swarm.monitor import Monitor
-    from truav.swarm.plots import swarm_figure
     kept = []
     monkeypatch.setattr(plt, "close", lambda fig: kept.append(fig))
     cfg = Config().replace(scenario={"steps_per_episode": 20})

@@ -47,7 +47,7 @@ def _texts(ax) -> list[str]:
 
 
 def test_summary_shades_fault_windows_and_counts_finished_episodes(tmp_path, figures):
-    from truav.swarm.plots import swarm_figure
+    from truav.analysis.swarm_plots import swarm_figure
     cfg = Config().replace(scenario={"steps_per_episode": 20})
     plan = plan_from_dict({"fault": [{"kind": "loss", "start": 2.0, "duration": 3.0, "probability": 0.5},
                                      {"kind": "crash", "start": 10.0, "uav": 1}]})
@@ -63,7 +63,7 @@ def test_summary_shades_fault_windows_and_counts_finished_episodes(tmp_path, fig
 
 
 def test_summary_title_of_a_finished_run(tmp_path, figures):
-    from truav.swarm.plots import swarm_figure
+    from truav.analysis.swarm_plots import swarm_figure
     cfg = Config().replace(scenario={"steps_per_episode": 20})
     swarm_figure(cfg, _monitor(cfg, 5, 6 * 21, 6), tmp_path / "s.png")  # 6 episodes, each 20 steps and done
     assert figures[-1].axes[0].get_title() == "UAV tracks in the last episode (6 of 6)"  # was "7 of 7"
@@ -75,7 +75,7 @@ def test_summary_title_of_a_finished_run(tmp_path, figures):
 
 @pytest.mark.parametrize("n", [20, 100])
 def test_summary_map_of_many_uavs_stays_readable(tmp_path, figures, n):
-    from truav.swarm.plots import MAX_LABELLED_UAVS, swarm_figure
+    from truav.analysis.swarm_plots import MAX_LABELLED_UAVS, swarm_figure
     cfg = Config().replace(scenario={"steps_per_episode": 20, "n_uavs": n})
     swarm_figure(cfg, _monitor(cfg, n, 21, 1), tmp_path / "s.png")
     ax = figures[-1].axes[0]
@@ -129,7 +129,7 @@ def test_few_seeds_draw_each_seed_not_a_band(tmp_path, figures, small_cfg, n_see
 
 
 def test_training_energy_axis_shows_small_changes_small(tmp_path, figures):
-    from truav.plots import convergence_figure
+    from truav.analysis.plots import convergence_figure
     rng = np.random.default_rng(0)
     energy = 22_250.0 + rng.normal(0, 20, (200, 1))  # +-0.1%: noise, not a trend
     convergence_figure({"energy_j": energy, "coverage_pct": rng.uniform(5, 30, (200, 1))}, tmp_path / "c.png",
@@ -140,7 +140,7 @@ def test_training_energy_axis_shows_small_changes_small(tmp_path, figures):
 
 
 def test_scheme_comparison_keeps_coinciding_series_visible(tmp_path, figures):
-    from truav.experiments.scheme_faults import metric_figure
+    from truav.swarm.scheme_faults import metric_figure
     rows = [{"scheme": s, "kind": k, "level": x, "missed_actions": 0.0}  # every scheme on the same points
             for s in ("truav", "central", "patrol") for k in ("loss", "latency", "crash") for x in (0.0, 0.5)]
     metric_figure(rows, ("truav", "central", "patrol"), "missed_actions", "missed", 100.0, tmp_path / "m.png", "t")
@@ -152,7 +152,7 @@ def test_scheme_comparison_keeps_coinciding_series_visible(tmp_path, figures):
 
 
 def test_scheme_comparison_of_all_five_schemes_draws_every_series(tmp_path, figures):
-    from truav.experiments.scheme_faults import SCHEMES, metric_figure
+    from truav.swarm.scheme_faults import SCHEMES, metric_figure
     rows = [{"scheme": s, "kind": k, "level": x, "coverage_pct": 20.0}  # every scheme on the same points
             for s in SCHEMES for k in ("loss", "latency", "crash") for x in (0.0, 0.5)]
     metric_figure(rows, SCHEMES, "coverage_pct", "coverage (%)", 1.0, tmp_path / "c.png", "t")
@@ -179,7 +179,7 @@ def _recording(n_uavs: int):
 def test_recording_map_of_many_uavs_stays_readable(tmp_path, figures, n):
     from matplotlib.patches import Circle
     from recorder.report import map_figure
-    from truav.swarm.plots import MAX_LABELLED_UAVS
+    from truav.analysis.swarm_plots import MAX_LABELLED_UAVS
     map_figure(_recording(n), tmp_path / "map.png")
     ax = figures[-1].axes[0]
     entries = [t.get_text() for t in ax.get_legend().get_texts()]

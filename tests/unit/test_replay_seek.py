@@ -21,7 +21,7 @@ from recorder.replay import KEY_BINDINGS, LockstepGate, Replayer, ReplayOptions,
 from recorder.replay_source import resolve_parts
 from tests.support.ticks import MS, PER_TICK, RUN, T0, last_before, make_ticks, of_tick, write_ticks
 from tests.support.waits import wait_until as _wait_until
-from truav.bus import keys, schema
+from truav.wire import keys, schema
 
 WAIT_S = 10.0
 

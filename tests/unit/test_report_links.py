@@ -10,7 +10,7 @@ import pytest
 from recorder.report import LINKS_FILE, load_recording, report
 from recorder.report_links import link_delivery
 from tests.support.recordings import N_UAVS, make_swarm_recording
-from truav.bus import schema
+from truav.wire import schema
 
 
 def _share(tmp_path, loss):

@@ -8,7 +8,7 @@ from agents.prediction import new_maps, predict_batch, predict_one, predict_para
 from agents.reward import Reward
 from agents.state import StateEncoder
 from truav import seeding
-from truav.driver import run_episodes
+from truav.analysis.driver import run_episodes
 from world.env import World
 
 

@@ -1,4 +1,4 @@
-"""Tests for truav.bus.schema (wire format) and truav.bus.keys (key expressions)."""
+"""Tests for truav.wire.schema (wire format) and truav.wire.keys (key expressions)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from truav.bus import keys, schema
-from truav.bus.schema import (
+from truav.wire import keys, schema
+from truav.wire.schema import (
     Action,
     Beacon,
     Control,
@@ -141,7 +141,7 @@ def test_encode_requires_stamp() -> None:
 def test_beacon_size_is_small_and_pinned() -> None:
     b = Sequencer("uav/3", clock=fake_clock(), incarnation=(1 << 62) + 1).stamp(
         Beacon(uav=3, tick=1234, pos=(1234.567, 987.654), vel=(3.2, -1.5)))
-    assert len(encode(b)) == 114  # documented in the truav.bus.schema docstring
+    assert len(encode(b)) == 114  # documented in the truav.wire.schema docstring
     worst = Beacon(uav=1023, tick=schema.INT64_MAX, pos=(1.0, 2.0), vel=(3.0, 4.0), src="uav/1023",
                    seq=schema.UINT64_MAX, t=schema.INT64_MAX, inc=schema.INT64_MAX)
     assert len(encode(worst)) == schema.BEACON_MAX_BYTES

@@ -5,8 +5,8 @@ import tomllib
 
 import pytest
 
-from truav.experiments import scheme_faults as cmp
 from truav.faults import check_plan_for, plan_from_dict
+from truav.swarm import scheme_faults as cmp
 
 
 def plan(scheme, kind, level, run_s=10.0):

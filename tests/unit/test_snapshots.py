@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from recorder.resim import Resimulation, payload_fields
-from truav.bus import acl, keys, placement, schema
+from truav.bus import acl, placement
 from truav.config import Config
-from world.snapshot_messages import agent_snapshot, fits, state_arrays, world_snapshot
+from truav.wire import keys, schema
+from truav.wire.snapshot_messages import agent_snapshot, fits, state_arrays, world_snapshot
 
 SEED = 3
 CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 8, "n_uavs": 3},

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from truav.analysis.trainer import run_chunk
 from truav.config import Config
 from truav.swarm.references import references_for, references_line
-from truav.trainer import run_chunk
 
 CFG = Config().replace(scenario={"n_vehicles": 40, "steps_per_episode": 40}, roads={"warmup_steps": 5})
 WORLD = {"episodes": [{"coverage_pct": 9.8, "pdr": 0.116}, {"coverage_pct": 10.2, "pdr": 0.124}]}

@@ -3,9 +3,9 @@ tests/swarm/test_worker_processes.py)."""
 
 import numpy as np
 
-from truav import runio
+from truav.analysis import runio
+from truav.analysis.trainer import run_chunk
 from truav.cli.main import main
-from truav.trainer import run_chunk
 
 
 def test_training_is_deterministic_and_batch_equivalent(small_cfg):

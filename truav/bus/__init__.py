@@ -1,1 +1,1 @@
-"""The bus: message schema, key expressions, the Zenoh transport and the beacon inbox."""
+"""The bus: Zenoh sessions, publishing and receiving, the router, access control and certificates, the link filter (the messages themselves are truav/wire/)."""

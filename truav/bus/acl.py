@@ -13,14 +13,14 @@ import fnmatch
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from truav.bus import keys
+from truav.wire import keys
 
 ROUTER = "router"
 WORLD = keys.SRC_WORLD
 RECORDER = keys.SRC_RECORDER
 SUPERVISOR = "supervisor"
 REPLAY = keys.SRC_REPLAY
-CONTROLLER = keys.SRC_CONTROLLER  # the central scheme's controller (agents.central_process)
+CONTROLLER = keys.SRC_CONTROLLER  # the central scheme's controller (agents.process.central_process)
 VIEW = "view"  # the Foxglove bridge (truav.swarm.view)
 
 REPLAY_RUN_SUFFIX = "-replay"

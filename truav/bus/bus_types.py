@@ -11,7 +11,7 @@ from typing import Protocol
 
 import zenoh
 
-from truav.bus.schema import Message
+from truav.wire.schema import Message
 
 BUS_LOGGER = "truav.bus.transport"
 """The logger every part of the Bus logs to (its log lines kept the name they had in one module)."""

@@ -8,11 +8,11 @@ import logging
 import math
 from collections.abc import Callable
 
-from truav.bus import schema
 from truav.bus.bus_types import BUS_LOGGER, UNKNOWN_SRC
-from truav.bus.codec import decode
 from truav.bus.placement import _FACTS, check_placed, facts_of
-from truav.bus.schema import Message, SchemaError
+from truav.wire import schema
+from truav.wire.codec import decode
+from truav.wire.schema import Message, SchemaError
 
 log = logging.getLogger(BUS_LOGGER)
 

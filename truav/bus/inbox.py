@@ -28,9 +28,9 @@ from typing import NamedTuple, Protocol
 
 import zenoh
 
-from truav.bus import schema
 from truav.bus.placement import _FACTS
-from truav.bus.schema import Message
+from truav.wire import schema
+from truav.wire.schema import Message
 
 DEFAULT_INBOX_CAPACITY = 4096
 """Messages held before the oldest are evicted (counted as overflow): 10 s of 20 agents' beacons at 10 Hz."""

@@ -2,7 +2,7 @@
 congestion control, and whether a message may appear on it (:func:`check_placement`).
 
 The key-to-kind table is derived from the schema: each message class names the key chunks it lives on
-(``PLACE``, built from :mod:`truav.bus.keys`' names)."""
+(``PLACE``, built from :mod:`truav.wire.keys`' names)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from typing import NamedTuple
 
 import zenoh
 
-from truav.bus import keys, schema
-from truav.bus.schema import Message, SchemaError
+from truav.wire import keys, schema
+from truav.wire.schema import Message, SchemaError
 
 # Drop reasons added by the Bus on top of the schema's R_* reasons.
 R_KEY_MISMATCH = "key_mismatch"  # payload does not belong on that key (kind, uav id, src)

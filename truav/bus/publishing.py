@@ -7,9 +7,9 @@ import time
 
 import zenoh
 
-from truav.bus import keys, schema
 from truav.bus.placement import check_placement, congestion_control
-from truav.bus.schema import Message
+from truav.wire import keys, schema
+from truav.wire.schema import Message
 
 REPLAY_TAG = b"truav-replay"
 """Zenoh attachment on every put of a ``replay`` Bus: receivers drop it unless they accept replays."""
@@ -47,7 +47,7 @@ class Publishing:
         """Stamp ``msg`` (src=identity, next seq, t=clock), encode and put it; return the stamped message.
 
         ``pad_to``: a message with a ``pad`` field (state, command) is padded to that many bytes
-        once stamped (:func:`truav.bus.schema.padded`). PermissionError/ValueError from
+        once stamped (:func:`truav.wire.schema.padded`). PermissionError/ValueError from
         :meth:`check_publish`; SchemaError if ``msg`` does not belong on ``key`` (receivers would drop it).
         """
         self.check_publish(key)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from truav.bus import keys
-from truav.bus.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
+from truav.wire import keys
+from truav.wire.schema import HEALTH_PERIOD_S, REJECTION_PERIOD_S
 
 RATE_CAP_MARGIN = 20.0
 """Each key's cap is this many times the rate the run needs on it. Zenoh's downsampler is a minimum

@@ -10,13 +10,13 @@ from collections.abc import Callable
 
 import zenoh
 
-from truav.bus import keys, schema
-from truav.bus.bus_types import BUS_LOGGER, UNKNOWN_SRC, DataCallback, Handle, PassThrough, RawCallback
-from truav.bus.guard import R_REPLAYED
+from truav.bus.bus_types import BUS_LOGGER, DataCallback, Handle, PassThrough, RawCallback, UNKNOWN_SRC
 from truav.bus.inbox import DEFAULT_INBOX_CAPACITY, Inbox
 from truav.bus.placement import size_limit_of_key
 from truav.bus.publishing import REPLAY_TAG
-from truav.bus.schema import SchemaError
+from truav.wire import keys, schema
+from truav.wire.guard import R_REPLAYED
+from truav.wire.schema import SchemaError
 
 log = logging.getLogger(BUS_LOGGER)
 

@@ -11,11 +11,11 @@ from collections.abc import Callable, Sequence
 
 import zenoh
 
-from truav.bus import keys, schema
+from truav import jsonio
 from truav.bus.bus_types import BUS_LOGGER
 from truav.bus.placement import KIND_BY_KEY
 from truav.bus.zenoh_config import DEFAULT_ENDPOINT, MODE_ROUTER, close_session, make_config, open_session
-from truav import jsonio
+from truav.wire import keys, schema
 
 log = logging.getLogger(BUS_LOGGER)
 
@@ -27,7 +27,7 @@ ROUTER_SIZE_SLACK_BYTES = 1024
 
 def router_size_filters() -> list[dict]:
     """Zenoh ``low_pass_filter`` items: the router drops, on ingress from any link, a put larger
-    than its key's message kind may be (:func:`truav.bus.schema.size_limit`), so an oversized
+    than its key's message kind may be (:func:`truav.wire.schema.size_limit`), so an oversized
     payload costs one router check instead of a copy to every subscriber."""
     by_limit: dict[int, list[str]] = {}
     for parts, kind in KIND_BY_KEY.items():

@@ -2,7 +2,7 @@
 
 * :class:`Bus` wraps one Zenoh session for one sender identity (``world``,
   ``uav/<i>``, ``recorder`` ...): it stamps and encodes outgoing messages with
-  :mod:`truav.bus.schema`, decodes incoming ones, drops (and counts, and logs once
+  :mod:`truav.wire.schema`, decodes incoming ones, drops (and counts, and logs once
   per reason) anything malformed, applies a fault-injection :class:`LinkFilter`
   on the receive side, and wraps liveliness tokens.  Beacons and positions are
   sent with congestion control DROP, everything else with BLOCK.  Its parts:
@@ -57,14 +57,14 @@ from collections.abc import Callable
 
 import zenoh
 
-from truav.bus import keys, schema
+from truav.wire import keys, schema
 from truav.bus.bus_types import (  # noqa: F401  (re-exported)
     CLOSE_JOIN_TIMEOUT_S, UNKNOWN_SRC, BusStats, DataCallback, Handle, KeyCallback, LinkFilter, PassThrough,
     RawCallback)
 from truav.bus.delivery import MAX_LOG_ONCE_TAGS, Delivery  # noqa: F401
-from truav.bus.guard import Guard, Rejections
 from truav.bus.liveliness import ALIVE_EMPTY_RETRY_S, DEFAULT_ALIVE_TIMEOUT_S, Liveliness  # noqa: F401
 from truav.bus.queries import Queries, QueryRefused  # noqa: F401
+from truav.wire.guard import Guard, Rejections
 from truav.bus.placement import (  # noqa: F401
     DROPPABLE_KINDS, R_KEY_MISMATCH, check_placement, congestion_control, expected_kind)
 from truav.bus.publishing import MAX_CACHED_PUBLISHERS, REPLAY_TAG, Publishing  # noqa: F401
@@ -127,9 +127,9 @@ class Bus(Publishing, Receiving, Delivery, Liveliness, Queries):
         """Every message this Bus refused, by reason and sender (schema, placement, guard, replay tag)."""
         self.on_refused: Callable[[str, schema.SchemaError], None] | None = None
         """Called with (key, error) for every message this Bus refuses (after counting it): the world tells
-        the sender (truav.bus.rejection_notices). Keep it short: it runs on the receive path."""
+        the sender (truav.wire.rejection_notices). Keep it short: it runs on the receive path."""
         self.guard: Guard | None = None
-        """Sender/range checks applied after the schema (:mod:`truav.bus.guard`); None: schema only."""
+        """Sender/range checks applied after the schema (:mod:`truav.wire.guard`); None: schema only."""
         self.accept_replay = True
         """Deliver puts tagged by a ``replay`` Bus; the live run's world and agents set it False
         (such puts are then dropped and counted)."""

@@ -145,7 +145,7 @@ def share(text: str) -> float:
 
 def run_name(text: str) -> str:
     """argparse type: a run name, as the bus keys allow (truav/<run>/...)."""
-    from truav.bus import keys
+    from truav.wire import keys
     try:
         return keys.validate_run(text)
     except ValueError as exc:

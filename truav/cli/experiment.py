@@ -22,10 +22,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from truav import runio
+from truav.analysis import runio
 from truav.cli.args import check_out_dir, make_dir, positive_float, positive_int, seed_int
 from truav.cli.config import UsageError, add_config_args, config_from
-from truav.config import MOBILITIES, LearnerConfig
+from truav.config import LearnerConfig, MOBILITIES
 from truav.experiments import runner, scale, velocity
 from truav.cli.experiment_executor import (  # noqa: F401  (re-exported)
     RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
@@ -59,7 +59,7 @@ def _parse_episodes_for(items: list[str], schemes, default: int) -> dict[str, in
 
 def _check_schemes(schemes, cfg) -> None:
     """Each --schemes name a built-in scheme or an agent class, found and checked (one line, exit 2)."""
-    from truav import agent_loader
+    from truav.analysis import agent_loader
     for name in schemes:
         if name not in velocity.CHOICES:
             agent_loader.load(name, cfg, flag="--schemes")
@@ -126,7 +126,7 @@ def _setup(args, default_out: str, default_episodes: int | None):
     cfg = config_from(args, {"scenario": {"mobility": args.mobility}} if args.mobility else None,
                       base=QUICK_CONFIG if quick else None)
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
-        from truav import sumo_traffic
+        from truav.analysis import sumo_traffic
         sumo_traffic.sumo_home()
 
     def pick(given, quick_value, full_value):
@@ -160,10 +160,10 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
     if not todo:
         return 0.0
     if cfg.scenario.mobility == "sumo":  # each cell's trace built once here; the workers only load them
-        from truav import sumo_traffic
+        from truav.analysis import sumo_traffic
         for cell in todo:  # cached after the first of a scenario
             sumo_traffic.checked_trace(cell.config(cfg), say=lambda line: print(line, flush=True))
-    from truav.warmup import ensure_compiled
+    from truav.analysis.warmup import ensure_compiled
     ensure_compiled(lambda line: print(line, flush=True))  # before the bar: its ETA counts episodes, not the compiler
     from tqdm import tqdm
     t0 = time.perf_counter()

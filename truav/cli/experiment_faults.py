@@ -1,5 +1,5 @@
 """`truav experiment faults`: its parser and command (the sweep itself is
-truav.experiments.fault_sweep, the scheme comparison truav.experiments.scheme_faults).
+truav.swarm.fault_sweep, the scheme comparison truav.swarm.scheme_faults).
 """
 
 from __future__ import annotations
@@ -7,14 +7,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from truav import policy_scenario
+from truav import jsonio
+from truav.analysis import policy_scenario
 from truav.cli.args import check_out_dir, positive_float, seed_int
 from truav.cli.config import UsageError, add_config_args, config_from, parse_sets
-from truav.config import ConfigError, read_toml, to_dict
-from truav.experiments import fault_sweep
-from truav.experiments.scheme_faults import SCHEMES
 from truav.cli.experiment_executor import add_executor_args, check_executor
-from truav import jsonio
+from truav.config import ConfigError, read_toml, to_dict
+from truav.swarm import fault_sweep
+from truav.swarm.scheme_faults import SCHEMES
 
 
 def add_fault_sweep_parser(ex_sub) -> None:
@@ -34,7 +34,7 @@ def add_fault_sweep_parser(ex_sub) -> None:
                    help=f"compare these schemes under the same link loss, latency and process crash levels: "
                         f"{', '.join(SCHEMES)}, or an agent class (pkg.module:Class or a name registered in the "
                         f"entry-point group truav.agents: trained in process, then flown greedily) "
-                        "(truav.experiments.scheme_faults: comparison.csv, comparison-<metric>.png); "
+                        "(truav.swarm.scheme_faults: comparison.csv, comparison-<metric>.png); "
                         "federated and truav_online fly the TRUAV table learning online, with and without "
                         "Q-sharing (federated.every, 1 unless set); "
                         "default: the TRUAV beacon sweep (faults.csv, faults.png)")
@@ -67,11 +67,11 @@ def cmd_fault_sweep(args) -> int:
             if fit.line():
                 print(f"warning: {fit.line()}", flush=True)
     if args.schemes:
-        from truav.experiments.scheme_faults import run_comparison
+        from truav.swarm.scheme_faults import run_comparison
         schemes = tuple(dict.fromkeys(args.schemes))
         for name in schemes:  # an agent class: found and checked (one line, exit 2) before anything runs
             if name not in SCHEMES:
-                from truav import agent_loader
+                from truav.analysis import agent_loader
                 agent_loader.load(name, cfg, flag="--schemes")
         if args.policy is not None:
             if "central" not in schemes:

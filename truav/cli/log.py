@@ -188,10 +188,10 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
 
     from recorder.replay import (CONTROL_PART, KEYS_HELP, KeyboardControl, Replayer, ReplayOptions,
                                  ReplayUsageError, recording_info, split_patterns)
-    from recorder.replay_bus import replay_on_bus
-    from truav.bus import keys
+    from recorder.process.replay_bus import replay_on_bus
     from truav.bus.transport import config_from_args
     from truav.bus.zenoh_config import apply_replay_creds
+    from truav.wire import keys
 
     for name in args.file:
         problem = None if name.endswith(".parts.json") and Path(name).is_file() else _mcap_file(name)
@@ -251,7 +251,7 @@ def cmd_replay(args: argparse.Namespace, prog: str = "truav-swarm") -> int:
     except ReplayUsageError as exc:
         return _fail(prog, str(exc))
     except Exception as exc:  # zenoh could not open (no router...): one line
-        from recorder.process import short_error
+        from recorder.process.recorder import short_error
 
         return _fail(prog, f"replay failed: {short_error(exc)}", EXIT_FAILED)
     finally:

@@ -2,8 +2,8 @@
 
 :func:`add_record_args` declares the recorder's flags (shared with ``truav log
 record`` and ``truav-swarm record``, see :mod:`truav.cli.log`);
-:func:`options_from_args` turns them into the :class:`recorder.process.RecorderOptions`
-the node runs with, and :func:`cmd_record` runs it.  ``recorder.process.recorder_argv``
+:func:`options_from_args` turns them into the :class:`recorder.process.recorder.RecorderOptions`
+the node runs with, and :func:`cmd_record` runs it.  ``recorder.process.recorder.recorder_argv``
 builds this command line for supervisors; ``python -m recorder.process`` (the
 old spelling) hands over to :func:`main`.  The recording node itself is
 imported when a command runs, so building the parser (``truav --help``) does
@@ -22,11 +22,12 @@ from typing import TYPE_CHECKING, Any, Optional
 from recorder.foxglove import DEFAULT_ORIGIN, parse_origin
 from recorder.mcap_writer import COMPRESSIONS, DEFAULT_COMPRESSION, DEFAULT_FLUSH_INTERVAL_S
 from recorder.record_modes import RecordModes
+from truav.bus import transport
 from truav.cli import args as cli_args
-from truav.bus import keys, transport
+from truav.wire import keys
 
 if TYPE_CHECKING:
-    from recorder.process import RecorderOptions
+    from recorder.process.recorder import RecorderOptions
 
 __all__ = ["add_record_args", "options_from_args", "zenoh_config_from_args", "cmd_record", "main"]
 
@@ -43,7 +44,7 @@ def zenoh_config_from_args(args: argparse.Namespace) -> Any:
 
 
 def options_from_args(args: argparse.Namespace) -> RecorderOptions:
-    from recorder.process import RecorderOptions, RecorderUsageError  # the node: mcap, zstd, foxglove
+    from recorder.process.recorder import RecorderOptions, RecorderUsageError  # the node: mcap, zstd, foxglove
 
     toml_text = None
     if args.config_toml:
@@ -108,8 +109,8 @@ def add_record_args(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as in :mod:`recorder.process`."""
-    from recorder.process import EXIT_USAGE, RecorderUsageError, record  # the node: mcap, zstd, foxglove
+    """Record until SIGINT/SIGTERM/stop command; print the summary; exit code as in :mod:`recorder.process.recorder`."""
+    from recorder.process.recorder import EXIT_USAGE, RecorderUsageError, record  # the node: mcap, zstd, foxglove
 
     try:
         options = options_from_args(args)

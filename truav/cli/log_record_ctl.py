@@ -17,7 +17,7 @@ from truav.cli import args as cli_args
 
 __all__ = ["add_record_ctl_parser", "cmd_record_ctl", "RECORDER_COMMANDS"]
 
-RECORDER_COMMANDS = ("split", "pause", "resume", "snapshot")  # recorder.process CMD_* (stop: `truav-swarm down`)
+RECORDER_COMMANDS = ("split", "pause", "resume", "snapshot")  # recorder.process.recorder CMD_* (stop: `truav-swarm down`)
 CONTROL_IDENTITY = "supervisor"
 LISTENER_WAIT_S = 5.0
 HELP = "send split, pause, resume or snapshot to a running recorder (over the bus)"
@@ -40,8 +40,9 @@ def add_record_ctl_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def cmd_record_ctl(args: argparse.Namespace) -> int:
-    from truav.bus import keys, schema, transport
-    from recorder.process import CONTROL_PART
+    from recorder.process.recorder import CONTROL_PART
+    from truav.bus import transport
+    from truav.wire import keys, schema
 
     try:
         transport.apply_creds(args, CONTROL_IDENTITY)
@@ -50,7 +51,7 @@ def cmd_record_ctl(args: argparse.Namespace) -> int:
     try:
         bus = transport.Bus(CONTROL_IDENTITY, args.run, transport.config_from_args(args))
     except Exception as exc:  # zenoh.ZError: no router there (the endpoint's form was checked before)
-        from recorder.process import short_error
+        from recorder.process.recorder import short_error
         print(f"truav log record-ctl: error: cannot open a session: {short_error(exc)}", file=sys.stderr)
         return 1
     with bus:

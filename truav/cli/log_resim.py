@@ -93,7 +93,7 @@ def cmd_resim(args: argparse.Namespace) -> int:
         n = rec.cfg.scenario.n_uavs
         agent_cls = _agent_class(args, rec, branch)
         if agent_cls is not None and rec.qtable:  # its agents started from a run of `truav train --agent`
-            from truav.agent_run import agent_start_states
+            from truav.analysis.agent_run import agent_start_states
             starts = agent_start_states(rec.qtable, rec.agent, n, rec.qtable_index)
         else:
             starts = start_tables(rec.qtable, rec.qtable_index, n)
@@ -145,7 +145,7 @@ def _on_round(bar, word: str = "divergent"):
 def _agent_class(args, rec, branch: bool):
     """The agent API class of an `up --agent NAME` recording, loaded only when --agent names it (a recording
     from elsewhere must not pick the code this command runs); None for TRUAV's own agents."""
-    from truav import agent_loader
+    from truav.analysis import agent_loader
     from truav.errors import UserError
     if rec.agent is None:
         if args.agent is not None:

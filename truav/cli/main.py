@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from truav import policy_scenario, runio
-from truav.stats import nan_mean
+from truav.analysis import policy_scenario, runio
 from truav.checks import check_federated
+from truav.stats import nan_mean
 from truav.cli.args import (  # noqa: F401  (the number types are shared from here by the other CLIs)
     OneLineParser, UserError, non_negative_float, positive_float, positive_int, run_main, seed_int)
 from truav.cli.config import (  # noqa: F401  (re-exported: the other CLIs named them from here)
@@ -79,8 +79,9 @@ def progress_bar(total: int, desc: str, quiet: bool, initial: int = 0):
 
 def _compile_first(extra_kernels: list[str] = ()) -> None:
     """Compile the kernels before the progress bar (else it sits at 0 for a minute, its ETA counting the
-    compiler): the shared ones once per machine (truav.warmup), ``extra_kernels`` named if they are cold."""
-    from truav import kernel_cache, warmup  # here: they import numba, which `truav --help` does without
+    compiler): the shared ones once per machine (truav.analysis.warmup), ``extra_kernels`` named if they are cold."""
+    from truav import kernel_cache  # here: they import numba, which `truav --help` does without
+    from truav.analysis import warmup
     warmup.ensure_compiled(lambda line: print(line, flush=True))
     note = kernel_cache.cold_start_note(list(extra_kernels)) if extra_kernels else None
     if note:
@@ -90,7 +91,7 @@ def _compile_first(extra_kernels: list[str] = ()) -> None:
 def run_with_progress(kind, cfg, seeds, episodes, workers, train, q, desc, quiet, start_pos=None, ckpt=None,
                       chunks=None, done=0):
     """run_parallel under a progress bar; ``done``: env-episodes a resumed run had finished before."""
-    from truav.trainer import run_parallel
+    from truav.analysis.trainer import run_parallel
     with progress_bar(len(seeds) * episodes, desc, quiet, initial=done) as bar:
         def on_progress(n, live):
             bar.update(n)
@@ -109,7 +110,7 @@ def cmd_config_show(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from truav.plots import convergence_figure
+    from truav.analysis.plots import convergence_figure
     extra: dict[str, dict[str, Any]] = {}
     if args.speed is not None:
         extra["scenario"] = {"uav_speed_mps": args.speed}
@@ -119,11 +120,11 @@ def cmd_train(args) -> int:
         extra.setdefault("scenario", {})["mobility"] = args.mobility
     cfg = config_from(args, extra)
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
-        from truav import sumo_traffic
+        from truav.analysis import sumo_traffic
         sumo_traffic.sumo_home()
     agent_cls, unpicklable = None, None
     if args.agent is not None:  # an agents.api class: found and checked before anything starts
-        from truav import agent_loader
+        from truav.analysis import agent_loader
         if args.scheme is not None:
             raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
         agent_cls = agent_loader.load(args.agent, cfg)
@@ -140,7 +141,7 @@ def cmd_train(args) -> int:
     seeds = seed_list(args)
     from agents.state import check_qtable_memory  # before anything is allocated or written
     check_qtable_memory(cfg, len(seeds) * cfg.scenario.n_uavs, f"{len(seeds)} seed(s) x {cfg.scenario.n_uavs} UAV(s)")
-    from truav.trainer import Checkpointing, resumable, split
+    from truav.analysis.trainer import Checkpointing, resumable, split
     scheme = args.scheme
     checkpointed = resumable(scheme) and not unpicklable
     episodes = cfg.learner.episodes
@@ -180,7 +181,7 @@ def cmd_train(args) -> int:
         if ckpt is None:
             print(f"truav: error: {exc}", file=sys.stderr)
         else:
-            from truav.trainer import saved_episodes
+            from truav.analysis.trainer import saved_episodes
             kept = min(0 if (saved := runio.read_chunk_state(out, i)) is None else saved_episodes(saved)
                        for i in range(len(chunks)))
             print(f"truav: error: {exc}; {out / runio.RESUME_DIR} keeps what was checkpointed ({kept} of {episodes} "
@@ -204,7 +205,7 @@ def cmd_train(args) -> int:
               file=sys.stderr)
         return 130
     runio.write_metrics(out / runio.METRICS_FILE, seeds, result.metrics)
-    from truav.agent_run import AGENT_FILE, write_agent_state
+    from truav.analysis.agent_run import AGENT_FILE, write_agent_state
     if scheme == "central":  # the actors, for `truav-swarm up --scheme central --policy RUN`
         runio.write_policy(out, seeds, result.policy, cfg)
     elif agent_cls is not None:  # its state_dicts, for `truav evaluate RUN`
@@ -232,7 +233,7 @@ def cmd_train(args) -> int:
 
 def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[list[int]]:
     """--resume: the seed chunks of the interrupted training in --out, once its options are checked equal."""
-    from truav.trainer import resumable
+    from truav.analysis.trainer import resumable
     if args.force:
         raise UsageError("--resume and --force exclude each other (continue the training in --out, or replace it)")
     if not resumable(args.scheme):
@@ -254,7 +255,7 @@ def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[li
     if not (isinstance(chunks, list) and sum(chunks, []) == seeds):
         raise runio.RunDirError(f"--resume: {out / runio.RESUME_DIR / runio.RESUME_FILE} is damaged (its chunks of "
                                 f"seeds do not add up to the seeds)")
-    from truav.trainer import check_saved_chunk
+    from truav.analysis.trainer import check_saved_chunk
     for index, chunk in enumerate(chunks):  # a damaged file is one line here, not a worker's traceback later
         saved = runio.read_chunk_state(out, index)
         problem = None if saved is None else check_saved_chunk(saved, len(chunk))
@@ -266,7 +267,7 @@ def _resume_chunks(args, out_arg: str, cfg: Config, seeds: list[int]) -> list[li
 
 def _resumed_episodes(out: Path, chunks: list[list[int]]) -> int:
     """Env-episodes (seeds x episodes) the checkpoints of a resumed training had finished."""
-    from truav.trainer import saved_episodes
+    from truav.analysis.trainer import saved_episodes
     total = 0
     for index, chunk in enumerate(chunks):
         saved = runio.read_chunk_state(out, index)
@@ -277,7 +278,7 @@ def _resumed_episodes(out: Path, chunks: list[list[int]]) -> int:
 def _against_kinds(names: list[str], cfg: Config, taken: str) -> dict[str, str]:
     """{label: controller kind} of evaluate's --against: a reference policy, or an agents.api class by name
     (found and checked here, before anything runs; labelled apart from ``taken``, the evaluated run's)."""
-    from truav import agent_loader
+    from truav.analysis import agent_loader
     kinds = {}
     for name in names:
         if name in REFERENCE_POLICIES:
@@ -289,8 +290,8 @@ def _against_kinds(names: list[str], cfg: Config, taken: str) -> dict[str, str]:
 
 
 def cmd_evaluate(args) -> int:
-    from truav import agent_loader
-    from truav.agent_run import is_agent_run, read_agent_state
+    from truav.analysis import agent_loader
+    from truav.analysis.agent_run import is_agent_run, read_agent_state
     run = Path(args.run)
     if not run.exists():  # not "its parent has no config.toml": the path the user gave
         raise runio.RunDirError(f"{args.run}: no such run directory or file (a directory `truav train` wrote, "
@@ -316,7 +317,7 @@ def cmd_evaluate(args) -> int:
             runio.check_qtables(run, q.shape, cfg)
     if args.speed is not None:
         cfg = cfg.replace(scenario={"uav_speed_mps": args.speed})
-    from truav.agent_run import agent_file
+    from truav.analysis.agent_run import agent_file
     policy_file = runio.qtable_file(run) if main_kind == "truav" else agent_file(run)
     fit = policy_scenario.check("", args.run, policy_file, cfg, args.allow_scenario_mismatch)
     if fit.line():

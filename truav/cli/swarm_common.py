@@ -6,17 +6,17 @@ import argparse
 import logging
 import sys
 
-from agents.agent_process import AgentOptions
-from agents.central_process import ControllerOptions
-from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from agents.process.agent_process import AgentOptions
+from agents.process.central_process import ControllerOptions
+from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
 # the transport's command-line helpers, for every truav-swarm command (one place to import them from)
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.bus.transport import apply_creds, config_from_args  # noqa: F401
+from truav.cli.args import add_options, positive_float, run_name, seed_int
 from truav.cli.args import add_transport_args  # noqa: F401
 from truav.cli.config import UsageError, parse_sets
-from truav.cli.args import add_options, positive_float, run_name, seed_int
 from truav.config import Config, load_config
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
-from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.swarm.checks import SCHEMES
 
 log = logging.getLogger("truav.swarm")
@@ -88,7 +88,7 @@ def scheme_name(text: str) -> str:
 def check_agent_scheme(args, cfg: Config) -> None:
     """--scheme agent:NAME: the class found and checked (one line, exit 2) before anything starts."""
     if args.scheme.startswith(AGENT_KIND_PREFIX):
-        from truav import agent_loader
+        from truav.analysis import agent_loader
         agent_loader.load(args.scheme[len(AGENT_KIND_PREFIX):], cfg, flag="--agent")
 
 

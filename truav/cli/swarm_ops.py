@@ -12,20 +12,20 @@ import os
 import threading
 from pathlib import Path
 
-from truav.bus import keys, schema
+from truav.bus.fault_filter import CONTROL_FAULTS
 from truav.bus.transport import Bus
 from truav.checks import check_endpoint, check_in_file, check_out_dir
-from truav.cli.config import UsageError
 from truav.cli.args import UserError, positive_float, run_name, tcp_port
-from truav.fault_filter import CONTROL_FAULTS
+from truav.cli.config import UsageError
 from truav.faults import load_plan
 from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.swarm.checks import check_tls_creds
+from truav.wire import keys, schema
 from truav.cli.swarm_common import (add_geo_origin_arg, add_scenario_args, add_transport_args, config_from_args, part_creds,
                                     scenario_from, setup_logging)
+from truav.cli.swarm_secure import rejections_heard
 from truav.swarm.children import stop_recorded_pids
 from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
-from truav.cli.swarm_secure import rejections_heard
 from truav.swarm.swarm_options import DOWN_IDENTITY, default_out_dir
 
 log = logging.getLogger("truav.swarm")
@@ -85,7 +85,7 @@ def cmd_status(args) -> int:
     with Bus("status", args.run or "status", conf) as bus:
         heard = rejections_heard(bus, args.run)
         tokens = sorted(bus.alive(pattern, timeout=args.timeout))
-        # Agents report once a second (agents.agent_process.HEALTH_PERIOD_S): wait a little longer for theirs.
+        # Agents report once a second (agents.process.agent_process.HEALTH_PERIOD_S): wait a little longer for theirs.
         rejected = heard(min(args.timeout, 0.5) + 1.2 if tokens else 0.0, tokens)
     if not tokens:
         print("no TRUAV process alive" + (f" in run {args.run}" if args.run else ""))

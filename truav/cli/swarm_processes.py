@@ -1,8 +1,8 @@
 """`truav-swarm router|world|agent|controller`: the swarm's parts, one process each.
 
 Each command checks its flags and files (one line, exit 2, before anything starts), builds its
-process's options and runs it: the runtime lives with the process (world.world_process,
-agents.agent_host, agents.central_process), the stop on SIGTERM / lost supervisor / lost router
+process's options and runs it: the runtime lives with the process (world.process.world_process,
+agents.process.agent_host, agents.process.central_process), the stop on SIGTERM / lost supervisor / lost router
 in truav.lifecycle.
 """
 
@@ -15,25 +15,25 @@ import threading
 
 import zenoh
 
-from agents.agent_host import ID_PLACEHOLDER, host_agents, path_of
-from agents.agent_process import DELAY_ENV, AgentOptions, debug_delay_s
-from agents.central_process import ControllerOptions
-from agents.controller_host import host_controller
-from truav.bus import keys
+from agents.process.agent_host import ID_PLACEHOLDER, host_agents, path_of
+from agents.process.agent_process import AgentOptions, DELAY_ENV, debug_delay_s
+from agents.process.central_process import ControllerOptions
+from agents.process.controller_host import host_controller
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.bus.transport import DEFAULT_ENDPOINT, run_router
-from truav.agent_loader import AGENT_KIND_PREFIX
 from truav.checks import check_out_file
-from truav.cli.config import UsageError
 from truav.cli.args import add_options, non_negative_int, options_from, positive_float
+from truav.cli.config import UsageError
 from truav.lifecycle import stop_on_sigterm_or_orphaned
+from truav.wire import keys
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_agent_start, check_policy, check_qtable, check_scheme_flags)
 from truav.cli.swarm_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
                                     config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
                                     zenoh_reason)
-from world.world_host import host_world
-from world.world_process import WorldOptions
+from world.process.world_host import host_world
+from world.process.world_process import WorldOptions
 
 log = logging.getLogger("truav.swarm")
 

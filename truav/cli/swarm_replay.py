@@ -1,5 +1,5 @@
 """``truav-swarm replay-ctl``: steer a running replay from another terminal, over its Zenoh queryable
-(``truav/<run>/replay/ctl``, :mod:`recorder.replay_bus`), and print its status after the command.
+(``truav/<run>/replay/ctl``, :mod:`recorder.process.replay_bus`), and print its status after the command.
 
     truav-swarm replay-ctl --run R status
     truav-swarm replay-ctl --run R pause | resume | toggle | quit
@@ -54,7 +54,7 @@ def command_of(args: argparse.Namespace) -> tuple[str, dict]:
 
 def cmd_replay_ctl(args: argparse.Namespace) -> int:
     """``truav-swarm replay-ctl`` (and ``truav log play-ctl``): one command, the status after it."""
-    from recorder.replay_bus import ask_replay, status_line
+    from recorder.process.replay_bus import ask_replay, status_line
     from truav.bus.transport import Bus, QueryRefused
 
     from truav.bus.zenoh_config import apply_replay_creds
@@ -69,7 +69,7 @@ def cmd_replay_ctl(args: argparse.Namespace) -> int:
     try:
         bus = Bus(CTL_IDENTITY, args.run, config_from_args(args))
     except Exception as exc:  # zenoh.ZError: no router there (the endpoint's form was checked before)
-        from recorder.process import short_error
+        from recorder.process.recorder import short_error
         print(f"{args.ctl_prog}: error: cannot open a session: {short_error(exc)}", file=sys.stderr)
         return 1
     with bus:

@@ -5,7 +5,7 @@
     truav-swarm schema --doc docs/reference/protocol.md --check   # exit 1 if they are out of date
 
 The JSON Schemas are the ones the recorder writes into every MCAP file (recorder.schemas.bus_schema),
-one per kind of the schema's registry (truav.bus.messages.MESSAGE_CLASSES); docs/reference/protocol.md says
+one per kind of the schema's registry (truav.wire.messages.MESSAGE_CLASSES); docs/reference/protocol.md says
 what every field means.
 """
 
@@ -14,11 +14,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from truav.bus import protocol_doc
-from truav.bus.messages import MESSAGE_CLASSES
+from truav import jsonio
 from truav.checks import check_in_file, check_out_dir, make_dir
 from truav.cli.config import UsageError
-from truav import jsonio
+from truav.wire import protocol_doc
+from truav.wire.messages import MESSAGE_CLASSES
 
 INDEX_FILE = "index.json"
 

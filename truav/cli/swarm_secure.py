@@ -17,13 +17,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from truav.bus import keys, security
+from truav import jsonio
+from truav.bus import security
 from truav.bus.rejections import REJECTED_METRIC  # the world's step-metrics key, read back here
 from truav.checks import check_out_dir
-from truav.cli.config import UsageError
 from truav.cli.args import positive_int
+from truav.cli.config import UsageError
+from truav.wire import keys
 from world.world_stats import uav_metrics  # the world's per-UAV step-metrics values, read back here
-from truav import jsonio
 
 
 def _table(args) -> tuple[tuple[security.Grant, ...], tuple[str, ...]]:

@@ -10,14 +10,14 @@ import argparse
 import math
 import re
 
+from agents.process.agent_process import AgentOptions
+from truav.analysis import policy_scenario
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_federated, check_out_dir, check_out_file
+from truav.cli.args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.cli.config import UsageError, parse_sets
 from truav.config import MOBILITIES
-from agents.agent_process import AgentOptions
-from truav.cli.args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
-from truav import policy_scenario
 from truav.nemesis import NEMESES
 from truav.swarm import supervisor
 from truav.swarm.checks import (check_agent_start, check_beacon_cell, check_central_sizes, check_plan, check_policy, check_qtable,
@@ -25,16 +25,16 @@ from truav.swarm.checks import (check_agent_start, check_beacon_cell, check_cent
 from truav.cli.swarm_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, check_agent_scheme, lockstep_wait,
                                     scenario_from)
-from truav.agent_loader import AGENT_KIND_PREFIX
+from recorder.record_modes import RecordModes
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
+from truav.cli.args import options_from
+from truav.errors import UserError
 from truav.swarm.chaos_time import PLAN_EPISODES
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
-from recorder.record_modes import RecordModes
-from truav.cli.args import options_from
-from truav.errors import UserError
-from world.world_process import WorldOptions
+from world.process.world_process import WorldOptions
 
 MAX_AGENTS = 50
 """Agent processes `up` and `chaos` start without --force-agents (--agents-per-process K hosts K agents in
@@ -60,7 +60,7 @@ def swarm_options(args):
     if mobility is not None:
         cfg = cfg.replace(scenario={"mobility": mobility})
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
-        from truav import sumo_traffic
+        from truav.analysis import sumo_traffic
         sumo_traffic.sumo_home()
     if args.agent is not None:  # an agents.api class flies the UAVs: the agent processes' scheme agent:NAME
         if args.scheme != "truav":

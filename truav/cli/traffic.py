@@ -1,4 +1,4 @@
-"""`truav traffic build`: the SUMO trace of a scenario, built and cached (truav/sumo_traffic.py)."""
+"""`truav traffic build`: the SUMO trace of a scenario, built and cached (truav/analysis/sumo_traffic.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from truav.cli.config import add_config_args, config_from
 
 
 def cmd_traffic_build(args) -> int:
-    from truav import sumo_traffic
+    from truav.analysis import sumo_traffic
     cfg = config_from(args)
     sumo_traffic.sumo_home()  # one line naming what to install, before anything starts
     root = check_out_dir("--cache", args.cache) if args.cache is not None else None

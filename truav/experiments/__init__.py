@@ -1,1 +1,1 @@
-"""The paper's experiments: the velocity sweep and the scalability study (the command line: truav/cli/experiment.py)."""
+"""The paper's in-process experiments: the velocity sweep and the scalability study, in cells on a pool or Ray (the fault experiments run swarms: truav/swarm/fault_sweep.py; the command line: truav/cli/experiment.py)."""

@@ -26,12 +26,12 @@ from truav.seeding import EVAL_SEED_OFFSET
 
 CELLS_DIR = "cells"
 BUILTIN_SCHEMES = ("truav", "central", "patrol", "patrol_ctrl")
-"""The experiments' own schemes; any other name in --schemes is an agents.api class (truav.agent_loader)."""
+"""The experiments' own schemes; any other name in --schemes is an agents.api class (truav.analysis.agent_loader)."""
 
 
 def controller_kind(scheme: str) -> str:
     """The trainer's controller kind (trainer.make_controller) of an experiment scheme."""
-    from truav.agent_loader import AGENT_KIND_PREFIX
+    from truav.analysis.agent_loader import AGENT_KIND_PREFIX
     return scheme if scheme in BUILTIN_SCHEMES else AGENT_KIND_PREFIX + scheme
 UNUSED_SECTIONS = {"truav": ("patrol", "central"), "patrol": ("learner", "central"), "central": ("patrol",),
                    "patrol_ctrl": ("learner",),
@@ -94,8 +94,8 @@ def cell_path(out: Path, base: Config, cell: Cell) -> Path:
 def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: int, on_episode,
               world=None):
     from truav import seeding
-    from truav.driver import run_episodes  # here, like the trainer: the CLI's parser loads this module
-    from truav.trainer import make_controller
+    from truav.analysis.driver import run_episodes  # here, like the trainer: the CLI's parser loads this module
+    from truav.analysis.trainer import make_controller
     eval_seeds = [s + EVAL_SEED_OFFSET for s in seeds]
     if scheme == "truav":
         ctrl = make_controller("truav", cfg, eval_seeds, False, controller.learners.q)
@@ -112,9 +112,9 @@ def _evaluate(scheme: str, cfg: Config, seeds: list[int], controller, episodes: 
 
 def run_cell(base: Config, cell: Cell, on_episode: Callable[[int], None] | None = None) -> CellResult:
     """Train then evaluate one cell in this process."""
-    from truav.driver import run_episodes
-    from truav.trainer import make_controller
-    from truav.sumo_traffic import make_world
+    from truav.analysis.driver import run_episodes
+    from truav.analysis.sumo_traffic import make_world
+    from truav.analysis.trainer import make_controller
     cfg = cell.config(base)
     seeds = list(cell.seeds)
     cb = None if on_episode is None else (lambda e, m: on_episode(len(seeds)))

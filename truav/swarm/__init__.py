@@ -1,1 +1,1 @@
-"""The swarm's orchestration: `truav-swarm` CLI, supervisor, run-time fault control, chaos runs, plots (the process lifecycle is truav/lifecycle.py)."""
+"""The swarm's orchestration: supervisor, children, run-time fault control, chaos runs, fault sweeps, the live view and monitor (its command line is truav/cli/; the process lifecycle is truav/lifecycle.py)."""

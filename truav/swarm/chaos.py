@@ -24,15 +24,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from truav import jsonio  # noqa: E402
+from truav.analysis.swarm_plots import fault_lanes  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.faults import FaultPlan, load_plan  # noqa: E402
 from truav.nemesis import heal_at, random_plan  # noqa: E402
+from truav.stats import Effect, effect_text, paired_effect  # noqa: E402
 from truav.swarm import invariants  # noqa: E402
 from truav.swarm.chaos_time import announce  # noqa: E402
 from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
-from truav.swarm.plots import fault_lanes  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
-from truav.stats import Effect, effect_text, paired_effect  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
         ("energy_j", "energy kJ/UAV/episode", 1e-3))

@@ -17,15 +17,16 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from truav import policy_scenario, runio
-from truav.bus import schema, security
+from agents.process.agent_process import AgentOptions
+from agents.state import StateEncoder
+from truav.analysis import policy_scenario, runio
+from truav.analysis.policy_scenario import Fit
+from truav.bus import security
 from truav.checks import check_endpoint, check_in_file, check_out_file
 from truav.config import Config
 from truav.errors import UserError
 from truav.faults import check_plan_for, load_plan
-from truav.policy_scenario import Fit
-from agents.agent_process import AgentOptions
-from agents.state import StateEncoder
+from truav.wire import schema
 from world.uavs import N_ACTIONS
 
 SCHEMES = ("truav", "central", "patrol")
@@ -101,10 +102,10 @@ def check_qtable(flag: str, run: str, cfg: Config, index: int | None = None, ful
 def check_agent_start(flag: str, run: str, name: str, cfg: Config, allow_mismatch: bool = False,
                       index: int = 0) -> Fit:
     """A run of `truav train --agent NAME` to start a swarm of agent ``name`` from: trained by that name, for
-    this many UAVs, in a scenario that fits (truav.policy_scenario), and a state the class loads (tried on a
+    this many UAVs, in a scenario that fits (truav.analysis.policy_scenario), and a state the class loads (tried on a
     throwaway instance of UAV 0, within its call_limit_s)."""
-    from truav import agent_loader
-    from truav.agent_run import agent_file, agent_start_states
+    from truav.analysis import agent_loader
+    from truav.analysis.agent_run import agent_file, agent_start_states
     from truav.call_limit import CallTooLong, call_limited
     try:
         states = agent_start_states(run, name, cfg.scenario.n_uavs, index)
@@ -168,7 +169,7 @@ def check_central_sizes(cfg: Config) -> None:
 
 def check_checkpoint(path: str, cfg: Config, api_agent: bool = False) -> None:
     """An agent checkpoint: resumed from if it exists (then it must be one), else creatable. ``api_agent``:
-    of an agents.api class (agents.api_process: its state arrays, steps, rng_state; no Q-table)."""
+    of an agents.api class (agents.process.api_process: its state arrays, steps, rng_state; no Q-table)."""
     p = Path(path)
     if not p.exists():
         check_out_file("--checkpoint", path)

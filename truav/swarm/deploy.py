@@ -27,9 +27,10 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from truav.bus import keys, security
+from truav.bus import security
 from truav.config import read_toml
 from truav.errors import UserError
+from truav.wire import keys
 
 DEFAULT_PORT = 7447
 _HOST_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,30}$")

@@ -27,9 +27,9 @@ from __future__ import annotations
 import shlex
 from pathlib import Path
 
-from truav.bus import keys
 from truav.bus.acl import file_stem
 from truav.errors import UserError  # a user mistake: one line, exit 2 (as truav/swarm/checks.py)
+from truav.wire import keys
 
 DEFAULT_EXTERNAL_WAIT_S = 300.0
 """How long `up` waits for an external UAV's liveliness token before tick 0: time to read the printed

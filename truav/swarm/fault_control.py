@@ -2,7 +2,7 @@
 on `truav/<run>/fault/<kind>` (so logs show them) and sends the real signals
 for process faults: SIGKILL (+ restart from the checkpoint) for a crash,
 SIGSTOP/SIGCONT for a freeze. Link faults need no action here: every
-process applies them itself (truav.fault_filter.PlanFilter).
+process applies them itself (truav.bus.fault_filter.PlanFilter).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import threading
 import time
 from typing import Callable
 
-from truav.bus import keys, schema
-from truav.faults import Fault, FaultPlan
 from truav.bus.transport import Bus
+from truav.faults import Fault, FaultPlan
+from truav.wire import keys, schema
 
 log = logging.getLogger("truav.faults")
 

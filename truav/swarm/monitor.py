@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agents.shared_beacons import batch_sender_verdict, split_batch
-from truav.stats import shown
-from truav.bus import keys, schema
+from agents.process.shared_beacons import batch_sender_verdict, split_batch
 from truav.bus.inbox import Inbox
 from truav.bus.transport import Bus
+from truav.stats import shown
+from truav.wire import keys, schema
 
 CONTROL_SHUTDOWN = "shutdown"
 MAX_KEPT = 100_000

@@ -26,7 +26,7 @@ CEILING_DOC = "docs/results/reproduction.md, \"The ceiling of each scenario\""
 def reference_metrics(cfg: Config, seed: int, episodes: int) -> dict:
     """Mean coverage (%) and PDR over ``episodes`` episodes of seed ``seed``, per reference scheme, and the
     seconds it took."""
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
 
     started = time.monotonic()
     out: dict = {"seed": seed, "episodes": episodes}

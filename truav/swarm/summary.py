@@ -11,20 +11,20 @@ from pathlib import Path
 import numpy as np
 
 from recorder.record_modes import parts_index_path, snapshot_path
-from truav.bus import keys
-from truav.config import Config
 from truav.atomic import EXIT_NO_SPACE, write_kept
+from truav.config import Config
 from truav.stats import shown
 from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
 from truav.swarm.references import references_for, references_line
 from truav.swarm.restart_cost import restart_costs, restart_lines
+from truav.wire import keys
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
                                        ROUTER_STOP_TIMEOUT_S, SHUTDOWN_SENDERS, WORLD_STOP_TIMEOUT_S, Outcome,
                                        process_of)
 from truav import jsonio
-from truav.policy_scenario import Fit
+from truav.analysis.policy_scenario import Fit
 
 CENTRAL_STATE_VALUES = 50
 """The paper's centralized baseline: each UAV uploads a 50-value state at 10 Hz."""
@@ -173,7 +173,7 @@ class SwarmEnd:
             if self.central:
                 _print_central(cfg, opts, world, agents, controller, cp, self.children.starts.get("controller", 1))
             if opts.plot and monitor.tracks:
-                from truav.swarm.plots import swarm_figure
+                from truav.analysis.swarm_plots import swarm_figure
                 picture = swarm_figure(cfg, monitor, out / "summary.png", title=f"swarm {opts.run!r}", plan=self.plan,
                                        episodes_done=len((world or {}).get("episodes") or []) if world else None,
                                        missed=(world or {}).get("deadline_misses"))
@@ -196,7 +196,7 @@ class SwarmEnd:
 
 
 def stall_text(world: dict | None) -> str | None:
-    """The world's stalls (world.world_process.STALL_MIN_S), in one line, or None."""
+    """The world's stalls (world.process.world_process.STALL_MIN_S), in one line, or None."""
     stalls = (world or {}).get("stalls") or []
     if not stalls:
         return None
@@ -382,7 +382,7 @@ def per_uav_line(per_uav: list[dict]) -> str:
 
 
 def rejection_summary(world, agents) -> str:
-    """One line: how many messages the world and the agents refused, by reason (truav.bus.guard)."""
+    """One line: how many messages the world and the agents refused, by reason (truav.wire.guard)."""
     by_reason: dict[str, int] = {}
     for stats in [(world or {}).get("rejected") or {}] + [((a or {}).get("bus") or {}).get("rejected") or {}
                                                           for a in agents]:

@@ -43,25 +43,26 @@ import sys
 import time
 from pathlib import Path
 
-from agents.agent_process import AgentOptions
-from agents.central_process import ControllerOptions
-from recorder.process import recorder_argv
+from agents.process.agent_process import AgentOptions
+from agents.process.central_process import ControllerOptions
+from recorder.process.recorder import recorder_argv
 from truav import kernel_cache
-from truav.warmup import ensure_compiled
-from truav.bus import guard, transport
+from truav.analysis.warmup import ensure_compiled
+from truav.bus import transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
 from truav.faults import load_plan
 from truav.lifecycle import signals_handled
 from truav.options import to_argv
+from truav.wire import guard
 from truav.swarm.children import (Children, ListenError, check_listen, default_endpoint, free_loopback_endpoint,
                                   stop_recorded_pids, wait_for_port, ROUTER_READY_LINE)
+from truav.atomic import no_space
 from truav.swarm.external import instructions
 from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import Healer
 from truav.swarm.monitor import Monitor
-from truav.atomic import no_space
 from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, OutDirError, check_record_path, prepare_swarm_dir,
                                 write_run_file)
 from truav.swarm.summary import SwarmEnd, _print_central  # noqa: F401 - _print_central: tests
@@ -69,7 +70,7 @@ from truav.swarm.swarm_options import (  # noqa: F401 - re-exported: `down`, ben
     AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S, ROUTER_START_TIMEOUT_S, Outcome, SwarmOptions,
     agent_groups, default_out_dir, group_name, process_of)
 from truav.swarm.swarm_watch import SwarmWatch
-from world.world_process import WorldOptions
+from world.process.world_process import WorldOptions
 
 __all__ = ["SwarmOptions", "run_swarm", "free_loopback_endpoint", "wait_for_port", "stop_recorded_pids",
            "DOWN_IDENTITY", "PID_FILE", "SCENARIO_FILE"]

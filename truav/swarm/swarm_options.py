@@ -7,17 +7,17 @@ import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from agents.agent_process import AgentOptions
-from agents.central_process import ControllerOptions
-from truav.bus import keys
-from truav.bus.schema import DEFAULT_LOCKSTEP_WAIT_S
+from agents.process.agent_process import AgentOptions
+from agents.process.central_process import ControllerOptions
+from recorder.record_modes import RecordModes
 from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.stopping import exit_code_for
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
-from recorder.record_modes import RecordModes
-from world.world_process import WorldOptions
+from truav.wire import keys
+from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
+from world.process.world_process import WorldOptions
 
 DOWN_IDENTITY = "supervisor"
 """The sender of `truav-swarm down`'s shutdown request."""
@@ -60,7 +60,7 @@ class SwarmOptions:
     qtable: str | None = None
     greedy: bool = False
     policy_fit: dict | None = None
-    """How the --qtable/--policy fits the scenario it was trained in (truav.policy_scenario.Fit.as_json):
+    """How the --qtable/--policy fits the scenario it was trained in (truav.analysis.policy_scenario.Fit.as_json):
     summary.json records it, and the summary says a mismatch the user allowed or a record that is missing."""
     out: str | None = None
     """Where the run's files go; None: :attr:`out_dir`'s default, runs/swarm-<run>."""

@@ -8,14 +8,14 @@ import signal
 import sys
 import time
 
-from truav.bus import keys, schema
+from truav.atomic import EXIT_NO_SPACE
 from truav.bus.transport import Bus
 from truav.lograte import Every
 from truav.swarm import external
-from truav.atomic import EXIT_NO_SPACE
 from truav.swarm.children import exit_text
 from truav.swarm.healing import RESTART_BACKOFF_MAX_S, RESTART_RECORD, ROUTER_BACKOFF_MAX_S, Restart
 from truav.swarm.restart_cost import MAX_DEATHS
+from truav.wire import keys, schema
 from truav.swarm.swarm_options import (RECORDER_START_TIMEOUT_S, ROUTER_RECONNECT_WAIT_S, ROUTER_START_TIMEOUT_S,
                                        RSS_PERIOD_S, STATUS_PERIOD_S, process_of)
 

@@ -23,9 +23,9 @@ import foxglove
 from recorder.foxglove import FoxgloveMirror, Out
 from recorder.mcap_log import JSON_ENCODING, MIRROR_PREFIX
 from recorder.schemas import MIRROR_SCHEMA_PREFIX, envelope_fields, mirror_builder, mirror_schema
-from truav.bus import keys
-from truav.bus.transport import Bus
 from truav import jsonio
+from truav.bus.transport import Bus
+from truav.wire import keys
 
 log = logging.getLogger("truav.view")
 

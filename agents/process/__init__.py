@@ -1,0 +1,1 @@
+"""The agents as processes on the bus: AgentNode (agent_process and its lock-step, real-time, reports and federated parts), agents of an agents.api class (api_process), the patrol and central schemes (scheme_process, central_process, controller_host), several agents per process (agent_host, shared_beacons)."""
