@@ -306,8 +306,11 @@ def test_a_class_breaking_during_training_stops_resumably(tmp_path, monkeypatch,
         flag.touch()
         assert cli.main([*args, "--out", str(tmp_path / "cut")]) == 1
         err = capsys.readouterr().err.strip()
-        assert "\n" not in err and "act raised ValueError: bug" in err and "(4 of 6 episodes" in err \
-            and "--resume" in err, err
+        assert "\n" not in err and "act raised ValueError: bug" in err and "--resume" in err, err
+        kept = int(re.search(r"\((\d+) of 6 episodes", err).group(1))
+        # One worker: it breaks in episode 4, checkpointed to its start. Two: the other chunk ends the
+        # episode it is in and checkpoints it (wherever its own load put it), never less than one episode.
+        assert kept == 4 if workers == "1" else 1 <= kept <= 4, err
         flag.unlink()  # the fix
         assert cli.main([*args, "--out", str(tmp_path / "cut"), "--resume"]) == 0
         for name in ("metrics.csv", "agent.npz"):

@@ -306,12 +306,13 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
     for p in procs:
         p.start()
     results: dict[int, RunResult] = {}
+    failed: dict[int, str] = {}  # an API class broke in these chunks: their one lines
     try:
-        while len(results) < len(procs):
+        while len(results) + len(failed) < len(procs):
             try:
                 msg = out.get(timeout=2.0)
             except queue_mod.Empty:
-                dead = [p for i, p in enumerate(procs) if i not in results and not p.is_alive()]
+                dead = [p for i, p in enumerate(procs) if i not in results and i not in failed and not p.is_alive()]
                 if dead:
                     raise RuntimeError(f"worker {dead[0].pid} died with exit code {dead[0].exitcode}")
                 continue
@@ -321,9 +322,16 @@ def _run_workers(ctx, kind, cfg, seeds, chunks, episodes, train, q, on_progress,
                 results[msg[1]] = msg[2]
             elif msg[0] == "error":
                 raise RuntimeError(f"worker {msg[1]} failed: {msg[2]}")
-            elif msg[0] == "agent_failure":  # the API class broke: its one line
-                from agents.api_controller import AgentFailure
-                raise AgentFailure(msg[2])
+            elif msg[0] == "agent_failure":
+                failed[msg[1]] = msg[2]
+                if ckpt is None or ckpt.stop is None:
+                    break
+                # The other chunks end their episode and checkpoint it, as on Ctrl-C, so that a resume after
+                # the fix keeps all they learned (killing them would lose it since their last checkpoint).
+                ckpt.stop.set()
+        if failed:  # the API class broke: the first chunk's one line
+            from agents.api_controller import AgentFailure
+            raise AgentFailure(failed[min(failed)])
     finally:
         for p in procs:
             if p.is_alive():  # a checkpointing worker ignores SIGTERM (see _worker); its checkpoints are atomic
