@@ -117,7 +117,7 @@ def figure(cells, sac, oracles, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5.2))
-    style = {DEEP: ("C3", "s"), "truav": ("C0", "o"), "patrol": ("C2", "^"), "central": ("C1", "D")}
+    style = {DEEP: ("C3", "s"), "truav": ("C0", "o"), "patrol": ("C7", "^"), "central": ("C1", "D")}
     for scheme, label in SCHEMES:
         src = sac if scheme == "central" else cells
         speeds = sorted(src.get(scheme, {}))
