@@ -32,7 +32,7 @@ SMALL_MODULE = textwrap.dedent('''
 
 def test_a_lockstep_swarm_of_the_deep_learner_ends_with_the_state_training_reaches(tmp_path):
     import sys
-    from truav.trainer import run_chunk
+    from truav.analysis.trainer import run_chunk
     mods = tmp_path / "mods"
     mods.mkdir()
     (mods / "smalliql.py").write_text(SMALL_MODULE)

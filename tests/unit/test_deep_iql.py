@@ -15,10 +15,12 @@ import pytest
 from agents import deep_iql
 from agents.api_controller import ApiController
 from agents.deep_iql_net import QNets
-from truav import agent_loader, cli, seeding
-from truav.agent_loader import trial_view
+from truav import seeding
+from truav.analysis import agent_loader
+from truav.cli import main as cli
+from truav.analysis.agent_loader import trial_view
 from truav.config import Config
-from truav.driver import run_episodes
+from truav.analysis.driver import run_episodes
 
 REPO = Path(__file__).resolve().parents[2]
 # Tiny buffers and early, frequent updates: a few 10-step episodes exercise replay wrap-around, Adam and
