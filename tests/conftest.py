@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -23,6 +26,28 @@ SLOW_S = 20.0  # a test recorded longer than this is marked `slow`
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--record-durations", action="store_true",
                      help=f"rewrite {DURATIONS.relative_to(TESTS.parent)} with this run's test durations")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the numba kernels once, before any test (and, under xdist, before the workers start; this
+    hook runs ahead of xdist's). A fresh clone has none cached: left to the tests, the first ones to meet
+    a kernel compile it, each worker and each swarm process its own copy at once, and the compile lands
+    in whichever test came first."""
+    if hasattr(session.config, "workerinput"):
+        return
+    from truav.analysis.warmup import needs_compile
+    if not needs_compile():
+        return
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    say = reporter.write_line if reporter is not None else print
+    began = time.monotonic()
+    say("compiling the numba kernels once for this checkout (nothing cached yet) ...")
+    done = subprocess.run([sys.executable, "-c", "from truav.analysis.warmup import compile_kernels; "
+                           "compile_kernels()"], cwd=TESTS.parent, capture_output=True, text=True)
+    if done.returncode != 0:  # the tests that need them will say what is wrong, each with its name
+        say(f"compiling the kernels failed (exit {done.returncode}): {done.stderr.strip().splitlines()[-1:]}")
+    else:
+        say(f"compiled in {time.monotonic() - began:.0f} s")
 
 
 def recorded_durations() -> dict[str, float]:
