@@ -31,14 +31,15 @@ import numpy as np
 
 from truav.actions import HOVER, N_ACTIONS
 from truav.config import Config
+from truav.wire.field_checks import _beacon_fields as _wire_beacon_fields
+from truav.wire.schema_names import MAX_BEACON_FIELD_NAME, MAX_BEACON_FIELDS, SchemaError
 
 API_VERSION = 1
 SUPPORTED_API_VERSIONS = (1,)
 """The versions this TRUAV drives (agents.loader refuses a class declaring another)."""
 
-MAX_BEACON_FIELDS = 8
-MAX_BEACON_FIELD_NAME = 32
-"""beacon_fields(): at most this many entries, names this long, values bool, int or float: a beacon stays small."""
+# beacon_fields(): at most MAX_BEACON_FIELDS entries, printable names of 1-MAX_BEACON_FIELD_NAME characters,
+# values bool, int64 or finite float: a beacon stays small. The wire checks the same (truav.wire.field_checks).
 
 REQUIRED_METHODS = ("act", "learn", "state_dict", "load_state_dict")
 
@@ -190,16 +191,13 @@ class BatchedViews:
 
 
 def beacon_problem(fields: Any) -> str | None:
-    """What is wrong with a beacon_fields() result, or None."""
+    """What is wrong with a beacon_fields() result, or None (what the wire's beacon would refuse)."""
     if not isinstance(fields, dict):
         return f"beacon_fields returned {type(fields).__name__}, not a dict"
-    if len(fields) > MAX_BEACON_FIELDS:
-        return f"beacon_fields returned {len(fields)} fields, more than {MAX_BEACON_FIELDS}"
-    for k, v in fields.items():
-        if not isinstance(k, str) or not 0 < len(k) <= MAX_BEACON_FIELD_NAME:
-            return f"beacon_fields: the name {k!r} is not a string of 1-{MAX_BEACON_FIELD_NAME} characters"
-        if not isinstance(v, (bool, int, float, np.integer, np.floating)):
-            return f"beacon_fields: {k!r} is {type(v).__name__}, not a bool, int or float"
+    try:
+        _wire_beacon_fields("beacon_fields", fields)
+    except SchemaError as exc:
+        return exc.detail
     return None
 
 

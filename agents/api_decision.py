@@ -4,8 +4,8 @@ The agent process of `truav-swarm up --agent NAME` (agents.process.api_process) 
 TruavDecision runs TRUAV's: the view is built from the world's observation and the beacons of the
 tick (in UAV-id order), the reward is the paper's local reward with the overlap of the peers heard,
 exactly as agents.api_controller builds them in process, so a lock-step swarm flies what
-`truav train --agent NAME` flies. The wire's beacon has fixed fields: beacon_fields() are not carried
-on the bus (peers see {}).
+`truav train --agent NAME` flies. What beacon_fields() returns after an act goes out in the UAV's next
+beacon (truav.wire.messages.Beacon.fields) and its peers hear it in their views, as in process.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from __future__ import annotations
 import numpy as np
 
 from agents.agent_decision import DONE_ACK_ACTION, peer_arrays
-from agents.api import HeardBeacon, LocalView, action_problem
+from agents.api import HeardBeacon, LocalView, action_problem, beacon_problem
 from agents.api_controller import nearest_rsu_m
 from agents.reward import Reward
 from agents.state import neighbour_features
 from truav import seeding
-from truav.call_limit import call_limited
+from truav.call_limit import CallTooLong, call_limited
 from truav.config import Config
 from truav.wire import schema
 from world.network import rsu_positions
@@ -26,7 +26,8 @@ from world.uavs import action_velocity
 
 
 class IllegalAction(ValueError):
-    """act() returned what is not an action (the message says what)."""
+    """act() returned what is not an action, or beacon_fields() failed or returned what no beacon carries
+    (the message says what)."""
 
 
 class ApiDecision:
@@ -45,17 +46,19 @@ class ApiDecision:
         self.prev_in_range = 0.0
         self.view: LocalView | None = None
         self.action = 0
+        self.fields: dict = {}
+        """What beacon_fields() returned after the last act: the next beacon carries it."""
 
     def beacon(self, obs: schema.Obs) -> schema.Beacon:
         """This UAV's beacon for the tick of ``obs``: at an episode's first tick no action was taken yet."""
         if obs.episode != self.episode:
-            self.velocity = (0.0, 0.0)
-        return schema.Beacon(uav=self.uav, tick=obs.tick, pos=obs.pos, vel=self.velocity)
+            self.velocity, self.fields = (0.0, 0.0), {}
+        return schema.Beacon(uav=self.uav, tick=obs.tick, pos=obs.pos, vel=self.velocity, fields=self.fields)
 
     def learn(self, obs: schema.Obs, beacons: dict[int, schema.Beacon]) -> float | None:
         """The view of ``obs`` with the tick's beacons; at an episode's first observation begin it, else learn
         from the last step. The reward, or None at an episode's start. Exceptions are the agent's."""
-        heard = tuple(HeardBeacon(j, tuple(beacons[j].pos), tuple(beacons[j].vel), {}) for j in sorted(beacons))
+        heard = tuple(HeardBeacon(j, tuple(beacons[j].pos), tuple(beacons[j].vel), beacons[j].fields) for j in sorted(beacons))
         new = obs.episode != self.episode
         if new:
             self.episode, self.t = obs.episode, 0
@@ -86,11 +89,21 @@ class ApiDecision:
             raise IllegalAction(problem)
         self.action = int(a)
         self.velocity = tuple(action_velocity(np.array(self.action), obs.speed_max))
+        try:
+            fields = call_limited(self.limit_s, self.agent.beacon_fields)
+        except CallTooLong as exc:
+            raise IllegalAction(f"beacon_fields {exc}") from None
+        except Exception as exc:
+            raise IllegalAction(f"beacon_fields raised {type(exc).__name__}: {' '.join(str(exc).split())}") from None
+        problem = beacon_problem(fields)
+        if problem:
+            raise IllegalAction(problem)
+        self.fields = dict(fields)
         return schema.Action(uav=self.uav, tick=obs.tick, action=self.action)
 
     def hover(self, obs: schema.Obs) -> schema.Action:
         """The action when the agent failed: hover (its beacons then say it stands still)."""
-        self.action, self.velocity = schema.HOVER, (0.0, 0.0)
+        self.action, self.velocity, self.fields = schema.HOVER, (0.0, 0.0), {}
         return schema.Action(uav=self.uav, tick=obs.tick, action=schema.HOVER)
 
     def acknowledge(self, obs: schema.Obs) -> schema.Action:

@@ -17,6 +17,8 @@ from typing import Any, Callable, NamedTuple, Optional
 
 import msgpack
 
+from truav.wire.messages import _SENT_IF_SET
+
 SCHEMA_PREFIX = "truav."  # bus schema name = SCHEMA_PREFIX + kind
 MIRROR_SCHEMA_PREFIX = "truav.json."
 KINDS = ("tick", "obs", "beacon", "action", "metrics", "fault", "control", "positions", "state", "command", "health",
@@ -106,7 +108,9 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
         "speed_max": _NUM, "done": {"type": "boolean"}, "densest_sector": _INT,
         "exclusive": _INT,
     },
-    "beacon": {"uav": _INT, "tick": _INT, "pos": _XY, "vel": {**_XY, "description": "[vx, vy] m/s"}},
+    "beacon": {"uav": _INT, "tick": _INT, "pos": _XY, "vel": {**_XY, "description": "[vx, vy] m/s"},
+               "fields": {"type": "object", "description": "an API agent's beacon_fields(), present only if any "
+                          "(at most 8; values bool, int or number)"}},
     "action": {"uav": _INT, "tick": _INT, "action": _INT},
     "beacons": {"entries": {"type": "array", "description": "--batch-beacons: one process's beacons of a tick, "
                             "each [uav, tick, [x, y], [vx, vy]]",
@@ -169,7 +173,8 @@ def bus_schema(kind: str) -> dict[str, Any]:
         "description": f"TRUAV bus message, kind={kind!r}, msgpack-encoded map",
         "type": "object",
         "properties": {**_ENVELOPE_PROPS, **body},
-        "required": [*(k for k in _ENVELOPE_PROPS if k != "inc"), *body] if body else ["kind", "src", "seq"],
+        "required": [*(k for k in _ENVELOPE_PROPS if k != "inc"), *(k for k in body if k not in _SENT_IF_SET.get(kind, ()))]
+        if body else ["kind", "src", "seq"],
     }
 
 

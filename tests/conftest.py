@@ -30,24 +30,29 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the numba kernels once, before any test (and, under xdist, before the workers start; this
-    hook runs ahead of xdist's). A fresh clone has none cached: left to the tests, the first ones to meet
-    a kernel compile it, each worker and each swarm process its own copy at once, and the compile lands
-    in whichever test came first."""
+    hook runs ahead of xdist's): the commands' (truav.analysis.warmup.compile_kernels) and the other
+    specializations the tests meet (compile_test_kernels), in two processes side by side. A fresh clone
+    has none cached: left to the tests, the first ones to meet a kernel compile it, each worker and each
+    swarm process its own copy at once, and the compile lands in whichever test came first. Cached, this
+    loads them in seconds (only with -n or on a cold machine)."""
     if hasattr(session.config, "workerinput"):
         return
     from truav.analysis.warmup import needs_compile
-    if not needs_compile():
+    workers = getattr(session.config.option, "numprocesses", None)
+    if not needs_compile() and not workers:  # a single test file: only a cold machine waits here
         return
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
     say = reporter.write_line if reporter is not None else print
     began = time.monotonic()
-    say("compiling the numba kernels once for this checkout (nothing cached yet) ...")
-    done = subprocess.run([sys.executable, "-c", "from truav.analysis.warmup import compile_kernels; "
-                           "compile_kernels()"], cwd=TESTS.parent, capture_output=True, text=True)
-    if done.returncode != 0:  # the tests that need them will say what is wrong, each with its name
-        say(f"compiling the kernels failed (exit {done.returncode}): {done.stderr.strip().splitlines()[-1:]}")
-    else:
-        say(f"compiled in {time.monotonic() - began:.0f} s")
+    say("compiling (or loading) the numba kernels before the tests, on two processes ...")
+    compiles = [subprocess.Popen([sys.executable, "-c", f"from truav.analysis import warmup; warmup.{fn}()"],
+                                 cwd=TESTS.parent, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                for fn in ("compile_kernels", "compile_test_kernels")]
+    for proc in compiles:
+        _, err = proc.communicate()
+        if proc.returncode != 0:  # the tests that need the kernels will say what is wrong, each with its name
+            say(f"compiling the kernels failed (exit {proc.returncode}): {err.strip().splitlines()[-1:]}")
+    say(f"compiled in {time.monotonic() - began:.0f} s")
 
 
 def recorded_durations() -> dict[str, float]:

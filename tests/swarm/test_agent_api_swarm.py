@@ -53,6 +53,48 @@ def test_lockstep_swarm_of_the_random_agent_equals_training_it(tmp_path):
             assert np.array_equal(got[k], expected[k][e, 0], equal_nan=True), (e, k)
 
 
+GOSSIP = textwrap.dedent('''
+    from agents.api import UavAgent
+
+    class Gossip(UavAgent):
+        """Flies by what its peers' beacons say: a field each peer drew after its last act."""
+        def act(self, view):
+            heard = sum(b.fields.get("draw", 0) for b in view.beacons)
+            flags = sum(bool(b.fields.get("even")) for b in view.beacons)
+            self.draw = int(self.rng.integers(1000))
+            return (heard + flags + self.draw) % 16
+        def beacon_fields(self):
+            return {"draw": self.draw, "even": self.draw % 2 == 0, "share": self.draw / 1000.0}
+''')
+
+
+def test_beacon_fields_go_out_on_the_bus_and_the_swarm_flies_what_training_flies(tmp_path):
+    """A class steering by its peers' beacon fields: a lock-step swarm of it (its fields in each UAV's beacon,
+    over Zenoh) takes the in-process adapter's action at every step; its recording holds the fields."""
+    (tmp_path / "gossip.py").write_text(GOSSIP)
+    sys.path.insert(0, str(tmp_path))
+    try:
+        from gossip import Gossip
+        rec = Recorder(ApiController("gossip", Gossip, CFG, [SEED]))
+        run_episodes(CFG, [SEED], rec, EPISODES)
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("gossip", None)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    record = tmp_path / "gossip.mcap"
+    out = up(tmp_path, "gossip", "--agent", "gossip:Gossip", "--record", str(record), env=env)
+    world = json.loads((out / "world.json").read_text())
+    assert world["hover_answers"] == 0 and world["actions_digest"] == rec.digests  # every action of every step
+    from recorder.reader import iter_messages
+    from truav.wire import schema
+    beacons = [schema.decode(payload) for _, payload, _, _ in iter_messages(record, include=["*/uav/*/beacon"])]
+    with_fields = [b for b in beacons if b.fields]
+    assert with_fields and set(with_fields[0].fields) == {"draw", "even", "share"}
+    # an episode's first beacon carries none (no act yet), every later one does (T + 1 ticks an episode: its `done` one)
+    assert all(bool(b.fields) == (b.tick % (CFG.scenario.steps_per_episode + 1) != 0) for b in beacons), \
+        [(b.tick, b.fields) for b in beacons][:20]
+
+
 def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_path):
     (tmp_path / "flaky.py").write_text(textwrap.dedent('''
         from agents.api import UavAgent
@@ -65,12 +107,16 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
                 while self.uav == 3 and view.step == 6:
                     pass  # hangs: the call limit ends it
                 return 8 if self.uav == 2 and view.step == 5 else 0
+            def beacon_fields(self):
+                return {"note": "text"} if self.uav == 0 else {}  # no beacon carries a str: that act is missed
     '''))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
     rec = tmp_path / "flaky.mcap"
     out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", "--record", str(rec), env=env)
     agents = [json.loads((out / f"agent{i}.json").read_text()) for i in range(CFG.scenario.n_uavs)]
-    assert [a["agent_errors"] for a in agents] == [0, EPISODES, 0, EPISODES]
+    T = CFG.scenario.steps_per_episode
+    assert [a["agent_errors"] for a in agents] == [EPISODES * T, EPISODES, 0, EPISODES]
+    assert agents[0]["first_agent_error"] == "beacon_fields['note'] must be a bool, int or float, got str"
     assert agents[1]["first_agent_error"] == "act raised RuntimeError: lost the plot"
     assert agents[3]["first_agent_error"] == "act took longer than 0.3 s (its call_limit_s)"
     assert "agent flaky:Flaky: act raised RuntimeError: lost the plot" in (out / "logs" / "agent1.log").read_text()

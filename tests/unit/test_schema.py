@@ -147,6 +147,34 @@ def test_beacon_size_is_small_and_pinned() -> None:
     assert len(encode(worst)) == schema.BEACON_MAX_BYTES
 
 
+def test_beacon_fields_ride_along_only_when_set_and_are_bounded() -> None:
+    """An API agent's beacon_fields(): off the wire when empty (TRUAV's beacon keeps its bytes), round-tripped
+    when set, and a hostile map (too many, a long or unprintable name, a str or NaN value) refused."""
+    seq = Sequencer("uav/3", clock=fake_clock(), incarnation=1)
+    plain = seq.stamp(Beacon(uav=3, tick=7, pos=(1.0, 2.0), vel=(0.5, 0.0)))
+    assert b"fields" not in encode(plain) and decode(encode(plain), "beacon").fields == {}
+    sent = seq.stamp(Beacon(uav=3, tick=7, pos=(1.0, 2.0), vel=(0.5, 0.0),
+                            fields={"load": 3, "busy": True, "share": 0.25, "n": np.int64(2)}))
+    assert decode(encode(sent), "beacon").fields == {"load": 3, "busy": True, "share": 0.25, "n": 2}
+    worst = Beacon(uav=1023, tick=schema.INT64_MAX, pos=(1.0, 2.0), vel=(3.0, 4.0), src="uav/1023",
+                   seq=schema.UINT64_MAX, t=schema.INT64_MAX, inc=schema.INT64_MAX,
+                   fields={f"{i}".ljust(schema.MAX_BEACON_FIELD_NAME, "x"): schema.INT64_MAX
+                           for i in range(schema.MAX_BEACON_FIELDS)})
+    assert len(encode(worst)) == schema.BEACON_MAX_BYTES + schema.BEACON_FIELDS_MAX_BYTES
+    wire = msgpack.unpackb(encode(sent))
+    for bad in ({str(i): i for i in range(schema.MAX_BEACON_FIELDS + 1)}, {"x" * 33: 1}, {"": 1}, {"\x07": 1},
+                {"a": "text"}, {"a": [1]}, {"a": None}, {"a": 2 ** 63}, [1, 2]):
+        with pytest.raises(SchemaError):
+            decode(msgpack.packb({**wire, "fields": bad}), "beacon")
+    with pytest.raises(SchemaError):  # NaN cannot be built, nor decoded
+        decode(msgpack.packb({**wire, "fields": {"a": float("nan")}}), "beacon")
+    # a beacon with fields but without its position is still missing a field, not told of an extra one
+    with pytest.raises(SchemaError, match="lacks"):
+        decode(msgpack.packb({k: v for k, v in wire.items() if k != "pos"}), "beacon")
+    with pytest.raises(SchemaError, match="unexpected"):
+        decode(msgpack.packb({**msgpack.unpackb(encode(plain)), "extra": 1}), "beacon")
+
+
 def test_constructors_normalise_numpy_and_ints() -> None:
     o = Obs(tick=np.int64(3), episode=np.uint8(1), uav=np.int32(2), pos=np.array([1, 2], dtype=np.float32),
             vehicles_in_range=np.int64(0), queued_packets=0, relayed=0, covered=0, energy_j=1,

@@ -14,7 +14,7 @@ import msgpack
 import numpy as np
 
 from truav.wire.field_checks import Check, _src, _uint63
-from truav.wire.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _OPTIONAL_FIELDS, _SIZE_LIMIT,
+from truav.wire.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _LOOSE_LIMITS, _OPTIONAL_FIELDS, _SENT_IF_SET, _SIZE_LIMIT,
                                 _UNPACK_LIMITS, _WIRE_KEYS, MESSAGE_CLASSES, M, Message)
 from truav.wire.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
                                     R_MISSING_FIELD, R_NOT_BYTES, R_NOT_MAP, R_NOT_MSGPACK, R_TOO_LARGE, R_UNKNOWN_KIND,
@@ -30,8 +30,11 @@ def encode(msg: Message) -> bytes:
         raise SchemaError(R_UNSTAMPED, f"{kind} has no src; stamp it with a Sequencer (or publish via a Bus)")
     wire: dict[str, Any] = {"v": SCHEMA_VERSION, "kind": kind, "src": msg.src, "seq": msg.seq, "t": msg.t,
                             "inc": msg.inc}
+    if_set = _SENT_IF_SET[kind]
     for name in _BODY_FIELDS[kind]:
         value = getattr(msg, name)
+        if if_set and name in if_set and not value:
+            continue  # an optional field left empty stays off the wire
         wire[name] = value.tolist() if type(value) is np.ndarray else value  # qshare's rows and counts
     try:
         data = msgpack.packb(wire, use_bin_type=True)
@@ -156,6 +159,8 @@ def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
     """A wire map of ``kind`` whose keys are not the kind's: an older sender's (without ``inc``, taken as
     0), else SchemaError (a missing field first, else the extra ones). (The checks on the keys of
     ``decode`` as it was: ``obj.keys() != _WIRE_KEYS[kind]`` led here.)"""
+    if obj.keys() == _WIRE_KEYS[kind]:  # every key, the optional ones sent (decode counted without them)
+        return obj
     added = {k: v for k, v in _OPTIONAL_FIELDS[kind].items() if k not in obj}
     if added:  # an older sender, before fields added since: their defaults
         filled = {**obj, **added}
@@ -166,12 +171,14 @@ def _wire_keys_differ(obj: dict[Any, Any], kind: str) -> dict[Any, Any]:
     if obj.keys() == _LEGACY_WIRE_KEYS[kind]:  # an older sender: incarnation unknown
         return {**obj, "inc": 0}
     expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
-    missing = [k for k in expected if k not in obj]
+    missing = [k for k in expected if k not in obj and k not in _SENT_IF_SET[kind]]
     if missing:
         raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
     extra = [k for k in obj if k not in expected]
     raise SchemaError(R_EXTRA_FIELD, f"{kind} has unexpected {[repr(k)[:40] for k in extra[:5]]}")
 
+
+_ABSENT = object()  # a field not in a wire map
 
 MAX_REMEMBERED_TEXTS = 4096
 """Strings a text check accepted that the decoder remembers (per check; forgotten all at once when full, so
@@ -191,13 +198,22 @@ def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
                            "R_UNSTAMPED": R_UNSTAMPED}
     plan = cls._PLAN
     src_var = next(f"v{i}" for i, (name, _, _) in enumerate(plan) if name == "src")
-    body: list[str] = ["try:", *(f"    v{i} = obj[{name!r}]" for i, (name, _, _) in enumerate(plan)),
+    if_set = cls.SENT_IF_SET
+    env["_ABSENT"] = _ABSENT
+    body: list[str] = ["try:", *(f"    v{i} = obj[{name!r}]" for i, (name, _, _) in enumerate(plan)
+                                 if name not in if_set),
                        "except KeyError:", "    _keys_differ(obj, _kind)", "    raise",
                        f"if {src_var} == '':", f"    raise SchemaError(R_UNSTAMPED, {cls.KIND + ' has an empty src'!r})"]
     fields: list[str] = []
     for i, (name, path, check) in enumerate(plan):
         v, call = f"v{i}", f"v{i} = _c{i}(_p{i}, v{i})"
         env[f"_c{i}"], env[f"_p{i}"] = check, path
+        if name in if_set:  # off the wire when empty: its default, else checked
+            env[f"_d{i}"] = _OPTIONAL_FIELDS[cls.KIND][name]
+            body += [f"{v} = obj.get({name!r}, _ABSENT)", f"if {v} is _ABSENT:", f"    {v} = _d{i}", "else:",
+                     f"    {call}"]
+            fields.append(f"d[{name!r}] = {v}")
+            continue
         fast = getattr(check, "FAST", None)
         tag = fast[0] if isinstance(fast, tuple) and fast else None
         if tag == "int" and type(fast[1]) is int and type(fast[2]) is int:
@@ -232,7 +248,8 @@ def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
 
 _REMEMBERED: dict[int, tuple[Check, set[str]]] = {}  # id(text check) -> (the check, kept alive; what it accepted)
 _KIND_PLAN: dict[str, tuple[int, int, Callable[[dict[str, Any]], Message]]] = {
-    kind: (_SIZE_LIMIT[kind], len(_WIRE_KEYS[kind]), _compile_builder(cls))  # type: ignore[arg-type]
+    kind: (_SIZE_LIMIT[kind], len(_WIRE_KEYS[kind]) - len(_SENT_IF_SET[kind]),  # type: ignore[arg-type]
+           _compile_builder(cls))
     for kind, cls in MESSAGE_CLASSES.items()}
 """kind -> (its size limit, its number of wire keys, its builder): what ``decode`` needs of a kind."""
 

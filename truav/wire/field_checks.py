@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from truav.wire.keys import MAX_UAVS
-from truav.wire.schema_names import (INT64_MAX, MAX_ARGS_DEPTH, MAX_ARGS_NODES, MAX_ARGS_STR_LEN, MAX_NAME_LEN,
-                                    MAX_PARAM_STR_LEN, MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_OUT_OF_RANGE,
+from truav.wire.schema_names import (INT64_MAX, MAX_ARGS_DEPTH, MAX_ARGS_NODES, MAX_ARGS_STR_LEN,
+                                    MAX_BEACON_FIELD_NAME, MAX_BEACON_FIELDS, MAX_NAME_LEN, MAX_PARAM_STR_LEN, MAX_SMALL_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_OUT_OF_RANGE,
                                     UINT64_MAX, _NAME_RE, _SRC_RE, SchemaError)
 from truav.actions import HOVER, N_ACTIONS
 
@@ -229,6 +229,29 @@ _param_text = _text(MAX_PARAM_STR_LEN, allow_empty=True)
 
 
 _printable_src = _text(MAX_SRC_LEN, re.compile(r"[ -~]+"))  # a sender as a receiver names it: "?", "(other senders)"
+
+
+_beacon_field_name = _text(MAX_BEACON_FIELD_NAME, re.compile(r"[ -~]+"))
+
+
+def _beacon_field_value(name: str, v: Any) -> bool | int | float:
+    if isinstance(v, _BOOL_TYPES):
+        return bool(v)
+    if isinstance(v, _INT_TYPES):
+        return _int64(name, v)
+    if isinstance(v, (float, np.floating)):
+        return _finite(name, v)
+    raise SchemaError(R_BAD_TYPE, f"{name} must be a bool, int or float, got {type(v).__name__}")
+
+
+def _beacon_fields(name: str, v: Any) -> dict[str, bool | int | float]:
+    """A beacon's extra fields: at most MAX_BEACON_FIELDS, printable names of 1-MAX_BEACON_FIELD_NAME
+    characters, values bool, int64 or finite float."""
+    if not isinstance(v, Mapping):
+        raise SchemaError(R_BAD_TYPE, f"{name} must be a map")
+    if len(v) > MAX_BEACON_FIELDS:
+        raise SchemaError(R_OUT_OF_RANGE, f"{name} has {len(v)} entries, cap is {MAX_BEACON_FIELDS}")
+    return {_beacon_field_name(f"{name} key", k): _beacon_field_value(f"{name}[{k!r}]", x) for k, x in v.items()}
 
 
 def _count_map(max_entries: int, key_check: Check) -> Check:

@@ -5,14 +5,14 @@ and parsing limits of each kind."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar, TypeVar, Union
 
 import numpy as _np
 
 from truav.wire import keys
-from truav.wire.field_checks import (Check, _action, _action_or_hover, _bool, _choice, _count_map, _counts, _finite, _floats, _int, _ints,
+from truav.wire.field_checks import (Check, _action, _beacon_fields, _action_or_hover, _bool, _choice, _count_map, _counts, _finite, _floats, _int, _ints,
                                     _json_like, _n_uavs, _name, _nonneg, _pad, _param_value, _points, _positive,
                                     _printable_src, _sector, _src, _str_map, _text, _uav_id, _uint63, _uint64, _vec2)
 from truav.wire.keys import MAX_UAVS
@@ -27,6 +27,10 @@ from truav.wire.schema_names import (
 from truav.wire.schema_names import (KIND_AGENT_SNAPSHOT, KIND_WORLD_SNAPSHOT, MAX_SNAPSHOT_ARRAYS,
                                     MAX_SNAPSHOT_BYTES, MAX_SNAPSHOT_DIMS, R_OUT_OF_RANGE, SNAPSHOT_DTYPES)
 
+NO_FIELDS: Mapping[str, Any] = MappingProxyType({})
+"""A beacon's fields when it has none (shared, read-only)."""
+
+
 # --- message classes ------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
 class Envelope:
@@ -40,6 +44,9 @@ class Envelope:
     ADDED: ClassVar[tuple[str, ...]] = ()
     """Body fields added since the kind first went on the wire: a payload without them (an older sender's)
     decodes with their defaults."""
+    SENT_IF_SET: ClassVar[tuple[str, ...]] = ()
+    """ADDED fields left off the wire while empty (their default): a message that does not use them keeps
+    its size and its decoder's fast path."""
     _PLAN: ClassVar[tuple[tuple[str, str, Check], ...]] = ()
     """(field, "kind.field", check) for every field, envelope first; set by _build_registry."""
 
@@ -116,13 +123,17 @@ class Beacon(Envelope):
 
     KIND: ClassVar[str] = KIND_BEACON
     PLACE: ClassVar[tuple[str, ...]] = (keys.UAV, keys.BEACON)
+    ADDED: ClassVar[tuple[str, ...]] = ("fields",)
+    SENT_IF_SET: ClassVar[tuple[str, ...]] = ("fields",)
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
-        {"uav": _uav_id, "tick": _uint63, "pos": _vec2, "vel": _vec2}
+        {"uav": _uav_id, "tick": _uint63, "pos": _vec2, "vel": _vec2, "fields": _beacon_fields}
     )
     uav: int
     tick: int
     pos: tuple[float, float]
     vel: tuple[float, float]
+    fields: Mapping[str, bool | int | float] = field(default_factory=dict)
+    """An API agent's beacon_fields() (agents.api), at most MAX_BEACON_FIELDS; on the wire only if any."""
 
 
 @dataclass(frozen=True)
@@ -553,10 +564,14 @@ _LEGACY_WIRE_KEYS: Mapping[str, frozenset[str]] = MappingProxyType(
     {kind: keys_ - {"inc"} for kind, keys_ in _WIRE_KEYS.items()})
 """Payloads from before incarnations (older recordings): decoded with ``inc`` 0."""
 _OPTIONAL_FIELDS: Mapping[str, Mapping[str, Any]] = MappingProxyType(
-    {kind: MappingProxyType({f.name: f.default for f in fields(cls) if f.name in cls.ADDED})
+    {kind: MappingProxyType({f.name: f.default if f.default is not MISSING else NO_FIELDS  # a factory: a map
+                              for f in fields(cls) if f.name in cls.ADDED})
      for kind, cls in MESSAGE_CLASSES.items()})
 """Each kind's ``ADDED`` fields with their value when an older sender's payload lacks them (a health report
 from before ``heard``): such a payload still decodes, so older recordings stay readable."""
+_SENT_IF_SET: Mapping[str, frozenset[str]] = MappingProxyType(
+    {kind: frozenset(cls.SENT_IF_SET) for kind, cls in MESSAGE_CLASSES.items()})
+"""Each kind's fields encoded only when set (not empty)."""
 _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
     {
         kind: MAX_PAYLOAD_BYTES

@@ -128,6 +128,8 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
         "pos": ("m", f"the position that observation gave, {_POS}"),
         "vel": ("m/s", f"[vx, vy], the velocity of the UAV's last action (0, 0 before any); guard: norm <= "
                        f"{_C['speed']}"),
+        "fields": ("", "what an agent-API class's beacon_fields() returned after its last action "
+                       "(`truav-swarm up --agent NAME`); peers hear them in their next view; TRUAV sends none"),
     },
     "action": {
         "uav": ("", _UAV_NOTE),
@@ -330,6 +332,10 @@ def describe(check: Any) -> tuple[str, str]:
     if name == "_beacon_entries":  # the batched beacons' entries (--batch-beacons)
         return "array of [int, int, [x, y], [vx, vy]]", (f"1..{keys.MAX_UAVS} entries: uav [0, {keys.MAX_UAVS - 1}], "
                                                           f"tick [0, 2^63-1], finite float64 pairs")
+    if name == "_beacon_fields":  # an API agent's beacon_fields(), sent only if any
+        return "map str -> bool, int or float64", (
+            f"optional (left off when empty); at most {schema_names.MAX_BEACON_FIELDS} entries; keys printable "
+            f"ASCII of 1..{schema_names.MAX_BEACON_FIELD_NAME} characters; values bool, int64 or finite float")
     raise ValueError(f"protocol_doc.describe: cannot read the check {name or check!r}; teach it this check")
 
 
