@@ -157,6 +157,17 @@ class BatchedAgents:
     def learn(self, views: "BatchedViews", reward: np.ndarray, done: bool) -> None:
         """reward (B, U)."""
 
+    # Optional, the whole-episode form: a batched form with a method
+    #
+    #     run_episode(world, obs) -> np.ndarray   # each seed's mean reward per step, (B,)
+    #
+    # runs every step of the world's current episode itself (act, world.step, learn), typically in one
+    # compiled kernel, from its first observations obs (world.env.LocalObs) after begin_episode; the
+    # trainer then hands it whole episodes. It sees the world's arrays, so it is for compiled forms that
+    # compute exactly what the per-UAV form computes from its views (tested so: TRUAV's TruavBatched); a
+    # class attribute draws_in_kernel = True says it also makes the world's deferred per-episode draws
+    # (world.env.World.start_episode(defer_draws=True)). The swarm always runs the per-UAV form.
+
     def state_dict(self) -> dict[str, np.ndarray]:
         return {}
 

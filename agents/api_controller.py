@@ -62,6 +62,10 @@ class ApiController:
                     for u, agent in enumerate(row):
                         self._call(b, u, "load_state_dict", agent.load_state_dict,
                                    {k: np.array(v[b, u]) for k, v in state.items()})
+        self.fused = self.batched is not None and callable(getattr(self.group, "run_episode", None))
+        """The batched form runs whole episodes (BatchedAgents.run_episode): the driver hands them to it."""
+        self.draws_in_kernel = self.fused and bool(getattr(self.group, "draws_in_kernel", False))
+        self._first_obs: LocalObs | None = None
         self.episode, self.t = 0, 0
         self.views = None
         self.action = np.zeros(self.shape, np.int64)
@@ -95,6 +99,9 @@ class ApiController:
         self._reward_sum[:], self._steps = 0.0, 0
         if self.batched is not None:
             self._call(None, None, "begin_episode", self.group.begin_episode, episode, self.train)
+            if self.fused:  # views only if a driver steps it after all (act): run_episode starts from obs
+                self._first_obs, self.views = obs, None
+                return
         else:
             for b, row in enumerate(self.agents):
                 for u, agent in enumerate(row):
@@ -102,7 +109,20 @@ class ApiController:
                     self.fields[b][u] = {}
         self.views = self._views(obs)
 
+    def run_episode(self, world) -> None:
+        """The driver's whole-episode call (truav.analysis.driver.FusedEpisode): the batched form's run_episode."""
+        B = self.shape[0]
+        got = self._call(None, None, "run_episode", self.group.run_episode, world, self._first_obs)
+        r = np.asarray(got, np.float64) if isinstance(got, np.ndarray) and got.dtype.kind in "fiu" else None
+        if r is None or r.shape != (B,) or not np.isfinite(r).all():
+            self._fail(None, None, f"run_episode returned {type(got).__name__} {getattr(got, 'shape', '')}, not "
+                                   f"each seed's mean reward per step, finite, shaped ({B},)")
+        steps = self.cfg.scenario.steps_per_episode
+        self._reward_sum, self._steps, self.t = r * steps, steps, steps
+
     def act(self, t: int) -> np.ndarray:
+        if self.views is None:  # a whole-episode form stepped by a driver that records each step
+            self.views = self._views(self._first_obs)
         if self.batched is not None:
             a = self._call(None, None, "act", self.group.act, self.views)
             if not (isinstance(a, np.ndarray) and a.shape == self.shape and np.issubdtype(a.dtype, np.integer)):

@@ -24,11 +24,14 @@ from world.link_phy import IDEAL, heard_masks, link_params
 class TruavController:
     """Independent tabular Q-learning agents, one per UAV and seed."""
 
-    def __init__(self, cfg: Config, seeds: list[int], train: bool = True, q: np.ndarray | None = None):
+    def __init__(self, cfg: Config, seeds: list[int], train: bool = True, q: np.ndarray | None = None,
+                 rngs: list[np.random.Generator] | None = None):
+        """rngs: the agents' generators, seed-major (default: truav.seeding.agent_rng of each seed and UAV)."""
         self.cfg, self.train = cfg, train
         self.encoder, self.reward = StateEncoder(cfg), Reward(cfg)
         U = cfg.scenario.n_uavs
-        rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(U)]
+        if rngs is None:
+            rngs = [seeding.agent_rng(s, i) for s in seeds for i in range(U)]
         self.learners = QLearners(cfg.learner, self.encoder.n_states, rngs, len(seeds), U, q=q, fence=geofence(cfg))
         self.state = np.zeros((len(seeds), U), np.int64)
         self.pos = np.zeros((len(seeds), U, 2))

@@ -49,7 +49,8 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, discount, others, links, link_step,
                   link_seeds, episode, comm_range, sp, rp_reward, maps, prev_in_range, pp, draw, rng_state, exp_neg_lam, moves, apply_moves, hp, hotspots, cluster,
                   pos, velocity, heading, road, s, v, home, next_turn, lane_order, turn_u, xy, trace, row0, slots,
-                  total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum, visits):
+                  total, arrivals, up, mp, rp, ch, out_uav, out_env, energy, above_hover, totals, reward_sum, visits,
+                  last_action):
     """Run steps 0..T-1 of the current episode for every env b, in place.
 
     draw: first make env b's deferred draws of the episode (World.deferred_draws:
@@ -71,7 +72,8 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
     as in `step.env_step`, with a leading B (trace and row0 as in
     `step.world_step`); reward_sum (B,) adds each step's
     mean reward over UAVs; visits (B, U, S) counts each agent's updates per
-    state (federated TRUAV weighs shared rows by them, agents.federated)."""
+    state (federated TRUAV weighs shared rows by them, agents.federated); last_action (B, U) is left
+    holding each agent's action of the last step (the controller's `action`, as act/observe leave it)."""
     n_env, n_uav = state.shape
     n_steps = turn_u.shape[0]
     for b in prange(n_env):
@@ -120,6 +122,9 @@ def truav_episode(q, state, explore_u, random_a, epsilon, fence, train, lr, disc
                     visits[b, u, state[b, u]] += 1
                 state[b, u] = s_next
             reward_sum[b] += pairwise_sum(rewards, 0, n_uav) / n_uav
+        if n_steps > 0:
+            for u in range(n_uav):
+                last_action[b, u] = actions[u]
 
 
 @njit(parallel=True, nogil=True, cache=True)
@@ -212,6 +217,10 @@ def run_episode(world, controller) -> None:
         raise RuntimeError("the fused episode starts at step 0")
     cfg, lc, ln = world.cfg, controller.cfg.learner, controller.learners
     others = ~np.eye(world.n_uavs, dtype=np.bool_)
+    action = controller.action
+    if not (isinstance(action, np.ndarray) and action.dtype == np.int64 and action.flags.c_contiguous
+            and action.shape == controller.state.shape):  # act() may have left another array: the kernel writes it
+        controller.action = np.zeros(controller.state.shape, np.int64)
     deferred = world.deferred_draws()
     truav_episode(ln.q, controller.state, ln._explore_u, ln._random_a, float(ln.epsilon), ln.fence,
                   bool(controller.train),
@@ -220,7 +229,8 @@ def run_episode(world, controller) -> None:
                   float(cfg.scenario.comm_range_m),
                   controller.encoder.params, controller.reward.params, controller.maps, controller.prev_in_range,
                   controller.predict,
-                  *_draw_args(world, deferred), *_world_args(world), controller._reward_sum, controller.visits)
+                  *_draw_args(world, deferred), *_world_args(world), controller._reward_sum, controller.visits,
+                  controller.action)
     if deferred is not None:
         world.end_deferred_draws()
     steps = world._draws.turn_u.shape[0]

@@ -64,7 +64,12 @@ def timed_run(episodes: int, workers: int) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def compare_agent(name: str, repeats: int, batch: int = 10, episodes: int = 3) -> None:
+AGENT_TRUAV_BEFORE = 0.041
+"""`--agent truav` at 17fb350, before TruavAgent had a batched whole-episode form (its per-UAV form: one
+Python call per UAV and step): 2,826 vs 69,232 env-steps/s, quiet machine. A recorded constant."""
+
+
+def compare_agent(name: str, repeats: int, batch: int = 10, episodes: int = 20) -> None:
     import statistics
     from truav.analysis import agent_loader
     agent_loader.load(name, Config())
@@ -78,7 +83,8 @@ def compare_agent(name: str, repeats: int, batch: int = 10, episodes: int = 3) -
     print(f"batch {batch}, 1 thread, {episodes} episodes, median of {repeats} alternated runs:")
     print(f"  truav train (fused):   {n:9,.0f} env-steps/s  (runs: {', '.join(f'{r:,.0f}' for r in native)})")
     print(f"  --agent {name}: {a:9,.0f} env-steps/s  (runs: {', '.join(f'{r:,.0f}' for r in agent)})")
-    print(f"  ratio: {a / n:.3f} of TRUAV's own trainer")
+    before = f" (before, the per-UAV form: {AGENT_TRUAV_BEFORE})" if name == "truav" else ""
+    print(f"  ratio: {a / n:.3f} of TRUAV's own trainer{before}")
 
 
 def ratio(now: float, before: float | None) -> str:

@@ -45,9 +45,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     say = reporter.write_line if reporter is not None else print
     began = time.monotonic()
     say("compiling (or loading) the numba kernels before the tests, on two processes ...")
-    compiles = [subprocess.Popen([sys.executable, "-c", f"from truav.analysis import warmup; warmup.{fn}()"],
-                                 cwd=TESTS.parent, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-                for fn in ("compile_kernels", "compile_test_kernels")]
+    compiles = [subprocess.Popen([sys.executable, "-c", code], cwd=TESTS.parent, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.PIPE, text=True)
+                for code in ("from truav.analysis.warmup import compile_kernels; compile_kernels()",
+                             "from tests.support.kernels import compile_test_kernels; compile_test_kernels()")]
     for proc in compiles:
         _, err = proc.communicate()
         if proc.returncode != 0:  # the tests that need the kernels will say what is wrong, each with its name

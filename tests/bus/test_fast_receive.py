@@ -26,7 +26,8 @@ from truav.wire import codec, guard as guard_mod, keys, schema
 from truav.wire.guard import (CONTROL_SHUTDOWN, R_DUPLICATE, R_IMPLAUSIBLE, R_SENDER, R_TICK, SPEED_MARGIN,
                              SUPERVISOR, Bounds, Guard)
 from truav.bus.inbox import Inbox
-from truav.wire.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _SIZE_LIMIT, _WIRE_KEYS, MESSAGE_CLASSES, Message)
+from truav.wire.messages import (_BODY_FIELDS, _LEGACY_WIRE_KEYS, _OPTIONAL_FIELDS, _SIZE_LIMIT, _WIRE_KEYS,
+                                 MESSAGE_CLASSES, Message)
 from truav.bus.placement import R_KEY_MISMATCH, expected_kind
 from truav.wire.schema_names import (_ENVELOPE_KEYS, MAX_PAYLOAD_BYTES, MAX_SRC_LEN, R_BAD_TYPE, R_EXTRA_FIELD,
                                     R_MISSING_FIELD, R_NOT_BYTES, R_NOT_MAP, R_NOT_MSGPACK, R_TOO_LARGE,
@@ -38,7 +39,8 @@ WAIT_S = 5.0
 unpack_limits = codec.unpack_limits
 
 
-# --- the reference decoder (truav/wire/codec.py before the fast path, verbatim) -------------------------
+# --- the reference decoder (truav/wire/codec.py before the fast path, verbatim; since then fields sent only
+# when set, Beacon.fields, are filled with their default when absent and never named missing) ------------
 def reference_decode(data: bytes | bytearray | memoryview, expect: str | None = None) -> Message:
     """Decode and validate one message; raises only SchemaError on bad input.
 
@@ -88,8 +90,7 @@ def _reference_from_map(obj: dict[Any, Any], size: int) -> Message:
         raise SchemaError(R_UNKNOWN_KIND, f"kind {kind!r:.40}")
     if size > _SIZE_LIMIT[kind]:
         raise SchemaError(R_TOO_LARGE, f"{kind} is {size} bytes, limit {_SIZE_LIMIT[kind]}")
-    added = {f: getattr(MESSAGE_CLASSES[kind], "__dataclass_fields__")[f].default
-             for f in MESSAGE_CLASSES[kind].ADDED if f not in obj}
+    added = {f: _OPTIONAL_FIELDS[kind][f] for f in MESSAGE_CLASSES[kind].ADDED if f not in obj}
     if added and {**obj, **added}.keys() in (_WIRE_KEYS[kind], _LEGACY_WIRE_KEYS[kind]):  # before fields added since
         obj = {**obj, **added}
     if obj.keys() != _WIRE_KEYS[kind]:
@@ -97,7 +98,7 @@ def _reference_from_map(obj: dict[Any, Any], size: int) -> Message:
             obj = {**obj, "inc": 0}
         else:
             expected = (*_ENVELOPE_KEYS, *_BODY_FIELDS[kind])
-            missing = [k for k in expected if k not in obj]
+            missing = [k for k in expected if k not in obj and k not in MESSAGE_CLASSES[kind].SENT_IF_SET]
             if missing:
                 raise SchemaError(R_MISSING_FIELD, f"{kind} lacks {missing}")
             extra = [k for k in obj if k not in expected]
@@ -222,6 +223,7 @@ def samples() -> list[Message]:
         schema.Obs(tick=7, episode=2, uav=3, pos=(10.5, -2.25), vehicles_in_range=4, queued_packets=12, relayed=3,
                    covered=2, energy_j=0.75, speed_max=20.0, done=False, densest_sector=3),
         schema.Beacon(uav=3, tick=7, pos=(1234.567, 987.654), vel=(3.2, -1.5)),
+        schema.Beacon(uav=3, tick=7, pos=(1.0, 2.0), vel=(0.0, 0.0), fields={"load": 3, "busy": True, "x": 0.5}),
         schema.Action(uav=3, tick=7, action=15),
         schema.Action(uav=3, tick=8, action=schema.HOVER),
         schema.Metrics(scope=schema.SCOPE_STEP, tick=7, episode=2, values={"pdr": 0.9, "delay_ms": 12.0}),

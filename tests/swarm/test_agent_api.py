@@ -148,6 +148,47 @@ def test_truav_through_the_api_trains_what_truav_trains(geofence):
     assert not np.array_equal(own.q, run_chunk("truav", cfg, [0, 1], 5).q)  # the last episode learned something
 
 
+def test_truav_per_uav_stepped_and_whole_episode_forms_end_in_the_same_state():
+    """TruavAgent's three forms (per UAV; batched, stepped; batched, whole episodes in TRUAV's fused kernel,
+    what `truav train --agent truav` runs): every array of every UAV's state_dict equal after training,
+    the same episodes' metrics, a greedy evaluation from that state equal, and a state saved by one form
+    goes on in another exactly."""
+    from agents.api_controller import ApiController
+    from agents.truav_agent import TruavAgent, TruavBatched
+    from truav.analysis.driver import run_episodes
+
+    class PerUav(TruavAgent):
+        batched = None
+
+    class Stepped(TruavBatched):
+        run_episode = None  # the driver then steps act/learn
+
+    class SteppedAgent(TruavAgent):
+        batched = Stepped
+
+    cfg, seeds = TINY_CFG.replace(learner={"geofence": True}), [3, 8]
+    forms = (PerUav, SteppedAgent, TruavAgent)
+    ctls = [ApiController("truav", cls, cfg, seeds) for cls in forms]
+    assert [c.fused for c in ctls] == [False, False, True]
+    metrics = [run_episodes(cfg, seeds, c, 4) for c in ctls]
+    states = [c.state_arrays() for c in ctls]
+    for m, st in zip(metrics[1:], states[1:]):
+        assert set(st) == set(states[0])
+        for k, want in states[0].items():
+            assert st[k].shape == want.shape and np.array_equal(st[k], want), k
+        for k, want in metrics[0].items():
+            assert np.array_equal(m[k], want, equal_nan=True), k
+    greedy = [run_episodes(cfg, seeds, ApiController("truav", cls, cfg, seeds, train=False, state=states[0]), 2)
+              for cls in forms]
+    assert all(np.array_equal(g["coverage_pct"], greedy[0]["coverage_pct"]) for g in greedy[1:])
+    # the per-UAV form's state loaded into the fused form learns on as the per-UAV form does (2 episodes more)
+    on = [ApiController("truav", cls, cfg, seeds, state=states[0]) for cls in (PerUav, TruavAgent)]
+    for c in on:
+        run_episodes(cfg, seeds, c, 2)
+    a, b = (c.state_arrays() for c in on)
+    assert all(np.array_equal(a[k], b[k]) for k in a) and not np.array_equal(a["q"], states[0]["q"])
+
+
 def test_truav_through_the_api_resumes_from_its_state_dict():
     """A TruavAgent rebuilt from another's state_dict mid-episode goes on as the original does."""
     from agents.truav_agent import TruavAgent

@@ -102,20 +102,21 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
         class Flaky(UavAgent):
             call_limit_s = 0.3
             def act(self, view):
+                self.step = view.step
                 if self.uav == 1 and view.step == 3:
                     raise RuntimeError("lost the plot")
                 while self.uav == 3 and view.step == 6:
                     pass  # hangs: the call limit ends it
                 return 8 if self.uav == 2 and view.step == 5 else 0
-            def beacon_fields(self):
-                return {"note": "text"} if self.uav == 0 else {}  # no beacon carries a str: that act is missed
+            def beacon_fields(self):  # no beacon carries a str: UAV 0's action is missed from step 1 on
+                return {"note": "text"} if self.uav == 0 and self.step > 0 else {}
     '''))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
     rec = tmp_path / "flaky.mcap"
     out = up(tmp_path, "flaky", "--agent", "flaky:Flaky", "--record", str(rec), env=env)
     agents = [json.loads((out / f"agent{i}.json").read_text()) for i in range(CFG.scenario.n_uavs)]
     T = CFG.scenario.steps_per_episode
-    assert [a["agent_errors"] for a in agents] == [EPISODES * T, EPISODES, 0, EPISODES]
+    assert [a["agent_errors"] for a in agents] == [EPISODES * (T - 1), EPISODES, 0, EPISODES]
     assert agents[0]["first_agent_error"] == "beacon_fields['note'] must be a bool, int or float, got str"
     assert agents[1]["first_agent_error"] == "act raised RuntimeError: lost the plot"
     assert agents[3]["first_agent_error"] == "act took longer than 0.3 s (its call_limit_s)"
@@ -131,7 +132,7 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
     assert other.returncode == 2 and "was flown by 'flaky:Flaky'" in other.stderr, other.stderr
     ok = subprocess.run([*resim, "--agent", "flaky:Flaky"], env=env, capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0 and "result: reproduced" in ok.stdout, ok.stdout + ok.stderr
-    assert f"the class failed {2 * EPISODES} call(s)" in ok.stdout, ok.stdout
+    assert f"the class failed {2 * EPISODES + EPISODES * (T - 1)} call(s)" in ok.stdout, ok.stdout
 
 
 def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
@@ -230,7 +231,7 @@ def test_a_swarm_of_a_class_starts_from_what_truav_train_agent_learned(tmp_path)
         for k in METRICS:
             assert np.array_equal(got[k], expected[k][e, 0], equal_nan=True), (e, k)
     for uav in range(CFG.scenario.n_uavs):
-        want = rec.inner.agents[0][uav].state_dict()["q"]
+        want = rec.inner.state_arrays()["q"][0, uav]
         with np.load(out / f"agent{uav}.npz") as ck:
             assert np.array_equal(ck["state.q"], want), uav
             assert not np.array_equal(want, state["q"][0, uav])  # it learned on from the trained table

@@ -40,21 +40,6 @@ def compile_kernels() -> None:
         run_chunk(kind, cfg, [0], 1, train=learn, q=trained.q if kind == "truav" else None)
 
 
-def compile_test_kernels() -> None:
-    """The other specializations the test suite meets (tests/conftest.py compiles them beside
-    :func:`compile_kernels`, in a second process): the 3GPP channel model's rates, channel-driven links,
-    the world step of a swarm under that model and the central scheme's control-plane model."""
-    from truav.analysis.trainer import run_chunk
-    from truav.config import Config
-    from world.process.world_process import warm_up_kernels
-    cfg = Config().replace(scenario={"n_vehicles": 40, "steps_per_episode": 3}, roads={"warmup_steps": 3})
-    uma = cfg.replace(channel={"model": "3gpp-uma-av"})
-    run_chunk("truav", uma, [0], 1)
-    run_chunk("truav", cfg.replace(links={"model": "channel"}), [0], 1)
-    warm_up_kernels(uma)
-    warm_up_kernels(cfg, central=True)
-
-
 def ensure_compiled(say: Callable[[str], None] = print) -> float:
     """Compile the kernels if this machine has not yet (one line before, one after); the seconds it took."""
     if not needs_compile():

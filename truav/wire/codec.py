@@ -202,16 +202,17 @@ def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
     env["_ABSENT"] = _ABSENT
     body: list[str] = ["try:", *(f"    v{i} = obj[{name!r}]" for i, (name, _, _) in enumerate(plan)
                                  if name not in if_set),
-                       "except KeyError:", "    _keys_differ(obj, _kind)", "    raise",
+                       # not the kind's keys: an older sender's or a refusal (with an optional field sent, a
+                       # map as long as the kind's can lack one, e.g. no ``inc``); the keys right, built again
+                       "except KeyError:", "    return _again(_keys_differ(obj, _kind))",
                        f"if {src_var} == '':", f"    raise SchemaError(R_UNSTAMPED, {cls.KIND + ' has an empty src'!r})"]
     fields: list[str] = []
     for i, (name, path, check) in enumerate(plan):
         v, call = f"v{i}", f"v{i} = _c{i}(_p{i}, v{i})"
         env[f"_c{i}"], env[f"_p{i}"] = check, path
         if name in if_set:  # off the wire when empty: its default, else checked
-            env[f"_d{i}"] = _OPTIONAL_FIELDS[cls.KIND][name]
-            body += [f"{v} = obj.get({name!r}, _ABSENT)", f"if {v} is _ABSENT:", f"    {v} = _d{i}", "else:",
-                     f"    {call}"]
+            body += [f"{v} = obj.get({name!r}, _ABSENT)", f"if {v} is _ABSENT:", f"    {v} = {{}}", "else:",
+                     f"    {call}"]  # a map, empty when left off (as the constructor's check makes it)
             fields.append(f"d[{name!r}] = {v}")
             continue
         fast = getattr(check, "FAST", None)
@@ -243,6 +244,7 @@ def _compile_builder(cls: type[Message]) -> Callable[[dict[str, Any]], Message]:
     body += ["m = _new(_cls)", "d = m.__dict__", *fields, "return m"]  # in _PLAN's order, as the constructor
     src = "def build(obj):\n" + "".join(f"    {line}\n" for line in body)
     exec(compile(src, f"<truav.wire.codec decoder of {cls.KIND}>", "exec"), env)
+    env["_again"] = env["build"]
     return env["build"]
 
 

@@ -45,8 +45,8 @@ class Envelope:
     """Body fields added since the kind first went on the wire: a payload without them (an older sender's)
     decodes with their defaults."""
     SENT_IF_SET: ClassVar[tuple[str, ...]] = ()
-    """ADDED fields left off the wire while empty (their default): a message that does not use them keeps
-    its size and its decoder's fast path."""
+    """ADDED map fields left off the wire while empty (their default, decoded as {}): a message that does
+    not use them keeps its size and its decoder's fast path."""
     _PLAN: ClassVar[tuple[tuple[str, str, Check], ...]] = ()
     """(field, "kind.field", check) for every field, envelope first; set by _build_registry."""
 
