@@ -112,7 +112,7 @@ CHECKED: dict[str, str] = {
     "pip install -e . -c constraints.txt": SETUP,
     "pip install -e '.[dev]' -c constraints.txt": SETUP,
     "pip install -e '.[central]' -c constraints.txt": SETUP + " ([dev] includes PyTorch)",
-    "python -m pytest -q -n 2": "the test suite this test is part of",
+    "python -m pytest -q -n 3": "the test suite this test is part of",
     "truav-swarm status": OTHER_TERMINAL,
     "truav-swarm down --run demo": OTHER_TERMINAL,
     "truav-swarm router -l tcp/0.0.0.0:7447": "listens on every interface until stopped (a router for other hosts); "

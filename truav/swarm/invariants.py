@@ -320,7 +320,9 @@ def _exit_codes(procs: list[dict], plan: FaultPlan, outcome: dict, rc: int) -> I
             who = f.params.get("target", f.params.get("uav"))
             name = who if isinstance(who, str) else f"agent{who}"
             planned[name] = planned.get(name, 0) + 1
-    healed = {r["old_pid"] for r in outcome.get("restarts") or []}
+    restarted = {r["old_pid"] for r in outcome.get("restarts") or []}
+    superseded = {s["pid"] for s in outcome.get("superseded") or []}  # e.g. a router that lost its port at once
+    healed = restarted | superseded
     bad = []
     for p in procs:
         code = p["exit_code"]
@@ -335,7 +337,9 @@ def _exit_codes(procs: list[dict], plan: FaultPlan, outcome: dict, rc: int) -> I
     return Invariant("honest exit codes", not bad,
                      "; ".join(bad[:3]) if bad else f"{len(procs)} process(es): 0, or killed by the plan "
                                                    f"({sum(1 for p in procs if p['exit_code'] == -signal.SIGKILL)}),"
-                                                   f" or restarted by the supervisor ({len(healed)})")
+                                                   f" or restarted by the supervisor ({len(restarted)})"
+                                                   + (f", or superseded at its start ({len(superseded)})"
+                                                      if superseded else ""))
 
 
 def _json(path: Path):

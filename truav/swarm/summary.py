@@ -153,7 +153,8 @@ class SwarmEnd:
         if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
             o.warnings.append(fit_line)
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
-                   "lockstep": o.exactness, "restarts": o.restarts, "external": o.external,
+                   "lockstep": o.exactness, "restarts": o.restarts, "superseded": o.superseded,
+                   "external": o.external,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         summary = jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,

@@ -195,6 +195,10 @@ class _Swarm(SwarmWatch, SwarmEnd):
         self.endpoint = self.opts.listen or default_endpoint()
         ok, error = self._router_ready(ROUTER_START_TIMEOUT_S)
         if not ok and default and "in use" in error:  # lost a race for 7447 to another process: any port will do
+            lost = self.children.pids().get("router")
+            if lost is not None:  # its exit 1 is this retry's cause, not a fault of the run (truav.swarm.invariants)
+                self.outcome.superseded.append({"process": "router", "pid": lost,
+                                                "cause": f"{self.endpoint} in use; started again on a free port"})
             self.endpoint = free_loopback_endpoint()
             ok, error = self._router_ready(ROUTER_START_TIMEOUT_S)
         if not ok:

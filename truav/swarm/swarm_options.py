@@ -159,6 +159,9 @@ class Outcome:
     exactness: dict | None = None  # lock-step only: see lockstep_exactness
     restarts: list[dict] = field(default_factory=list)  # truav.swarm.healing.Restart.as_dict(), in order
     external: list[dict] = field(default_factory=list)  # truav.swarm.external.report() of each external UAV
+    superseded: list[dict] = field(default_factory=list)
+    """Processes started again at once, not a fault: {"process", "pid", "cause"} (a router that lost the default
+    port to another process between the check and its bind, started again on a free port)."""
 
     def fail(self, reason: str) -> None:
         if reason not in self.failures:
