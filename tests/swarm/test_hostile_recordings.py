@@ -4,7 +4,8 @@ Each family below is a file built record by record (mcap's record classes, then 
 them): chunks declaring 64 GiB, compression bombs, a 1 GiB message in a small file, no summary,
 flipped bits, a channel naming schema 999, a message on an undeclared channel, a 100 kB topic, a log
 time in the year 2262, metrics values that are not numbers, metadata from elsewhere. Every tool runs
-on every family in a subprocess held to 1 GiB of address space and 120 s, and must give no traceback
+on every family in its own process held to 1 GiB of address space and 120 s (forked from one interpreter
+that imported truav.cli once: tests/support/forked_cli.py), and must give no traceback
 and the exit code docs/reference/untrusted-recordings.md documents (1 damaged, 2 user mistake / not usable for the tool).
 `play` is given an endpoint nothing listens on (127.0.0.1 port 1), so a file it accepts ends in a
 one-line connect failure (exit 1) without a router; a file it refuses is refused before that.
@@ -13,13 +14,13 @@ one-line connect failure (exit 1) without a router; a file it refuses is refused
 from __future__ import annotations
 
 import io
+import json
 import resource
 import struct
 import subprocess
 import sys
 import tempfile
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -303,6 +304,17 @@ def run_tool(args: list[str]) -> subprocess.CompletedProcess:
                           text=True, timeout=TIME_LIMIT_S, preexec_fn=_limits, stdin=subprocess.DEVNULL)
 
 
+def run_tools(tools: dict[str, list[str]]) -> dict[str, subprocess.CompletedProcess]:
+    """Every tool, each in its own process held to MEMORY_LIMIT and TIME_LIMIT_S, 4 at a time: forked from one
+    interpreter that imported truav.cli once (tests/support/forked_cli.py), as `python -m truav.cli log` runs."""
+    done = subprocess.run([sys.executable, "-m", "tests.support.forked_cli", str(MEMORY_LIMIT), str(TIME_LIMIT_S), "4"],
+                          cwd=ROOT, input=json.dumps({name: ["log", *argv] for name, argv in tools.items()}),
+                          capture_output=True, text=True, timeout=TIME_LIMIT_S * len(tools))
+    assert done.returncode == 0, done.stderr[-2000:]
+    results = json.loads(done.stdout.strip().splitlines()[-1])
+    return {name: subprocess.CompletedProcess(tools[name], rc, out, err) for name, (rc, out, err) in results.items()}
+
+
 def test_every_file_reading_log_action_is_tried() -> None:
     """The table above covers every `truav log` action that reads a recording (a new one must be added)."""
     import argparse
@@ -322,8 +334,7 @@ def test_hostile_file(family: str, tmp_path: Path) -> None:
     path.write_bytes(build())
     assert path.stat().st_size < 1 << 20  # small files, whatever they claim
     tools = _tools(path, tmp_path)
-    with ThreadPoolExecutor(4) as pool:
-        results = dict(zip(tools, pool.map(run_tool, tools.values())))
+    results = run_tools(tools)
     bad = []
     for tool, proc in results.items():
         damaged = tool in damaged_for
