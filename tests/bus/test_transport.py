@@ -361,11 +361,12 @@ def test_router_drops_oversized_puts_before_any_subscriber_sees_them(endpoint) -
         victim.declare_subscriber(f"truav/{RUN}/**", lambda s: got.append((str(s.key_expr), len(s.payload))))
         obs_key, pos_key = keys.uav_obs(RUN, 0), keys.world_positions(RUN)
         assert wait_matched(attacker, obs_key) and wait_matched(attacker, pos_key)  # the subscription is known
-        attacker.put(obs_key, b"x" * (small_limit + 2048))  # too big for an observation
-        attacker.put(pos_key, b"x" * (small_limit + 2048))  # fine for positions (up to 1 MiB)
-        attacker.put(pos_key, b"x" * (schema.MAX_PAYLOAD_BYTES + 4096))  # too big for anything
-        attacker.put(obs_key, b"x" * 100)  # a small one still passes
-        assert wait_until(lambda: len(got) >= 2)
+        block = zenoh.CongestionControl.BLOCK  # not dropped by a congested session (a busy host): only the filter drops
+        attacker.put(obs_key, b"x" * (small_limit + 2048), congestion_control=block)  # too big for an observation
+        attacker.put(pos_key, b"x" * (small_limit + 2048), congestion_control=block)  # fine for positions (1 MiB)
+        attacker.put(pos_key, b"x" * (schema.MAX_PAYLOAD_BYTES + 4096), congestion_control=block)  # too big for all
+        attacker.put(obs_key, b"x" * 100, congestion_control=block)  # a small one still passes
+        assert wait_until(lambda: len(got) >= 2, 30.0), got
         time.sleep(0.3)
     assert got == [(pos_key, small_limit + 2048), (obs_key, 100)]
 
