@@ -57,6 +57,10 @@ class AnswerGate(LockstepGate):
     def attach(self, bus: transport.Bus) -> None:
         bus.subscribe(keys.all_actions(self._run), self._on_action)
         bus.watch_liveliness(keys.all_alive_uavs(self._run), self._on_join, self._on_leave)
+        # The agents alive now, before the first tick: the watch reports them on another thread, which on a
+        # busy host came after the first ticks were sent (and the agent was not waited for).
+        for key in bus.alive(keys.all_alive_uavs(self._run), timeout=2.0):
+            self._on_join(key)
 
     def _on_action(self, key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
         if isinstance(msg, schema.Action) and msg.src == keys.uav_identity(msg.uav):
