@@ -115,8 +115,9 @@ class ApiController:
         got = self._call(None, None, "run_episode", self.group.run_episode, world, self._first_obs)
         r = np.asarray(got, np.float64) if isinstance(got, np.ndarray) and got.dtype.kind in "fiu" else None
         if r is None or r.shape != (B,) or not np.isfinite(r).all():
-            self._fail(None, None, f"run_episode returned {type(got).__name__} {getattr(got, 'shape', '')}, not "
-                                   f"each seed's mean reward per step, finite, shaped ({B},)")
+            shape = f" shaped {got.shape}" if isinstance(got, np.ndarray) else ""
+            self._fail(None, None, f"run_episode returned {type(got).__name__}{shape}, not each seed's mean reward "
+                                   f"per step, finite, shaped ({B},)")
         steps = self.cfg.scenario.steps_per_episode
         self._reward_sum, self._steps, self.t = r * steps, steps, steps
 
