@@ -127,7 +127,7 @@ def nothing_starts(monkeypatch, tmp_path):
     import agents.process.agent_host
     import agents.process.controller_host
     import truav.cli.swarm_ops
-    import truav.cli.swarm_processes
+    import truav.bus.router
     import world.process.world_host
     import truav.swarm.supervisor
     import truav.analysis.trainer
@@ -136,7 +136,7 @@ def nothing_starts(monkeypatch, tmp_path):
                          (truav.swarm.supervisor, "run_swarm"), (truav.swarm.chaos, "run_chaos"),
                          (truav.swarm.fault_sweep, "run_sweep"), (world.process.world_host, "Bus"),
                          (agents.process.agent_host, "Bus"), (agents.process.controller_host, "Bus"), (truav.cli.swarm_ops, "Bus"),
-                         (truav.cli.swarm_processes, "run_router"), (truav.cli.log_process, "cmd_record"),
+                         (truav.bus.router, "run_router"), (truav.cli.log_process, "cmd_record"),
                          (recorder.process.replay_bus, "replay_on_bus"),
                          (subprocess, "Popen")):
         monkeypatch.setattr(module, name, trap)

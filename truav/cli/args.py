@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import signal
 import sys
 from pathlib import Path
@@ -177,6 +178,45 @@ def add_transport_args(parser: argparse.ArgumentParser) -> argparse.ArgumentPars
                        help="credentials directory of a --secure swarm (truav-swarm certs): use this "
                             "component's certificate and zenoh config from it (instead of -c)")
     return parser
+
+
+def check_transport(args, listen_flag: str = "-l/--listen") -> None:
+    """The zenoh-example flags: endpoints well formed, a -c file Zenoh can read."""
+    connect = getattr(args, "connect", None) or []
+    for ep in [connect] if isinstance(connect, str) else connect:  # `certs -e` takes one endpoint
+        check_endpoint("-e/--connect", ep)
+    for ep in getattr(args, "listen", None) or []:
+        check_endpoint(listen_flag, ep)
+    if not isinstance(connect, str):
+        check_tls_creds(args)
+    if getattr(args, "config", None) is not None:
+        check_in_file("-c/--config", args.config)
+        import zenoh  # deferred: `truav --help` and the pure commands do not load it
+        try:
+            zenoh.Config.from_file(args.config)
+        except zenoh.ZError as exc:
+            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({_one_line(exc)})") from None
+
+
+def check_tls_creds(args, flag: str = "-e/--connect") -> None:
+    """A tls/ endpoint is a --secure swarm's router: without this component's certificate (--creds or
+    -c) Zenoh only says it cannot connect, so say what is missing, before connecting."""
+    if getattr(args, "creds", None) or getattr(args, "config", None):
+        return
+    for ep in getattr(args, "connect", None) or []:
+        if isinstance(ep, str) and ep.startswith("tls/"):
+            raise UserError(f"{flag} {ep}: a TLS router (a --secure swarm) admits only clients with its "
+                            f"credentials: pass --creds DIR (the run's <out>/creds)")
+
+
+def _one_line(exc: Exception) -> str:
+    """A Zenoh config error on one line: json5's multi-line caret diagram becomes "line L:C: what"."""
+    text = str(exc).split(" at /")[0].strip()
+    where = re.search(r"-->\s*(\d+:\d+)", text)
+    what = re.findall(r"^\s*=\s*(.+?)\)?\s*$", text, flags=re.M)
+    if where and what:
+        return f"line {where.group(1)}: {what[-1]}"
+    return " ".join(text.split())
 
 
 # -- options declared once (truav.options): their flags and their dataclasses --------

@@ -53,7 +53,7 @@ def cmd_fault_sweep(args) -> int:
         from truav.swarm.checks import check_qtable
         fits.append(check_qtable("--qtable", args.qtable, cfg, allow_mismatch=args.allow_scenario_mismatch))
     if args.policy is not None and "central" in (args.schemes or ()):
-        from truav.cli.swarm import check_policy
+        from truav.swarm.checks import check_policy
         fits.append(check_policy("--policy", args.policy, cfg, 0, args.allow_scenario_mismatch))
     check_executor(args)
     given = [parse_sets(args.set)] + ([read_toml(args.config, "config file", ConfigError)] if args.config else [])
@@ -77,7 +77,7 @@ def cmd_fault_sweep(args) -> int:
             if "central" not in schemes:
                 raise UsageError("--policy: only --schemes central flies a trained controller")
         if "central" in schemes:
-            from truav.cli.swarm import check_central_sizes
+            from truav.swarm.checks import check_central_sizes
             check_central_sizes(cfg)
         check_settings(out, settings)
         paths = run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable, policy=args.policy,

@@ -366,7 +366,7 @@ def add_report_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
 def _check_endpoints(args: argparse.Namespace) -> None:
     """What ``truav-swarm``'s main checks before any command (``truav log record|play`` run under
     ``truav``'s main): the same check, so the same mistakes get the same one line."""
-    from truav.swarm.checks import check_transport  # deferred: it loads zenoh, which `truav --help` does not need
+    from truav.cli.args import check_transport
     check_transport(args)
 
 

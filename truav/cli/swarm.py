@@ -23,22 +23,26 @@ from __future__ import annotations
 import argparse
 import sys
 
-import zenoh
-
-from truav.bus.security import answers_tls
 from truav.cli.args import OneLineParser, UserError, run_main
-from truav.swarm.checks import check_central_sizes, check_policy, check_transport  # noqa: F401 - check_*: truav.experiments.faults
-from truav.cli.swarm_ops import add_ops_commands
-from truav.cli.swarm_processes import add_process_commands
-from truav.cli.swarm_replay import add_replay_ctl
-from truav.cli.swarm_schema import add_schema_commands
-from truav.cli.swarm_up import add_up_commands
-from truav.cli.swarm_secure import add_security_commands
+
+PARTS = ("world", "agent", "controller")
+"""The swarm's processes: started several times per run, each parses a parser of the parts alone (not
+every command's: their imports cost a part ~0.2 CPU-s at start). The router has a parser of its own."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
+    """The whole command line; with ``parts_only`` the process parts' subcommands alone (PARTS)."""
+    from truav.cli.swarm_processes import add_process_commands
     ap = OneLineParser(prog="truav-swarm", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    if parts_only:
+        add_process_commands(sub)
+        return ap
+    from truav.cli.swarm_ops import add_ops_commands
+    from truav.cli.swarm_replay import add_replay_ctl
+    from truav.cli.swarm_schema import add_schema_commands
+    from truav.cli.swarm_secure import add_security_commands
+    from truav.cli.swarm_up import add_up_commands
     add_up_commands(sub)
     add_ops_commands(sub)
     add_process_commands(sub)
@@ -56,9 +60,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["router"]:
+        from truav.cli.swarm_router import main as router_main
+        return router_main(argv[1:])
+    args = build_parser(parts_only=bool(argv) and argv[0] in PARTS).parse_args(argv)
 
     def run() -> int:
+        import zenoh
+
+        from truav.cli.args import check_transport
         if args.command != "up" and args.command != "chaos":  # their -l is the supervisor's (checked there)
             check_transport(args)
         try:
@@ -66,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         except zenoh.ZError as exc:  # almost always: no router where --connect points
             if not (getattr(args, "creds", None) or getattr(args, "config", None)):
                 for ep in getattr(args, "connect", None) or []:
+                    from truav.bus.security import answers_tls
                     if isinstance(ep, str) and answers_tls(ep):  # a --secure swarm's router, asked in plain TCP
                         raise UserError(f"-e/--connect {ep}: the router there speaks TLS (a --secure swarm) and "
                                         f"admits only clients with its credentials: pass --creds DIR (the run's "

@@ -1,4 +1,7 @@
-"""What the `truav-swarm` subcommands share: scenario, scheme, lock-step and process flags, logging, credentials."""
+"""What the `truav-swarm` subcommands share: scenario, scheme, lock-step and process flags, logging, credentials.
+
+Light to import (no world, agents or kernels at the top): the router's command uses it, and every swarm starts
+a router."""
 
 from __future__ import annotations
 
@@ -6,8 +9,6 @@ import argparse
 import logging
 import sys
 
-from agents.process.agent_process import AgentOptions
-from agents.process.central_process import ControllerOptions
 from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
 # the transport's command-line helpers, for every truav-swarm command (one place to import them from)
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
@@ -17,7 +18,6 @@ from truav.cli.args import add_transport_args  # noqa: F401
 from truav.cli.config import UsageError, parse_sets
 from truav.config import Config, load_config
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
-from truav.swarm.checks import SCHEMES
 
 log = logging.getLogger("truav.swarm")
 
@@ -80,6 +80,7 @@ def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
 def scheme_name(text: str) -> str:
     """argparse type of --scheme: one of SCHEMES, or agent:NAME (an agents.api class; `up --agent NAME`),
     the class checked by the command (check_agent_scheme)."""
+    from truav.swarm.checks import SCHEMES
     if text in SCHEMES or (text.startswith(AGENT_KIND_PREFIX) and len(text) > len(AGENT_KIND_PREFIX)):
         return text
     raise argparse.ArgumentTypeError(f"invalid choice: {text!r} (choose from {', '.join(SCHEMES)}, or agent:NAME)")
@@ -100,10 +101,12 @@ def add_scheme_arg(p: argparse.ArgumentParser) -> None:
 
 
 def add_command_hold_arg(p: argparse.ArgumentParser) -> None:
+    from agents.process.agent_process import AgentOptions
     add_options(p, AgentOptions, ["command_hold_s"])
 
 
 def add_policy_args(p: argparse.ArgumentParser) -> None:
+    from agents.process.central_process import ControllerOptions
     add_options(p, ControllerOptions, ["policy", "policy_index"])
 
 

@@ -19,7 +19,7 @@ from truav.cli.args import UserError, positive_float, run_name, tcp_port
 from truav.cli.config import UsageError
 from truav.faults import load_plan
 from truav.lifecycle import stop_on_sigterm_or_orphaned
-from truav.swarm.checks import check_tls_creds
+from truav.cli.args import check_tls_creds
 from truav.wire import keys, schema
 from truav.cli.swarm_common import (add_geo_origin_arg, add_scenario_args, add_transport_args, config_from_args, part_creds,
                                     scenario_from, setup_logging)

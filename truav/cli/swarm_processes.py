@@ -1,4 +1,5 @@
-"""`truav-swarm router|world|agent|controller`: the swarm's parts, one process each.
+"""`truav-swarm router|world|agent|controller`: the swarm's parts, one process each (the router's own in
+truav.cli.swarm_router).
 
 Each command checks its flags and files (one line, exit 2, before anything starts), builds its
 process's options and runs it: the runtime lives with the process (world.process.world_process,
@@ -8,55 +9,25 @@ in truav.lifecycle.
 
 from __future__ import annotations
 
-import logging
 import os
-import sys
-import threading
-
-import zenoh
 
 from agents.process.agent_host import ID_PLACEHOLDER, host_agents, path_of
 from agents.process.agent_process import AgentOptions, DELAY_ENV, debug_delay_s
 from agents.process.central_process import ControllerOptions
 from agents.process.controller_host import host_controller
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
-from truav.bus.transport import DEFAULT_ENDPOINT, run_router
 from truav.checks import check_out_file
 from truav.cli.args import add_options, non_negative_int, options_from, positive_float
 from truav.cli.config import UsageError
-from truav.lifecycle import stop_on_sigterm_or_orphaned
 from truav.wire import keys
 from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
                                 check_agent_start, check_policy, check_qtable, check_scheme_flags)
+from truav.cli.swarm_router import HELP as ROUTER_HELP, add_router_args
 from truav.cli.swarm_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
-                                    add_scheme_arg, add_swarm_process_args, add_transport_args, check_agent_scheme,
-                                    config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging,
-                                    zenoh_reason)
+                                    add_scheme_arg, add_swarm_process_args, check_agent_scheme,
+                                    config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging)
 from world.process.world_host import host_world
 from world.process.world_process import WorldOptions
-
-log = logging.getLogger("truav.swarm")
-
-
-def cmd_router(args) -> int:
-    setup_logging(args.verbose)
-    stop = threading.Event()
-    stop_on_sigterm_or_orphaned(stop.set)
-    part_creds(args, "router")
-    listen = args.listen or ([] if args.config else [DEFAULT_ENDPOINT])  # a config file keeps its own
-    try:
-        # "router listening" is printed once the endpoints are open: `truav-swarm up` waits for that line.
-        run_router(listen, connect=args.connect, config_file=args.config, stop=stop,
-                   on_ready=lambda: print(f"router listening on {', '.join(listen) or 'the endpoints of ' + args.config}",
-                                          flush=True))
-    except KeyboardInterrupt:
-        pass
-    except zenoh.ZError as exc:
-        print(f"truav-swarm router: error: cannot listen on {', '.join(listen)}: {zenoh_reason(exc)}",
-              file=sys.stderr, flush=True)
-        return 1
-    log.info("router stopped")
-    return 0
 
 
 def cmd_world(args) -> int:
@@ -151,10 +122,7 @@ def cmd_controller(args) -> int:
 
 def add_process_commands(sub) -> None:
     """The `router`, `world`, `agent` and `controller` subcommands (in that order: `--help` lists them so)."""
-    ro = sub.add_parser("router", help="run a Zenoh router")
-    add_transport_args(ro)
-    ro.add_argument("-v", "--verbose", action="store_true")
-    ro.set_defaults(func=cmd_router)
+    add_router_args(sub.add_parser("router", help=ROUTER_HELP, description=ROUTER_HELP))
 
     wo = sub.add_parser("world", help="run the world process")
     add_scenario_args(wo)

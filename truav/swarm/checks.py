@@ -9,20 +9,18 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import re
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
 from agents.process.agent_process import AgentOptions
 from agents.state import StateEncoder
 from truav.analysis import policy_scenario, runio
 from truav.analysis.policy_scenario import Fit
 from truav.bus import security
-from truav.checks import check_endpoint, check_in_file, check_out_file
+from truav.checks import check_in_file, check_out_file
 from truav.config import Config
 from truav.errors import UserError
 from truav.faults import check_plan_for, load_plan
@@ -32,44 +30,6 @@ from world.uavs import N_ACTIONS
 SCHEMES = ("truav", "central", "patrol")
 """What flies the UAVs: TRUAV's agents, the central controller's commands, the patrol plan."""
 DEFAULT_COMMAND_HOLD_S = AgentOptions.command_hold_s
-
-
-def check_transport(args, listen_flag: str = "-l/--listen") -> None:
-    """The zenoh-example flags: endpoints well formed, a -c file Zenoh can read."""
-    connect = getattr(args, "connect", None) or []
-    for ep in [connect] if isinstance(connect, str) else connect:  # `certs -e` takes one endpoint
-        check_endpoint("-e/--connect", ep)
-    for ep in getattr(args, "listen", None) or []:
-        check_endpoint(listen_flag, ep)
-    if not isinstance(connect, str):
-        check_tls_creds(args)
-    if getattr(args, "config", None) is not None:
-        check_in_file("-c/--config", args.config)
-        try:
-            zenoh.Config.from_file(args.config)
-        except zenoh.ZError as exc:
-            raise UserError(f"-c/--config {args.config}: not a Zenoh config ({_one_line(exc)})") from None
-
-
-def check_tls_creds(args, flag: str = "-e/--connect") -> None:
-    """A tls/ endpoint is a --secure swarm's router: without this component's certificate (--creds or
-    -c) Zenoh only says it cannot connect, so say what is missing, before connecting."""
-    if getattr(args, "creds", None) or getattr(args, "config", None):
-        return
-    for ep in getattr(args, "connect", None) or []:
-        if isinstance(ep, str) and ep.startswith("tls/"):
-            raise UserError(f"{flag} {ep}: a TLS router (a --secure swarm) admits only clients with its "
-                            f"credentials: pass --creds DIR (the run's <out>/creds)")
-
-
-def _one_line(exc: Exception) -> str:
-    """A Zenoh config error on one line: json5's multi-line caret diagram becomes "line L:C: what"."""
-    text = str(exc).split(" at /")[0].strip()
-    where = re.search(r"-->\s*(\d+:\d+)", text)
-    what = re.findall(r"^\s*=\s*(.+?)\)?\s*$", text, flags=re.M)
-    if where and what:
-        return f"line {where.group(1)}: {what[-1]}"
-    return " ".join(text.split())
 
 
 def check_plan(flag: str, path: str, n_uavs: int, scheme: str | None = None):
