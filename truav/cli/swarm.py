@@ -90,5 +90,16 @@ def main(argv: list[str] | None = None) -> int:
     return run_main("truav-swarm", run, say_interrupted=False)
 
 
+def entry() -> None:
+    """The `truav-swarm` console script and `python -m truav.cli.swarm`: a swarm's part ends without the
+    interpreter's finalization once its files are written (truav.lifecycle.exit_after_work)."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    if argv[:1] and argv[0] in (*PARTS, "router"):
+        from truav.lifecycle import exit_after_work
+        exit_after_work(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()
