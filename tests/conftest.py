@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -20,12 +21,24 @@ TESTS = Path(__file__).resolve().parent
 TIERS = ("unit", "bus", "swarm", "docs")  # a test's tier is the folder it is in
 DURATIONS = TESTS / "durations.json"
 """{nodeid: seconds of setup+call+teardown} of a recorded run (`--record-durations`)."""
+PACKAGES = ("truav", "agents", "world", "recorder", "tests")
 SLOW_S = 20.0  # a test recorded longer than this is marked `slow`
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--record-durations", action="store_true",
                      help=f"rewrite {DURATIONS.relative_to(TESTS.parent)} with this run's test durations")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """With PYTHONDONTWRITEBYTECODE set (a clean source tree), every process the suite starts (a thousand:
+    swarm parts, CLI runs) compiled TRUAV's ~300 modules from source again, ~0.1 CPU-s each. The suite's
+    processes keep their bytecode outside the tree instead (PYTHONPYCACHEPREFIX, under the user's cache
+    directory beside the numba kernels): nothing is written into the checkout either way."""
+    if os.environ.get("PYTHONDONTWRITEBYTECODE") and not os.environ.get("PYTHONPYCACHEPREFIX"):
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        os.environ["PYTHONPYCACHEPREFIX"] = str(base / "truav" / "test-bytecode")
+        del os.environ["PYTHONDONTWRITEBYTECODE"]
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
@@ -45,6 +58,9 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     say = reporter.write_line if reporter is not None else print
     began = time.monotonic()
     say("compiling (or loading) the numba kernels before the tests, on two processes ...")
+    # the sources' bytecode first (where pytest_configure put it): the kernel processes start from it
+    subprocess.run([sys.executable, "-m", "compileall", "-q", "-j", "2", *PACKAGES], cwd=TESTS.parent,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     compiles = [subprocess.Popen([sys.executable, "-c", code], cwd=TESTS.parent, stdout=subprocess.DEVNULL,
                                  stderr=subprocess.PIPE, text=True)
                 for code in ("from truav.analysis.warmup import compile_kernels; compile_kernels()",
