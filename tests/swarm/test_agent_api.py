@@ -18,15 +18,13 @@ from truav.analysis import runio
 from truav.analysis.agent_run import read_agent_state
 from truav.cli import main as cli
 from truav.config import Config
+from tests.support.tutorial_agent import USER_MODULE
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = ["--seeds", "1", "--episodes", "3", "--set", "scenario.n_vehicles=60", "--set",
         "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10", "--quiet"]
 TINY_CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10}, roads={"warmup_steps": 10})
 
-TUTORIAL = REPO / "docs" / "how-to" / "your-own-agent.md"
-USER_MODULE = re.search(r"```python\n(.*?)```", TUTORIAL.read_text(), re.S).group(1)
-"""The tutorial's agent (its first Python block), as a user would copy it: the docs and the tests stay one."""
 
 BAD_MODULE = textwrap.dedent('''
     from agents.api import UavAgent

@@ -19,25 +19,11 @@ from tests.support.runs import run_to_end
 from agents.api_controller import ApiController
 from agents.random_agent import RandomAgent
 from truav.analysis.driver import run_episodes
-from truav.config import Config, to_toml
+from truav.config import to_toml
 from tests.support.lockstep import Recorder
 
-SEED = 4
-EPISODES = 4
-CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10, "n_uavs": 4}, roads={"warmup_steps": 10})
-SWARM_TIMEOUT_S = 240.0
-METRICS = ("coverage_pct", "pdr", "delay_ms", "energy_j", "generated", "delivered", "dropped")
-
-
-def up(tmp: Path, name: str, *extra: str, env: dict | None = None) -> Path:
-    scenario = tmp / f"{name}.toml"
-    scenario.write_text(to_toml(CFG))
-    out = tmp / name
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
-           "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
-    rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=env or dict(os.environ), term_wait_s=30)
-    assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")
-    return out
+from tests.support.tutorial_agent import USER_MODULE
+from tests.support.agent_api_swarm import CFG, EPISODES, METRICS, SEED, SWARM_TIMEOUT_S, up
 
 
 def test_lockstep_swarm_of_the_random_agent_equals_training_it(tmp_path):
@@ -138,7 +124,6 @@ def test_a_user_class_failing_on_the_bus_hovers_its_uav_and_the_run_goes_on(tmp_
 def test_a_learning_class_from_outside_the_repo_flies_to_the_state_training_reaches(tmp_path):
     """The tutorial's Bandit (tests/swarm/test_agent_api.py), trained in process and flown as a lock-step swarm:
     every agent process ends with the state_dict training ends with, array for array."""
-    from test_agent_api import USER_MODULE
     from truav.analysis.trainer import run_chunk
     mods = tmp_path / "mylab"
     mods.mkdir()
@@ -180,7 +165,6 @@ def test_a_lockstep_swarm_of_truav_through_the_api_ends_with_truav_trains_q_tabl
 def test_a_crashed_agent_of_a_user_class_resumes_its_state_from_its_checkpoint(tmp_path):
     """Real time, 10 Hz: UAV 1's process is SIGKILLed at 6 s and restarted 2 s later; it resumes from its
     checkpoint (taken every 50 steps), so its state counts every step it learned, before and after."""
-    from test_agent_api import USER_MODULE
     mods = tmp_path / "mylab"
     mods.mkdir()
     (mods / "bandit_agent.py").write_text(USER_MODULE)

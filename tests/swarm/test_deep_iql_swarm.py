@@ -7,27 +7,12 @@ from __future__ import annotations
 
 import json
 import os
-import textwrap
+from pathlib import Path
 
 import numpy as np
 
-from test_agent_api_swarm import CFG, EPISODES, METRICS, SEED, up
-
-# Tiny buffers and early updates, so that 4 episodes of 10 steps train (the defaults wait 1000 transitions).
-SMALL_MODULE = textwrap.dedent('''
-    from dataclasses import replace
-    from agents import deep_iql
-
-    SMALL = replace(deep_iql.DeepIqlConfig(), replay_capacity=24, warmup=6, train_every=2, target_every=3,
-                    batch_size=5)
-
-    class SmallBatched(deep_iql.DeepIqlBatched):
-        hp = SMALL
-
-    class Small(deep_iql.DeepIql):
-        hp = SMALL
-        batched = SmallBatched
-''')
+from tests.support import small_iql
+from tests.support.agent_api_swarm import CFG, EPISODES, METRICS, SEED, up
 
 
 def test_a_lockstep_swarm_of_the_deep_learner_ends_with_the_state_training_reaches(tmp_path):
@@ -35,7 +20,7 @@ def test_a_lockstep_swarm_of_the_deep_learner_ends_with_the_state_training_reach
     from truav.analysis.trainer import run_chunk
     mods = tmp_path / "mods"
     mods.mkdir()
-    (mods / "smalliql.py").write_text(SMALL_MODULE)
+    (mods / "smalliql.py").write_text(Path(small_iql.__file__).read_text())  # for the agent processes
     sys.path.insert(0, str(mods))
     try:
         trained = run_chunk("agent:smalliql:Small", CFG, [SEED], EPISODES)  # the batched form, in process

@@ -17,6 +17,8 @@ import math
 import numpy as np
 import pytest
 
+from tests.support.golden import GOLDEN, SMALL, digest
+
 from truav.config import ChannelConfig, Config, ConfigError
 from world import channel_models as cm
 from world.channel import ChannelParams, a2a_rate, a2g_rate
@@ -200,33 +202,12 @@ def test_evaluate_runs_a_policy_under_another_channel(tmp_path, monkeypatch, cap
 
 # -- the world under each model ------------------------------------------------------------------------
 
-GOLDEN = {
-    # sha256 of the metrics (sorted keys, float64) and of the Q-tables of run_chunk(kind, SMALL, [0, 7], 3),
-    # recorded on commit ab721b6, before channel models existed: the default channel changes no number.
-    "truav": ("7ba9b5abcfc2c31b326b987d86edde60f66ccf570fdd69862cc78051a8879671",
-              "ed248b234cbc01c242e7195a70c076e18b8faf5493068c796f5a873e69a46db6"),
-    "patrol": ("4d5f7631094a627d14e28d0c5e1e2a832f14a48c29a9f8e897ab89ad1297254a", None),
-}
-SMALL = {"scenario": {"n_vehicles": 60, "steps_per_episode": 20}, "roads": {"warmup_steps": 20},
-         "learner": {"episodes": 3}}
-
-
-def _digest(result):
-    import hashlib
-    h = hashlib.sha256()
-    for k in sorted(result.metrics):
-        h.update(k.encode())
-        h.update(np.ascontiguousarray(result.metrics[k], dtype=np.float64).tobytes())
-    q = None if result.q is None else hashlib.sha256(np.ascontiguousarray(result.q).tobytes()).hexdigest()
-    return h.hexdigest(), q
-
-
 @pytest.mark.parametrize("kind", ["truav", "patrol"])
 def test_paper_model_reproduces_the_numbers_of_before(kind):
     from truav.analysis.trainer import run_chunk
     default = run_chunk(kind, Config().replace(**SMALL), [0, 7], 3)
     explicit = run_chunk(kind, Config().replace(**SMALL, channel={"model": "paper"}), [0, 7], 3)
-    assert _digest(default) == _digest(explicit) == GOLDEN[kind]
+    assert digest(default) == digest(explicit) == GOLDEN[kind]
 
 
 def test_other_models_change_the_rates_and_stay_deterministic():

@@ -21,23 +21,12 @@ from truav.cli import main as cli
 from truav.analysis.agent_loader import trial_view
 from truav.config import Config
 from truav.analysis.driver import run_episodes
+from tests.support.small_iql import SMALL, Small
 
 REPO = Path(__file__).resolve().parents[2]
-# Tiny buffers and early, frequent updates: a few 10-step episodes exercise replay wrap-around, Adam and
-# target copies (the defaults would not update before episode 10 of 100 steps).
-SMALL = replace(deep_iql.DeepIqlConfig(), replay_capacity=24, warmup=6, train_every=2, target_every=3, batch_size=5)
 CFG = Config().replace(scenario={"n_vehicles": 60, "steps_per_episode": 10}, roads={"warmup_steps": 10},
                        learner={"geofence": True, "episodes": 4})
 SEEDS = [0, 1]
-
-
-class SmallBatched(deep_iql.DeepIqlBatched):
-    hp = SMALL
-
-
-class Small(deep_iql.DeepIql):
-    hp = SMALL
-    batched = SmallBatched
 
 
 class SmallPerUav(Small):
@@ -154,7 +143,7 @@ def test_it_is_registered_and_passes_the_loaders_checks():
 
 def test_truav_train_with_the_deep_learner_writes_its_state(tmp_path):
     out = tmp_path / "run"
-    args = ["train", "--agent", "tests.unit.test_deep_iql:Small", "--seeds", "2", "--episodes", "3", "--set",
+    args = ["train", "--agent", "tests.support.small_iql:Small", "--seeds", "2", "--episodes", "3", "--set",
             "scenario.n_vehicles=60", "--set", "scenario.steps_per_episode=10", "--set", "roads.warmup_steps=10",
             "--workers", "1", "--quiet", "--out", str(out)]
     assert cli.main(args) == 0

@@ -335,3 +335,30 @@ def test_no_module_outside_truav_cli_imports_it(graph):
     found = sorted((m, d) for m, deps in graph.items() for d in deps
                    if _in_cli_folder(d) and not _in_cli_folder(m) and not m.startswith("bench."))
     assert not found, f"modules outside truav/cli/ importing it: {found}"
+
+
+def imports_of_test_modules(source: str) -> list[str]:
+    """The test modules (``test_*``) a test file's source imports, in any form."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):  # `from tests.unit.test_x import y`, `from tests.unit import test_x`
+            names = [node.module or ""] + [f"{node.module or ''}.{a.name}" for a in node.names]
+        else:
+            continue
+        found += [n for n in names if n.rsplit(".", 1)[-1].startswith("test_")]
+    return found
+
+
+def test_no_test_module_imports_another():
+    """Tests share helpers through tests/support (tests/README.md), never by importing a test module: that
+    runs the other module's tests' imports and ties two files' edits together."""
+    found = {str(p.relative_to(REPO)): imports_of_test_modules(p.read_text())
+             for p in sorted((REPO / "tests").rglob("*.py"))}
+    found = {path: names for path, names in found.items() if names}
+    assert not found, f"test modules importing test modules (move what they share to tests/support): {found}"
+    planted = ("def f():\n    from tests.unit.test_channel_models import GOLDEN\nfrom test_agent_api_swarm import up\n"
+               "from tests.unit import test_deep_iql\nimport tests.swarm.test_swarm as s\nfrom tests.support import waits\n")
+    assert sorted(imports_of_test_modules(planted)) == ["test_agent_api_swarm", "tests.swarm.test_swarm",
+                                                         "tests.unit.test_channel_models", "tests.unit.test_deep_iql"]

@@ -115,10 +115,10 @@ def test_fused_kernel_equals_the_step_path_with_channel_links(small_cfg):
 def test_ideal_links_are_todays_numbers():
     """links.model "ideal" (the default) is bit for bit the run of before channel-driven links: the same
     digests as tests/unit/test_channel_models.py's golden run, recorded before either existed."""
-    from tests.unit.test_channel_models import GOLDEN, SMALL, _digest
+    from tests.support.golden import GOLDEN, SMALL, digest
     assert Config().links.model == "ideal"
     result = run_chunk("truav", Config().replace(**SMALL, links={"model": "ideal"}), [0, 7], 3)
-    assert _digest(result) == GOLDEN["truav"]
+    assert digest(result) == GOLDEN["truav"]
 
 
 def test_a_bad_link_model_is_one_line(capsys):

@@ -17,7 +17,6 @@ import ast
 import dataclasses
 import inspect
 import os
-import re
 import sys
 from pathlib import Path
 from typing import Any, Callable

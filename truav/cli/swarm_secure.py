@@ -66,8 +66,8 @@ def cmd_certs(args) -> int:
         raise UsageError(str(exc)) from None
     creds = security.load(out)
     print(f"credentials for run {creds.run!r} ({creds.n_uavs} agents, router at {creds.endpoint}) in {out}:")
-    print(f"  ca.pem (trust anchor), ca.key (keep private: it signs new certificates), router.json5, "
-          f"one <identity>.key/.pem/.json5 per component")
+    print("  ca.pem (trust anchor), ca.key (keep private: it signs new certificates), router.json5, "
+          "one <identity>.key/.pem/.json5 per component")
     print(f"  start the router with `truav-swarm router --creds {out}`, every part with `--creds {out}`")
     return 0
 
