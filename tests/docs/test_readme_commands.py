@@ -29,6 +29,9 @@ SMALL_CITY = ["--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5"
 # --max-missed 1: how many of a 5-tick real-time run's actions a loaded CI host misses is not what this test
 # checks (tests/swarm/test_cold_start.py bounds the first ticks of a cold start, scheme by scheme).
 SWARM = ["--episodes", "1", "--steps", "5", *SMALL_CITY, "--no-plot", "--quiet", "--max-missed", "1"]
+# Two agents where the command's point is not the swarm's size (a policy, plan or Q-table sized for the default
+# five keeps the default): each agent process costs ~0.6 CPU-s to start, and this test starts about a hundred.
+FEW = [*SWARM, "--agents", "2"]
 TRAIN = ["--seeds", "2", "--episodes", "3", "--workers", "1", "--quiet"]
 VELOCITY = ["--quick", "--seeds", "1", "--episodes", "2", "--eval-episodes", "1", "--workers", "1", "--quiet"]
 
@@ -36,23 +39,23 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up": SWARM,
     "truav train": TRAIN,
     "truav-swarm up --agents 8 --episodes 5 --out runs/swarm-8": SWARM,
-    "truav-swarm up --lockstep --out runs/swarm-lockstep": SWARM,
+    "truav-swarm up --lockstep --out runs/swarm-lockstep": FEW,
     "truav-swarm up --qtable runs/train-15mps --greedy --out runs/swarm-greedy": SWARM,
-    "truav-swarm up --record runs/swarm-rec.mcap --out runs/swarm-rec": SWARM,
-    "truav-swarm up --scheme patrol --out runs/swarm-patrol": SWARM,
+    "truav-swarm up --record runs/swarm-rec.mcap --out runs/swarm-rec": FEW,
+    "truav-swarm up --scheme patrol --out runs/swarm-patrol": FEW,
     "truav-swarm up --scheme central --out runs/swarm-central": SWARM,
     "truav train --scheme central --seeds 1 --episodes 300 --out runs/train-central": TRAIN,
     "truav-swarm up --scheme central --policy runs/train-central --out runs/swarm-central-trained": SWARM,
-    "truav-swarm up -v --force": SWARM,
+    "truav-swarm up -v --force": FEW,
     # 100 and 50 agents: the same options at 20 agents (2 processes of 10), a CI machine's share
     "truav-swarm up --agents 100 --agents-per-process 10 --share-beacons --out runs/swarm-100": [*SWARM, "--agents", "20"],
     "truav-swarm up --agents 100 --agents-per-process 20 --share-beacons --batch-beacons --lockstep "
     "--out runs/swarm-100-lockstep": [*SWARM, "--agents", "20", "--agents-per-process", "10"],
     "truav-swarm up --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
         [*SWARM, "--agents", "20"],
-    "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": SWARM,
-    "truav-swarm up --lockstep --set federated.every=1 --out runs/swarm-fed": SWARM,
-    "truav-swarm up --secure --out runs/swarm-secure": SWARM,
+    "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": FEW,
+    "truav-swarm up --lockstep --set federated.every=1 --out runs/swarm-fed": FEW,
+    "truav-swarm up --secure --out runs/swarm-secure": FEW,
     "truav-swarm acl explain --identity uav/1": [],
     "truav-swarm certs --deployment deploy/three-hosts.toml --out creds": [],
     "truav train --speed 25 --seeds 4 --episodes 1000 --out runs/quick": TRAIN,
@@ -63,7 +66,7 @@ RUN: dict[str, list[str]] = {
     "truav train --config my-config.toml --out runs/my-config": TRAIN,
     "truav traffic build": [],
     "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
-    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": SWARM,
+    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": FEW,
     "truav experiment velocity --quick --mobility sumo --out runs/velocity-sumo": VELOCITY,
     "truav experiment velocity": VELOCITY,
     "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
@@ -84,8 +87,8 @@ RUN: dict[str, list[str]] = {
     "truav log cut runs/demo.mcap runs/demo-b.mcap --from-tick 3": [],
     "truav log merge runs/demo-ab.mcap runs/demo-a.mcap runs/demo-b.mcap": [],
     "truav-swarm up --record runs/foxglove.mcap --foxglove --out runs/swarm-foxglove": [*SWARM, "--foxglove", "0"],
-    "truav-swarm up --record runs/parts.mcap --split-size 1 --split-duration 60 --out runs/swarm-parts": SWARM,
-    "truav-swarm up --record runs/snap.mcap --snapshot 10:5 --out runs/swarm-snap": SWARM,
+    "truav-swarm up --record runs/parts.mcap --split-size 1 --split-duration 60 --out runs/swarm-parts": FEW,
+    "truav-swarm up --record runs/snap.mcap --snapshot 10:5 --out runs/swarm-snap": FEW,
     "truav-swarm up --fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-faults": SWARM,
     "truav-swarm chaos --plan deploy/plans/partition-latency.toml": SWARM,
     "truav-swarm up --scheme central --fault-plan deploy/plans/controller-crash.toml "
