@@ -136,5 +136,6 @@ def main(argv: Optional[list[str]] = None) -> int:
     return cmd_record(args)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # a swarm's recorder: ends, its file finished, without the interpreter's finalization
+    from truav.lifecycle import exit_after_work
+    exit_after_work(main())
