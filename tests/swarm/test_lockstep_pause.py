@@ -77,7 +77,12 @@ def test_agent_paused_5s_leaves_lockstep_exact(tmp_path):
 def test_pause_beyond_the_bound_says_not_exact_and_fails(tmp_path):
     rc, out, text = run_up(tmp_path, "beyond", 4.0, "--lockstep-wait", "1")
     assert rc == 1, text
-    assert_freeze_while_ticking(out, 4.0)
+    # The pause began mid-run and the ticking went on past the 1 s bound. Its end need not come before the
+    # run's: once the world stops waiting for the paused agent (and, on a busy host, for the slowed one),
+    # the run may finish inside the freeze.
+    summary = json.loads((out / "summary.json").read_text())
+    assert ("freeze", "start") in [(kind, phase) for _, kind, phase in summary["fault_events"]], summary
+    assert summary["world"]["last_tick_wall_s"] - summary["world"]["first_tick_wall_s"] > 1.0 + 1.0, summary["world"]
     outcome = json.loads((out / "summary.json").read_text())["outcome"]
     ex = outcome["lockstep"]
     assert ex["exact"] is False and outcome["result"] == "failed", outcome
