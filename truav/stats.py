@@ -146,10 +146,11 @@ def effect_text(e: Effect, digits: int = 2, noun: str = "pairs", size: float | N
 NO_DATA = "no data"
 
 
-def shown(value: float, spec: str) -> str:
-    """``value`` formatted by ``spec``, or "no data" (right-aligned to the spec's width) for a metric that had
-    nothing to measure (a PDR without packets is NaN, which would print as ``nan``)."""
+def shown(value: float, spec: str, unit: str = "") -> str:
+    """``value`` formatted by ``spec`` followed by ``unit`` (e.g. "%", " J"), or "no data" (right-aligned to the
+    spec's width, without the unit) for a metric that had nothing to measure (a PDR without packets is NaN,
+    which would print as ``nan``)."""
     if value is not None and math.isfinite(value):
-        return format(value, spec)
+        return format(value, spec) + unit
     width = "".join(ch for ch in spec.split(".")[0] if ch.isdigit())
-    return NO_DATA.rjust(int(width)) if width else NO_DATA
+    return NO_DATA.rjust(int(width) + len(unit)) if width else NO_DATA

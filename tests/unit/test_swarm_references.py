@@ -35,3 +35,12 @@ def test_no_references_when_asked_or_when_the_run_flew_one_or_finished_no_episod
         "coverage 10.0%, PDR 0.120 (references not computed: --no-references)"
     assert references_line("truav", {"episodes": []}, None, "no episode finished", False) == \
         "references: none (no episode finished)"
+
+
+def test_a_metric_without_data_is_no_data_without_its_unit() -> None:
+    """The live status and the summary say "coverage no data", not "no data%"; a value keeps its unit."""
+    from truav.stats import shown
+    assert shown(float("nan"), "5.1f", "%") == "no data" and shown(12.345, "5.1f", "%") == " 12.3%"
+    assert shown(None, ".2f", " J") == "no data" and shown(2.0, ".2f", " J") == "2.00 J"
+    assert references_line("truav", {"episodes": [{"coverage_pct": None, "pdr": None}]}, None, "x", False) == \
+        "coverage no data, PDR no data (references not computed: x)"

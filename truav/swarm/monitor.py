@@ -174,7 +174,8 @@ class Monitor:
             energy = np.mean(self.energy[-10:]) if self.energy else float("nan")
         return [f"tick {tick:6d}  {rate:5.1f} ticks/s  agents alive {len(agents)}/{self.n_uavs}  "
                 f"missed actions {int(misses)}",
-                f"coverage {shown(cov, '5.1f')}%  PDR so far {shown(pdr, '6.3f')}  energy/UAV/step {shown(energy, '6.1f')} J",
+                f"coverage {shown(cov, '5.1f', '%')}  PDR so far {shown(pdr, '6.3f')}  "
+                f"energy/UAV/step {shown(energy, '6.1f', ' J')}",
                 "alive: " + (" ".join(a.split("/")[1] for a in agents) or "-")]
 
     def debug_line(self) -> str:

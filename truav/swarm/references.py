@@ -56,13 +56,13 @@ def references_line(scheme: str, world: dict | None, refs: dict | None, why_not:
     own = run_metrics(world)
     if own is None:
         return "references: none (no episode finished)"
-    head = f"coverage {shown(own['coverage_pct'], '.1f')}%, PDR {shown(own['pdr'], '.3f')}"
+    head = f"coverage {shown(own['coverage_pct'], '.1f', '%')}, PDR {shown(own['pdr'], '.3f')}"
     if refs is None:
         return f"{head} (references not computed: {why_not})"
     n = refs["episodes"]
     return (f"{head} ({scheme})\n  references on the same scenario, seed {refs['seed']}, {n} episode{'s' if n != 1 else ''}"
             + (", without the faults" if faults else "") + f" (flown in process, {refs['elapsed_s']:.1f} s): "
-            + "; ".join(f"{k} {shown(refs[k]['coverage_pct'], '.1f')}%, PDR {shown(refs[k]['pdr'], '.3f')}"
+            + "; ".join(f"{k} {shown(refs[k]['coverage_pct'], '.1f', '%')}, PDR {shown(refs[k]['pdr'], '.3f')}"
                         for k in REFERENCE_SCHEMES)
             + f"; the oracle ceiling: {CEILING_DOC}")
 

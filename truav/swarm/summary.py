@@ -212,8 +212,8 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
         cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
-        print(f"episode {e}: coverage {shown(cov, '5.1f')}%  PDR {shown(pdr, '.3f')}  delay {shown(delay, '6.1f')} ms  "
-              f"energy/UAV {shown(energy / 1e3, '6.2f')} kJ")
+        print(f"episode {e}: coverage {shown(cov, '5.1f', '%')}  PDR {shown(pdr, '.3f')}  "
+              f"delay {shown(delay, '6.1f', ' ms')}  energy/UAV {shown(energy / 1e3, '6.2f', ' kJ')}")
     if world:
         lat = world.get("tick_lateness_ms")
         if lat:
