@@ -16,6 +16,7 @@ from tests.support.waits import free_port
 from truav.bus import transport
 from truav.bus.transport import Bus
 from truav.config import Config
+from truav.user_cache import truav_cache_dir
 
 TESTS = Path(__file__).resolve().parent
 TIERS = ("unit", "bus", "swarm", "docs")  # a test's tier is the folder it is in
@@ -36,8 +37,7 @@ def pytest_configure(config: pytest.Config) -> None:
     processes keep their bytecode outside the tree instead (PYTHONPYCACHEPREFIX, under the user's cache
     directory beside the numba kernels): nothing is written into the checkout either way."""
     if os.environ.get("PYTHONDONTWRITEBYTECODE") and not os.environ.get("PYTHONPYCACHEPREFIX"):
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-        os.environ["PYTHONPYCACHEPREFIX"] = str(base / "truav" / "test-bytecode")
+        os.environ["PYTHONPYCACHEPREFIX"] = str(truav_cache_dir() / "test-bytecode")
         del os.environ["PYTHONDONTWRITEBYTECODE"]
 
 

@@ -16,6 +16,8 @@ import hashlib
 import os
 from pathlib import Path
 
+from truav.user_cache import truav_cache_dir
+
 _ROOT = Path(__file__).resolve().parent.parent
 KERNEL_PACKAGES = ("world", "agents")
 
@@ -29,8 +31,7 @@ def cache_dir() -> Path:
     digest = hashlib.sha256()
     for path in kernel_sources():
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "truav" / "numba" / digest.hexdigest()[:16]
+    return truav_cache_dir() / "numba" / digest.hexdigest()[:16]
 
 
 def uncached(files: list[str]) -> list[str]:

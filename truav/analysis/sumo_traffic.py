@@ -31,6 +31,7 @@ import numpy as np
 from truav.checks import make_dir
 from truav.config import Config
 from truav.errors import UserError
+from truav.user_cache import truav_cache_dir
 from world import sumo_scenario
 from world.trace import Trace, rows_needed
 from truav import jsonio
@@ -62,7 +63,7 @@ def cache_root() -> Path:
     """Where traces are cached: $TRUAV_TRACE_CACHE, else <XDG cache>/truav/sumo."""
     if os.environ.get("TRUAV_TRACE_CACHE"):
         return Path(os.environ["TRUAV_TRACE_CACHE"])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "truav" / "sumo"
+    return truav_cache_dir() / "sumo"
 
 
 def trace_dir(cfg: Config, root: Path | None = None) -> Path:
