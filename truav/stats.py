@@ -127,7 +127,8 @@ def pairs_to_resolve(sd: float, size: float, limit: int = 100_000) -> int | None
 def effect_text(e: Effect, digits: int = 2, noun: str = "pairs", size: float | None = None) -> str:
     """One cell of a comparison: the difference with its 95% interval, or why there is none. When the
     interval covers zero: "no effect detectable at this size (±X)" and about how many ``noun`` would
-    resolve a difference of the observed size (or of ``size``, when given)."""
+    resolve a difference of the observed size (or of ``size``, when given), unless that size prints as
+    zero at ``digits``: a difference of "0.00" is not one more pairs would resolve, the interval says it all."""
     f = f"{{:+.{digits}f}}"
     if e.n == 0:
         return "n/a (no pair with both values)"
@@ -138,8 +139,10 @@ def effect_text(e: Effect, digits: int = 2, noun: str = "pairs", size: float | N
     if e.resolved:
         return f"{f.format(e.diff)} ±{e.half:.{digits}f} (95% CI, {e.n} {noun})"
     target = abs(e.diff) if size is None else abs(size)
-    need = pairs_to_resolve(e.sd, target)
-    more = f"; ~{need} {noun} would resolve a difference of {target:.{digits}f}" if need and target > 0 else ""
+    # a difference that prints as zero at these digits is no size to aim at: no count of pairs is asked for
+    shown_target = round(target, digits)
+    need = pairs_to_resolve(e.sd, target) if shown_target > 0 else None
+    more = f"; ~{need} {noun} would resolve a difference of {target:.{digits}f}" if need else ""
     return f"{f.format(e.diff)}: no effect detectable at this size (±{e.half:.{digits}f}, {e.n} {noun}){more}"
 
 

@@ -56,3 +56,12 @@ def test_the_other_cases_read_as_what_they_are():
     assert effect_text(paired_effect([1], [3])) == "+2.00 (1 pair: no interval; more pairs give one)"
     assert effect_text(paired_effect([math.nan], [3])) == "n/a (no pair with both values)"
     assert effect_text(Effect(-2.0, 0.5, 5, 0.4), digits=1) == "-2.0 ±0.5 (95% CI, 5 pairs)"
+
+
+def test_a_difference_that_prints_as_zero_asks_for_no_more_pairs():
+    # the chaos comparison printed "~77959 episodes would resolve a difference of 0.00"
+    e = Effect(0.0023, 0.03, 20, 0.064)
+    text = effect_text(e, noun="episodes")
+    assert text == "+0.00: no effect detectable at this size (±0.03, 20 episodes)"
+    assert "would resolve" not in effect_text(e, noun="episodes", size=0.004)
+    assert "would resolve a difference of 0.01" in effect_text(e, noun="episodes", size=0.01)
