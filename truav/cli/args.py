@@ -33,8 +33,34 @@ MAX_SEED = 2**63 - 1
 """Seeds feed numpy's SeedSequence, which takes any non-negative integer; this keeps them in an int64."""
 
 
+def truav_version() -> str:
+    """The installed distribution's version (declared once, in pyproject.toml)."""
+    from importlib import metadata
+    try:
+        return metadata.version("truav")
+    except metadata.PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed: pip install -e .)"
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: looked up only when asked, so building the ~60 parsers costs no metadata read."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser._print_message(f"{parser.prog} {truav_version()}\n", sys.stdout)  # stdout, as argparse's own
+        parser.exit(0)
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (the flag and what is wrong) and exit code 2."""
+    """argparse, but a usage error is one line (the flag and what is wrong) and exit code 2; every command
+    and subcommand answers ``--version``."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if self.add_help:
+            self.add_argument("--version", action=_VersionAction, help="print TRUAV's version and exit")
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

@@ -126,7 +126,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = cli_args.OneLineParser(
         prog="python -m recorder.process",
         description="Record every message of a TRUAV run (truav/<run>/**) into an MCAP file until "
                     "SIGINT/SIGTERM or a 'stop' command on truav/<run>/control/recorder; print a summary.")
