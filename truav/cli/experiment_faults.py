@@ -5,6 +5,7 @@ truav.swarm.fault_sweep, the scheme comparison truav.swarm.scheme_faults).
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from truav import jsonio
@@ -80,17 +81,31 @@ def cmd_fault_sweep(args) -> int:
             from truav.swarm.checks import check_central_sizes
             check_central_sizes(cfg)
         check_settings(out, settings)
-        paths = run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable, policy=args.policy,
-                               rate_hz=args.rate, keep_steps=keep_steps, executor=args.executor,
-                               address=args.address)
-        print("\n" + "\n".join(map(str, [out / "comparison.csv", *paths])))
-        return 0
+        return _sweep(lambda: run_comparison(cfg, size, out, schemes, seed=args.seed, qtable=args.qtable,
+                                             policy=args.policy, rate_hz=args.rate, keep_steps=keep_steps,
+                                             executor=args.executor, address=args.address),
+                      [out / "comparison.csv"])
     if args.policy is not None:
         raise UsageError("--policy: only with --schemes central")
     check_settings(out, settings)
-    path = fault_sweep.run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable, rate_hz=args.rate,
-                                 keep_steps=keep_steps, executor=args.executor, address=args.address)
-    print(f"\n{out / 'faults.csv'}\n{path}")
+    return _sweep(lambda: [fault_sweep.run_sweep(cfg, size, out, seed=args.seed, qtable=args.qtable,
+                                                 rate_hz=args.rate, keep_steps=keep_steps, executor=args.executor,
+                                                 address=args.address)], [out / "faults.csv"])
+
+
+def _sweep(run, first: list[Path]) -> int:
+    """Run a sweep; its files, or one line on a stop signal (exit 128 + it) or a failed point (exit 1). The
+    points finished before are kept either way: the same command runs the rest."""
+    try:
+        paths = run()
+    except fault_sweep.PointInterrupted as exc:
+        print(f"truav: {exc}; run the same command to resume", file=sys.stderr, flush=True)
+        return exc.code
+    except fault_sweep.PointFailed as exc:
+        print(f"truav: error: {exc}; the points before it are kept: run the same command to resume",
+              file=sys.stderr, flush=True)
+        return 1
+    print("\n" + "\n".join(map(str, [*first, *paths])))
     return 0
 
 

@@ -12,15 +12,19 @@ import csv
 import json
 import math
 import os
+import signal
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from truav import jsonio
+from truav.csvio import row_cells
 from truav.config import Config
 from truav.stats import effect_text, paired_effect
+from truav.stopping import STOP_SIGNALS, exit_code_for, stopped_by
 
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0),
            ("delay_ms", "relay delay (ms)", 1.0), ("energy_j", "energy (kJ/UAV/episode)", 1e-3))
@@ -76,26 +80,87 @@ def train_policy(cfg: Config, out: Path, episodes: int, seed: int) -> Path:
     return run
 
 
+class PointInterrupted(KeyboardInterrupt):
+    """A stop signal (Ctrl-C, SIGTERM, SIGHUP) ended a sweep during its point ``number`` of ``total``: that point
+    is unfinished (a re-run redoes it from scratch), the ones before it are kept. ``code``: the exit code."""
+
+    def __init__(self, number: int, total: int, name: str, code: int) -> None:
+        super().__init__(f"interrupted at point {number}/{total} ({name})")
+        self.number, self.total, self.name, self.code = number, total, name, code
+
+
+class PointFailed(RuntimeError):
+    """A sweep point's swarm run failed (its logs say why); the points before it are kept."""
+
+
+STOP_CODES = frozenset(exit_code_for(s) for s in STOP_SIGNALS)
+"""A swarm run stopped by a signal exits with one of these (truav.swarm.swarm_options.Outcome.exit_code)."""
+
+
+def is_finished(text: str, episodes: int) -> bool:
+    """Whether a point's summary.json text is a finished run's: result ok (not interrupted, not failed) and
+    every one of the ``episodes`` asked for. Only such a point is kept by a re-run; any other is run again."""
+    try:
+        summary = json.loads(text)
+    except ValueError:
+        return False
+    if not isinstance(summary, dict) or summary.get("interrupted"):
+        return False
+    outcome, world = summary.get("outcome") or {}, summary.get("world") or {}
+    return outcome.get("result") == "ok" and len(world.get("episodes") or []) >= episodes
+
+
+def finished_point(path: Path, episodes: int) -> str | None:
+    """The summary.json text at ``path`` if its point finished (:func:`is_finished`), else None."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return text if is_finished(text, episodes) else None
+
+
+def swarm_point(n: int, total: int, name: str, run_dir: Path, episodes: int, label: str,
+                start: Callable[[], int]) -> str:
+    """Sweep point ``n`` (from 0) of ``total``: its summary.json text, kept if the point finished before,
+    else from ``start()``, a swarm run into ``run_dir`` that replaces its earlier files (an interrupted or
+    failed run of the point). A stop signal raises PointInterrupted, a failed run PointFailed."""
+    summary = run_dir / "summary.json"
+    text = finished_point(summary, episodes)
+    if text is not None:
+        return text
+    print(f"[{n + 1}/{total}] {label}", flush=True)
+    try:
+        rc = start()
+    except KeyboardInterrupt:  # before the swarm took the signals over, or after it gave them back
+        raise PointInterrupted(n + 1, total, name, exit_code_for(stopped_by() or signal.SIGINT)) from None
+    if rc in STOP_CODES:
+        raise PointInterrupted(n + 1, total, name, rc)
+    if rc:
+        raise PointFailed(f"swarm run {name} failed (exit {rc}; see {run_dir / 'logs'})")
+    text = finished_point(summary, episodes)
+    if text is None:
+        raise PointFailed(f"swarm run {name} ended without finishing its {episodes} episode(s) (see {summary})")
+    return text
+
+
 def run_point(cfg: Config, out: Path, seed: int, qtable: str, rate_hz: float, episodes: int, total: int,
               n: int, kind: str, level: float) -> str:
-    """One sweep point's swarm run (skipped if finished); returns its summary.json text."""
+    """One sweep point's swarm run (kept if finished); returns its summary.json text."""
     from truav.swarm.supervisor import SwarmOptions, run_swarm  # here: the parser loads this module
     name = f"{kind}-{level:g}"
-    done = out / name / "summary.json"
-    if not done.is_file():  # resumable: finished points are kept
+
+    def start() -> int:
         out.mkdir(parents=True, exist_ok=True)
         plan = out / f"{name}.toml"
         plan.write_text(plan_text(kind, level))
-        print(f"[{n + 1}/{total}] beacon {kind} {level:g}", flush=True)
-        rc = run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=episodes, rate_hz=rate_hz,
-                                         qtable=qtable, greedy=True, out=str(out / name), plot=False, references=False,
-                                         quiet=True, fault_plan=str(plan), force=True,  # unfinished: afresh
-                                         # Real time on a busy host misses actions: that is reported
-                                         # (missed_actions, a warning), not a reason to lose the sweep.
-                                         max_missed_share=1.0))
-        if rc:
-            raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
-    return done.read_text()
+        return run_swarm(cfg, SwarmOptions(run=f"sweep{n}", seed=seed, episodes=episodes, rate_hz=rate_hz,
+                                           qtable=qtable, greedy=True, out=str(out / name), plot=False,
+                                           references=False, quiet=True, fault_plan=str(plan),
+                                           force=True,  # unfinished: afresh, its partial files replaced
+                                           # Real time on a busy host misses actions: that is reported
+                                           # (missed_actions, a warning), not a reason to lose the sweep.
+                                           max_missed_share=1.0))
+    return swarm_point(n, total, name, out / name, episodes, f"beacon {kind} {level:g}", start)
 
 
 def missed_share(summary: dict, n_uavs: int) -> float:
@@ -130,7 +195,7 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
                                   cpus, address, cpus_per_task=min(SWARM_CPUS, cpus))
         for (kind, level), text in zip(points, texts):
             done = out / f"{kind}-{level:g}" / "summary.json"
-            if not done.is_file():
+            if finished_point(done, size.episodes) is None:  # a node's run, on storage this host does not see
                 done.parent.mkdir(parents=True, exist_ok=True)
                 done.write_text(text)
     else:
@@ -155,7 +220,7 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
     with open(out / "faults.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
-        w.writerows(rows)
+        w.writerows(row_cells(r) for r in rows)
     text = effects_text(per_episode)
     print(text, flush=True)
     (out / "effects.txt").write_text(text + "\n")

@@ -47,6 +47,7 @@ import numpy as np
 from truav.config import Config
 from truav.stats import effect_text, paired_effect
 from truav import jsonio
+from truav.csvio import row_cells
 
 SCHEMES = ("truav", "central", "patrol", "federated", "truav_online")
 LEARNING = ("federated", "truav_online")
@@ -162,34 +163,35 @@ def train_agent(cfg: Config, out: Path, name: str, episodes: int, seed: int) -> 
 
 def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None], rate_hz: float, size: CompareSize,
               total: int, n: int, scheme: str, kind: str, level: float) -> str:
-    """One swarm run (skipped if finished); its summary.json text."""
+    """One swarm run (kept if finished: truav.swarm.fault_sweep.swarm_point); its summary.json text."""
+    from truav.swarm.fault_sweep import swarm_point
     from truav.swarm.supervisor import SwarmOptions, run_swarm
     name = f"{file_name(scheme)}-{kind}-{level:g}"
-    done = out / name / "summary.json"
-    if not done.is_file():
+
+    def start() -> int:
         text = plan_text(scheme, kind, level, run_seconds(size, rate_hz, scheme))
         plan = None
         if text:
             plan = out / f"{name}.toml"
             plan.write_text(text)
-        print(f"[{n + 1}/{total}] {scheme}: {kind} {level:g}", flush=True)
         learning = scheme in LEARNING
+        run_cfg = cfg
         if learning:  # going on from the trained table: exploring as its training ended, not from epsilon_start
-            cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0},
-                              learner={"epsilon_start": cfg.learner.epsilon_end})
+            run_cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0},
+                                  learner={"epsilon_start": cfg.learner.epsilon_end})
         from truav.analysis.agent_loader import AGENT_KIND_PREFIX
         agent = is_agent_class(scheme)
-        rc = run_swarm(cfg, SwarmOptions(
+        return run_swarm(run_cfg, SwarmOptions(
             run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
-            plot=False, quiet=True, fault_plan=str(plan) if plan else None, force=True, references=False,
+            plot=False, quiet=True, fault_plan=str(plan) if plan else None,
+            force=True,  # unfinished: afresh, its partial files replaced
+            references=False,
             scheme="truav" if learning else AGENT_KIND_PREFIX + scheme if agent else scheme,
             qtable=policies[scheme] if agent else policies["truav"] if scheme == "truav" or learning else None,
             greedy=scheme == "truav" or agent,
             policy=policies["central"] if scheme == "central" else None,
             max_missed_share=1.0))  # a point whose actions went missing is a result here, not a failure
-        if rc:
-            raise RuntimeError(f"swarm run {name} failed (see {out / name / 'logs'})")
-    return done.read_text()
+    return swarm_point(n, total, name, out / name, episodes_of(size, scheme), f"{scheme}: {kind} {level:g}", start)
 
 
 def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> dict:
@@ -256,7 +258,7 @@ def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, .
     with open(out / "comparison.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
-        w.writerows(rows)
+        w.writerows(row_cells(r) for r in rows)
     (out / "policies.json").write_text(jsonio.dumps(policies, indent=1))
     text = comparison_effects(per_episode, schemes)
     print(text, flush=True)
