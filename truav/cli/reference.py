@@ -17,7 +17,9 @@ import ast
 import dataclasses
 import inspect
 import os
+import re
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any, Callable
 
@@ -97,10 +99,30 @@ def _flag_rows(parser, varying: set[tuple[str, str]], path: str) -> list[str]:
     return rows
 
 
+def _prose(text: str) -> str:
+    """A paragraph of ``--help`` text as Markdown: its `code spans` stay code, and outside them the characters
+    Markdown would take for HTML or emphasis are escaped."""
+    parts = re.split(r"(`[^`]*`)", " ".join(text.split()))
+    return "".join(part if part.startswith("`") else
+                   part.replace("\\", "\\\\").replace("<", "&lt;").replace("*", "\\*").replace("_", "\\_")
+                   for part in parts)
+
+
+def _description(text: str) -> list[str]:
+    """A parser's description: its paragraphs as prose, its indented lines (examples) as a code block."""
+    out: list[str] = []
+    for para in re.split(r"\n[ \t]*\n", text.strip("\n")):
+        if all(line.startswith("    ") for line in para.splitlines()):
+            out += ["```text", textwrap.dedent(para), "```", ""]
+        else:
+            out += [_prose(para), ""]
+    return out
+
+
 def _walk(parser, path: str, varying: set[tuple[str, str]], level: int) -> list[str]:
     lines = [f"{'#' * level} `{path}`", ""]
     if parser.description:
-        lines += ["```text", parser.description.strip("\n"), "```", ""]
+        lines += _description(parser.description)
     rows = _flag_rows(parser, varying, path)
     if rows:
         lines += ["| argument | what | default |", "|---|---|---|", *rows, ""]
