@@ -51,7 +51,8 @@ def test_the_learning_variants_fly_the_truav_table_online_with_and_without_shari
     def fake_run_swarm(cfg, opts):
         seen[opts.out.rsplit("/", 1)[-1]] = (cfg, opts)
         (tmp_path / opts.out.rsplit("/", 1)[-1]).mkdir()
-        (tmp_path / opts.out.rsplit("/", 1)[-1] / "summary.json").write_text(json.dumps({}))
+        (tmp_path / opts.out.rsplit("/", 1)[-1] / "summary.json").write_text(json.dumps(  # a finished run's
+            {"interrupted": False, "outcome": {"result": "ok"}, "world": {"episodes": [{}] * opts.episodes}}))
         return 0
 
     monkeypatch.setattr(supervisor, "run_swarm", fake_run_swarm)
