@@ -38,7 +38,7 @@ def site_problems(pages: list[Path], site: Path) -> list[str]:
         problems += [f"{name}: loads {m.group(0)[:120]}" for m in EXTERNAL.finditer(html)]
         if page.name != "404.html":
             problems += [f"{name}: {css} not linked" for css in EXTRA_CSS
-                         if not re.search(rf'<link[^>]*href="(?:\.\./)*{re.escape(css)}"', html)]
+                         if not re.search(rf'<link[^>]*href="(?:\./)?(?:\.\./)*{re.escape(css)}"', html)]
         for block in PRE.findall(html):
             text = unescape(re.sub(r"<[^>]+>", "", block)).lstrip()
             if text.startswith("`"):
