@@ -52,6 +52,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from truav.config import Config  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 from truav import jsonio  # noqa: E402
+from truav.csvio import row_cells  # noqa: E402
 import swarm_runs  # noqa: E402
 
 
@@ -392,7 +393,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         w = csv.DictWriter(f, fieldnames=SWEEP_FIELDS, extrasaction="ignore")
         w.writeheader()
         for r in rows:
-            w.writerow({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()})
+            w.writerow(row_cells({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}))
 
 
 def table(rows: list[dict]) -> str:

@@ -35,6 +35,7 @@ import os
 from pathlib import Path
 
 from recorder.reader import open_source, probe
+from truav.csvio import cell
 from recorder.report_data import (  # noqa: F401  (re-exported: the tests read a recording through here)
     FaultSpan,
     MapConfig,
@@ -62,7 +63,7 @@ def write_metrics_csv(rec: Recording, path: Path) -> str:
             values = m["values"]
             writer.writerow([f"{rec.t(m['_log_ns']):.6f}", m["_log_ns"], m["_pub_ns"], m.get("src", ""),
                              m.get("scope", ""), m.get("episode", ""), m.get("tick", ""),
-                             *("" if values.get(n) is None else repr(float(values[n])) for n in names)])
+                             *(cell(None if values.get(n) is None else float(values[n])) for n in names)])
     return f"metrics.csv: {len(rec.metrics)} rows x {len(names)} metrics"
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+from truav.csvio import cell
 from recorder.resim_branch import OUTCOME_METRICS, BranchResult
 
 
@@ -15,7 +16,7 @@ def write_csv(result: BranchResult, path: Path) -> None:
         w.writerow(["episode", "branched"] + [f"{k}_{side}" for k, _ in OUTCOME_METRICS
                                               for side in ("recorded", "branch")])
         for e, pairs in result.outcome_rows():
-            w.writerow([e, int(e >= result.from_episode)] + [repr(v) for pair in pairs for v in pair])
+            w.writerow([e, int(e >= result.from_episode)] + [cell(v) for pair in pairs for v in pair])
 
 
 def whatif_figure(result: BranchResult, path: Path, title: str) -> None:

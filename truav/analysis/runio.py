@@ -26,6 +26,7 @@ import numpy as np
 from truav.errors import UserError
 from truav.config import Config, load_config, to_toml
 from truav import jsonio
+from truav.csvio import cell, cells
 from truav.atomic import write_atomic
 
 CHECKPOINT_EVERY_S = 60.0
@@ -80,7 +81,7 @@ def write_metrics(path: Path, seeds: list[int], metrics: dict[str, np.ndarray], 
         w.writerow(list(extra) + ["seed", "episode"] + names)
         for b, seed in enumerate(seeds):
             for e in range(episodes):
-                w.writerow(list(extra.values()) + [seed, e] + [f"{metrics[k][e, b]:.6g}" for k in names])
+                w.writerow(cells(extra.values()) + [seed, e] + [cell(metrics[k][e, b], ".6g") for k in names])
     os.replace(tmp, path)
 
 
