@@ -42,51 +42,78 @@ SUPPORTED_API_VERSIONS = (1,)
 # values bool, int64 or finite float: a beacon stays small. The wire checks the same (truav.wire.field_checks).
 
 REQUIRED_METHODS = ("act", "learn", "state_dict", "load_state_dict")
+_LEARNER = Config().learner
+"""The config's defaults: a view built without the sensing fields (e.g. in a user's own test) has the default's."""
 
 
 @dataclass(frozen=True)
 class HeardBeacon:
-    """A peer's beacon as this UAV heard it."""
+    """A peer's beacon as this UAV heard it (one per peer heard at this step)."""
 
     uav: int
+    """The peer's id, 0..scenario.n_uavs - 1 (never this UAV's own)."""
     pos: tuple[float, float]
-    """The peer's position (m) at this step."""
+    """The peer's position (x, y) in m at this step, each in [0, scenario.area_m]."""
     vel: tuple[float, float]
-    """The velocity (m/s) of the peer's last action ((0, 0) before its first action of an episode)."""
+    """The velocity (vx, vy) in m/s of the peer's last action: (0, 0) before its first action of an episode and
+    while it hovers; its length is half or all of speed_max."""
     fields: Mapping[str, bool | int | float] = field(default_factory=dict)
-    """What the peer's beacon_fields() returned after its last action ({} if none)."""
+    """What the peer's beacon_fields() returned after its last action ({} before its first, and from a class
+    without beacon_fields or a batched form)."""
 
 
 @dataclass(frozen=True)
 class LocalView:
-    """What one UAV's agent sees at one step: its own sensing and the beacons it heard."""
+    """What one UAV's agent sees at one step: its own sensing and the beacons it heard. Counts are of the
+    whole step the UAV just flew (at step 0: of the start position, nothing relayed, no energy spent).
+    Every field is filled in every run; those that depend on an option say what they hold when it is off."""
 
     uav: int
+    """This UAV's id, 0..scenario.n_uavs - 1."""
     episode: int
+    """The episode, counted from 0 (in training and in an evaluation alike)."""
     step: int
-    """The step within the episode, 0..T (T: the view after the last action, given to learn only)."""
+    """The step within the episode, 0..T, T = scenario.steps_per_episode (the view at T, after the last
+    action, is given to learn only)."""
     pos: tuple[float, float]
-    """Own position (m), in [0, scenario.area_m]^2."""
+    """Own position (x, y) in m, x east and y north, each in [0, scenario.area_m]."""
     vehicles_in_range: int
-    """Vehicles within scenario.comm_range_m."""
+    """Vehicles within scenario.comm_range_m (horizontal distance) of this UAV, 0..scenario.n_vehicles."""
     queued_packets: int
-    """Packets queued at the vehicles this UAV serves."""
+    """Packets waiting in the queues of the vehicles this UAV serves (see covered), 0 or more (at most
+    traffic.queue_limit per vehicle)."""
     relayed: int
-    """Packets this UAV relayed to an RSU in the last step."""
+    """Packets this UAV relayed to an RSU in the last step, 0 or more (0 at step 0)."""
     covered: int
-    """Vehicles this UAV served in the last step."""
+    """Vehicles this UAV served in the last step (those in range whose nearest UAV it is),
+    0..vehicles_in_range."""
     energy_j: float
-    """Energy this UAV spent in the last step (J)."""
+    """Energy this UAV spent in the last step, in J (0 at step 0): (energy.hover_w + (energy.move_w -
+    energy.hover_w) x speed / energy.move_ref_speed_mps) x scenario.step_s, plus its radio's (world/step.py;
+    at the defaults 200 J hovering, 230 J at 15 m/s, before the radio's)."""
     speed_max: float
-    """Full speed (m/s): actions 8-15 fly at it, 0-7 at half of it."""
+    """Full speed in m/s (scenario.uav_speed_mps): actions 8-15 fly at it, 0-7 at half of it."""
     densest_sector: int
-    """1 + the direction sector with most vehicles beyond comm range (learner.sense_range_m), 0 none or off."""
+    """Sensing of denser areas: with sensing on (sense_range_m > 0), 1 + the direction sector holding the
+    most vehicles beyond comm range and within sense_range_m (sector k, from 0, spans the angles
+    k x 360/sense_sectors to (k + 1) x 360/sense_sectors degrees counter-clockwise from east; the first on
+    ties), so 1..sense_sectors, and 0 when none is sensed. Always 0 with sensing off (the default): check
+    sense_range_m."""
     exclusive: int
-    """Vehicles in this UAV's range and no other UAV's."""
+    """Vehicles in this UAV's range and no other UAV's, 0..vehicles_in_range: the coverage the swarm loses
+    without it."""
     nearest_rsu_m: float
-    """Distance to the nearest RSU (RSU sites are known a priori)."""
+    """Horizontal distance in m to the nearest RSU (RSU sites are known a priori: scenario.rsu_intersections);
+    inf without RSUs."""
     beacons: tuple[HeardBeacon, ...]
-    """The beacons heard at this step, in UAV-id order (in the in-process trainer: every other UAV's)."""
+    """The beacons heard at this step, in UAV-id order: in the in-process trainer every other UAV's; in a swarm
+    those the links delivered in time (none from a crashed or partitioned peer, links.* and fault plans)."""
+    sense_range_m: float = _LEARNER.sense_range_m
+    """The sensing radius in m (learner.sense_range_m): 0 means sensing is off and densest_sector is always 0;
+    when on, above scenario.comm_range_m."""
+    sense_sectors: int = _LEARNER.sense_sectors
+    """The number of direction sectors of densest_sector (learner.sense_sectors, 1..16; 4: sector 1 is
+    east to north, 2 north to west, 3 west to south, 4 south to east)."""
 
 
 class UavAgent:
@@ -199,6 +226,15 @@ class BatchedViews:
     """(B, U, U, 2) their velocities."""
     heard: np.ndarray
     """(B, U, U) bool."""
+    sense_range_m: float = _LEARNER.sense_range_m
+    """As LocalView.sense_range_m (0: sensing off)."""
+    sense_sectors: int = _LEARNER.sense_sectors
+    """As LocalView.sense_sectors."""
+
+
+def sensing(cfg: Config) -> tuple[float, int]:
+    """(sense_range_m, sense_sectors) of a view in a run of ``cfg``: what says whether densest_sector senses."""
+    return float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors)
 
 
 def beacon_problem(fields: Any) -> str | None:
@@ -221,5 +257,5 @@ def action_problem(action: Any) -> str | None:
     return None
 
 
-__all__ = ["API_VERSION", "SUPPORTED_API_VERSIONS", "MAX_BEACON_FIELDS", "HeardBeacon", "LocalView", "UavAgent",
+__all__ = ["API_VERSION", "SUPPORTED_API_VERSIONS", "MAX_BEACON_FIELDS", "HeardBeacon", "LocalView", "UavAgent", "sensing",
            "BatchedAgents", "BatchedViews", "HOVER", "N_ACTIONS"]

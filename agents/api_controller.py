@@ -14,11 +14,11 @@ from typing import Mapping
 
 import numpy as np
 
-from agents.api import BatchedViews, HeardBeacon, LocalView, action_problem, beacon_problem
+from agents.api import BatchedViews, HeardBeacon, LocalView, UavAgent, action_problem, beacon_problem, sensing
 from agents.reward import Reward
 from agents.state import all_peers, neighbour_features
 from truav import seeding
-from truav.call_limit import CallTooLong, call_limited
+from truav.call_limit import CallBound, CallTooLong, call_limited
 from truav.actions import HOVER, N_ACTIONS
 from truav.config import Config
 from world.env import LocalObs
@@ -82,11 +82,14 @@ class ApiController:
         limit = getattr(self.batched if b is None and self.batched is not None else self.cls, "call_limit_s", 1.0)
         try:
             return call_limited(limit, fn, *args)
-        except CallTooLong as exc:
-            raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} {exc}") from None
-        except Exception as exc:
-            raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} raised "
-                               f"{type(exc).__name__}: {exc}".replace("\n", " ")) from None
+        except (CallTooLong, Exception) as exc:
+            raise self._failure(b, u, what, exc) from None
+
+    def _failure(self, b, u, what, exc: BaseException) -> AgentFailure:
+        if isinstance(exc, CallTooLong):
+            return AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} {exc}")
+        return AgentFailure(f"agent {self.name}{self._where(b, u)}: {what} raised "
+                            f"{type(exc).__name__}: {exc}".replace("\n", " "))
 
     def _fail(self, b, u, problem: str):
         raise AgentFailure(f"agent {self.name}{self._where(b, u)}: {problem}")
@@ -135,18 +138,36 @@ class ApiController:
                 self._fail(b, u, action_problem(int(a[b, u])))
             self.action = a.astype(np.int64)
             return self.action
-        for b, row in enumerate(self.agents):
-            for u, agent in enumerate(row):
-                a = self._call(b, u, "act", agent.act, self.views[b][u])
-                problem = action_problem(a)
-                if problem:
-                    self._fail(b, u, problem)
-                self.action[b, u] = a
-                fields = self._call(b, u, "beacon_fields", agent.beacon_fields)
-                problem = beacon_problem(fields)
-                if problem:
-                    self._fail(b, u, problem)
-                self.fields[b][u] = dict(fields)
+        # One call timer for the sweep (truav.call_limit.CallBound), the common results checked inline, and
+        # the base class's beacon_fields (always {}) not called: the API's price per UAV and step stays small.
+        plain_fields = getattr(self.cls, "beacon_fields", None) is UavAgent.beacon_fields
+        actions = []
+        with CallBound(float(getattr(self.cls, "call_limit_s", 1.0))) as call:
+            for b, row in enumerate(self.agents):
+                views, fields = self.views[b], self.fields[b]
+                for u, agent in enumerate(row):
+                    try:
+                        a = call(agent.act, views[u])
+                    except (CallTooLong, Exception) as exc:
+                        raise self._failure(b, u, "act", exc) from None
+                    if type(a) is not int or not HOVER <= a < N_ACTIONS:
+                        problem = action_problem(a)
+                        if problem:
+                            self._fail(b, u, problem)
+                    actions.append(a)
+                    if plain_fields:
+                        fields[u] = {}
+                        continue
+                    try:
+                        got = call(agent.beacon_fields)
+                    except (CallTooLong, Exception) as exc:
+                        raise self._failure(b, u, "beacon_fields", exc) from None
+                    if type(got) is not dict or got:
+                        problem = beacon_problem(got)
+                        if problem:
+                            self._fail(b, u, problem)
+                    fields[u] = dict(got)
+        self.action[...] = np.array(actions, np.int64).reshape(self.shape)
         return self.action.copy()
 
     def observe(self, obs: LocalObs, done: bool) -> None:
@@ -160,9 +181,15 @@ class ApiController:
             self._call(None, None, "learn", self.group.learn, self.views, r, done)
         else:
             rows = r.tolist()
-            for b, row in enumerate(self.agents):
-                for u, agent in enumerate(row):
-                    self._call(b, u, "learn", agent.learn, self.views[b][u], rows[b][u], done)
+            if getattr(self.cls, "learn", None) is not UavAgent.learn:  # the base's learns nothing: not called
+                with CallBound(float(getattr(self.cls, "call_limit_s", 1.0))) as call:
+                    for b, row in enumerate(self.agents):
+                        views, rewards = self.views[b], rows[b]
+                        for u, agent in enumerate(row):
+                            try:
+                                call(agent.learn, views[u], rewards[u], done)
+                            except (CallTooLong, Exception) as exc:
+                                raise self._failure(b, u, "learn", exc) from None
         self._reward_sum += r.mean(axis=1)
         self._steps += 1
 
@@ -177,13 +204,14 @@ class ApiController:
         rsu_m = nearest_rsu_m(pos, self.rsu)
         densest = obs.densest_sector if obs.densest_sector is not None else np.zeros(self.shape, np.int64)
         exclusive = obs.exclusive if obs.exclusive is not None else np.zeros(self.shape, np.int64)
+        sense = sensing(self.cfg)
         if self.batched is not None:
             peers, heard = all_peers(pos)
             return BatchedViews(self.episode, self.t, pos.copy(), np.asarray(obs.vehicles_in_range).copy(),
                                 np.asarray(obs.queued).copy(), np.asarray(obs.relayed).copy(),
                                 np.asarray(obs.covered).copy(), np.asarray(obs.energy_j, np.float64).copy(),
                                 float(sc.uav_speed_mps), np.asarray(densest).copy(), np.asarray(exclusive).copy(),
-                                rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard)
+                                rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard, *sense)
         P, V = pos.tolist(), vel.tolist()
         cols = [np.asarray(x).tolist() for x in (obs.vehicles_in_range, obs.queued, obs.relayed, obs.covered,
                                                   obs.energy_j, densest, exclusive, rsu_m)]
@@ -193,7 +221,7 @@ class ApiController:
             views.append([LocalView(u, self.episode, self.t, tuple(P[b][u]), int(cols[0][b][u]), int(cols[1][b][u]),
                                     int(cols[2][b][u]), int(cols[3][b][u]), float(cols[4][b][u]),
                                     float(sc.uav_speed_mps), int(cols[5][b][u]), int(cols[6][b][u]),
-                                    float(cols[7][b][u]), tuple(beacons[:u] + beacons[u + 1:]))
+                                    float(cols[7][b][u]), tuple(beacons[:u] + beacons[u + 1:]), *sense)
                           for u in range(self.shape[1])])
         return views
 

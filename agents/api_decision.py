@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from agents.agent_decision import DONE_ACK_ACTION, peer_arrays
-from agents.api import HeardBeacon, LocalView, action_problem, beacon_problem
+from agents.api import HeardBeacon, LocalView, action_problem, beacon_problem, sensing
 from agents.api_controller import nearest_rsu_m
 from agents.reward import Reward
 from agents.state import neighbour_features
@@ -67,7 +67,8 @@ class ApiDecision:
         pos = np.array([[obs.pos]], np.float64)
         self.view = LocalView(self.uav, obs.episode, self.t, tuple(obs.pos), obs.vehicles_in_range,
                               obs.queued_packets, obs.relayed, obs.covered, float(obs.energy_j), float(obs.speed_max),
-                              obs.densest_sector, obs.exclusive, float(nearest_rsu_m(pos, self.rsu)[0, 0]), heard)
+                              obs.densest_sector, obs.exclusive, float(nearest_rsu_m(pos, self.rsu)[0, 0]), heard,
+                              *sensing(self.cfg))
         r = None
         if new:
             call_limited(self.limit_s, self.agent.begin_episode, obs.episode, self.train)

@@ -281,8 +281,10 @@ class LearnerConfig:
     turns sensing off; must exceed scenario.comm_range_m when on. The world
     computes it (world/network.py, DENSEST), as it does vehicles in range."""
     sense_sectors: int = param(4, 1, 16)
-    """Direction sectors of the sensing above (counter-clockwise from east;
-    4: E, N, W, S quadrants); the factor has sense_sectors + 1 levels."""
+    """Direction sectors of the sensing above, equal, counter-clockwise from
+    east, the first starting at east (4: the quadrants east to north, north to
+    west, west to south, south to east); the factor has sense_sectors + 1
+    levels (an agent's view: densest_sector, docs/reference/agent-api.md)."""
     w_difference: float = param(0.0, -100.0, 100.0)
     """Weight of the difference reward's coverage term: the vehicles in the
     UAV's range that no other UAV covers (world.network.EXCLUSIVE, what the

@@ -1,6 +1,6 @@
 """The generated reference pages of the documentation: every command and flag, every config key.
 
-    python -m truav.cli.reference           # write docs/reference/cli.md, config.md and fault-plan-format.md
+    python -m truav.cli.reference           # write docs/reference/cli.md, config.md, fault-plan-format.md, agent-api.md
     python -m truav.cli.reference --check   # exit 1 if the committed pages differ from what the code makes
 
 The pages are built from the code itself, so they cannot say what the code does not do:
@@ -8,7 +8,8 @@ The pages are built from the code itself, so they cannot say what the code does 
 with its help, choices and default); :func:`config_page` reads :mod:`truav.config`'s dataclasses (every key
 with its default and valid range) and the docstring under each field (read from the source with ast, as
 Python keeps no attribute docstrings); :func:`fault_plan_page` is the fault-plan format as
-:mod:`truav.faults` documents it. tests/docs/test_docs_reference.py fails when a page drifts.
+:mod:`truav.faults` documents it; :func:`agent_api_page` is what an agent class is given (agents.api's view
+fields, ``cfg``, agents.reward's terms). tests/docs/test_docs_reference.py fails when a page drifts.
 """
 
 from __future__ import annotations
@@ -230,11 +231,17 @@ def config_page(config_cls: type, source: str) -> str:
 def fault_plan_page(doc: str) -> str:
     """The fault-plan format: the docstring of truav/faults.py, its indented TOML example as a code block."""
     lines = [HEADER.format(cmd=COMMAND, src="the docstring of truav/faults.py"), "# Fault-plan format", ""]
+    return "\n".join(lines + _doc_markdown(doc, "toml")).rstrip("\n") + "\n"
+
+
+def _doc_markdown(doc: str, lang: str) -> list[str]:
+    """A docstring's lines as Markdown: its indented blocks as code blocks of ``lang``."""
+    lines: list[str] = []
     in_code = False
     for line in inspect.cleandoc(doc).split("\n"):
         indented = line.startswith("    ")
         if indented and not in_code:
-            lines.append("```toml")
+            lines.append(f"```{lang}")
             in_code = True
         elif in_code and line and not indented:
             while lines[-1] == "":
@@ -244,6 +251,69 @@ def fault_plan_page(doc: str) -> str:
         lines.append(line[4:] if in_code else line)
     if in_code:
         lines.append("```")
+    return lines
+
+
+# -- the agent API's view, cfg and reward ----------------------------------------------------------------------
+def _field_table(cls: type, docs: dict[str, str]) -> list[str]:
+    rows = ["| field | type | what (unit, range, when off) |", "|---|---|---|"]
+    for f in dataclasses.fields(cls):
+        kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+        rows.append(f"| `{f.name}` | `{_cell(kind)}` | {_cell(docs.get(f.name, ''))} |")
+    return rows + [""]
+
+
+def agent_api_page(api_module, config_cls: type, reward_module) -> str:
+    """What an agent class is given: each field of agents.api's LocalView and HeardBeacon with its docstring,
+    what ``cfg`` holds (the sections of ``config_cls``), and the reward's terms and their scale at the defaults."""
+    docs = field_docs(inspect.getsource(api_module))
+    cfg = config_cls()
+    lines = [HEADER.format(cmd=COMMAND, src="agents/api.py, truav/config.py and agents/reward.py"),
+             "# Agent API: the view, `cfg` and the reward", "",
+             "What a class of the agent API (`agents/api.py`, version "
+             f"{api_module.API_VERSION}) is given: its `LocalView` at every step, the run's `cfg` when it is "
+             "built, and its local reward in `learn`. Names such as `scenario.comm_range_m` are "
+             "[config keys](config.md). How to write, train and fly a class: "
+             "[Your own agent](../how-to/your-own-agent.md); step by step: "
+             "[the tutorial](../tutorials/own-agent.md).", ""]
+    for cls in (api_module.LocalView, api_module.HeardBeacon):
+        lines += [f"## `{cls.__name__}`", "", " ".join(inspect.getdoc(cls).split()), ""]
+        lines += _field_table(cls, docs.get(cls.__name__, {}))
+    lines += ["The batched form's `BatchedViews` holds the same fields as arrays with leading axes (seeds, UAVs), "
+              "the heard beacons as `peer_pos`, `peer_vel` (seeds, UAVs, UAVs, 2) and a `heard` mask.", "",
+              "## `cfg`", "",
+              "`Class(cfg, uav, rng)` gets the run's configuration: a frozen `truav.config.Config`, one attribute "
+              "per section of the config file, each a frozen dataclass holding that section's keys with the "
+              "run's values (the defaults, a `--preset`, `--config FILE` and `--set` applied), e.g. "
+              "`cfg.scenario.n_uavs`, `cfg.learner.sense_range_m`. Read it; do not change it.", "",
+              "| attribute | what | its keys |", "|---|---|---|"]
+    for section in dataclasses.fields(config_cls):
+        first = " ".join(inspect.getdoc(section.default_factory).split())
+        lines.append(f"| `cfg.{section.name}` | {_cell(first)} | [`[{section.name}]`](config.md#{section.name}) |")
+    reward = reward_module.Reward(cfg)
+    sc, lc = cfg.scenario, cfg.learner
+    lines += ["", "## The reward", "", "`learn(view, reward, done)` gets the UAV's local reward of the last step, "
+              "computed by `agents/reward.py` from its own outcome (the view's `relayed`, `covered`, "
+              "`energy_j`, `exclusive`, `vehicles_in_range`) and the overlap with the peers it heard:", ""]
+    lines += _doc_markdown(reward_module.__doc__ or "", "text")
+    lines += ["", "The scale at the defaults (a run's config changes it):", "",
+              "| term | normalised by | at the defaults | weight | default weight |", "|---|---|---|---|---|",
+              f"| R_relay | `traffic.packet_rate_hz` x `scenario.n_vehicles` x `scenario.step_s` / `scenario.n_uavs` "
+              f"| {reward.relay_norm:g} packets | `learner.w_relay` | {lc.w_relay:g} |",
+              f"| R_cov | `scenario.n_vehicles` / `scenario.n_uavs` | {reward.cov_norm:g} vehicles "
+              f"| `learner.w_coverage` | {lc.w_coverage:g} |",
+              f"| R_eng | `energy.move_w` x `scenario.step_s` | {reward.eng_norm:g} J | `learner.w_energy` "
+              f"| {lc.w_energy:g} |",
+              f"| R_ov | (a fraction per heard peer) | 1 | `learner.w_overlap` | {lc.w_overlap:g} |",
+              f"| difference | `scenario.n_vehicles` / `scenario.n_uavs` | {reward.cov_norm:g} vehicles "
+              f"| `learner.w_difference` | {lc.w_difference:g} |",
+              f"| shaping | `scenario.n_vehicles` / `scenario.n_uavs` | {reward.cov_norm:g} vehicles "
+              f"| `learner.w_shaping` (discount `learner.discount`) | {lc.w_shaping:g} |", "",
+              f"So at the defaults ({sc.n_uavs} UAVs, {sc.n_vehicles} vehicles) a UAV serving its fair share of "
+              "vehicles and relaying its fair share of packets while cruising at "
+              f"`energy.move_ref_speed_mps` with no overlap earns "
+              f"{lc.w_relay + lc.w_coverage - lc.w_energy:g} per step; hovering alone with nothing in range "
+              f"earns {-lc.w_energy * cfg.energy.hover_w / cfg.energy.move_w:g}."]
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
@@ -253,7 +323,9 @@ def pages() -> dict[str, str]:
     from truav import config, faults
     from truav.cli.main import build_parser as truav_parser
     from truav.cli.swarm import build_parser as swarm_parser
+    from agents import api, reward
     return {"cli.md": cli_page([("truav", truav_parser), ("truav-swarm", swarm_parser)]),
+            "agent-api.md": agent_api_page(api, config.Config, reward),
             "config.md": config_page(config.Config, inspect.getsource(config)),
             "fault-plan-format.md": fault_plan_page(faults.__doc__ or "")}
 
