@@ -95,6 +95,9 @@ def cmd_resim(args: argparse.Namespace) -> int:
         if agent_cls is not None and rec.qtable:  # its agents started from a run of `truav train --agent`
             from truav.analysis.agent_run import agent_start_states
             starts = agent_start_states(rec.qtable, rec.agent, n, rec.qtable_index)
+            from truav.analysis.agent_loader import check_state  # refused: exit 2, as in up and evaluate
+            check_state(f"{args.file}: its start {rec.qtable}", agent_cls, rec.cfg,
+                        {f"UAV {u}'s state": s for u, s in enumerate(starts)})
         else:
             starts = start_tables(rec.qtable, rec.qtable_index, n)
         sim = Resimulation(rec.cfg, rec.seed, rec.episodes, starts, train=not rec.greedy, agent_cls=agent_cls)
@@ -154,8 +157,12 @@ def _agent_class(args, rec, branch: bool):
     if args.agent is None:
         raise UserError(f"{args.file}: flown by the agent class {rec.agent[:100]!r}; re-simulating it imports and "
                         f"runs that class: give --agent {rec.agent[:100]} to do so")
-    if args.agent != rec.agent:
-        raise UserError(f"--agent {args.agent}: {args.file} was flown by {rec.agent[:100]!r}")
+    if args.agent != rec.agent:  # another name of the same class (entry point, module path) is that class
+        given = agent_loader.resolve(args.agent)
+        if not agent_loader.same_class(rec.agent, given):
+            raise UserError(f"--agent {args.agent}: {args.file} recorded {rec.agent[:100]!r} as its agent class, and "
+                            f"--agent {args.agent} is {agent_loader.class_path(given)}, another class (give --agent "
+                            f"{rec.agent[:100]} to re-simulate it)")
     if branch:
         raise UserError("--from: what-if branches restore TRUAV's agents from state snapshots; an agent class's "
                         "run is re-simulated from tick 0 only")

@@ -299,11 +299,14 @@ def cmd_evaluate(args) -> int:
     cfg = runio.read_config(run if run.is_dir() else run.parent)
     if is_agent_run(run):  # a run of `truav train --agent NAME`: that class, with its learned state
         name, seeds, q, end_pos = read_agent_state(run)
-        agent_loader.load(name, cfg, flag=f"{args.run}: agent")
+        agent_cls = agent_loader.load(name, cfg, flag=f"{args.run}: agent")
         uavs = {v.shape[1] for v in q.values()} | ({end_pos.shape[1]} if end_pos is not None else set())
         if uavs - {cfg.scenario.n_uavs}:
             raise runio.RunDirError(f"{args.run}: its agent state holds {sorted(uavs)} UAVs, its config "
                                     f"{cfg.scenario.n_uavs}")
+        agent_loader.check_state(f"{args.run}: agent {name}", agent_cls, cfg, {  # as `up --qtable` does: exit 2
+            f"UAV {u}'s state of seed {s}": {k: np.array(v[b, u]) for k, v in q.items()}
+            for b, s in enumerate(seeds) for u in range(cfg.scenario.n_uavs)})
         main_kind = agent_loader.AGENT_KIND_PREFIX + name
         main_label = main_kind if name in REFERENCE_POLICIES else name  # apart from --against random etc.
     else:

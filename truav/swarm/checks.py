@@ -66,19 +66,12 @@ def check_agent_start(flag: str, run: str, name: str, cfg: Config, allow_mismatc
     throwaway instance of UAV 0, within its call_limit_s)."""
     from truav.analysis import agent_loader
     from truav.analysis.agent_run import agent_file, agent_start_states
-    from truav.call_limit import CallTooLong, call_limited
     try:
         states = agent_start_states(run, name, cfg.scenario.n_uavs, index)
     except runio.RunDirError as exc:
         raise UserError(f"{flag}: {exc}") from None
     fit = policy_scenario.check(flag, run, agent_file(run), cfg, allow_mismatch)
-    cls = agent_loader.resolve(name)
-    try:
-        agent = call_limited(float(getattr(cls, "call_limit_s", 1.0)), cls, cfg, 0, np.random.default_rng(0))
-        call_limited(float(getattr(cls, "call_limit_s", 1.0)), agent.load_state_dict, states[0])
-    except (Exception, CallTooLong) as exc:
-        raise UserError(f"{flag} {run}: {cls.__name__}.load_state_dict refused UAV 0's state: "
-                        f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from None
+    agent_loader.check_state(f"{flag} {run}", agent_loader.resolve(name), cfg, {"UAV 0's state": states[0]})
     return fit
 
 
