@@ -19,7 +19,8 @@ What rosbag2 users expect, on the TRUAV bus:
   one, the rest of it), bursts N ticks, steps N messages, or seeks to a
   time (seconds from the recording's first message), to a tick, or by a time back or forward.
   After a seek the last message of every replayed channel before the new position is sent again
-  first, so a subscriber that joined late sees the current state (rosbag2 #929); see
+  first, so a subscriber that joined late sees the current state (rosbag2 #929); a seek to tick N lands
+  just past tick N's world tick message (sent with that state: the replay is at tick N); see
   :data:`KEY_BINDINGS` and :data:`COMMANDS`;
 * several files, or a split recording's parts, play as one (:mod:`recorder.replay_source`).
 
@@ -290,7 +291,9 @@ class Replayer:
             tick = args["tick"]
             if isinstance(tick, bool) or not isinstance(tick, int):
                 raise ValueError(f"tick must be an integer, got {tick!r}")
-            return timeline.position_of_tick(tick)
+            # just past the tick's own world tick message: it goes out with the restored state, so the
+            # replay is at that tick (its status says so), and a step plays the rest of it
+            return timeline.position_of_tick(tick) + 1
         span_s = (self.info.last_ns - self.info.first_ns) / NS
         if given[0] == "s":
             at = _number(args, "s")

@@ -59,5 +59,12 @@ def last_before(written: list[tuple[str, bytes, int]], tick: int) -> list[tuple[
     return [(k, p) for k, p, _ in sorted(last.values(), key=lambda w: w[2])]
 
 
+def landed_on(written: list[tuple[str, bytes, int]], tick: int) -> list[tuple[str, bytes]]:
+    """What a seek to world tick ``tick`` sends: each channel's last message before the tick starts, then the
+    tick's own world tick message (the seek lands on that tick: its status says ``tick``)."""
+    start = next((k, p) for k, p, _ in written if k.endswith("/world/tick") and msgpack.unpackb(p)["tick"] == tick)
+    return [m for m in last_before(written, tick) if not m[0].endswith("/world/tick")] + [start]
+
+
 def of_tick(written: list[tuple[str, bytes, int]], tick: int) -> list[tuple[str, bytes]]:
     return [(k, p) for k, p, _ in written if msgpack.unpackb(p)["tick"] == tick]

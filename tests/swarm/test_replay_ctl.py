@@ -25,7 +25,7 @@ from truav.bus.transport import Bus, QueryRefused
 from truav.cli.config import UsageError
 from truav.cli.swarm import build_parser
 from truav.wire import keys, schema
-from tests.support.ticks import PER_TICK, last_before, make_ticks, of_tick
+from tests.support.ticks import PER_TICK, landed_on, last_before, make_ticks, of_tick
 from tests.support.waits import wait_until as _wait_until
 
 RUN = "ctl"
@@ -115,15 +115,15 @@ def test_seek_over_the_queryable_gives_a_fresh_subscriber_every_channel(paused_r
     late = Sink()
     ready(bus_factory("late"), late)  # joins now: it has seen nothing of the replay
     status = ask_replay(operator, RUN, "seek", {"tick": 40})
-    assert status.tick == 39 and status.paused and status.restored == PER_TICK
+    assert status.tick == 40 and status.paused and status.restored == PER_TICK
     assert wait_until(lambda: late.count() == PER_TICK)
-    assert late.since(0) == last_before(written, 40)  # the last message of every channel before tick 40
+    assert late.since(0) == landed_on(written, 40)  # every channel's last message before tick 40, then tick 40
     status = ask_replay(operator, RUN, "step", {})
-    assert wait_until(lambda: late.count() == 2 * PER_TICK)
-    assert late.since(PER_TICK) == of_tick(written, 40)
+    assert wait_until(lambda: late.count() == 2 * PER_TICK - 1)
+    assert late.since(PER_TICK) == of_tick(written, 40)[1:]
     status = ask_replay(operator, RUN, "seek", {"s": 0.1})  # back in time: tick 10 starts at 0.1 s
-    assert wait_until(lambda: late.count() == 3 * PER_TICK)
-    assert late.since(2 * PER_TICK) == last_before(written, 10) and status.tick == 9
+    assert wait_until(lambda: late.count() == 3 * PER_TICK - 1)
+    assert late.since(2 * PER_TICK - 1) == last_before(written, 10) and status.tick == 9
     assert ask_replay(operator, RUN, "rate", {"rate": 3}).rate == 3.0
     with pytest.raises(QueryRefused, match="tick 999 is not in the replayed window"):
         ask_replay(operator, RUN, "seek", {"tick": 999})
@@ -142,14 +142,14 @@ def test_replay_ctl_command_line(paused_replay, bus_factory, endpoint: str, caps
         return args.func(args)
 
     assert ctl("seek", "--tick", "40") == 0
-    assert "paused at 0.390/0.590 s tick 39, rate 1" in capsys.readouterr().out
-    assert wait_until(lambda: late.count() == PER_TICK) and late.since(0) == last_before(written, 40)
+    assert "paused at 0.400/0.590 s tick 40, rate 1" in capsys.readouterr().out
+    assert wait_until(lambda: late.count() == PER_TICK) and late.since(0) == landed_on(written, 40)
     assert ctl("rate", "2") == 0 and "rate 2," in capsys.readouterr().out
-    assert ctl("step") == 0
-    assert wait_until(lambda: late.count() == 2 * PER_TICK) and late.since(PER_TICK) == of_tick(written, 40)
+    assert ctl("step") == 0  # the rest of tick 40
+    assert wait_until(lambda: late.count() == 2 * PER_TICK - 1) and late.since(PER_TICK) == of_tick(written, 40)[1:]
     assert ctl("burst", "2") == 0
-    assert wait_until(lambda: late.count() == 4 * PER_TICK)
-    assert late.since(2 * PER_TICK) == of_tick(written, 41) + of_tick(written, 42)
+    assert wait_until(lambda: late.count() == 4 * PER_TICK - 1)
+    assert late.since(2 * PER_TICK - 1) == of_tick(written, 41) + of_tick(written, 42)
     capsys.readouterr()
     assert ctl("seek", "--tick", "999") == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -317,7 +317,7 @@ def test_under_secure_only_the_operator_may_steer_the_replay(tmp_path: Path, cap
         deadline = time.monotonic() + WAIT_S
         while ctl("seek", "--tick", "5") != 0:
             assert time.monotonic() < deadline, capsys.readouterr()
-        assert "paused at 0.040/0.190 s tick 4" in capsys.readouterr().out
+        assert "paused at 0.050/0.190 s tick 5" in capsys.readouterr().out
         for identity in ("uav/0", "world"):
             with pytest.raises(QueryRefused, match="no answer"):
                 ask_replay(buses[identity], replay_run, "resume", {}, timeout=1.0)

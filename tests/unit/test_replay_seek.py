@@ -19,7 +19,7 @@ import pytest
 from recorder.mcap_log import McapLog
 from recorder.replay import KEY_BINDINGS, LockstepGate, Replayer, ReplayOptions, ReplayUsageError, recording_info
 from recorder.replay_source import resolve_parts
-from tests.support.ticks import MS, PER_TICK, RUN, T0, last_before, make_ticks, of_tick, write_ticks
+from tests.support.ticks import MS, PER_TICK, RUN, T0, landed_on, last_before, make_ticks, of_tick, write_ticks
 from tests.support.waits import wait_until as _wait_until
 from truav.wire import keys, schema
 
@@ -72,20 +72,21 @@ def test_seek_to_a_tick_restores_each_channel_then_steps_one_tick(tmp_path: Path
     try:
         replayer.command("seek", tick=40)  # forwards, while paused
         assert wait_until(lambda: sink.count() == PER_TICK)
-        assert sink.items == last_before(written, 40)  # a late joiner's state: tick 39 on every channel
-        assert replayer.status().tick == 39 and replayer.paused
-        replayer.command("step")  # one tick: all of tick 40, then paused again
-        assert wait_until(lambda: sink.count() == 2 * PER_TICK)
-        assert sink.items[PER_TICK:] == of_tick(written, 40)
+        # a late joiner's state (tick 39 on every channel), then tick 40's world tick: it is at tick 40
+        assert sink.items == landed_on(written, 40)
+        assert replayer.status().tick == 40 and replayer.paused
+        replayer.command("step")  # the rest of tick 40, then paused again
+        assert wait_until(lambda: sink.count() == 2 * PER_TICK - 1)
+        assert sink.items[PER_TICK:] == of_tick(written, 40)[1:] and replayer.status().tick == 40
         replayer.command("burst", n=3)
-        assert wait_until(lambda: sink.count() == 5 * PER_TICK)
-        assert sink.items[2 * PER_TICK:] == [m for t in (41, 42, 43) for m in of_tick(written, t)]
+        assert wait_until(lambda: sink.count() == 5 * PER_TICK - 1)
+        assert sink.items[2 * PER_TICK - 1:] == [m for t in (41, 42, 43) for m in of_tick(written, t)]
         replayer.command("seek", tick=5)  # backwards
-        assert wait_until(lambda: sink.count() == 6 * PER_TICK)
-        assert sink.items[5 * PER_TICK:] == last_before(written, 5)
+        assert wait_until(lambda: sink.count() == 6 * PER_TICK - 1)
+        assert sink.items[5 * PER_TICK - 1:] == landed_on(written, 5) and replayer.status().tick == 5
         replayer.command("step")
-        assert wait_until(lambda: sink.count() == 7 * PER_TICK)
-        assert sink.items[6 * PER_TICK:] == of_tick(written, 5)
+        assert wait_until(lambda: sink.count() == 7 * PER_TICK - 2)
+        assert sink.items[6 * PER_TICK - 1:] == of_tick(written, 5)[1:]
         assert replayer.stats.restored == 2 * PER_TICK and replayer.stats.seeks == 2
     finally:
         replayer.quit()
@@ -144,13 +145,13 @@ def test_seek_while_playing_restores_then_plays_on_from_there(tmp_path: Path) ->
         replayer.quit()
         thread.join(WAIT_S)
     items = sink.items
-    restored_300, restored_100 = last_before(written, 300), last_before(written, 100)
+    restored_300, restored_100 = landed_on(written, 300), landed_on(written, 100)
     at_300 = next(i for i in range(len(items)) if items[i:i + PER_TICK] == restored_300)
     at_100 = next(i for i in range(at_300, len(items)) if items[i:i + PER_TICK] == restored_100)
     played_300 = [msgpack.unpackb(p)["tick"] for _, p in items[at_300 + PER_TICK:at_100]]
     assert played_300 == sorted(played_300) and (not played_300 or played_300[0] == 300)
-    rest = items[at_100 + PER_TICK:]  # from tick 100 to the end, every message in recorded order
-    assert rest == [(k, p) for k, p, _ in written if msgpack.unpackb(p)["tick"] >= 100]
+    rest = items[at_100 + PER_TICK:]  # after tick 100's world tick to the end, every message in recorded order
+    assert rest == [(k, p) for k, p, _ in written if msgpack.unpackb(p)["tick"] >= 100][1:]
 
 
 def test_keys_set_the_rate_step_a_tick_and_seek(tmp_path: Path) -> None:
@@ -178,7 +179,7 @@ def test_keys_set_the_rate_step_a_tick_and_seek(tmp_path: Path) -> None:
         for char in "g42\r":  # go to tick 42
             assert replayer.key(char)
         assert wait_until(lambda: sink.count() == 14 * PER_TICK)
-        assert sink.items[13 * PER_TICK:] == last_before(written, 42) and replayer.status().tick == 41
+        assert sink.items[13 * PER_TICK:] == landed_on(written, 42) and replayer.status().tick == 42
         for char in "t2.05\x7f\r":  # go to 2.0 s (typed 2.05, one deleted): tick 20
             assert replayer.key(char)
         assert wait_until(lambda: sink.count() == 15 * PER_TICK)
@@ -239,7 +240,7 @@ def test_a_split_recording_plays_as_one_in_part_order(tmp_path: Path) -> None:
     try:
         replayer.command("seek", tick=26)  # in the third part: the state restored from the second
         assert wait_until(lambda: sink.count() == PER_TICK)
-        assert sink.items == last_before(written, 26)
+        assert sink.items == landed_on(written, 26)
     finally:
         replayer.quit()
         thread.join(WAIT_S)
