@@ -78,3 +78,45 @@ def test_fault_sweep_resumes_exactly_the_unfinished_points(tmp_path):
         eps = summary["world"]["episodes"]
         assert len(eps) == 2
         assert float(row["coverage_pct"]) == float(np.mean([e["coverage_pct"] for e in eps])), name
+
+
+CELLS = """import sys
+from truav.cli.main import main
+sys.exit(main(sys.argv[1:]))
+"""
+CELL_LINE = r"truav: interrupted with (\d) of 8 cells finished and kept in \S+; run the same command to resume"
+
+
+def _cell_sweep(tmp_path, experiment: str, signum: int, code: int, workers: str, tables: tuple[str, ...]) -> None:
+    """Stopped after its first cell, the same command runs the cells not finished, and its tables equal
+    those of a run never stopped (the same seeds)."""
+    setting = ["--speeds", "5", "15"] if experiment == "velocity" else ["--uavs", "2", "3", "--vehicles", "30"]
+    base = ["experiment", experiment, "--quick", "--schemes", "truav", "patrol", *setting, "--seeds", "2",
+            "--seeds-per-cell", "1", "--episodes", "60", "--eval-episodes", "2", "--window", "50",
+            "--workers", workers, "--quiet"]
+    stopped, whole = tmp_path / "stopped", tmp_path / "whole"
+    cells = stopped / "cells"
+    rc, so, se, left = stop_when(start(CELLS, [*base, "--out", str(stopped)], tmp_path),
+                                 lambda: cells.is_dir() and any(cells.glob("*.npz")), signum, 240)
+    stopped_quietly(rc, so, se, code, CELL_LINE)
+    assert not left, f"processes outlived the sweep: {left}"
+    kept = int(re.fullmatch(CELL_LINE, se.strip()).group(1))
+    assert 1 <= kept < 8 and len(list(cells.glob("*.npz"))) == kept, se
+    stamps = {p.name: p.stat().st_mtime_ns for p in cells.glob("*.npz")}
+    rc, so, se = finish(start(CELLS, [*base, "--out", str(stopped)], tmp_path))
+    assert rc == 0 and "Traceback" not in so + se, so + se
+    assert f"8 cells, {kept} already finished, {8 - kept} to run" in so, so
+    assert len(re.findall(r"^  cell \d/", so, re.M)) == 8 - kept, so
+    assert {p.name: p.stat().st_mtime_ns for p in cells.glob("*.npz") if p.name in stamps} == stamps
+    rc, so, se = finish(start(CELLS, [*base, "--out", str(whole)], tmp_path))
+    assert rc == 0, so + se
+    for table in tables:  # the numbers, not only the rows
+        assert (stopped / table).read_text() == (whole / table).read_text(), table
+
+
+def test_velocity_sweep_stopped_by_ctrl_c_resumes_to_the_same_tables(tmp_path):
+    _cell_sweep(tmp_path, "velocity", signal.SIGINT, 130, "1", ("velocity.csv", "summary.csv"))
+
+
+def test_scale_sweep_stopped_by_sigterm_resumes_to_the_same_tables(tmp_path):
+    _cell_sweep(tmp_path, "scale", signal.SIGTERM, 143, "2", ("scale.csv", "summary.csv"))

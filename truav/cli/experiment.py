@@ -43,6 +43,10 @@ FULL = {"seeds": 10, "eval_episodes": 100, "window": 500, "scale_episodes": 1000
 """The full run's sizes where a flag is not given (the help texts name these)."""
 
 
+INTERRUPTED = 130
+"""What a command stopped by a signal returns: run_main makes it 128 + the signal (143 for SIGTERM)."""
+
+
 def _listed(values) -> str:
     return " ".join(f"{v:g}" for v in values)
 
@@ -146,7 +150,8 @@ def _setup(args, default_out: str, default_episodes: int | None):
     return cfg, seeds, episodes, eval_episodes, window, out
 
 
-def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
+def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float | None:
+    """Run the unfinished cells; the seconds it took, or None if a stop signal ended it (said in one line)."""
     make_dir("--out", out)
     runio.write_config(out, cfg)
     todo = runner.pending_cells(cfg, out, cells)
@@ -182,10 +187,12 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float:
                              executor=args.executor, address=args.address)
         except RuntimeError as exc:
             raise UsageError(f"{exc} (finished cells are kept; re-run the same command to resume)") from None
-        except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: run_main names the signal and exits 128 + it
-            print(f"stopped: {finished[0]} of {len(todo)} cells finished and kept in {out}; the same command "
-                  f"runs the rest", file=sys.stderr, flush=True)
-            raise
+        except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: one line; run_main exits 128 + the signal
+            bar.close()  # its last refresh before the line below, not after it
+            kept = len(cells) - len(runner.pending_cells(cfg, out, cells))  # cell files are written whole
+            print(f"truav: interrupted with {kept} of {len(cells)} cells finished and kept in {out}; run the "
+                  f"same command to resume", file=sys.stderr, flush=True)
+            return None
     return time.perf_counter() - t0
 
 
@@ -210,6 +217,8 @@ def cmd_velocity(args) -> int:
     speeds = args.speeds or (QUICK["speeds"] if args.quick else list(velocity.SPEEDS))
     cells = velocity.plan(args.schemes, speeds, seeds, episodes, eval_episodes, args.seeds_per_cell)
     elapsed = _run(args, cfg, out, cells, "velocity")
+    if elapsed is None:
+        return INTERRUPTED
     return _finish(out, cfg, cells, velocity.write_outputs, window, elapsed)
 
 
@@ -219,4 +228,6 @@ def cmd_scale(args) -> int:
     vehicles = args.vehicles or (QUICK["vehicles"] if args.quick else list(scale.VEHICLES))
     cells = scale.plan(args.schemes, uavs, vehicles, args.speed, seeds, episodes, eval_episodes, args.seeds_per_cell)
     elapsed = _run(args, cfg, out, cells, "scale")
+    if elapsed is None:
+        return INTERRUPTED
     return _finish(out, cfg, cells, scale.write_outputs, window, elapsed)

@@ -42,6 +42,8 @@ def _worker(parent_pid: int, base: Config, out: Path, tasks, results) -> None:
             result = run_cell(base, cell, lambda n: results.put(("episode", n)))
             save_cell(cell_path(out, base, cell), result)
             results.put(("done", cell, result.wall_s))
+        except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the parent says it, once
+            return
         except BaseException as exc:  # report, then stop this worker
             results.put(("error", cell, f"{type(exc).__name__}: {exc}"))
             return
