@@ -8,13 +8,22 @@ machine code after an edit of the callee, and silently compute the old
 numbers. Keyed by all kernel sources, any edit recompiles every kernel once.
 Imported by the `world` and `agents` packages before any kernel is defined;
 NUMBA_CACHE_DIR, if set, wins.
+
+Shared by every checkout on the machine: numba files a kernel under a hash of its source directory's
+absolute path, so a second clone of the same sources compiled everything again. The locator below files
+TRUAV's kernels under their place in the project (``world``, ``agents``) and stamps them with their source's
+content, so every clone with the same kernel sources loads what the first compiled.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from pathlib import Path
+
+import numba
+from numba.core.caching import CacheImpl, UserProvidedCacheLocator
 
 from truav.user_cache import truav_cache_dir
 
@@ -34,16 +43,53 @@ def cache_dir() -> Path:
     return truav_cache_dir() / "numba" / digest.hexdigest()[:16]
 
 
+def project_subpath(py_file: str | os.PathLike) -> str | None:
+    """The subdirectory of the cache a kernel of ``py_file`` is filed in: its directory inside the project
+    (``world``, ``agents``, ``world/process``) with ``/`` as ``.``, the same in every checkout; None for a file
+    outside TRUAV's kernel packages (numba's own locators file it)."""
+    try:
+        rel = Path(py_file).resolve().parent.relative_to(_ROOT)
+    except ValueError:
+        return None
+    if not rel.parts or rel.parts[0] not in KERNEL_PACKAGES:
+        return None
+    return "truav-" + ".".join(rel.parts)
+
+
+@functools.lru_cache(maxsize=None)
+def _content_stamp(path: str, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+class SharedKernelLocator(UserProvidedCacheLocator):
+    """numba's NUMBA_CACHE_DIR locator for TRUAV's kernels, keyed by :func:`project_subpath` instead of the
+    checkout's absolute path and stamped by the source's content instead of its modification time (a fresh
+    clone's files are all new): every checkout of the same sources shares one compiled copy."""
+
+    @classmethod
+    def get_suitable_cache_subpath(cls, py_file):
+        return project_subpath(py_file) or super().get_suitable_cache_subpath(py_file)
+
+    def get_source_stamp(self):
+        st = os.stat(self._py_file)
+        return _content_stamp(str(self._py_file), st.st_mtime_ns, st.st_size)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if project_subpath(py_file) is None:
+            return None
+        return super().from_function(py_func, py_file)
+
+
 def uncached(files: list[str]) -> list[str]:
     """Those kernel source files (repository paths, e.g. "world/step.py") of which numba's cache holds
     no compiled kernel yet: their kernels compile on first use (a fresh machine, or after any kernel
-    edit, which changes :func:`cache_dir`). Mirrors numba's cache layout, a subdirectory per source
-    directory (numba.core.caching._CacheLocator), so that asking costs no numba import."""
+    edit, which changes :func:`cache_dir`). Mirrors the cache's layout (:class:`SharedKernelLocator`), so
+    that asking costs no compilation."""
     root = Path(os.environ.get("NUMBA_CACHE_DIR") or cache_dir())
     missing = []
     for name in files:
-        source = (_ROOT / name).resolve().parent
-        sub = root / f"{source.name}_{hashlib.sha1(str(source).encode()).hexdigest()}"
+        sub = root / SharedKernelLocator.get_suitable_cache_subpath(str(_ROOT / name))
         if not any(sub.glob(f"{Path(name).stem}.*.nbi")):
             missing.append(name)
     return missing
@@ -64,7 +110,7 @@ def cold_start_note(files: list[str]) -> str | None:
     if not uncached(files):
         return None
     lo, hi = COLD_COMPILE_S
-    return (f"compiling the numba kernels first (nothing cached yet for this checkout in "
+    return (f"compiling the numba kernels first (nothing cached yet on this machine for these kernel sources, in "
             f"{os.environ.get('NUMBA_CACHE_DIR') or cache_dir()}): about {lo}-{hi} s on 2 busy cores, once; "
             f"later starts load them in about a second")
 
@@ -73,6 +119,6 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     # The environment too: numba re-reads its config from it, and the swarm's
     # processes inherit it.
     os.environ["NUMBA_CACHE_DIR"] = str(cache_dir())
-    import numba
-
     numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+if SharedKernelLocator not in CacheImpl._locator_classes:  # numba's list of locators, tried in order
+    CacheImpl._locator_classes.insert(0, SharedKernelLocator)
