@@ -37,6 +37,7 @@ process still running after that is SIGKILLed, and the summary says so.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -63,8 +64,8 @@ from truav.swarm.external import instructions
 from truav.swarm.fault_control import FaultController
 from truav.swarm.healing import Healer
 from truav.swarm.monitor import Monitor
-from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, OutDirError, check_record_path, prepare_swarm_dir,
-                                write_run_file)
+from truav.swarm.outdir import (PID_FILE, SCENARIO_FILE, OutDirError, check_record_path, check_swarm_dir,
+                                hold_run_dirs, prepare_swarm_dir, write_run_file)
 from truav.swarm.summary import SwarmEnd, _print_central  # noqa: F401 - _print_central: tests
 from truav.swarm.swarm_options import (  # noqa: F401 - re-exported: `down`, bench and tests take them from here
     AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S, ROUTER_START_TIMEOUT_S, Outcome, SwarmOptions,
@@ -113,21 +114,29 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
 
     Returns the exit code (see the module docstring)."""
     out = opts.out_dir
-    try:  # every check that needs no process, before anything starts or any file is touched
-        if opts.record:
-            check_record_path(opts.record, opts.force)
-        if opts.listen:
-            check_listen(opts.listen)
-        plan = opts.plan if opts.plan is not None else load_plan(opts.fault_plan) if opts.fault_plan else None
-        prepare_swarm_dir(out, to_toml(cfg), resume=opts.resume, force=opts.force)
-        if opts.record:
-            Path(opts.record).absolute().parent.mkdir(parents=True, exist_ok=True)
-    except (OutDirError, ListenError, OSError) as exc:
-        if no_space(exc):  # not a mistake of the user's command: exit 1
-            print(f"truav-swarm: error: no space left on {out.absolute()}: {exc.filename or ''}", file=sys.stderr)
-            return 1
-        print(f"truav-swarm: error: {exc}", file=sys.stderr)
-        return 2
+    with contextlib.ExitStack() as held:
+        try:  # every check that needs no process, before anything starts or any file is touched
+            if opts.record:
+                check_record_path(opts.record, opts.force)
+            if opts.listen:
+                check_listen(opts.listen)
+            plan = opts.plan if opts.plan is not None else load_plan(opts.fault_plan) if opts.fault_plan else None
+            check_swarm_dir(out, resume=opts.resume, force=opts.force)
+            # Held until the summary is written: no other run replaces or continues this one meanwhile.
+            held.enter_context(hold_run_dirs([out], run=opts.run, command="truav-swarm up"))
+            prepare_swarm_dir(out, to_toml(cfg), resume=opts.resume, force=opts.force)
+            if opts.record:
+                Path(opts.record).absolute().parent.mkdir(parents=True, exist_ok=True)
+        except (OutDirError, ListenError, OSError) as exc:
+            if no_space(exc):  # not a mistake of the user's command: exit 1
+                print(f"truav-swarm: error: no space left on {out.absolute()}: {exc.filename or ''}", file=sys.stderr)
+                return 1
+            print(f"truav-swarm: error: {exc}", file=sys.stderr)
+            return 2
+        return _run_held(cfg, opts, out, plan)
+
+
+def _run_held(cfg: Config, opts: SwarmOptions, out: Path, plan) -> int:
     interrupts = _Interrupts()
     with signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), interrupts):
         try:  # before any process starts: else the world and every agent compile the same kernels side by side
