@@ -11,6 +11,7 @@ and `chaos` exits 1 on a violation."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -31,7 +32,7 @@ from truav.nemesis import heal_at, random_plan  # noqa: E402
 from truav.stats import Effect, effect_text, paired_effect  # noqa: E402
 from truav.swarm import invariants  # noqa: E402
 from truav.swarm.chaos_time import announce  # noqa: E402
-from truav.swarm.outdir import OutDirError, prepare_chaos_dir  # noqa: E402
+from truav.swarm.outdir import CHAOS_RUNS, OutDirError, entries, hold_run_dirs, prepare_chaos_dir  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
@@ -166,11 +167,28 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str, plan: FaultPlan |
     """The same seed without and with the plan at ``plan_path`` (``plan``: that file already parsed)."""
     parsed = plan if plan is not None else load_plan(plan_path)  # fails early on a bad plan
     out = Path(opts.out or f"runs/chaos-{opts.run}")
+    with contextlib.ExitStack() as held:
+        if not _hold(held, out, opts, resume=opts.resume):
+            return 2
+        return _run_chaos_held(cfg, opts, plan_path, parsed, out)
+
+
+def _hold(held: contextlib.ExitStack, out: Path, opts: SwarmOptions, *, resume: bool,
+          runs: tuple[str, ...] = CHAOS_RUNS) -> bool:
+    """Refuse or clear ``out`` and hold its run locks and its subruns' (so no other command writes there
+    while the chaos run lasts); False once the refusal is told."""
     try:
-        prepare_chaos_dir(out, resume=opts.resume, force=opts.force)
+        prepare_chaos_dir(out, resume=resume, force=opts.force, check_only=True)
+        held.enter_context(hold_run_dirs([out, *(out / name for name in runs)], run=opts.run,
+                                         command="truav-swarm chaos"))
+        prepare_chaos_dir(out, resume=resume, force=opts.force)
     except OutDirError as exc:
         print(f"truav-swarm: error: {exc}", file=sys.stderr)
-        return 2
+        return False
+    return True
+
+
+def _run_chaos_held(cfg: Config, opts: SwarmOptions, plan_path: str, parsed: FaultPlan, out: Path) -> int:
     print(announce(opts.episodes, cfg.scenario.steps_per_episode, opts.rate_hz, opts.lockstep), flush=True)
     results = {}
     rc_faulted = 0
@@ -180,7 +198,7 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str, plan: FaultPlan |
         run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=path, plan=parsed if path else None, plot=False,
                                        references=False,  # chaos compares the run with its own clean one
                                        record=str(out / f"{name}.mcap") if opts.record else None,
-                                       resume=opts.resume and sub.is_dir() and any(sub.iterdir()))
+                                       resume=opts.resume and sub.is_dir() and bool(entries(sub)))
         rc = run_swarm(cfg, run_opts)
         if name == "faulted":  # the checker judges it, however it ended
             rc_faulted = rc
@@ -220,11 +238,13 @@ NEMESIS_ROUTER_TIMEOUT_S = 30.0
 def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float) -> int:
     """A soak: one run under the nemesis's seeded random plan, then the checker (exit 1 on a violation)."""
     out = Path(opts.out or f"runs/chaos-{opts.run}")
-    try:
-        prepare_chaos_dir(out, resume=False, force=opts.force)
-    except OutDirError as exc:
-        print(f"truav-swarm: error: {exc}", file=sys.stderr)
-        return 2
+    with contextlib.ExitStack() as held:
+        if not _hold(held, out, opts, resume=False, runs=("faulted",)):
+            return 2
+        return _run_nemesis_held(cfg, opts, nemesis, duration_s, out)
+
+
+def _run_nemesis_held(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float, out: Path) -> int:
     record = opts.record or str(out / "faulted.mcap")  # the recording is one of the invariants
     plan = random_plan(duration_s, cfg.scenario.n_uavs, opts.seed, central=opts.scheme == "central",
                        recording=True)

@@ -21,15 +21,20 @@ replaced without --force.
 
 Within one run a crashed agent that is restarted still resumes from its own
 checkpoint: nothing is deleted after the start.
+
+A directory in use by a live run (its lock held: :mod:`truav.swarm.runlock`) is neither replaced nor
+continued, with or without --force or --resume: the refusal names the live run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
 from truav import jsonio
 from truav.atomic import write_kept
+from truav.swarm import runlock
 
 PID_FILE = "pids.json"
 SCENARIO_FILE = "scenario.toml"
@@ -57,6 +62,50 @@ class OutDirError(ValueError):
     """--out cannot be used as asked (a user mistake: one line, exit 2)."""
 
 
+def entries(out: Path) -> list[Path]:
+    """What ``out`` holds besides the run lock's file (a directory holding only that is empty)."""
+    return [p for p in out.iterdir() if p.name != runlock.LOCK_FILE]
+
+
+def _live_run_line(out: Path, holder: dict) -> str:
+    run, pid = holder.get("run"), holder.get("pid")
+    info = read_run_file(out) or {}
+    endpoint = info.get("endpoint") if isinstance(info, dict) and info.get("supervisor_pid") == pid else None
+    who = ", ".join(str(x) for x in (holder.get("command") or "a TRUAV command",
+                                     f"PID {pid}" if isinstance(pid, int) else None,
+                                     f"router {endpoint}" if isinstance(endpoint, str) else None) if x)
+    stop = f"truav-swarm down --out {out}" if endpoint else "Ctrl-C where it runs"
+    return (f"--out {out} is in use by the live run {run if isinstance(run, str) else '?'!r} ({who}): it is "
+            f"neither replaced (--force) nor continued (--resume) while it runs; wait for its end, stop it "
+            f"({stop}), or choose another --out")
+
+
+def refuse_live(out: Path) -> None:
+    """OutDirError naming the live run holding ``out`` (another process's), if one does."""
+    holder = runlock.holder(out)
+    if holder is not None:
+        raise OutDirError(_live_run_line(out, holder))
+
+
+@contextlib.contextmanager
+def hold_run_dirs(dirs, *, run: str, command: str):
+    """Hold the run locks of ``dirs`` (making them) for the block; OutDirError naming the live run when
+    another process holds one (then none is held)."""
+    taken: list[Path] = []
+    try:
+        for out in dirs:
+            if out.exists() and not out.is_dir():
+                raise OutDirError(f"--out {out} is a file, not a directory")
+            holder = runlock.acquire(out, {"run": run, "command": command})
+            if holder is not None:
+                raise OutDirError(_live_run_line(out, holder))
+            taken.append(out)
+        yield
+    finally:
+        for out in reversed(taken):
+            runlock.release(out)
+
+
 def _remove(out: Path, patterns) -> None:
     for pattern in patterns:
         for path in out.glob(pattern):
@@ -79,7 +128,7 @@ def _never_ran(out: Path) -> bool:
     statistics of processes stopped while waiting (the world's with 0 ticks), and no checkpoint."""
     if not (out / MARKER_FILE).is_file():
         return False
-    for path in out.iterdir():
+    for path in entries(out):
         if path.name == MARKER_FILE:
             continue
         if path.name == LOG_DIR and path.is_dir():
@@ -102,10 +151,11 @@ def check_swarm_dir(out: Path, *, resume: bool, force: bool) -> None:
         raise OutDirError("--resume and --force exclude each other (continue the run in --out, or replace it)")
     if out.exists() and not out.is_dir():
         raise OutDirError(f"--out {out} is a file, not a directory")
-    if out.is_dir() and any(out.iterdir()):
+    refuse_live(out)
+    if out.is_dir() and entries(out):
         legacy_resume = resume and any(out.glob("agent*.npz"))  # a run from before the marker: its checkpoints show it
         if not (out / MARKER_FILE).is_file() and not force and not legacy_resume:
-            names = sorted(p.name for p in out.iterdir())
+            names = sorted(p.name for p in entries(out))
             shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
             raise OutDirError(f"--out {out} holds files that are not a TRUAV swarm run's ({shown}); choose another "
                               f"--out, or --force to let the run replace the files of its own names in it")
@@ -119,7 +169,7 @@ def check_swarm_dir(out: Path, *, resume: bool, force: bool) -> None:
 def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: bool) -> None:
     """Make ``out`` ready for a run: refuse, resume or clear as described above (raises OutDirError)."""
     check_swarm_dir(out, resume=resume, force=force)
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and entries(out):
         if force or (not resume and _never_ran(out)):
             clear_swarm_files(out)
         else:  # resume
@@ -135,21 +185,32 @@ def prepare_swarm_dir(out: Path, scenario_toml: str, *, resume: bool, force: boo
     (out / SCENARIO_FILE).write_text(scenario_toml)
 
 
-def prepare_chaos_dir(out: Path, *, resume: bool, force: bool) -> None:
-    """The same rule for `truav-swarm chaos`, whose --out holds two swarm runs."""
+def prepare_chaos_dir(out: Path, *, resume: bool, force: bool, check_only: bool = False) -> None:
+    """The same rule for `truav-swarm chaos`, whose --out holds two swarm runs (``check_only``: its refusals,
+    touching nothing)."""
     if resume and force:
         raise OutDirError("--resume and --force exclude each other (continue the run in --out, or replace it)")
     if out.exists() and not out.is_dir():
         raise OutDirError(f"--out {out} is a file, not a directory")
-    if out.is_dir() and any(out.iterdir()) and not resume:
+    for sub in (out, *(out / name for name in CHAOS_RUNS)):
+        refuse_live(sub)
+    if out.is_dir() and _holds_chaos_files(out) and not resume:
         if not force:
             raise OutDirError(f"--out {out} holds an earlier chaos run; pass --resume to continue it, --force to "
                               f"replace it, or choose another --out")
+        if check_only:
+            return
         _remove(out, CHAOS_PATTERNS + tuple(f"{name}.mcap" for name in CHAOS_RUNS))
         for name in CHAOS_RUNS:
             if (out / name).is_dir():
                 clear_swarm_files(out / name)
-    out.mkdir(parents=True, exist_ok=True)
+    if not check_only:
+        out.mkdir(parents=True, exist_ok=True)
+
+
+def _holds_chaos_files(out: Path) -> bool:
+    """Anything besides run locks and subrun directories holding nothing else."""
+    return any(not (p.name in CHAOS_RUNS and p.is_dir() and not entries(p)) for p in entries(out))
 
 
 def write_run_file(out: Path, info: dict) -> None:
