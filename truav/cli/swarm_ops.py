@@ -1,94 +1,45 @@
 """`truav-swarm status|down|faults|view`: commands that talk to a running swarm.
 
 status lists who is alive, down asks the swarm to stop (then signals what still runs), faults
-replaces a running swarm's fault plan, view serves a run to the Foxglove app. Without -e they
-find the run's router in its output directory's swarm.json.
+replaces a running swarm's fault plan, view serves a run to the Foxglove app. status, down and faults
+find the run by --out DIR or --run NAME (truav.cli.run_lookup), never by a default port.
 """
 
 from __future__ import annotations
 
 import logging
-import os
+import sys
 import threading
-from pathlib import Path
 
 from truav.bus.fault_filter import CONTROL_FAULTS
 from truav.bus.transport import Bus
-from truav.checks import check_endpoint, check_in_file, check_out_dir
-from truav.cli.args import UserError, positive_float, run_name, tcp_port
+from truav.checks import check_in_file
+from truav.cli.args import positive_float, tcp_port
 from truav.cli.config import UsageError
 from truav.faults import load_plan
 from truav.lifecycle import stop_on_sigterm_or_orphaned
-from truav.cli.args import check_tls_creds
 from truav.wire import keys, schema
 from truav.cli.swarm_common import (add_geo_origin_arg, add_scenario_args, add_transport_args, config_from_args, part_creds,
                                     scenario_from, setup_logging)
 from truav.cli.swarm_secure import rejections_heard
 from truav.swarm.children import stop_recorded_pids
-from truav.swarm.outdir import RUN_FILE, SUMMARY_FILE, read_run_file
-from truav.swarm.swarm_options import DOWN_IDENTITY, default_out_dir
+from truav.cli.run_lookup import OUT_HELP, add_run_args, explicit_router, find_run, run_there
+from truav.swarm.swarm_options import DOWN_IDENTITY
 
 log = logging.getLogger("truav.swarm")
 
 
-def _pid_running(pid) -> bool:
-    """Whether process ``pid`` exists (one of another user's counts; a zombie does not)."""
-    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
-        return True  # unknown: do not call the run ended on a guess
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        except OSError:
-            return True
-        return True
-
-
-def _endpoint_from_out(args, out: Path | None, explicit: bool, need_run: bool = False) -> None:
-    """Without -e, connect where the run writing ``out`` has its router (from its swarm.json). An --out
-    the user named (or, with ``need_run``, the default one) must hold one: connecting to the default
-    endpoint instead would be a silent guess. A run that has ended (its summary written, or its
-    supervisor gone) is said to have ended, not looked for on a router that is no longer there."""
-    if args.connect or args.config or getattr(args, "creds", None) or out is None:  # --creds has its router
-        return
-    info = read_run_file(out)
-    if info and isinstance(info, dict) and isinstance(info.get("endpoint"), str) and info["endpoint"]:
-        check_endpoint(f"{out / RUN_FILE}: endpoint", info["endpoint"])
-        run = info.get("run") if isinstance(info.get("run"), str) else args.run
-        if (out / SUMMARY_FILE).is_file():  # written when a run ends; removed when one starts
-            raise UserError(f"run {run!r} in {out} has ended ({out / SUMMARY_FILE} holds its summary): "
-                            f"nothing of it is running")
-        if not _pid_running(info.get("supervisor_pid")):
-            raise UserError(f"run {run!r} in {out} has ended (its supervisor, PID {info['supervisor_pid']} "
-                            f"in {out / RUN_FILE}, is not running)")
-        args.connect = [info["endpoint"]]
-    elif explicit:
-        raise UserError(f"--out {out}: no swarm run's {RUN_FILE} with its router endpoint there "
-                        f"(a directory `truav-swarm up --out` wrote); or give -e/--connect ENDPOINT")
-    elif need_run:
-        raise UserError(f"--run {args.run}: no such run: {out / RUN_FILE} does not exist (`truav-swarm up "
-                        f"--run {args.run}` writes it); for a run with another --out pass --out DIR, or "
-                        f"-e/--connect ENDPOINT")
-    check_tls_creds(args, f"{out / RUN_FILE}: endpoint")
-
-
 def cmd_status(args) -> int:
-    if args.out is not None:
-        check_out_dir("--out", args.out)
-    _endpoint_from_out(args, Path(args.out) if args.out else None, explicit=args.out is not None)
+    find_run(args)
     part_creds(args, "supervisor")
     conf = config_from_args(args)
-    pattern = keys.all_alive(args.run) if args.run else "truav/*/alive/**"
-    with Bus("status", args.run or "status", conf) as bus:
+    with Bus("status", args.run, conf) as bus:
         heard = rejections_heard(bus, args.run)
-        tokens = sorted(bus.alive(pattern, timeout=args.timeout))
+        tokens, missing = run_there(bus, args, args.timeout)
         # Agents report once a second (agents.process.agent_process.HEALTH_PERIOD_S): wait a little longer for theirs.
         rejected = heard(min(args.timeout, 0.5) + 1.2 if tokens else 0.0, tokens)
-    if not tokens:
-        print("no TRUAV process alive" + (f" in run {args.run}" if args.run else ""))
+    if missing:
+        print(f"truav-swarm: error: {missing}", file=sys.stderr)
         return 1
     for token in tokens:
         print(token)
@@ -101,13 +52,23 @@ DOWN_LISTENER_WAIT_S = 5.0
 """How long `down` waits for the run's processes to be known as listeners before it sends."""
 
 
+def _reached(bus, args) -> bool:
+    """Whether the router reached serves the run named (said in one line when not). Through an explicit
+    router nothing of the run is a refusal too; from the run's own swarm.json (its supervisor holds the
+    directory) a run still starting may have no token yet: then it is sent all the same."""
+    tokens, missing = run_there(bus, args, 1.0)
+    if missing and (explicit_router(args) or "serves run(s)" in missing):
+        print(f"truav-swarm: error: {missing}", file=sys.stderr)
+        return False
+    return True
+
+
 def cmd_down(args) -> int:
-    if args.out is not None:
-        check_out_dir("--out", args.out)
-    out = Path(args.out) if args.out else default_out_dir(args.run)
-    _endpoint_from_out(args, out, explicit=args.out is not None, need_run=True)
+    out = find_run(args)
     part_creds(args, "supervisor")
     with Bus(DOWN_IDENTITY, args.run, config_from_args(args)) as bus:
+        if not _reached(bus, args):
+            return 1
         key = keys.control(args.run, "shutdown")
         if not bus.await_subscribers(key, DOWN_LISTENER_WAIT_S):
             log.warning("no process of run %s listens for its shutdown (yet); sending it anyway", args.run)
@@ -128,8 +89,11 @@ def cmd_faults(args) -> int:
         raise UsageError(f"--plan {args.plan}: {' and '.join(on_processes)} faults act on processes, which only "
                          f"`truav-swarm up --fault-plan` schedules; `faults` replaces a running swarm's link faults "
                          f"(remove them from this plan)")
+    find_run(args)
     part_creds(args, "supervisor")
     with Bus("supervisor", args.run, config_from_args(args)) as bus:
+        if not _reached(bus, args):
+            return 1
         key = keys.control(args.run, CONTROL_FAULTS)
         if not bus.await_subscribers(key, DOWN_LISTENER_WAIT_S):
             log.warning("no process of run %s listens for fault plans (yet); sending it anyway", args.run)
@@ -167,23 +131,20 @@ def cmd_view(args) -> int:
 def add_ops_commands(sub) -> None:
     """The `faults`, `status`, `down` and `view` subcommands (in that order: `--help` lists them so)."""
     fa = sub.add_parser("faults", help="replace the fault plan of a running swarm (link faults)")
-    fa.add_argument("--run", type=run_name, default="demo")
+    add_run_args(fa)
     fa.add_argument("--plan", required=True, metavar="FILE", help="fault plan TOML; an empty file clears all faults")
     add_transport_args(fa)
     fa.set_defaults(func=cmd_faults)
 
     st = sub.add_parser("status", help="who is alive (from liveliness tokens)")
-    st.add_argument("--run", type=run_name, help="only this run")
+    add_run_args(st)
     st.add_argument("--timeout", type=positive_float, default=1.0,
                     help="seconds to wait for the swarm's liveliness tokens (default 1)")
-    st.add_argument("--out", help="connect to the router of the run writing this directory (its swarm.json)")
     add_transport_args(st)
     st.set_defaults(func=cmd_status)
 
     dn = sub.add_parser("down", help="ask a running swarm to shut down")
-    dn.add_argument("--run", type=run_name, default="demo")
-    dn.add_argument("--out", help="the swarm's output directory with swarm.json and pids.json "
-                                  "(default runs/swarm-<run>; gives the endpoint when -e is not given)")
+    add_run_args(dn, out_help=OUT_HELP + "; its pids.json names what to signal should the run not stop itself")
     dn.add_argument("--wait", type=positive_float, default=30.0, metavar="S",
                     help="seconds to let the swarm stop itself before signalling what still runs (default 30)")
     add_transport_args(dn)

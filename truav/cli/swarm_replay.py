@@ -7,7 +7,8 @@
     truav-swarm replay-ctl --run R rate 2
     truav-swarm replay-ctl --run R seek --tick 40 | --time 12.5 | --by -5
 
-Exit code 0 with the status line; 1 with one line when no replay answers or it refuses the command
+Without -e, -c or --creds it finds the router of the live run named by --run or --out (its swarm.json),
+never a default port. Exit code 0 with the status line; 1 with one line when no replay answers or it refuses the command
 (a tick not in the recording...); 2 for a mistake on the command line.
 """
 
@@ -16,7 +17,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from truav.cli.args import non_negative_float, non_negative_int, positive_float, positive_int, run_name
+from truav.cli.args import non_negative_float, non_negative_int, positive_float, positive_int
+from truav.cli.run_lookup import add_run_args, explicit_router, find_run
 from truav.cli.swarm_common import add_transport_args, config_from_args
 
 DEFAULT_RUN = "demo"
@@ -65,6 +67,8 @@ def cmd_replay_ctl(args: argparse.Namespace) -> int:
         apply_replay_creds(args, CTL_IDENTITY)  # under --creds: the replay's own run, <run>-replay
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if not explicit_router(args):  # the router of the live run named (its swarm.json), never a default port
+        find_run(args)
     args.run = args.run or DEFAULT_RUN
     try:
         bus = Bus(CTL_IDENTITY, args.run, config_from_args(args))
@@ -91,8 +95,11 @@ def add_replay_ctl(subparsers, name: str = "replay-ctl", prog: str = "truav-swar
                     "truav/<run>/replay/ctl) and print its status after it. Seek takes seconds from the "
                     "recording's first message, a world tick, or seconds back (negative) or forward; after a "
                     "seek each channel's last message before that point is sent again first.")
-    ctl.add_argument("--run", type=run_name, default=None,
-                     help="the run the replay publishes into (default demo; with --creds, <its run>-replay)")
+    add_run_args(ctl, run_help="the run the replay publishes into (default demo; with --creds, <its run>-replay); "
+                               "without -e, -c or --creds the live run of that name, whose router its directory "
+                               "runs/swarm-NAME names (swarm.json); a replay on a router of your own: -e ENDPOINT",
+                 out_help="the live run the replay publishes into, by its directory (its swarm.json gives the "
+                          "run's name and router)")
     ctl.add_argument("--timeout", type=positive_float, default=5.0, metavar="S",
                      help="seconds to wait for the replay's answer (default 5)")
     add_transport_args(ctl)
