@@ -3,8 +3,8 @@
     truav-swarm up                          # short demo: own router on loopback, world, 5 agents, summary + picture
     truav-swarm up --agents 8 --episodes 5 --record runs/demo.mcap
     truav-swarm up --lockstep --qtable runs/train-15mps
-    truav-swarm status                      # `up` listens on tcp/127.0.0.1:7447 when that port is free
-    truav-swarm down --run demo             # finds the run's endpoint in runs/swarm-demo/swarm.json
+    truav-swarm status                      # run demo's processes: its router from runs/swarm-demo/swarm.json
+    truav-swarm down --run demo             # the same lookup (--out DIR: a run with another --out)
 
 and the parts, for other hosts or terminals (zenoh-example style flags):
 

@@ -331,7 +331,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
               f"{' + controller (' + (opts.policy or 'learning online') + ')' if self.central else ''}"
               f"{' + recorder -> ' + opts.record if opts.record else ''}; "
               f"{'lock-step' if opts.lockstep else f'{opts.rate_hz:g} Hz'}; logs in {self.out}/logs\n"
-              f"  watch it: truav-swarm status -e {ep}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
+              f"  watch it: truav-swarm status --run {opts.run}{where}    stop it: truav-swarm down --run {opts.run}{where}", flush=True)
         if opts.foxglove_port is not None:
             print(f"Foxglove: open ws://127.0.0.1:{opts.foxglove_port} (layout deploy/foxglove-layout.json)", flush=True)
         if self.cold_note:  # else tick 0 waits for the compiler without a word
