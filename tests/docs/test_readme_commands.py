@@ -1,11 +1,20 @@
-"""Every command of the README's bash blocks, then of the docs pages in tests/support/readme_commands.PAGES, in the order
-written, in a fresh directory.
+"""Every command of the README's bash blocks, then of its tutorials' and how-to guides' shell blocks (in the
+order the README lists them), then of tests/support/readme_commands.EXTRA_PAGES, in the order a reader meets
+them, all in ONE directory, as a reader after the quick start has it: a page whose run collides with an
+earlier page's (the same --out) fails here as it fails for the reader.
 
 Each command is classified below: RUN (run, with the tiny budget given appended; argparse lets the last
-flag win) or CHECKED (not run here, with the reason; parsed by the real parser unless it is not one of
-ours). A README command in neither table fails the test until it is classified; so does an entry no
-longer in the README. Running them all takes a few minutes of CPU, so it happens in CI (.ci/run sets
-TRUAV_README_COMMANDS=1; also with CI set) and on request; the classification runs always.
+flag win; never an --out or --force the page does not write) or CHECKED (not run here, with the reason;
+parsed by the real parser unless it is not one of ours; a CHECKED `truav-swarm up` is still checked not to
+land in an earlier run's --out or --record). A README command in neither table fails the test until it is
+classified; so does an entry no longer in the README. Running them all takes a few minutes of CPU, so it
+happens in CI (.ci/run sets TRUAV_README_COMMANDS=1; also with CI set) and on request; the classification
+runs always.
+
+Durations the pages state ("about 55 s") are in STATED_HOW, with how each is checked: a command this test
+runs at its full budget fails here when it takes more than twice its stated time; the others are tiny here,
+so their stated times are measured apart, at full budget, by bench/bench_doc_times.py (which fails on the
+same 2x), or extrapolated where a run takes hours (the page says so).
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.readme_commands import commands, key
+from tests.support.readme_commands import commands, key, program, stated_times
 
 REPO = Path(__file__).resolve().parents[2]
 ENTRY = {"truav": "truav.cli", "truav-swarm": "truav.cli.swarm"}
@@ -97,6 +106,15 @@ RUN: dict[str, list[str]] = {
     # the soak at 15 s (its schedule drawn for that); the re-run of its plan a little longer (it fails, honestly,
     # when its run ends before the plan's heal). At 5 Hz: beside the suite's other swarms a 10 Hz soak's agents
     # missed 7 of the 130 UAV-ticks after the heal, above the checker's 2% for a busy host (the host, not a fault).
+    "PYTHONPATH=examples truav train --agent cell_agent:CellAgent --seeds 2 --episodes 100 --out runs/cell-agent": TRAIN,
+    "PYTHONPATH=examples truav evaluate runs/cell-agent --against patrol hover": ["--episodes", "1", "--workers", "1", "--quiet"],
+    "PYTHONPATH=examples truav-swarm up --agent cell_agent:CellAgent --qtable runs/cell-agent --greedy "
+    "--out runs/swarm-cell-agent": SWARM,
+    "PYTHONPATH=examples truav-swarm up --agent cell_agent:CellAgent --qtable runs/cell-agent --greedy "
+    "--fault-plan deploy/plans/crash-and-freeze.toml --out runs/swarm-cell-agent-faults": SWARM,
+    "PYTHONPATH=examples truav-swarm up --lockstep --agent cell_agent:CellAgent --qtable runs/cell-agent --greedy "
+    "--episodes 1 --record runs/cell-agent.mcap --out runs/swarm-cell-agent-rec": SWARM,
+    "PYTHONPATH=examples truav log resim runs/cell-agent.mcap --agent cell_agent:CellAgent": [],
     "truav-swarm chaos --nemesis random --duration 10m --seed 1 --out runs/chaos-soak":
         ["--duration", "15s", "--rate", "5", "--steps", "50", *SMALL_CITY, "--no-plot", "--quiet"],
     "truav-swarm chaos --plan runs/chaos-soak/nemesis-plan.toml --out runs/chaos-soak-again":
@@ -110,6 +128,10 @@ OTHER_HOST = "a part for another host (ROUTER, ~/truav-creds are the user's); te
 LONG = "an experiment of minutes (many swarm runs); its code runs small in tests/swarm/test_fault_sweep.py, test_scheme_faults.py"
 REPLAY_RUNNING = "needs a replay running in another terminal; tests/swarm/test_replay_ctl.py runs replay-ctl against one"
 BENCH = "a benchmark: minutes, and it measures the host (bench/ is run by hand)"
+OWN_CLASS = ("needs the page's agent class in ~/mylab (the reader's own file); tests/swarm/test_agent_api.py and "
+             "test_agent_api_swarm.py train, evaluate and fly the same class")
+OUTSIDE = ("waits for an outside agent (examples/outside_agent.py) in a second terminal; "
+           "tests/swarm/test_outside_agent.py flies one beside such a swarm")
 CHECKED: dict[str, str] = {
     "python3 -m venv .venv": SETUP,
     ". .venv/bin/activate": SETUP,
@@ -154,6 +176,26 @@ CHECKED: dict[str, str] = {
     "truav experiment faults --quick --schemes federated truav_online --rate 5 --out runs/faults-federated": LONG,
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
+    "truav-swarm router -l tcp/127.0.0.1:7460": "a router of the reader's own, for the replay and its control "
+                                                "below; routers on loopback run in every swarm test",
+    "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7460 --paused":
+        "starts paused, waiting for keys or bus commands; replay is tested in tests/swarm/test_replay.py",
+    "truav-swarm replay-ctl --run demo -e tcp/127.0.0.1:7460 status": REPLAY_RUNNING,
+    "pip install 'eclipse-zenoh>=1.0' 'msgpack>=1.0'": SETUP + " (both are TRUAV's own dependencies)",
+    "truav-swarm up --agents 3 --lockstep --episodes 1 --steps 20 --external 2 --out runs/swarm-external": OUTSIDE,
+    "'PYTHONPATH=~/mylab' truav train --agent bandit_agent:Bandit --seeds 4 --episodes 200 --out runs/bandit":
+        OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav evaluate runs/bandit --against patrol hover": OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav experiment velocity --quick --schemes bandit_agent:Bandit truav patrol --speeds 15 "
+    "--out runs/bandit-velocity": OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav experiment faults --quick --schemes bandit_agent:Bandit truav patrol "
+    "--out runs/bandit-faults": OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav-swarm up --lockstep --agent bandit_agent:Bandit --episodes 4 --out runs/bandit-swarm":
+        OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav-swarm up --agent bandit_agent:Bandit --fault-plan deploy/plans/crash-and-freeze.toml "
+    "--out runs/bandit-faulted": OWN_CLASS,
+    "'PYTHONPATH=~/mylab' truav-swarm up --agent bandit_agent:Bandit --qtable runs/bandit --greedy "
+    "--out runs/bandit-greedy": OWN_CLASS,
     **{c: BENCH for c in (
         "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
         "python bench/bench_trainer.py --agent truav", "python bench/bench_sumo.py",
@@ -168,11 +210,38 @@ CHECKED: dict[str, str] = {
 
 TIMEOUT_S = 240
 
+MEASURED_APART = "measured apart at full budget by bench/bench_doc_times.py (here it runs tiny)"
+STATED_HOW: dict[str, str] = {
+    "truav-swarm up": MEASURED_APART,
+    "truav train": MEASURED_APART,
+    "truav experiment velocity": "hours: extrapolated from its own ETA after its first cells (the page says so)",
+    "truav experiment velocity --schemes truav central patrol patrol_ctrl --episodes-for patrol_ctrl=100":
+        "hours: extrapolated from its own ETA after its first cells (the page says so)",
+    "truav experiment faults --qtable runs/train-15mps": MEASURED_APART,
+    "truav experiment faults --quick": MEASURED_APART,
+}
+"""Every duration a page states, and how it is checked."""
+
+
+def _swarm_outputs(argv: list[str]) -> tuple[list[Path], bool] | None:
+    """(--out directory and --record file, whether it may replace them) of a `truav-swarm up` command."""
+    from truav.cli.swarm import build_parser
+    from truav.swarm.swarm_options import default_out_dir
+    argv = program(argv)
+    if argv[:2] != ["truav-swarm", "up"]:
+        return None
+    args = build_parser().parse_args(argv[1:])
+    paths = [Path(args.out) if args.out else default_out_dir(args.run)]
+    if args.record:
+        paths.append(Path(args.record))
+    return paths, bool(args.force or args.resume)
+
 
 def _parse(argv: list[str]) -> None:
     """Our own commands go through their real parser (a renamed or misspelt flag fails here)."""
     from truav.cli.main import build_parser as truav_parser
     from truav.cli.swarm import build_parser as swarm_parser
+    argv = program(argv)
     parser = {"truav": truav_parser, "truav-swarm": swarm_parser}[argv[0]]()
     parser.parse_args(argv[1:argv.index(">")] if ">" in argv else argv[1:])
 
@@ -184,11 +253,39 @@ def test_every_readme_command_is_classified_and_parses() -> None:
     stale = [c for c in [*RUN, *CHECKED] if c not in found]
     assert not stale, f"no longer in the README: {stale}"
     for argv in commands():
-        if argv[0] in ENTRY:
+        if program(argv)[0] in ENTRY:
             _parse(argv + RUN.get(key(argv), []))
 
 
+def test_no_command_lands_in_an_earlier_commands_run() -> None:
+    """Read in order, no `truav-swarm up` (run here or not) writes an --out or --record an earlier one wrote,
+    unless it says --force or --resume: the reader's second run would refuse to start."""
+    written: dict[Path, str] = {}
+    clashes = []
+    for argv in commands():
+        found = _swarm_outputs(argv)
+        if found is None:
+            continue
+        paths, replaces = found
+        clashes += [f"`{key(argv)}` writes {p}, as `{written[p]}` did before it" for p in paths
+                    if p in written and not replaces]
+        written.update({p: key(argv) for p in paths})
+    assert not clashes, "give each its own --out (or --record):\n" + "\n".join(clashes)
+
+
+def test_every_stated_duration_says_how_it_is_checked() -> None:
+    stated = stated_times()
+    assert sorted(set(stated) - set(STATED_HOW)) == [], "a page states a duration: say in STATED_HOW how it is checked"
+    assert sorted(set(STATED_HOW) - set(stated)) == [], "STATED_HOW names a command whose page states no duration"
+    full_here = [c for c, how in STATED_HOW.items() if how.startswith("run at its full budget")]
+    assert [c for c in full_here if RUN.get(c) != []] == [], "a duration checked here needs the command run as written"
+
+
 def _run(argv: list[str], cwd: Path, env: dict) -> tuple[int, str]:
+    assigned = argv[:len(argv) - len(program(argv))]  # the reader's VAR=value before the command
+    env = {**env, **{k: os.path.expanduser(v) + (os.pathsep + env[k] if k == "PYTHONPATH" and env.get(k) else "")
+                     for k, v in (a.split("=", 1) for a in assigned)}}
+    argv = program(argv)
     out_file = None
     if ">" in argv:  # the README's one redirection
         at = argv.index(">")
@@ -210,16 +307,29 @@ def _run(argv: list[str], cwd: Path, env: dict) -> tuple[int, str]:
                     reason="runs every README command (minutes): set TRUAV_README_COMMANDS=1 (CI does)")
 @pytest.mark.timeout(1800)  # ~55 commands in turn, minutes: beyond the suite's 300 s; each is bounded by TIMEOUT_S
 def test_readme_commands_run_in_order_in_a_fresh_directory(tmp_path: Path) -> None:
-    """A fresh clone after the quick start: the repository's files, no runs/ yet."""
+    """A fresh clone after the quick start: the repository's files, no runs/ yet; every page's commands in
+    this one directory, in the reader's order."""
+    from truav.swarm.outdir import OutDirError, check_swarm_dir
     work = tmp_path / "clone"
     work.mkdir()
-    shutil.copytree(REPO / "deploy", work / "deploy")  # the plans and deployments the commands name
+    for folder in ("deploy", "examples"):  # the plans, deployments and agent classes the commands name
+        shutil.copytree(REPO / folder, work / folder)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    stated = stated_times()
     for argv in commands():
         name = key(argv)
         if name in CHECKED:
+            found = _swarm_outputs(argv)
+            if found:  # not run here; the reader's run would still start only in a free --out
+                try:
+                    check_swarm_dir(work / found[0][0], resume=False, force=found[1])
+                except OutDirError as e:
+                    pytest.fail(f"`{name}` (not run here) would refuse to start: {e}")
             continue
         began = time.monotonic()
         rc, text = _run(argv + RUN[name], work, env)
-        print(f"{time.monotonic() - began:6.1f} s  {name}", flush=True)  # the check's cost, command by command
+        took = time.monotonic() - began
+        print(f"{took:6.1f} s  {name}", flush=True)  # the check's cost, command by command
         assert rc == 0, f"`{name}` (+ {' '.join(RUN[name])}) exited {rc}:\n{text[-3000:]}"
+        if name in stated and RUN[name] == []:
+            assert took <= 2 * stated[name], f"`{name}` took {took:.0f} s, more than twice the {stated[name]:.0f} s its page states"
