@@ -46,7 +46,7 @@ def _one_line(capsys) -> str:
 
 
 def test_force_on_a_live_swarm_is_refused_and_its_files_kept(up, tmp_path, capsys) -> None:  # noqa: F811
-    first = up("live", "--agents", "2", "--steps", "20", "--episodes", "500")
+    first = up("live", "--agents", "2", "--steps", "20", "--episodes", "500", "--max-missed", "1")
     endpoint = first.wait_ticking()
     out = first.out
     pid, world_pid = first.proc.pid, first.pids["world"]
@@ -128,3 +128,16 @@ def test_a_fresh_dir_holding_only_a_released_lock_counts_as_empty(tmp_path) -> N
     check_swarm_dir(out, resume=False, force=False)  # not "holds files that are not a run's"
     with pytest.raises(OutDirError, match="holds no run to resume"):
         check_swarm_dir(out, resume=True, force=False)
+
+
+def test_a_killed_supervisor_does_not_block_the_next_run(up, tmp_path, capsys) -> None:  # noqa: F811
+    """The lock is the supervisor's alone (its processes do not inherit it): SIGKILLed, its directory is free
+    at once, while its orphans are still stopping; the next run with --force runs."""
+    first = up("killed", "--agents", "2", "--steps", "20", "--episodes", "500", "--max-missed", "1")
+    first.wait_ticking()
+    first.proc.send_signal(signal.SIGKILL)
+    first.proc.wait(timeout=30)
+    check_swarm_dir(first.out, resume=False, force=True)  # not "in use by the live run"
+    assert first.left_running(grace=60) == []  # its children notice and stop by themselves
+    assert swarm_main(["up", "--run", "after", "--out", str(first.out), "--force", "--lockstep", "--quiet",
+                       "--no-plot", *TINY]) == 0, capsys.readouterr()

@@ -17,7 +17,7 @@ def _one_line(capsys) -> tuple[str, str]:
 
 
 def test_commands_reach_only_the_run_they_name(up, tmp_path, capsys, monkeypatch) -> None:  # noqa: F811
-    a = up("alpha", "--agents", "2", "--steps", "20", "--episodes", "500")
+    a = up("alpha", "--agents", "2", "--steps", "20", "--episodes", "500", "--max-missed", "1")
     endpoint = a.wait_ticking()
     monkeypatch.chdir(tmp_path)  # no runs/ here: the default run's directory does not exist
     empty = tmp_path / "empty.toml"
