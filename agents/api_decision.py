@@ -49,6 +49,16 @@ class ApiDecision:
         self.fields: dict = {}
         """What beacon_fields() returned after the last act: the next beacon carries it."""
 
+    def warm_up(self) -> None:
+        """Load the compiled kernels of a step (the overlap with the peers, the reward) before the agent joins, so
+        its first tick is not missed while they load; calls nothing of the class and changes no state."""
+        pos = np.zeros((1, 1, 2))
+        peers = np.zeros((1, 1, 1, 2))
+        overlap = neighbour_features(pos, peers, np.ones((1, 1, 1), np.bool_), self.cfg.scenario.comm_range_m)[1]
+        zero = np.zeros((1, 1))
+        self.reward(zero, zero, zero, overlap, zero, zero, zero)
+        nearest_rsu_m(pos, self.rsu)
+
     def beacon(self, obs: schema.Obs) -> schema.Beacon:
         """This UAV's beacon for the tick of ``obs``: at an episode's first tick no action was taken yet."""
         if obs.episode != self.episode:

@@ -65,7 +65,7 @@ class ApiAgentNode(AgentNode):
         self.decision = self.api  # its beacon() is what _send_beacon sends
 
     def _warm_up(self) -> None:
-        pass
+        self.api.warm_up()  # else its first tick is late on a busy host (the kernels load at its first reward)
 
     def _failed(self, obs: schema.Obs, what: str, exc: BaseException) -> None:
         self.agent_errors += 1

@@ -77,3 +77,23 @@ def test_every_field_of_the_view_has_a_documented_unit_or_range():
     for cls in (api.LocalView, api.HeardBeacon):
         for f in dataclasses.fields(cls):
             assert docs[cls.__name__].get(f.name, "").strip(), f"{cls.__name__}.{f.name} has no docstring"
+
+
+def test_an_api_agent_loads_its_step_kernels_before_it_joins():
+    """A swarm's API agent warms up (agents.process.api_process) as TRUAV's does: the reward's and the overlap's
+    compiled kernels are loaded before the first tick (else a busy host misses its first ticks), and nothing of
+    the class is called."""
+    from agents.reward import _rewards
+    from agents.state import neighbour_features
+
+    class Untouchable(UavAgent):
+        def act(self, view):
+            raise AssertionError("called")
+
+        def learn(self, view, reward, done):
+            raise AssertionError("called")
+
+    decision = ApiDecision(Untouchable, Config(), 0, seed=0)
+    decision.warm_up()
+    assert _rewards.signatures and neighbour_features.signatures
+    assert decision.view is None and decision.episode == -1
