@@ -1,0 +1,166 @@
+"""An agent's view (agents.api.LocalView) as a fixed-size float32 feature vector, each feature scaled to O(1).
+
+What a learner built with the field's libraries observes: the PettingZoo environment
+(truav.analysis.pettingzoo_env) encodes every UAV's LocalView with :class:`ViewEncoder`, and an agent
+process holding a LocalView encodes it the same way, so a policy trained on one acts on the other from
+the same numbers. The features, in order (:func:`observation_features` gives each one's name, unit, scale,
+bounds and meaning; docs/reference/pettingzoo-observation.md is generated from it):
+
+- own state: position, full speed, vehicles in range, covered, exclusive, queued, relayed, energy,
+  distance to the nearest RSU, the share of peers heard, episode progress (step / T);
+- the densest sensed sector as a one-hot over learner.sense_sectors (all zero with sensing off or
+  nothing sensed);
+- the K nearest heard peers (K = ``peers``), nearest first (ties by UAV id): relative position, the
+  peer's velocity, distance and a mask (1: a heard peer; 0: padding, with each feature's documented fill).
+
+Open-ended values (relayed, energy) are capped at :data:`CAP`; every value lies in the declared bounds.
+Beacon fields (HeardBeacon.fields) are not encoded: they are what an agent class chose to say.
+Pure computation: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.api import LocalView
+from truav.config import Config
+
+DEFAULT_PEERS = 4
+"""K, the heard peers encoded by default: every peer of the default swarm of 5 UAVs."""
+CAP = 10.0
+"""The cap of the open-ended features (relayed, energy), after scaling."""
+SPEED_SCALE_MPS = 25.0
+"""The scale of speed_max: the fastest speed of the velocity experiment (5-25 m/s)."""
+DIAGONAL = math.sqrt(2.0)
+"""The area's diagonal over its side: the farthest two points of the area are apart, after scaling."""
+N_OWN = 12
+"""The own-state features, first in the vector."""
+PEER_FIELDS = ("dx", "dy", "vx", "vy", "distance", "mask")
+"""The features of each heard-peer slot, in order."""
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One feature of the vector: its raw value in ``unit`` divided by ``scale``."""
+
+    name: str
+    unit: str
+    """The raw value's unit ("1" for a count or a flag)."""
+    scale: float
+    """The raw value is divided by it."""
+    scale_of: str
+    """What the scale is, in config keys."""
+    low: float
+    high: float
+    """Bounds of the scaled value (the observation space's Box)."""
+    meaning: str
+    fill_value: float | None = None
+    """A padded peer slot's value (None for features that are never padding)."""
+
+
+def _share(cfg: Config) -> float:
+    return cfg.scenario.n_vehicles / cfg.scenario.n_uavs
+
+
+def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Feature, ...]:
+    """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots, in order."""
+    sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
+    share, U = _share(cfg), float(sc.n_uavs)
+    relay_share = max(tr.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
+    fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
+    own = [
+        Feature("x", "m", sc.area_m, "scenario.area_m", 0.0, 1.0, "own position, east"),
+        Feature("y", "m", sc.area_m, "scenario.area_m", 0.0, 1.0, "own position, north"),
+        Feature("speed_max", "m/s", SPEED_SCALE_MPS, f"{SPEED_SCALE_MPS:g} m/s", 0.0, 100.0 / SPEED_SCALE_MPS,
+                "full speed (scenario.uav_speed_mps): actions 8-15 fly at it, 0-7 at half"),
+        Feature("vehicles_in_range", "1", share, fair, 0.0, U, "vehicles within scenario.comm_range_m"),
+        Feature("covered", "1", share, fair, 0.0, U, "vehicles this UAV served in the last step"),
+        Feature("exclusive", "1", share, fair, 0.0, U, "vehicles in this UAV's range and no other UAV's"),
+        Feature("queued", "1", share * tr.queue_limit, "the fair share x traffic.queue_limit", 0.0, U,
+                "packets queued at the vehicles this UAV serves"),
+        Feature("relayed", "1", relay_share, "traffic.packet_rate_hz x scenario.n_vehicles x scenario.step_s / "
+                "scenario.n_uavs", 0.0, CAP, f"packets relayed to an RSU in the last step (capped at {CAP:g})"),
+        Feature("energy", "J", max(e.move_w * sc.step_s, 1e-9), "energy.move_w x scenario.step_s", 0.0, CAP,
+                f"energy spent in the last step (capped at {CAP:g})"),
+        Feature("nearest_rsu", "m", sc.area_m, "scenario.area_m", 0.0, DIAGONAL,
+                "distance to the nearest RSU (capped at the diagonal, sqrt 2; sqrt 2 without RSUs)"),
+        Feature("heard_peers", "1", float(max(sc.n_uavs - 1, 1)), "scenario.n_uavs - 1", 0.0, 1.0,
+                "beacons heard at this step (all of them, not only the K encoded)"),
+        Feature("progress", "steps", float(sc.steps_per_episode), "scenario.steps_per_episode", 0.0, 1.0,
+                "the step within the episode"),
+    ]
+    sectors = [Feature(f"densest_sector_{s}", "1", 1.0, "1", 0.0, 1.0,
+                       f"1 if sector {s} (of learner.sense_sectors, counter-clockwise from east) holds the most "
+                       "vehicles sensed beyond comm range; all 0 with sensing off or none sensed")
+               for s in range(1, cfg.learner.sense_sectors + 1)]
+    slots = []
+    for k in range(1, peers + 1):
+        which = f"the {_ordinal(k)} nearest heard peer"
+        slots += [
+            Feature(f"peer{k}_dx", "m", sc.area_m, "scenario.area_m", -1.0, 1.0,
+                    f"{which}: its x minus own x", 0.0),
+            Feature(f"peer{k}_dy", "m", sc.area_m, "scenario.area_m", -1.0, 1.0, f"{which}: its y minus own y", 0.0),
+            Feature(f"peer{k}_vx", "m/s", 1.0, "the view's speed_max", -1.0, 1.0,
+                    f"{which}: its velocity east (its last action's; 0 hovering)", 0.0),
+            Feature(f"peer{k}_vy", "m/s", 1.0, "the view's speed_max", -1.0, 1.0, f"{which}: its velocity north", 0.0),
+            Feature(f"peer{k}_distance", "m", sc.area_m, "scenario.area_m", 0.0, DIAGONAL,
+                    f"{which}: its distance", DIAGONAL),
+            Feature(f"peer{k}_mask", "1", 1.0, "1", 0.0, 1.0, f"1 if {which} was heard, 0 for padding", 0.0),
+        ]
+    return tuple(own + sectors + slots)
+
+
+def _ordinal(k: int) -> str:
+    return {1: "1st", 2: "2nd", 3: "3rd"}.get(k, f"{k}th")
+
+
+class ViewEncoder:
+    """A LocalView -> its feature vector (float32, :func:`observation_features` order) for runs of ``cfg``."""
+
+    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS):
+        if isinstance(peers, bool) or not isinstance(peers, int) or peers < 0:
+            raise ValueError(f"peers must be an int >= 0 (the heard peers encoded), got {peers!r}")
+        self.cfg, self.peers = cfg, peers
+        self.features = observation_features(cfg, peers)
+        self.size = len(self.features)
+        self.low = np.array([f.low for f in self.features], np.float32)
+        self.high = np.array([f.high for f in self.features], np.float32)
+        self._names = {f.name: i for i, f in enumerate(self.features)}
+        self._scale = [f.scale for f in self.features[:N_OWN]]
+        self._sectors = cfg.learner.sense_sectors
+        self._fill = [f.fill_value for f in self.features[N_OWN + self._sectors:]]
+        self._area = float(cfg.scenario.area_m)
+
+    def index(self, name: str) -> int:
+        """The position of the feature ``name`` in the vector."""
+        return self._names[name]
+
+    def __call__(self, view: LocalView) -> np.ndarray:
+        # Plain Python floats (float64) for a few dozen numbers: several times cheaper than numpy's calls.
+        s = self._scale
+        raw = (view.pos[0], view.pos[1], view.speed_max, view.vehicles_in_range, view.covered, view.exclusive,
+               view.queued_packets, view.relayed, view.energy_j, view.nearest_rsu_m, len(view.beacons), view.step)
+        out = [v / k for v, k in zip(raw, s)]
+        onehot = [0.0] * self._sectors
+        if 1 <= view.densest_sector <= self._sectors:
+            onehot[view.densest_sector - 1] = 1.0
+        out += onehot
+        slots = list(self._fill)
+        if self.peers and view.beacons:
+            x, y = view.pos
+            area, speed = self._area, view.speed_max if view.speed_max > 0 else 1.0
+            rel = [(math.hypot(b.pos[0] - x, b.pos[1] - y), b) for b in view.beacons]
+            rel.sort(key=lambda r: r[0])  # stable: beacons come in UAV-id order, so ties go by id
+            n = len(PEER_FIELDS)
+            for k, (d, b) in enumerate(rel[: self.peers]):
+                slots[n * k: n * k + n] = ((b.pos[0] - x) / area, (b.pos[1] - y) / area, b.vel[0] / speed,
+                                           b.vel[1] / speed, d / area, 1.0)
+        out += slots
+        vec = np.array(out, np.float32)
+        return np.clip(vec, self.low, self.high, out=vec)  # the caps (an RSU-less city's inf distance: the diagonal)
+
+
+__all__ = ["CAP", "DEFAULT_PEERS", "Feature", "PEER_FIELDS", "ViewEncoder", "observation_features"]
