@@ -1,20 +1,21 @@
 """An agent's view (agents.api.LocalView) as a fixed-size float32 feature vector, each feature scaled to O(1).
 
 What a learner built with the field's libraries observes: the PettingZoo environment
-(truav.analysis.pettingzoo_env) encodes every UAV's LocalView with :class:`ViewEncoder`, and an agent
-process holding a LocalView encodes it the same way, so a policy trained on one acts on the other from
-the same numbers. The features, in order (:func:`observation_features` gives each one's name, unit, scale,
-bounds and meaning; docs/reference/pettingzoo-observation.md is generated from it):
+(`truav.analysis.pettingzoo_env`) encodes every UAV's LocalView with `ViewEncoder`, and an agent process
+holding a LocalView encodes it the same way, so a policy trained on one acts on the other from the same
+numbers. The features, in order (`observation_features` gives each one's name, unit, scale, bounds and
+meaning; docs/reference/pettingzoo-observation.md is generated from it):
 
 - own state: position, full speed, vehicles in range, covered, exclusive, queued, relayed, energy,
   distance to the nearest RSU, the share of peers heard, episode progress (step / T);
 - the densest sensed sector as a one-hot over learner.sense_sectors (all zero with sensing off or
   nothing sensed);
-- the K nearest heard peers (K = ``peers``), nearest first (ties by UAV id): relative position, the
-  peer's velocity, distance and a mask (1: a heard peer; 0: padding, with each feature's documented fill).
+- the K nearest heard peers (K = `peers`) in slots k = 1..K, nearest first (ties by UAV id): relative
+  position, the peer's velocity, distance and a mask (1: a heard peer; 0: padding, with each feature's
+  documented fill).
 
-Open-ended values (relayed, energy) are capped at :data:`CAP`; every value lies in the declared bounds.
-Beacon fields (HeardBeacon.fields) are not encoded: they are what an agent class chose to say.
+Open-ended values (relayed, energy) are capped at `CAP`; every value lies in the declared bounds.
+Beacon fields (`HeardBeacon.fields`) are not encoded: they are what an agent class chose to say.
 Pure computation: no I/O.
 """
 
@@ -47,6 +48,9 @@ class Feature:
     """One feature of the vector: its raw value in ``unit`` divided by ``scale``."""
 
     name: str
+    group: str
+    """The name with its slot or sector as {k} or {s} (the name itself for a single feature): the features
+    of a group share everything but the slot."""
     unit: str
     """The raw value's unit ("1" for a count or a flag)."""
     scale: float
@@ -61,60 +65,51 @@ class Feature:
     """A padded peer slot's value (None for features that are never padding)."""
 
 
-def _share(cfg: Config) -> float:
-    return cfg.scenario.n_vehicles / cfg.scenario.n_uavs
-
-
 def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Feature, ...]:
     """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots, in order."""
     sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
-    share, U = _share(cfg), float(sc.n_uavs)
-    relay_share = max(tr.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
+    share, U, area, speed = sc.n_vehicles / sc.n_uavs, float(sc.n_uavs), float(sc.area_m), float(sc.uav_speed_mps)
     fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
-    own = [
-        Feature("x", "m", sc.area_m, "scenario.area_m", 0.0, 1.0, "own position, east"),
-        Feature("y", "m", sc.area_m, "scenario.area_m", 0.0, 1.0, "own position, north"),
-        Feature("speed_max", "m/s", SPEED_SCALE_MPS, f"{SPEED_SCALE_MPS:g} m/s", 0.0, 100.0 / SPEED_SCALE_MPS,
-                "full speed (scenario.uav_speed_mps): actions 8-15 fly at it, 0-7 at half"),
-        Feature("vehicles_in_range", "1", share, fair, 0.0, U, "vehicles within scenario.comm_range_m"),
-        Feature("covered", "1", share, fair, 0.0, U, "vehicles this UAV served in the last step"),
-        Feature("exclusive", "1", share, fair, 0.0, U, "vehicles in this UAV's range and no other UAV's"),
-        Feature("queued", "1", share * tr.queue_limit, "the fair share x traffic.queue_limit", 0.0, U,
-                "packets queued at the vehicles this UAV serves"),
-        Feature("relayed", "1", relay_share, "traffic.packet_rate_hz x scenario.n_vehicles x scenario.step_s / "
-                "scenario.n_uavs", 0.0, CAP, f"packets relayed to an RSU in the last step (capped at {CAP:g})"),
-        Feature("energy", "J", max(e.move_w * sc.step_s, 1e-9), "energy.move_w x scenario.step_s", 0.0, CAP,
-                f"energy spent in the last step (capped at {CAP:g})"),
-        Feature("nearest_rsu", "m", sc.area_m, "scenario.area_m", 0.0, DIAGONAL,
-                "distance to the nearest RSU (capped at the diagonal, sqrt 2; sqrt 2 without RSUs)"),
-        Feature("heard_peers", "1", float(max(sc.n_uavs - 1, 1)), "scenario.n_uavs - 1", 0.0, 1.0,
-                "beacons heard at this step (all of them, not only the K encoded)"),
-        Feature("progress", "steps", float(sc.steps_per_episode), "scenario.steps_per_episode", 0.0, 1.0,
-                "the step within the episode"),
+    own = [  # name, unit, scale, scale_of, low, high, meaning
+        ("x", "m", area, "scenario.area_m", 0.0, 1.0, "own position, east"),
+        ("y", "m", area, "scenario.area_m", 0.0, 1.0, "own position, north"),
+        ("speed_max", "m/s", SPEED_SCALE_MPS, f"{SPEED_SCALE_MPS:g} m/s", 0.0, 100.0 / SPEED_SCALE_MPS,
+         "full speed (scenario.uav_speed_mps): actions 8-15 fly at it, 0-7 at half of it"),
+        ("vehicles_in_range", "1", share, fair, 0.0, U, "vehicles within scenario.comm_range_m"),
+        ("covered", "1", share, fair, 0.0, U, "vehicles this UAV served in the last step"),
+        ("exclusive", "1", share, fair, 0.0, U, "vehicles in this UAV's range and no other UAV's"),
+        ("queued", "1", share * tr.queue_limit, "the fair share x traffic.queue_limit", 0.0, U,
+         "packets queued at the vehicles this UAV serves"),
+        ("relayed", "1", max(tr.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9),
+         "traffic.packet_rate_hz x scenario.n_vehicles x scenario.step_s / scenario.n_uavs", 0.0, CAP,
+         f"packets relayed to an RSU in the last step (capped at {CAP:g})"),
+        ("energy", "J", max(e.move_w * sc.step_s, 1e-9), "energy.move_w x scenario.step_s", 0.0, CAP,
+         f"energy spent in the last step (capped at {CAP:g})"),
+        ("nearest_rsu", "m", area, "scenario.area_m", 0.0, DIAGONAL,
+         "distance to the nearest RSU (capped at the area's diagonal, sqrt 2; sqrt 2 without RSUs)"),
+        ("heard_peers", "1", float(max(sc.n_uavs - 1, 1)), "scenario.n_uavs - 1", 0.0, 1.0,
+         "beacons heard at this step (all of them, not only the K encoded)"),
+        ("progress", "steps", float(sc.steps_per_episode), "scenario.steps_per_episode", 0.0, 1.0,
+         "the step within the episode"),
     ]
-    sectors = [Feature(f"densest_sector_{s}", "1", 1.0, "1", 0.0, 1.0,
-                       f"1 if sector {s} (of learner.sense_sectors, counter-clockwise from east) holds the most "
-                       "vehicles sensed beyond comm range; all 0 with sensing off or none sensed")
-               for s in range(1, cfg.learner.sense_sectors + 1)]
-    slots = []
-    for k in range(1, peers + 1):
-        which = f"the {_ordinal(k)} nearest heard peer"
-        slots += [
-            Feature(f"peer{k}_dx", "m", sc.area_m, "scenario.area_m", -1.0, 1.0,
-                    f"{which}: its x minus own x", 0.0),
-            Feature(f"peer{k}_dy", "m", sc.area_m, "scenario.area_m", -1.0, 1.0, f"{which}: its y minus own y", 0.0),
-            Feature(f"peer{k}_vx", "m/s", 1.0, "the view's speed_max", -1.0, 1.0,
-                    f"{which}: its velocity east (its last action's; 0 hovering)", 0.0),
-            Feature(f"peer{k}_vy", "m/s", 1.0, "the view's speed_max", -1.0, 1.0, f"{which}: its velocity north", 0.0),
-            Feature(f"peer{k}_distance", "m", sc.area_m, "scenario.area_m", 0.0, DIAGONAL,
-                    f"{which}: its distance", DIAGONAL),
-            Feature(f"peer{k}_mask", "1", 1.0, "1", 0.0, 1.0, f"1 if {which} was heard, 0 for padding", 0.0),
-        ]
-    return tuple(own + sectors + slots)
-
-
-def _ordinal(k: int) -> str:
-    return {1: "1st", 2: "2nd", 3: "3rd"}.get(k, f"{k}th")
+    out = [Feature(name, name, *rest) for name, *rest in own]
+    out += [Feature(f"densest_sector_{s}", "densest_sector_{s}", "1", 1.0, "1", 0.0, 1.0,
+                    "1 if sector s of learner.sense_sectors (counter-clockwise from east, sector 1 starting at "
+                    "east) holds the most vehicles sensed beyond comm range; all 0 with sensing off or none sensed")
+            for s in range(1, cfg.learner.sense_sectors + 1)]
+    peer = [  # field, unit, scale, scale_of, low, high, meaning, fill
+        ("dx", "m", area, "scenario.area_m", -1.0, 1.0, "peer k's x minus own x", 0.0),
+        ("dy", "m", area, "scenario.area_m", -1.0, 1.0, "peer k's y minus own y", 0.0),
+        ("vx", "m/s", speed, "scenario.uav_speed_mps (the view's speed_max)", -1.0, 1.0,
+         "peer k's velocity east: its last action's, 0 hovering (own velocity is not in the view)", 0.0),
+        ("vy", "m/s", speed, "scenario.uav_speed_mps (the view's speed_max)", -1.0, 1.0,
+         "peer k's velocity north", 0.0),
+        ("distance", "m", area, "scenario.area_m", 0.0, DIAGONAL, "peer k's distance", DIAGONAL),
+        ("mask", "1", 1.0, "1", 0.0, 1.0, "1 if slot k holds a heard peer, 0 for padding", 0.0),
+    ]
+    out += [Feature(f"peer{k}_{field}", f"peer{{k}}_{field}", *rest)
+            for k in range(1, peers + 1) for field, *rest in peer]
+    return tuple(out)
 
 
 class ViewEncoder:

@@ -13,7 +13,8 @@ from truav.cli import reference as cli_reference
 from truav.cli.reference import COMMAND, PAGES, cli_page, config_page, fault_plan_page
 
 
-@pytest.mark.parametrize("name", ["cli.md", "config.md", "fault-plan-format.md", "agent-api.md"])
+@pytest.mark.parametrize("name", ["cli.md", "config.md", "fault-plan-format.md", "agent-api.md",
+                                  "pettingzoo-observation.md"])
 def test_committed_page_is_what_the_code_makes(name: str) -> None:
     fresh = cli_reference.pages()[name]
     committed = (PAGES / name).read_text() if (PAGES / name).exists() else ""

@@ -1,6 +1,7 @@
 """The generated reference pages of the documentation: every command and flag, every config key.
 
-    python -m truav.cli.reference           # write docs/reference/cli.md, config.md, fault-plan-format.md, agent-api.md
+    python -m truav.cli.reference           # write docs/reference/cli.md, config.md, fault-plan-format.md, agent-api.md,
+                                            # pettingzoo-observation.md
     python -m truav.cli.reference --check   # exit 1 if the committed pages differ from what the code makes
 
 The pages are built from the code itself, so they cannot say what the code does not do:
@@ -9,7 +10,8 @@ with its help, choices and default); :func:`config_page` reads :mod:`truav.confi
 with its default and valid range) and the docstring under each field (read from the source with ast, as
 Python keeps no attribute docstrings); :func:`fault_plan_page` is the fault-plan format as
 :mod:`truav.faults` documents it; :func:`agent_api_page` is what an agent class is given (agents.api's view
-fields, ``cfg``, agents.reward's terms). tests/docs/test_docs_reference.py fails when a page drifts.
+fields, ``cfg``, agents.reward's terms); :func:`observation_page` is the PettingZoo environment's observation
+(agents.view_features.observation_features). tests/docs/test_docs_reference.py fails when a page drifts.
 """
 
 from __future__ import annotations
@@ -317,15 +319,57 @@ def agent_api_page(api_module, config_cls: type, reward_module) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
+# -- the PettingZoo environment's observation ----------------------------------------------------------------
+def _number(x: float) -> str:
+    return "sqrt 2" if abs(x - 2 ** 0.5) < 1e-12 else f"{x:g}"
+
+
+def observation_page(features_module, config_cls: type) -> str:
+    """The features of the PettingZoo environment's observation (agents.view_features.observation_features at
+    the defaults), a group of slots (peer{k}_dx, ...) or sectors in one row."""
+    cfg = config_cls()
+    feats = features_module.observation_features(cfg)
+    groups: dict[str, list[int]] = {}
+    for i, f in enumerate(feats):
+        groups.setdefault(f.group, []).append(i)
+    sc, k = cfg.scenario, features_module.DEFAULT_PEERS
+    lines = [HEADER.format(cmd=COMMAND, src="agents/view_features.py"),
+             "# PettingZoo observation: the features", "",
+             "What each UAV of the PettingZoo environment (`truav/analysis/pettingzoo_env.py`, the `pettingzoo` "
+             "extra) observes: its [LocalView](agent-api.md#localview), the view an agent class is given in "
+             "process and in an agent process (its own sensing and the beacons it heard), as one float32 vector "
+             "built by `agents.view_features.ViewEncoder`. Each raw value in its unit is divided by its scale "
+             "(config keys: [config.md](config.md)) and lies in the bounds of the observation space's `Box`. "
+             "`env.observation_features()` lists them for the environment's own config, as this page does for "
+             f"the defaults: {sc.n_uavs} UAVs, {sc.n_vehicles} vehicles, `learner.sense_sectors` = "
+             f"{cfg.learner.sense_sectors}, K = {k} heard-peer slots (`peers`), {len(feats)} features. "
+             "Usage: [Train and compare](../tutorials/train-and-compare.md#other-learners-the-pettingzoo-environment).",
+             "", "| index | feature | unit | divided by | at the defaults | bounds | padding | what |",
+             "|---|---|---|---|---|---|---|---|"]
+    for group, idx in groups.items():
+        f = feats[idx[0]]
+        index = str(idx[0]) if len(idx) == 1 else ", ".join(map(str, idx))
+        var = "k = 1..K" if "{k}" in group else "s = 1..learner.sense_sectors" if "{s}" in group else ""
+        name = f"`{group}`" + (f" ({var})" if var else "")
+        fill = "" if f.fill_value is None else _number(f.fill_value)
+        lines.append(f"| {index} | {name} | {_cell(f.unit)} | {_cell(f.scale_of)} | {f.scale:g} "
+                     f"| [{_number(f.low)}, {_number(f.high)}] | {fill} | {_cell(f.meaning)} |")
+    doc = features_module.__doc__ or ""
+    lines += ["", "## How the vector is built", ""] + _doc_markdown(doc.split("\n\n", 1)[1] if "\n\n" in doc else doc,
+                                                                    "text")
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
 # -- the pages ---------------------------------------------------------------------------------------------
 def pages() -> dict[str, str]:
     """{file name under docs/reference: its text} as the code makes it now."""
     from truav import config, faults
     from truav.cli.main import build_parser as truav_parser
     from truav.cli.swarm import build_parser as swarm_parser
-    from agents import api, reward
+    from agents import api, reward, view_features
     return {"cli.md": cli_page([("truav", truav_parser), ("truav-swarm", swarm_parser)]),
             "agent-api.md": agent_api_page(api, config.Config, reward),
+            "pettingzoo-observation.md": observation_page(view_features, config.Config),
             "config.md": config_page(config.Config, inspect.getsource(config)),
             "fault-plan-format.md": fault_plan_page(faults.__doc__ or "")}
 
