@@ -10,6 +10,9 @@ AgentFailure naming the class, the UAV and the error.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import operator
 from typing import Mapping
 
 import numpy as np
@@ -32,6 +35,45 @@ def nearest_rsu_m(pos: np.ndarray, rsu: np.ndarray) -> np.ndarray:
     if not len(rsu):
         return np.full(pos.shape[:-1], np.inf)
     return np.sqrt(((pos[..., None, :] - rsu) ** 2).sum(-1)).min(-1)
+
+
+def _frozen_maker(cls: type):
+    """A constructor of the frozen dataclass ``cls`` taking every field by position that fills the instance's
+    __dict__ at once, not field by field through object.__setattr__ as its __init__ does: the same object
+    (fields, equality, repr, pickle), at about half the price. ``cls`` itself where that would skip code of
+    its own (a __post_init__) or it has no __dict__ (slots)."""
+    if hasattr(cls, "__post_init__") or "__slots__" in vars(cls):
+        return cls
+    names, new = tuple(f.name for f in dataclasses.fields(cls)), object.__new__
+
+    def make(*values):
+        if len(values) != len(names):  # defaults to fill: the class's own __init__
+            return cls(*values)
+        obj = new(cls)
+        obj.__dict__.update(zip(names, values))
+        return obj
+    return make
+
+
+_make_view, _make_beacon = _frozen_maker(LocalView), _frozen_maker(HeardBeacon)
+
+
+@functools.lru_cache(maxsize=8)
+def _others(n: int) -> tuple:
+    """For each of n UAVs, a function of a list of n items giving the tuple of the others', in order."""
+    def pick(keep: list[int]):
+        if len(keep) == 1:
+            return lambda items: (items[keep[0]],)
+        return operator.itemgetter(*keep) if keep else lambda items: ()
+    return tuple(pick([m for m in range(n) if m != u]) for u in range(n))
+
+
+def _python(column, kind: type) -> list:
+    """A (B, U) array as rows of Python ``kind`` numbers (int() or float() of each, as a view holds them)."""
+    a = np.asarray(column)
+    if a.dtype.kind == ("i" if kind is int else "f"):
+        return a.tolist()
+    return [[kind(v) for v in row] for row in a.tolist()]
 
 
 class AgentFailure(RuntimeError):
@@ -212,17 +254,22 @@ class ApiController:
                                 np.asarray(obs.covered).copy(), np.asarray(obs.energy_j, np.float64).copy(),
                                 float(sc.uav_speed_mps), np.asarray(densest).copy(), np.asarray(exclusive).copy(),
                                 rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard, *sense)
+        # Each column converted once to Python numbers (lists of rows), each view built without the frozen
+        # dataclass's per-field __setattr__ (_frozen_maker): what a view costs per UAV and step stays small.
         P, V = pos.tolist(), vel.tolist()
-        cols = [np.asarray(x).tolist() for x in (obs.vehicles_in_range, obs.queued, obs.relayed, obs.covered,
-                                                  obs.energy_j, densest, exclusive, rsu_m)]
+        n_in, queued, relayed, covered, densest, exclusive = (
+            _python(x, int) for x in (obs.vehicles_in_range, obs.queued, obs.relayed, obs.covered, densest, exclusive))
+        energy, rsu_m = _python(obs.energy_j, float), _python(rsu_m, float)
+        speed, episode, t, U = float(sc.uav_speed_mps), self.episode, self.t, self.shape[1]
+        others = _others(U)
         views = []
-        for b in range(self.shape[0]):
-            beacons = [HeardBeacon(m, tuple(P[b][m]), tuple(V[b][m]), self.fields[b][m]) for m in range(self.shape[1])]
-            views.append([LocalView(u, self.episode, self.t, tuple(P[b][u]), int(cols[0][b][u]), int(cols[1][b][u]),
-                                    int(cols[2][b][u]), int(cols[3][b][u]), float(cols[4][b][u]),
-                                    float(sc.uav_speed_mps), int(cols[5][b][u]), int(cols[6][b][u]),
-                                    float(cols[7][b][u]), tuple(beacons[:u] + beacons[u + 1:]), *sense)
-                          for u in range(self.shape[1])])
+        for b, fields in enumerate(self.fields):
+            own = list(map(tuple, P[b]))
+            heard = list(map(_make_beacon, range(U), own, map(tuple, V[b]), fields))
+            views.append([_make_view(u, episode, t, p, n, q, r, c, e, speed, d, x, m, peers_of(heard), *sense)
+                          for u, peers_of, p, n, q, r, c, e, d, x, m in zip(range(U), others, own, n_in[b], queued[b],
+                                                                             relayed[b], covered[b], energy[b],
+                                                                             densest[b], exclusive[b], rsu_m[b])])
         return views
 
     def state_arrays(self) -> dict[str, np.ndarray]:

@@ -55,4 +55,67 @@ def call_limited(limit_s: float, fn: Callable[..., Any], *args: Any) -> Any:
         signal.signal(signal.SIGALRM, previous)
 
 
-__all__ = ["CallTooLong", "MAX_CALL_LIMIT_S", "call_limited", "limit_problem"]
+class CallBound:
+    """``call_limited`` for many calls in a row at one timer's price: ``with CallBound(limit_s) as call:`` then
+    ``call(fn, *args)`` any number of times, each bounded by ``limit_s`` as by call_limited.
+
+    The in-process trainer calls every UAV's act and learn each step; a timer set and a handler installed per
+    call cost more than a call that does nothing. Here the handler is installed and the timer armed once for
+    the block; each call only notes its start. When the timer fires during a call that has run ``limit_s``,
+    that call fails (CallTooLong, as call_limited's); otherwise the timer is re-armed for the running call's
+    deadline (it always fires at or before the running call's deadline, armed for an earlier or the same
+    call's). Off the main thread, where no timer can interrupt, a call fails when it returns late, as with
+    call_limited."""
+
+    def __init__(self, limit_s: float):
+        self.limit_s = float(limit_s)
+        self._start: float | None = None
+        self._previous: Any = None
+        self._armed = False
+
+    def __enter__(self) -> Callable[..., Any]:
+        if threading.current_thread() is not threading.main_thread():
+            return self._measured
+        self._previous = signal.signal(signal.SIGALRM, self._expired)
+        self._armed = True
+        signal.setitimer(signal.ITIMER_REAL, self.limit_s)
+        return self._alarmed
+
+    def __exit__(self, *exc: object) -> None:
+        self._start = None
+        if self._armed:
+            self._armed = False
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGALRM, self._previous)
+
+    def _expired(self, _signum: int, _frame: object) -> None:
+        if not self._armed:  # fired as the block ended: no timer may outlive it
+            return
+        start, now = self._start, time.perf_counter()
+        if start is not None and now - start >= self.limit_s:
+            self._start = None
+            raise CallTooLong(self.limit_s)
+        left = self.limit_s if start is None else self.limit_s - (now - start)
+        signal.setitimer(signal.ITIMER_REAL, max(left, 1e-4))
+
+    def _alarmed(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """On the main thread: the timer interrupts a call at its deadline (see _expired)."""
+        self._start = _now()
+        try:
+            return fn(*args)
+        finally:
+            self._start = None
+
+    def _measured(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Off the main thread (no timer can interrupt): a call fails when it returns late."""
+        start = _now()
+        result = fn(*args)
+        if _now() - start > self.limit_s:
+            raise CallTooLong(self.limit_s)
+        return result
+
+
+_now = time.perf_counter
+
+
+__all__ = ["CallBound", "CallTooLong", "MAX_CALL_LIMIT_S", "call_limited", "limit_problem"]

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 
 import pytest
 
-from truav.call_limit import MAX_CALL_LIMIT_S, CallTooLong, call_limited, limit_problem
+from truav.call_limit import MAX_CALL_LIMIT_S, CallBound, CallTooLong, call_limited, limit_problem
 
 
 def _spin_swallowing():
@@ -55,3 +56,42 @@ def test_a_bad_limit_is_named(value):
 @pytest.mark.parametrize("value", [0.001, 1, 1.0, MAX_CALL_LIMIT_S])
 def test_a_good_limit_passes(value):
     assert limit_problem(value) is None
+
+
+def test_a_block_bounds_each_call_not_their_sum_and_leaves_no_timer():
+    """CallBound (the trainer's sweep over every UAV): five calls of 0.15 s under a 0.5 s limit all return,
+    although together they take longer than it; afterwards the handler is the one before and no timer is left."""
+    before = signal.getsignal(signal.SIGALRM)
+    with CallBound(0.5) as call:
+        got = [call(lambda i: time.sleep(0.15) or i, i) for i in range(5)]
+    assert got == [0, 1, 2, 3, 4]
+    assert signal.getsignal(signal.SIGALRM) is before and signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+    time.sleep(0.6)  # a timer left armed would fire here
+
+
+def test_a_hung_call_in_a_block_is_interrupted_even_through_a_catch_all():
+    before = signal.getsignal(signal.SIGALRM)
+    start = time.monotonic()
+    with pytest.raises(CallTooLong, match=r"took longer than 0.05 s"):
+        with CallBound(0.05) as call:
+            assert call(lambda: "first") == "first"
+            call(_spin_swallowing)
+    assert time.monotonic() - start < 30  # interrupted, not run to the end (generous: a busy machine)
+    assert signal.getsignal(signal.SIGALRM) is before and signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+
+
+def test_off_the_main_thread_a_late_call_in_a_block_fails_when_it_returns():
+    results = []
+
+    def worker():
+        with CallBound(0.05) as call:
+            results.append(call(lambda: "fast"))
+            try:
+                call(time.sleep, 0.2)
+            except CallTooLong as exc:
+                results.append(exc)
+
+    t = threading.Thread(target=worker)
+    t.start()
+    t.join(30)
+    assert results[0] == "fast" and isinstance(results[1], CallTooLong)
