@@ -120,3 +120,42 @@ def test_every_observation_of_an_episode_is_finite_and_in_the_declared_box(pz_cf
             break
         obs, *_ = env.step({a: int(rng.integers(16)) for a in env.agents})
     assert (sensed > 0) == (sense > 0)  # the one-hot is all zero with sensing off, and senses when on
+
+
+class _Rule(UavAgent):
+    """An API agent flying the fixed rule, as an agent process runs it."""
+
+    def act(self, view):
+        return _action(self.uav, view.step)
+
+
+def test_the_observation_is_the_view_an_agent_process_builds_from_its_messages(pz_cfg):
+    """The swarm's path, without the bus: the world's observation messages and the tick's beacons, each UAV's
+    ApiDecision (agents/api_decision.py, what the agent process runs) builds its view and reward."""
+    from agents.api_decision import ApiDecision
+    from truav import seeding
+    from truav.analysis.sumo_traffic import make_world
+    from truav.wire.world_messages import observation_messages
+
+    cfg = pz_cfg.replace(learner={"sense_range_m": SENSE_M})
+    seed, U = 5, cfg.scenario.n_uavs
+    decisions = [ApiDecision(_Rule, cfg, u, seed, train=False) for u in range(U)]
+    world = make_world(cfg, 1)
+    world_obs, done = world.reset([seeding.world_rng(seed)]), False
+    encode = ViewEncoder(cfg)
+    env = parallel_env(cfg)
+    env_obs, _ = env.reset(seed=seed)
+    env_rewards = None
+    for tick in range(cfg.scenario.steps_per_episode + 1):
+        msgs = observation_messages(cfg, tick, 0, world_obs, done)
+        beacons = {u: decisions[u].beacon(msgs[u]) for u in range(U)}
+        for u in range(U):
+            r = decisions[u].learn(msgs[u], {j: b for j, b in beacons.items() if j != u})
+            np.testing.assert_array_equal(env_obs[f"uav_{u}"], encode(decisions[u].view))
+            assert (r is None) == (env_rewards is None) and (r is None or r == env_rewards[f"uav_{u}"])
+        if done:
+            break
+        actions = np.array([[decisions[u].act(msgs[u]).action for u in range(U)]])
+        world_obs, _, done = world.step(actions)
+        env_obs, env_rewards, *_ = env.step({f"uav_{u}": int(actions[0, u]) for u in range(U)})
+    assert done and not env.agents
