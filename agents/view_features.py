@@ -36,7 +36,7 @@ CAP = 10.0
 SPEED_SCALE_MPS = 25.0
 """The scale of speed_max: the fastest speed of the velocity experiment (5-25 m/s)."""
 DIAGONAL = math.sqrt(2.0)
-"""The area's diagonal over its side: the farthest two points of the area are apart, after scaling."""
+"""How far apart the area's farthest two points are after scaling by its side: the diagonal over the side."""
 N_OWN = 12
 """The own-state features, first in the vector."""
 PEER_FIELDS = ("dx", "dy", "vx", "vy", "distance", "mask")

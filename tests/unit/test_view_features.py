@@ -33,7 +33,8 @@ def test_every_feature_has_a_name_unit_scale_and_bounds_and_the_size_follows_the
     assert len(names) == len(set(names))
     assert all(f.unit and f.scale > 0 and f.scale_of and f.low < f.high and f.meaning for f in feats)
     sectors, k = CFG.learner.sense_sectors, DEFAULT_PEERS
-    assert [n for n in names if n.startswith("densest_sector_")] == [f"densest_sector_{s}" for s in range(1, sectors + 1)]
+    onehot = [n for n in names if n.startswith("densest_sector_")]
+    assert onehot == [f"densest_sector_{s}" for s in range(1, sectors + 1)]
     assert [n for n in names if n.startswith("peer1_")] == ["peer1_dx", "peer1_dy", "peer1_vx", "peer1_vy",
                                                            "peer1_distance", "peer1_mask"]
     assert len(observation_features(SENSING, peers=2)) == len(feats) + (8 - sectors) + 6 * (2 - k)

@@ -1,7 +1,7 @@
 """The generated reference pages of the documentation: every command and flag, every config key.
 
-    python -m truav.cli.reference           # write docs/reference/cli.md, config.md, fault-plan-format.md, agent-api.md,
-                                            # pettingzoo-observation.md
+    python -m truav.cli.reference           # write the pages: docs/reference/cli.md, config.md,
+                                            # fault-plan-format.md, agent-api.md, pettingzoo-observation.md
     python -m truav.cli.reference --check   # exit 1 if the committed pages differ from what the code makes
 
 The pages are built from the code itself, so they cannot say what the code does not do:
