@@ -89,6 +89,9 @@ def report(path: str | os.PathLike[str], out: str | os.PathLike[str] | None = No
     rec = load_recording(path)
     lines = [f"{path}: {rec.messages} messages over {rec.duration_s:.1f} s"
              + ("" if state.finished else " (unfinished file: read up to its last complete chunk)")]
+    if rec.refused:
+        lines.append(f"  left out {sum(rec.refused.values())} UAV message(s): "
+                     + ", ".join(f"{n} {reason}" for reason, n in sorted(rec.refused.items())))
     for fname, make, what in ((MAP_FILE, map_figure, "no positions"), (METRICS_FIG_FILE, metrics_figure, "no metrics"),
                               (AGENTS_FILE, agents_figure, "no beacons"),
                               (LINKS_FILE, links_figure, "no agent counted the beacons it heard")):

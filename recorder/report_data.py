@@ -5,7 +5,11 @@ position series from beacons, observations and positions messages, vehicle
 points with bounded memory, metrics bodies, fault events) and the map's
 geometry from the run config stored as metadata (:class:`MapConfig`).
 Payloads are decoded leniently (msgpack maps with the envelope), so a
-recording with odd messages still reports.
+recording with odd messages still reports; but a UAV's message whose claimed
+UAV disagrees with its key (``uav/<i>/...``), whose sender is not that UAV, or
+whose id is past the schema's MAX_UAVS is left out and counted
+(:attr:`Recording.refused`), as the bus's guard refuses it: a file from
+elsewhere cannot make the report draw thousands of UAVs.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from recorder.metadata import read_config_toml
 from recorder.reader import iter_messages
+from truav.wire.keys import MAX_UAVS
 
 NS = 1e9
 MAX_VEHICLE_POINTS = 4_000_000  # keep every k-th positions message beyond this (bounded memory)
@@ -82,6 +87,8 @@ class Recording:
     heard: dict[tuple[int, int], tuple[int, tuple[int, ...]]] = field(default_factory=dict)
     """(receiver uav, incarnation) -> (send time, beacons heard by sender id) of that agent process's
     latest health report: what each receiver heard (report_links)."""
+    refused: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    """Messages left out, by reason (:data:`REFUSED_REASONS`)."""
     config: Optional[MapConfig] = None
 
     def t(self, ns: int) -> float:
@@ -139,12 +146,38 @@ def _numbers(values: dict) -> dict[str, float]:
     return out
 
 
-def _uav(body: dict, key: str) -> Optional[int]:
-    uav = body.get("uav")
-    if type(uav) is int:
-        return uav
-    parts = key.split("/")
-    return int(parts[3]) if len(parts) > 3 and parts[2] == "uav" and parts[3].isdigit() else None
+R_KEY, R_SENDER, R_RANGE = "uav differs from its key", "sender is not that uav", f"uav id not below {MAX_UAVS}"
+REFUSED_REASONS = (R_KEY, R_SENDER, R_RANGE)
+
+
+def _key_uav(key: str) -> Optional[int]:
+    """``i`` of a key ``truav/<run>/uav/<i>/...`` (None: not a UAV's key)."""
+    parts = key.split("/", 4)
+    if len(parts) > 3 and parts[2] == "uav" and parts[3].isdigit() and len(parts[3]) <= 6:
+        return int(parts[3])
+    return None
+
+
+def _uav(body: dict, key: str, rec: Optional[Recording] = None, own: bool = False) -> Optional[int]:
+    """The UAV a message is of: its ``uav`` field, else its key's. None, counted in ``rec.refused``, when the
+    two disagree, when the id is not below MAX_UAVS, or (``own``: a message a UAV sends about itself, a beacon
+    or a health report) when its ``src`` is a string other than ``uav/<id>``."""
+    claimed, on_key = body.get("uav"), _key_uav(key)
+    uav = claimed if type(claimed) is int else on_key
+    reason = None
+    if uav is None:
+        return None
+    if on_key is not None and uav != on_key:
+        reason = R_KEY
+    elif not 0 <= uav < MAX_UAVS:
+        reason = R_RANGE
+    elif own and isinstance(body.get("src"), str) and body["src"] != f"uav/{uav}":
+        reason = R_SENDER
+    if reason is not None:
+        if rec is not None:
+            rec.refused[reason] += 1
+        return None
+    return uav
 
 
 def load_recording(path: Path) -> Recording:
@@ -164,7 +197,7 @@ def load_recording(path: Path) -> Recording:
             continue
         kind = body.get("kind")
         if kind in ("beacon", "obs"):
-            uav, xy = _uav(body, key), _xy(body.get("pos"))
+            uav, xy = _uav(body, key, rec, own=kind == "beacon"), _xy(body.get("pos"))
             if uav is not None:
                 series = (rec.beacons if kind == "beacon" else rec.obs)[uav]
                 series.log_ns.append(log_ns)
@@ -191,7 +224,7 @@ def load_recording(path: Path) -> Recording:
 
 def _add_heard(rec: Recording, body: dict, key: str, pub_ns: int) -> None:
     """Keep an agent process's latest beacon counts (a health report's ``heard``; older ones have none)."""
-    uav, inc, heard = _uav(body, key), body.get("inc", 0), body.get("heard")
+    uav, inc, heard = _uav(body, key, rec, own=True), body.get("inc", 0), body.get("heard")
     if uav is None or type(inc) is not int or not isinstance(heard, list) or not heard or len(heard) > MAX_HEARD:
         return
     if not all(type(n) is int and n >= 0 for n in heard):
@@ -206,7 +239,7 @@ def _add_heard(rec: Recording, body: dict, key: str, pub_ns: int) -> None:
 def _add_positions(rec: Recording, body: dict, log_ns: int, pub_ns: int) -> None:
     uavs = body.get("uavs")
     if isinstance(uavs, list):
-        for i, p in enumerate(uavs):
+        for i, p in enumerate(uavs[:MAX_UAVS]):
             xy = _xy(p)
             if xy is not None:
                 s = rec.positions_uavs[i]

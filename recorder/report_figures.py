@@ -18,6 +18,7 @@ from recorder.report_data import NS, FaultSpan, Recording, Series
 
 DPI = 110
 HEAT_BINS = 120  # heat map cells per axis
+MAX_AGENT_ROWS = 60  # agents.png: above this many agents, no per-agent labels or boxes (height stays bounded)
 MAX_METRIC_PANELS = 12
 # step metrics as people read them, in the order they matter (others follow, by name)
 METRIC_LABELS = {
@@ -166,6 +167,9 @@ def map_figure(rec: Recording, path: Path) -> Optional[str]:
     cmap = plt.get_cmap("tab10" if len(tracks) <= 10 else "tab20")
     from truav.analysis.swarm_plots import MAX_LABELLED_UAVS
     many = len(tracks) > MAX_LABELLED_UAVS  # thin tracks, no discs, no per-UAV legend: a hundred of them are clutter
+    many_pairs: list[np.ndarray] = []  # many: every track's segments and last position, drawn at once
+    many_colors: list[np.ndarray] = []
+    many_last: list[tuple[np.ndarray, Any]] = []
     for n_uav, (uav, series) in enumerate(sorted(tracks.items())):
         color = cmap(n_uav % cmap.N)
         xy = np.asarray(series.xy, dtype=float).reshape(-1, 2)
@@ -178,19 +182,29 @@ def map_figure(rec: Recording, path: Path) -> Optional[str]:
                 alpha = 0.15 + 0.85 * (done + np.arange(len(pairs))) / max(total - 1, 1)
                 colors = np.tile(np.asarray(color), (len(pairs), 1))
                 colors[:, 3] = alpha
-                ax.add_collection(LineCollection(pairs, colors=colors, linewidths=0.6 if many else 1.6, zorder=4))
+                if many:
+                    many_pairs.append(pairs)
+                    many_colors.append(colors)
+                else:
+                    ax.add_collection(LineCollection(pairs, colors=colors, linewidths=1.6, zorder=4))
             if not many:
                 ax.scatter(*seg[0], s=30, facecolor="white", edgecolor=color, lw=1.5, zorder=5)
             done += len(seg)
         finite = xy[np.isfinite(xy).all(axis=1)]
-        if len(finite):
-            ax.scatter(*finite[-1], s=10 if many else 45, color=color, edgecolor="black", lw=0.3 if many else 0.6,
-                       zorder=5)
-            if not many:
-                ax.add_patch(Circle(tuple(finite[-1]), radius, facecolor=color, alpha=0.08, edgecolor=color,
-                                    lw=1.0, ls="--", zorder=2))
+        if len(finite) and many:
+            many_last.append((finite[-1], color))
+        elif len(finite):
+            ax.scatter(*finite[-1], s=45, color=color, edgecolor="black", lw=0.6, zorder=5)
+            ax.add_patch(Circle(tuple(finite[-1]), radius, facecolor=color, alpha=0.08, edgecolor=color,
+                                lw=1.0, ls="--", zorder=2))
         if not many:
             handles.append(Line2D([], [], color=color, lw=2, label=f"UAV {uav}"))
+    if many_pairs:
+        ax.add_collection(LineCollection(np.concatenate(many_pairs), colors=np.concatenate(many_colors),
+                                         linewidths=0.6, zorder=4))
+    if many_last:
+        ax.scatter([p[0] for p, _ in many_last], [p[1] for p, _ in many_last], s=10,
+                   color=[c for _, c in many_last], edgecolor="black", lw=0.3, zorder=5)
     if many:
         handles += [Line2D([], [], color="0.3", lw=0.8, label=f"{len(tracks)} UAV tracks (colours repeat; no ids, "
                                                               f"starts or coverage discs above {MAX_LABELLED_UAVS})"),
@@ -321,8 +335,9 @@ def agents_figure(rec: Recording, path: Path) -> Optional[str]:
         all_t.append(t)
     spans = rec.fault_spans()
     n = len(agents)
+    rows = min(n, MAX_AGENT_ROWS)  # above it: one pixel row per agent, ids on a plain axis, points not boxes
     fig, (ax_rate, ax_time, ax_box) = plt.subplots(
-        3, 1, figsize=(12, 6.5 + 0.2 * n), gridspec_kw={"height_ratios": [1.0 + 0.08 * n, 1.0, 1.1]})
+        3, 1, figsize=(12, 6.5 + 0.2 * rows), gridspec_kw={"height_ratios": [1.0 + 0.08 * rows, 1.0, 1.1]})
     ax_time.sharex(ax_rate)
     mesh = ax_rate.pcolormesh(edges, np.arange(n + 1) - 0.5, rates, cmap="viridis", shading="flat", vmin=0)
     cax = ax_rate.inset_axes([1.01, 0.0, 0.012, 1.0])  # outside the axes: keeps the time axes aligned
@@ -331,7 +346,10 @@ def agents_figure(rec: Recording, path: Path) -> Optional[str]:
         end = rec.duration_s if span.end_s is None else span.end_s
         ax_rate.axvspan(span.start_s, end, facecolor="none", edgecolor=FAULT_COLORS.get(span.fault, "white"),
                         hatch="//", lw=1.0)
-    ax_rate.set_yticks(range(n), [f"UAV {u}" for u in agents], fontsize=8 if n < 25 else 6)
+    if n <= MAX_AGENT_ROWS:
+        ax_rate.set_yticks(range(n), [f"UAV {u}" for u in agents], fontsize=8 if n < 25 else 6)
+    else:
+        ax_rate.set_ylabel(f"agent (row; {n} UAVs, ids {agents[0]}..{agents[-1]})")
     ax_rate.set_title(f"Beacons sent per agent, as the recorder heard them ({width:.3g} s bins; dark = agent sent "
                       "none: crashed, frozen or stopped" + ("; hatched = fault" if spans else "")
                       + ")\nThe recorder hears every beacon: what each receiver lost is in links.png",
@@ -357,14 +375,22 @@ def agents_figure(rec: Recording, path: Path) -> Optional[str]:
     ax_time.set_title("One-way beacon latency at the recorder, all agents (receive time - sender timestamp)",
                       fontsize=10, loc="left")
     ax_rate.set_xlim(edges[0], edges[-1])
-    ax_box.boxplot(lat_ms, positions=range(n), showfliers=False, whis=(1, 99), widths=0.6,
-                   medianprops={"color": "C0"})
-    ax_box.set_xticks(range(n), [str(u) for u in agents], fontsize=8 if n < 25 else 6)
-    ax_box.set_xlabel("UAV")
+    if n <= MAX_AGENT_ROWS:
+        ax_box.boxplot(lat_ms, positions=range(n), showfliers=False, whis=(1, 99), widths=0.6,
+                       medianprops={"color": "C0"})
+        ax_box.set_xticks(range(n), [str(u) for u in agents], fontsize=8 if n < 25 else 6)
+        ax_box.set_xlabel("UAV")
+        box_title = "Beacon latency per agent (box: quartiles, whiskers: p1-p99)"
+    else:
+        ax_box.plot(agents, [np.median(v) for v in lat_ms], ".", ms=3, color="C0", label="median")
+        ax_box.plot(agents, [np.percentile(v, 99) for v in lat_ms], ".", ms=3, color="C3", label="p99")
+        ax_box.legend(fontsize=8, loc="upper left", ncol=2, frameon=False)
+        ax_box.set_xlabel("UAV id")
+        box_title = f"Beacon latency per agent (median and p99 of each; boxes above {MAX_AGENT_ROWS} agents are clutter)"
     ax_box.set_ylabel("latency (ms)")
     _latency_scale(ax_box, "y", l_all)
     ax_box.grid(alpha=0.3, axis="y")
-    ax_box.set_title("Beacon latency per agent (box: quartiles, whiskers: p1-p99)", fontsize=10, loc="left")
+    ax_box.set_title(box_title, fontsize=10, loc="left")
     fig.tight_layout()
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
     plt.close(fig)

@@ -106,3 +106,21 @@ def make_swarm_recording(path: Path, *, config: bool = True, beacons: bool = Tru
     else:
         log.flush()  # a writer that died after its last flush: no summary, no footer
     return counts
+
+
+def make_claimed_ids_recording(path: Path, claimed: int = 3000, per_id: int = 3, own_keys: bool = False) -> int:
+    """A small recording whose beacons all travel on UAV 0's key but claim ``claimed`` different senders (the
+    body's ``uav`` and ``src``), ``per_id`` beacons each: what a hostile or broken writer can put in a file.
+    ``own_keys``: each on its claimed UAV's own key instead (consistent, but more UAVs than the schema allows).
+    Returns the number of beacons written."""
+    seq = Seq()
+    n = 0
+    with McapLog(path) as log:
+        log.set_metadata(CONFIG_METADATA, config_metadata(to_toml(Config())))
+        for k in range(per_id):
+            for uav in range(claimed):
+                t = T0 + (k * claimed + uav) * MS
+                log.write(f"truav/{RUN}/uav/{uav if own_keys else 0}/beacon", msg(seq, "beacon", f"uav/{uav}", t, uav=uav, tick=k,
+                                                           pos=[float(uav % 5000), float(k)], vel=[1.0, 0.0]), t + MS)
+                n += 1
+    return n

@@ -415,3 +415,23 @@ def test_merge_ignores_a_part_number_of_10_to_the_30(tmp_path: Path) -> None:
     path.write_bytes(metadata_hostile())
     report = merge(tmp_path / "out.mcap", [path])
     assert report.missing_parts == {} and report.messages == 5
+
+
+@pytest.mark.parametrize("own_keys", [False, True], ids=["one-key", "own-keys"])
+def test_report_of_thousands_of_claimed_uav_ids_is_bounded(tmp_path: Path, own_keys: bool) -> None:
+    """The held-out probe: a few hundred KB of beacons claiming 3,000 UAV ids took 71 s and 1.26 GB. A beacon
+    whose claimed UAV disagrees with its key, or whose id is past the schema's MAX_UAVS, is left out and
+    counted; the rest is drawn within MEMORY_LIMIT and TIME_LIMIT_S (run_tool's child limits)."""
+    from tests.support.recordings import make_claimed_ids_recording
+    from truav.wire.keys import MAX_UAVS
+
+    path = tmp_path / "claimed.mcap"
+    written = make_claimed_ids_recording(path, claimed=3000, per_id=3, own_keys=own_keys)
+    assert path.stat().st_size < 1 << 20
+    proc = run_tool(["report", str(path), "--out", str(tmp_path / "rep")])
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    drawn = MAX_UAVS if own_keys else 1
+    left_out = written - 3 * drawn
+    reason = f"uav id not below {MAX_UAVS}" if own_keys else "uav differs from its key"
+    assert f"left out {left_out} UAV message(s): {left_out} {reason}" in proc.stdout, proc.stdout
+    assert f"agents: {drawn} beaconing" in proc.stdout and (tmp_path / "rep" / "map.png").is_file(), proc.stdout
