@@ -70,6 +70,9 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Featu
     sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
     share, U, area, speed = sc.n_vehicles / sc.n_uavs, float(sc.n_uavs), float(sc.area_m), float(sc.uav_speed_mps)
     fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
+    packets = max(tr.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9)
+    per_step = ("traffic.packet_rate_hz x scenario.n_vehicles x scenario.step_s / scenario.n_uavs (the fair share's "
+                "packets per step)")
     own = [  # name, unit, scale, scale_of, low, high, meaning
         ("x", "m", area, "scenario.area_m", 0.0, 1.0, "own position, east"),
         ("y", "m", area, "scenario.area_m", 0.0, 1.0, "own position, north"),
@@ -78,11 +81,9 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Featu
         ("vehicles_in_range", "1", share, fair, 0.0, U, "vehicles within scenario.comm_range_m"),
         ("covered", "1", share, fair, 0.0, U, "vehicles this UAV served in the last step"),
         ("exclusive", "1", share, fair, 0.0, U, "vehicles in this UAV's range and no other UAV's"),
-        ("queued", "1", share * tr.queue_limit, "the fair share x traffic.queue_limit", 0.0, U,
-         "packets queued at the vehicles this UAV serves"),
-        ("relayed", "1", max(tr.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs, 1e-9),
-         "traffic.packet_rate_hz x scenario.n_vehicles x scenario.step_s / scenario.n_uavs", 0.0, CAP,
-         f"packets relayed to an RSU in the last step (capped at {CAP:g})"),
+        ("queued", "1", packets, per_step, 0.0, CAP,
+         f"packets queued at the vehicles this UAV serves (capped at {CAP:g})"),
+        ("relayed", "1", packets, per_step, 0.0, CAP, f"packets relayed to an RSU in the last step (capped at {CAP:g})"),
         ("energy", "J", max(e.move_w * sc.step_s, 1e-9), "energy.move_w x scenario.step_s", 0.0, CAP,
          f"energy spent in the last step (capped at {CAP:g})"),
         ("nearest_rsu", "m", area, "scenario.area_m", 0.0, DIAGONAL,

@@ -51,7 +51,8 @@ def test_own_features_are_the_view_scaled_to_order_one():
     assert f["x"] == pytest.approx(1000 / sc.area_m) and f["y"] == pytest.approx(2500 / sc.area_m)
     assert f["vehicles_in_range"] == pytest.approx(40 / share) and f["covered"] == pytest.approx(30 / share)
     assert f["exclusive"] == pytest.approx(20 / share)
-    assert f["queued"] == pytest.approx(8 / (share * CFG.traffic.queue_limit))
+    packets = CFG.traffic.packet_rate_hz * sc.n_vehicles * sc.step_s / sc.n_uavs
+    assert f["queued"] == pytest.approx(8 / packets) and f["relayed"] == pytest.approx(3 / packets)
     assert f["energy"] == pytest.approx(230 / (CFG.energy.move_w * sc.step_s))
     assert f["nearest_rsu"] == pytest.approx(1200 / sc.area_m)
     assert f["progress"] == pytest.approx(25 / sc.steps_per_episode)
