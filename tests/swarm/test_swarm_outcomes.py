@@ -188,9 +188,10 @@ def test_after_a_freeze_and_a_crash_every_agent_wrote_its_final_checkpoint_and_s
                                                    listen=free_loopback_endpoint(), max_missed_share=0.05))
     summary = json.loads((out / "summary.json").read_text())
     # a crashed agent and one frozen for the last 2 s miss well over 5% of the actions: the run says so
-    assert rc == 1 and summary["outcome"]["failures"] == [
+    (failure,) = summary["outcome"]["failures"]  # the host's load may follow, named as the likely cause
+    assert rc == 1 and failure.startswith(
         f"{round(100 * (1 - summary['world']['actions_received'] / (3 * 100)))}% of the actions were missing "
-        f"(more than --max-missed 0.05)"], summary["outcome"]
+        f"(more than --max-missed 0.05)"), summary["outcome"]
     events = {(kind, phase) for _, kind, phase in summary["fault_events"]}
     assert {("crash", "start"), ("crash", "end"), ("freeze", "start")} <= events
     for i in range(3):

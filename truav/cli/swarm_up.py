@@ -29,7 +29,7 @@ from recorder.record_modes import RecordModes
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.cli.args import options_from
 from truav.errors import UserError
-from truav.swarm.chaos_time import PLAN_EPISODES
+from truav.swarm.chaos_time import CHAOS_MAX_MISSED_SHARE, PLAN_EPISODES
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.outdir import OutDirError, check_swarm_dir
@@ -141,7 +141,8 @@ def swarm_options(args):
                         plot=not args.no_plot, quiet=args.quiet, wait_agents_s=args.wait_agents,
                         fault_plan=args.fault_plan, plan=plan, foxglove_port=getattr(args, "foxglove", None),
                         geo_origin=args.geo_origin, verbose=args.verbose, resume=args.resume, force=args.force,
-                        max_missed_share=args.max_missed, router_timeout_s=args.router_timeout,
+                        max_missed_share=args.max_missed, tolerate_agent_errors=args.tolerate_agent_errors,
+                        router_timeout_s=args.router_timeout,
                         secure=args.secure, scheme=args.scheme, policy=args.policy, policy_index=args.policy_index,
                         command_hold_s=args.command_hold, beacon_every=beacon_every, beacon_cell_m=args.beacon_cell,
                         beacon_slots=args.beacon_slots, agents_per_process=args.agents_per_process,
@@ -271,6 +272,7 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--force", action="store_true",
                     help="delete an earlier run's files in --out (and overwrite --record) instead of refusing")
     add_options(up, WorldOptions, ["max_missed_share", "snapshot_every"])
+    add_options(up, SwarmOptions, ["tolerate_agent_errors"])
     up.add_argument("--router-timeout", type=positive_float, default=DEFAULT_ROUTER_TIMEOUT_S, metavar="S",
                     help=f"world and agents stop this long after losing their router (default {DEFAULT_ROUTER_TIMEOUT_S:g})")
     up.add_argument("-v", "--verbose", action="store_true",
@@ -341,8 +343,12 @@ def add_up_commands(sub) -> None:
                          "baseline")
     ch.add_argument("--duration", type=duration_s, metavar="T",
                     help="--nemesis: how long the run lasts (e.g. 90s, 10m; sets --episodes)")
-    ch.set_defaults(func=cmd_chaos, episodes=None)
+    ch.set_defaults(func=cmd_chaos, episodes=None, max_missed=CHAOS_MAX_MISSED_SHARE)
     for action in ch._actions:  # --plan's default differs from up's: enough episodes to pair
         if action.dest == "episodes":
             action.help = (f"episodes of each run (default {PLAN_EPISODES} with --plan: the effects are paired over "
                            f"them; set by --duration with --nemesis)")
+        if action.dest == "max_missed":  # chaos judges missed actions itself (truav.swarm.chaos_time)
+            action.help = (f"fail either run when more than this share of its actions is missing (default "
+                           f"{CHAOS_MAX_MISSED_SHARE:g}: chaos judges them itself, the baseline's against a busy "
+                           f"host's share, the faulted run's in its quiet tail after the heal)")

@@ -7,6 +7,10 @@ PLAN_EPISODES = 6
 """Episodes of each run of `chaos --plan` by default: the effects are paired over them (a t-interval of 2 pairs
 is 12.7 standard errors wide: no answer); 6 keeps a default run (two swarms of 100-step episodes at 10 Hz) at
 about 3 minutes on the 2-core reference machine."""
+CHAOS_MAX_MISSED_SHARE = 1.0
+"""`chaos`'s --max-missed by default: its runs are not failed by their missed actions (a fault plan's crashes and
+pauses miss many by design); chaos judges them itself: the baseline's against invariants.HOST_LOAD_MISSED_SHARE
+(a warning), the faulted run's quiet tail after the heal (an invariant). A --max-missed given applies to both runs."""
 START_STOP_S = 12.0
 """A swarm's start (router, world, agents, recorder) and orderly stop on the reference machine, measured; the
 ticks come on top."""

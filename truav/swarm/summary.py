@@ -4,6 +4,7 @@ summary.json and print the summary (truav.swarm.supervisor runs it)."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from recorder.record_modes import parts_index_path, snapshot_path
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.atomic import EXIT_NO_SPACE, write_kept
 from truav.config import Config
 from truav.stats import shown
@@ -94,8 +96,8 @@ class SwarmEnd:
             if expected > 0:
                 missed = 1.0 - world.get("actions_received", 0) / expected
                 if missed > opts.max_missed_share:
-                    o.fail(f"{100 * missed:.0f}% of the actions were missing (more than --max-missed "
-                           f"{opts.max_missed_share:g})")
+                    self._degraded(missed_text(missed, opts.max_missed_share, *host_load()))
+        self._judge_parts()
         if full:
             o.fail(f"no space left on {self.out.absolute()}: {', '.join(full)} could not write {'its' if len(full) == 1 else 'their'} "
                    f"checkpoint or statistics (the last complete copies are kept; free space and --resume)")
@@ -136,6 +138,39 @@ class SwarmEnd:
                               f"UAVs held their last command for {opts.command_hold_s:g} s, then hovered "
                               f"(the world ran on)")
 
+    def _degraded(self, reason: str, tolerated: bool = False) -> None:
+        """A run that went on degraded: a failure, or a warning if tolerated by its flag or if the run was
+        interrupted (its exit code then says so: 130, 143, 129)."""
+        if tolerated or self.outcome.interrupted_by:
+            self.outcome.warnings.append(reason)
+        else:
+            self.outcome.fail(reason, ends_run=False)
+
+    def _judge_parts(self) -> None:
+        """A --agent class's failed calls, and agent processes (or the controller) that exited with an error at the
+        end: failures, or warnings under --tolerate-agent-errors."""
+        o, opts = self.outcome, self.opts
+        tolerate = opts.tolerate_agent_errors
+        if opts.scheme.startswith(AGENT_KIND_PREFIX):
+            stats = [(i, _read_json(self.out / f"agent{i}.json")) for ids in self.groups for i in ids]
+            o.agent_errors = {str(i): int(st.get("agent_errors") or 0) for i, st in stats
+                              if isinstance(st, dict) and st.get("agent_errors")}
+            if o.agent_errors:
+                first = next(st for i, st in stats if str(i) in o.agent_errors)
+                line = agent_errors_text(opts.scheme[len(AGENT_KIND_PREFIX):], o.agent_errors,
+                                         first.get("first_agent_error"), int(first.get("uav", -1)), tolerate)
+                self._degraded(line, tolerate)
+        said = [*o.failures, *o.warnings]
+        for name in self.fleet:
+            p = self.children.procs.get(name)
+            if p is None or p.returncode in (0, None, EXIT_NO_SPACE) or p.pid in self.planned_exits \
+                    or any(text.startswith(name + " ") for text in said):  # told already (mid-run, killed)
+                continue
+            note = (f"{name} exited with an error at the end ({exit_text(p.returncode)}); its last log line: "
+                    f"{self.children.last_line(name)}")
+            self._degraded(note + (" (tolerated: --tolerate-agent-errors)" if tolerate else
+                                   " (--tolerate-agent-errors to accept)"), tolerate)
+
     def _summary(self, elapsed: float) -> None:
         cfg, opts, out, monitor, o = self.cfg, self.opts, self.out, self.monitor, self.outcome
         world = _read_json(out / "world.json")
@@ -143,6 +178,7 @@ class SwarmEnd:
         controller = _read_json(out / "controller.json") if self.central else None
         cp = monitor.control_plane()
         events = self.controller.events if self.controller is not None else []
+        sent = self.controller.plans_sent if self.controller is not None else []
         with monitor.lock:
             timeline = {"coverage": list(monitor.coverage), "hovering": list(monitor.hovering)}
         with monitor.lock:
@@ -154,20 +190,20 @@ class SwarmEnd:
             o.warnings.append(fit_line)
         outcome = {"result": o.result, "ended_by": o.ended_by, "interrupted_by": o.interrupted_by,
                    "lockstep": o.exactness, "restarts": o.restarts, "superseded": o.superseded,
-                   "external": o.external,
+                   "external": o.external, "agent_errors": o.agent_errors,
                    "failures": o.failures, "warnings": o.warnings, "shutdowns": o.shutdowns, "exit_code": o.exit_code()}
         summary = jsonio.dumps({
             "scheme": opts.scheme, "world": world, "agents": agents, "controller": controller,
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
-            "fault_events": events, "timeline": timeline,
+            "fault_events": events, "fault_plans_sent": sent, "timeline": timeline,
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
             "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
             "restart_costs": costs, "references": refs}, indent=1).encode()
         write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
-            _print_results(cfg, opts, world, agents, cp, events, elapsed, o)
+            _print_results(cfg, opts, world, agents, cp, events, elapsed, o, sent)
             print(references_line(opts.scheme, world, refs, no_refs, bool(self.plan and self.plan.faults)))
             for entry in o.external:
                 print(external.summary_line(entry))
@@ -193,7 +229,57 @@ class SwarmEnd:
             print(f"result: FAILED ({'; '.join(o.failures)})", flush=True)
             print(f"truav-swarm: error: {o.failures[0]}", file=sys.stderr, flush=True)
         else:
-            print(f"result: {o.result}", flush=True)
+            print(result_line(o), flush=True)
+
+
+def result_line(o: Outcome) -> str:
+    """The closing line of a run that did not fail: never a bare "ok" when warnings were printed above it."""
+    if not o.warnings:
+        return f"result: {o.result}"
+    return f"result: {o.result}, with {len(o.warnings)} warning(s) above"
+
+
+LOADED_SHARE = 1.0
+"""The host counts as loaded (the likely cause of missed actions) when its 1-minute load average is at least
+this many runnable processes per core."""
+
+
+def host_load() -> tuple[float | None, int]:
+    """(1-minute load average or None where the OS has none, cores this process may run on)."""
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = None
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    return load, cores
+
+
+def missed_text(share: float, limit: float, load: float | None, cores: int) -> str:
+    """The failure of a run that missed more than ``limit`` of its actions, naming the host's load when it is at
+    least LOADED_SHARE per core (then the likely cause)."""
+    text = f"{100 * share:.0f}% of the actions were missing (more than --max-missed {limit:g})"
+    if load is not None and load >= LOADED_SHARE * cores:
+        text += (f": the host was loaded (load average {load:.1f} over the last minute on {cores} core(s), this "
+                 f"swarm's processes included), the likely cause; a quieter host, a lower --rate or fewer --agents "
+                 f"miss fewer")
+    return text
+
+
+AGENT_ERRORS_NAMED = 10
+"""An agent-errors line names at most this many UAVs."""
+
+
+def agent_errors_text(agent: str, errors: dict[str, int], first: str | None, first_uav: int, tolerated: bool) -> str:
+    """One line: which UAVs' --agent class failed calls, how many, and the first message (its UAV hovered each)."""
+    uavs = sorted(errors, key=int)
+    named = ", ".join(uavs[:AGENT_ERRORS_NAMED]) + (f" and {len(uavs) - AGENT_ERRORS_NAMED} more"
+                                                   if len(uavs) > AGENT_ERRORS_NAMED else "")
+    return (f"agent class {agent} failed {sum(errors.values())} call(s) on uav {named} (each time its UAV hovered; "
+            f"agent<i>.json agent_errors); first: {first or 'not recorded'} (uav {first_uav})"
+            + ("; tolerated: --tolerate-agent-errors" if tolerated else "; --tolerate-agent-errors to accept"))
 
 
 def stall_text(world: dict | None) -> str | None:
@@ -208,7 +294,7 @@ def stall_text(world: dict | None) -> str | None:
             f"from the current time, the skipped ticks' actions were never asked for")
 
 
-def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) -> None:
+def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome, sent: list[dict]) -> None:
     print(f"\n== swarm '{opts.run}' summary ({elapsed:.1f} s{', ' + o.result if o.result != 'ok' else ''}) ==")
     for e, m in enumerate((world or {}).get("episodes") or []):
         cov, pdr, delay, energy = (jsonio.num(m.get(k)) for k in ("coverage_pct", "pdr", "delay_ms", "energy_j"))
@@ -258,8 +344,11 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome) ->
               f"beside the centralized control plane's {central / cfg.scenario.n_uavs:,.0f} B/s per UAV "
               f"({central / 1e3:.1f} kB/s for {cfg.scenario.n_uavs} UAVs, modelled); merged {fed['shares_merged']} "
               f"peer shares, refused {sum(fed['refused'].values())}, waited out {fed['missing']}")
-    for t, kind, phase in events:
-        print(f"fault {kind} {phase} at {t:.1f} s")
+    lines = [(p["t_s"], f"fault plan sent to the live run at {p['t_s']:.1f} s by {p['src']}: {p['link_faults']} link "
+                        f"fault(s) replace the run's (summary.json fault_plans_sent)") for p in sent]
+    lines += [(t, f"fault {kind} {phase} at {t:.1f} s") for t, kind, phase in events]  # after a plan sent at once
+    for _, line in sorted(lines, key=lambda tl: tl[0]):
+        print(line)
 
 
 def federated_traffic(cfg: Config, world, agents, rate_hz: float) -> dict | None:

@@ -53,7 +53,7 @@ from truav.bus import transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
-from truav.faults import load_plan
+from truav.faults import FaultPlan, load_plan
 from truav.lifecycle import signals_handled
 from truav.options import to_argv
 from truav.wire import guard
@@ -272,11 +272,11 @@ class _Swarm(SwarmWatch, SwarmEnd):
             self.monitor.attach(bus, opts.run, central=self.central, tracks_from_world=opts.scheme != "truav")
             if opts.record and not self._recorder_ready(bus):
                 return False
-            if self.plan:
-                hooks = {"kill": self._plan_kill, "restart": self._plan_restart,
-                         "freeze": lambda u: self.children.send(process_of(u), signal.SIGSTOP),
-                         "thaw": lambda u: self.children.send(process_of(u), signal.SIGCONT)}
-                self.controller = FaultController(bus, opts.run, self.plan, hooks)
+            # With or without a plan: a plan sent to the live run (`truav-swarm faults`) is scheduled and told too.
+            hooks = {"kill": self._plan_kill, "restart": self._plan_restart,
+                     "freeze": lambda u: self.children.send(process_of(u), signal.SIGSTOP),
+                     "thaw": lambda u: self.children.send(process_of(u), signal.SIGCONT)}
+            self.controller = FaultController(bus, opts.run, self.plan or FaultPlan(), hooks)
             scheme = ["--scheme", opts.scheme]
             if self.central:  # before the world, which waits for it (and the agents) before tick 0
                 controller = ControllerOptions(policy=str(Path(opts.policy).resolve()) if opts.policy else None,

@@ -12,6 +12,7 @@ from agents.process.central_process import ControllerOptions
 from recorder.record_modes import RecordModes
 from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
+from truav.options import opt
 from truav.stopping import exit_code_for
 from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
@@ -82,8 +83,14 @@ class SwarmOptions:
     """Continue the run already in ``out`` (agents resume from its checkpoints); else ``out`` must be empty."""
     force: bool = False
     """Delete an earlier run's files in ``out`` first, and overwrite ``record``."""
-    max_missed_share: float = 0.5
+    max_missed_share: float = WorldOptions.max_missed_share
     """The run fails when more than this share of the actions the world waited for did not come."""
+    tolerate_agent_errors: bool = opt(False, flag="--tolerate-agent-errors", action="store_true",
+                                      help="end ok (with a warning) although a --agent class failed calls (raised, "
+                                           "returned an illegal action, took too long) or an agent process exited "
+                                           "with an error and stayed down; without it either fails the run")
+    """A --agent class's failed calls (its UAV hovered those ticks) and agent processes that exited with an error and
+    were not restarted are warnings, not failures."""
     router_timeout_s: float = DEFAULT_ROUTER_TIMEOUT_S
     """World and agents stop by themselves this long after losing their router."""
     foxglove_port: int | None = None
@@ -159,14 +166,18 @@ class Outcome:
     exactness: dict | None = None  # lock-step only: see lockstep_exactness
     restarts: list[dict] = field(default_factory=list)  # truav.swarm.healing.Restart.as_dict(), in order
     external: list[dict] = field(default_factory=list)  # truav.swarm.external.report() of each external UAV
+    agent_errors: dict[str, int] = field(default_factory=dict)
+    """A --agent class's failed calls by UAV id (as a string: summary.json's keys), from the agents' statistics."""
     superseded: list[dict] = field(default_factory=list)
     """Processes started again at once, not a fault: {"process", "pid", "cause"} (a router that lost the default
     port to another process between the check and its bind, started again on a free port)."""
 
-    def fail(self, reason: str) -> None:
+    def fail(self, reason: str, ends_run: bool = True) -> None:
+        """The run failed for ``reason``; ``ends_run``: that is also what ended it (unless something did before)."""
         if reason not in self.failures:
             self.failures.append(reason)
-        self.ended_by = self.ended_by or reason
+        if ends_run:
+            self.ended_by = self.ended_by or reason
 
     @property
     def result(self) -> str:

@@ -226,7 +226,10 @@ class SwarmWatch:
                     continue
                 note = f"{name} exited mid-run ({exit_text(p.returncode)}); its last log line: " \
                     f"{children.last_line(name)}" + ("; the UAVs fly on without commands" if name == "controller" else "")
-                self.outcome.warnings.append(note)
+                if p.returncode != 0 and not opts.tolerate_agent_errors:  # an error, and it stays down
+                    self.outcome.fail(note + " (--tolerate-agent-errors to accept)", ends_run=False)
+                else:
+                    self.outcome.warnings.append(note + (" (tolerated: --tolerate-agent-errors)" if p.returncode else ""))
                 print(note, flush=True)
             self._heal_due()
             if time.monotonic() - last_rss >= RSS_PERIOD_S:

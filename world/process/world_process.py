@@ -105,11 +105,12 @@ class WorldOptions:
     stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
                                 help="write per-episode metrics and timing as JSON")
     """Write per-episode metrics and timing statistics as JSON here at exit."""
-    max_missed_share: float = opt(0.5, flag="--max-missed", type="share", metavar="SHARE",
+    max_missed_share: float = opt(0.05, flag="--max-missed", type="share", metavar="SHARE",
                                   help="fail (exit 1) when more than this share of the actions is missing: no "
-                                       "action applied in time, the UAV hovered (default 0.5)")
+                                       "action applied in time, the UAV hovered (default 0.05; 1 tolerates any)")
     """More than this share of the actions missing (world_stats.missed_share) fails the run: `truav-swarm up`
-    says so in its result, a world exits world_host.EXIT_TOO_MANY_MISSED."""
+    says so in its result (naming the host's load when it is the likely cause), a world exits
+    world_host.EXIT_TOO_MANY_MISSED. A few percent: a quiet host misses (almost) none."""
     fault_plan: str | None = None
     """Fault plan (TOML) whose link faults apply to what this process receives."""
     accept_replay: bool = False
