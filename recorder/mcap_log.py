@@ -215,6 +215,14 @@ class McapLog:
                 self._mirror.feed_foxglove(kind, body, log_time_ns, pub)
         self._close_chunk_if_due()
 
+    def skip(self, payload: bytes) -> None:
+        """A message not written on purpose (the recorder is paused): the per-sender counts move past its
+        seq (:meth:`recorder.seq_stats.SenderStats.skip`), so the pause is not counted as a sequence gap."""
+        env = envelope_fields(payload)
+        if env is not None:
+            kind, src, seq, _t, _body, inc = env
+            self._stats.skip(src, kind, inc, seq)
+
     def write_foxglove(self, out: Out, log_time_ns: int, publish_time_ns: Optional[int] = None) -> None:
         """Record one Foxglove mirror message (channel and schema made on first use)."""
         if self._writer.closed:

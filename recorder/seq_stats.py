@@ -37,6 +37,7 @@ class SeqStats:
     gaps: int = 0  # forward jumps by more than one
     missing: int = 0  # seq numbers those jumps skipped
     backwards: int = 0  # seq <= highest seen (duplicate or reordered)
+    paused: int = 0  # messages left out on purpose while the recorder was paused (not a loss, not in count)
 
 
 class SenderStats:
@@ -83,6 +84,22 @@ class SenderStats:
                     self._on_loss(src, kind, seq - last - 1, log_time, pub)  # type: ignore[operator]
             else:
                 stats.backwards += 1
+
+    def skip(self, src: str, kind: str, inc: int, seq: int) -> None:
+        """A message of stream (src, kind, inc) left out on purpose (the recorder paused): counted as
+        ``paused``, and its seq moves the stream on, so the first message recorded after the pause is no gap
+        (as ``truav log check`` counts the pause's seq ranges as paused, not missing)."""
+        streams = self._streams
+        stats = streams.get((src, kind, inc))
+        if stats is None:
+            if len(streams) >= MAX_TRACKED_SENDERS:
+                return
+            self._first_inc.setdefault(src, inc)
+            streams[(src, kind, inc)] = SeqStats(first_seq=seq, last_seq=seq, paused=1)
+            return
+        stats.paused += 1
+        if stats.last_seq is None or seq > stats.last_seq:
+            stats.last_seq = seq
 
     def snapshot(self) -> dict[StreamKey, SeqStats]:
         """A copy of every stream's figures, safe to keep."""

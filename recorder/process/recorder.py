@@ -402,7 +402,14 @@ class Recorder:
         self._log.set_metadata(PAUSE_METADATA, ledger.record(now, by))
 
     def _write_fn(self):
-        return self._pause.skip if self._pause is not None else self._log.write  # type: ignore[union-attr]
+        if self._pause is None:
+            return self._log.write  # type: ignore[union-attr]
+        ledger, log_ = self._pause, self._log
+
+        def skip(key: str, payload: bytes, log_time_ns: int, publish_time_ns: Optional[int] = None) -> None:
+            ledger.skip(key, payload, log_time_ns, publish_time_ns)
+            log_.skip(payload)  # type: ignore[union-attr]
+        return skip
 
     # -- the writer thread --
     def _write_waiting(self, pull, write) -> int:

@@ -415,6 +415,8 @@ def test_remote_pause_and_resume(tmp_path: Path, endpoint: str, bus_factory, chi
     assert stop_recorder(proc, EXIT_S) == 0
     stdout = proc.communicate(timeout=EXIT_S)[0].decode()
     assert "paused by request" in stdout
+    # the pause is a pause in the summary too, not "lost before the recorder" (as `truav log check` says below)
+    assert "lost before the recorder (sequence gaps): 0;" in stdout, stdout
     got = bus_messages(out)
     assert not set(got) & set(dropped)
     assert set(kept) <= set(got)
