@@ -27,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from tests.support.readme_commands import stated_times  # noqa: E402
+from tests.support.readme_commands import program, stated_times  # noqa: E402
 
 
 def _cpu_children() -> float:
@@ -39,11 +39,14 @@ def measure(command: str, cwd: Path) -> tuple[int, float, float, str]:
     """(exit code, wall s, CPU s, load averages before -> after) of ``command`` run in ``cwd``."""
     load = os.getloadavg()
     cpu, began = _cpu_children(), time.monotonic()
-    argv = shlex.split(command)
+    argv = program(shlex.split(command))
+    assigned = shlex.split(command)[:-len(argv)]  # the page's VAR=value before the command
+    env = {**os.environ, **{k: os.path.expanduser(v) for k, v in (a.split("=", 1) for a in assigned)}}
     with open(cwd / "bench-doc-times.log", "a") as log:
         log.write(f"\n$ {command}\n")
         log.flush()
-        rc = subprocess.run(argv, cwd=cwd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT).returncode
+        rc = subprocess.run(argv, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=log,
+                            stderr=subprocess.STDOUT).returncode
     after = os.getloadavg()
     return rc, time.monotonic() - began, _cpu_children() - cpu, f"{load[0]:.1f} -> {after[0]:.1f}"
 
@@ -52,8 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--only", nargs="+", metavar="COMMAND", help="only these commands (as the page writes them)")
     p.add_argument("--max-s", type=float, default=900, help="skip commands stated longer than this (default 900)")
-    p.add_argument("--dir", help="scratch directory (default: a new temporary one; the repository's deploy/ is "
-                                 "linked into it, as a clone has it)")
+    p.add_argument("--dir", help="scratch directory (default: a new temporary one; the repository's deploy/ and "
+                                 "examples/ are linked into it, as a clone has them)")
     p.add_argument("--list", action="store_true", help="print the stated times and exit")
     args = p.parse_args(argv)
     stated = stated_times()
@@ -67,8 +70,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     work = Path(args.dir or tempfile.mkdtemp(prefix="truav-doc-times-"))
     work.mkdir(parents=True, exist_ok=True)
-    if not (work / "deploy").exists():
-        (work / "deploy").symlink_to(ROOT / "deploy")
+    for folder in ("deploy", "examples"):  # what the commands name, as a clone has it
+        if not (work / folder).exists():
+            (work / folder).symlink_to(ROOT / folder)
     print(f"in {work} (log: bench-doc-times.log)", flush=True)
     slow = []
     for command, seconds in stated.items():
