@@ -54,3 +54,13 @@ def test_commands_reach_only_the_run_they_name(up, tmp_path, capsys, monkeypatch
     assert swarm_main(["down", "--run", "alpha", "-e", endpoint, "--out", str(a.out), "--wait", "60"]) == 0
     assert a.wait(timeout=120) == 130, a.output()
     assert json.loads((a.out / "summary.json").read_text())["outcome"]["ended_by"].endswith("`truav-swarm down`)")
+
+
+def test_record_ctl_finds_its_run_by_name_or_directory_too(tmp_path, capsys, monkeypatch) -> None:
+    from truav.cli.main import main as truav_main
+    monkeypatch.chdir(tmp_path)
+    assert truav_main(["log", "record-ctl", "pause", "--run", "beta", "--wait", "1"]) == 2
+    _, err = _one_line(capsys)
+    assert "runs/swarm-beta/swarm.json" in err, err
+    assert truav_main(["log", "record-ctl", "pause", "--out", str(tmp_path), "--wait", "1"]) == 2
+    assert f"--out {tmp_path}" in _one_line(capsys)[1]

@@ -2,7 +2,8 @@
 
 Publishes a ``Control`` message with that command on ``truav/<run>/control/recorder`` as the
 ``supervisor`` identity (under ``--secure`` the router lets only that identity put there:
-``--creds DIR`` takes its certificate).  Exit 0 once sent to a listening recorder; 1 when no
+``--creds DIR`` takes its certificate).  Without -e, -c or --creds the run is found by --run NAME or
+--out DIR (its swarm.json names its router), never at a default port.  Exit 0 once sent to a listening recorder; 1 when no
 session opens (no router there) or no recorder of the run listens within the wait; 2 for a user
 mistake.
 """
@@ -31,7 +32,8 @@ def add_record_ctl_parser(subparsers: Any) -> argparse.ArgumentParser:
                     "it so the gap is not taken for a loss), resume, snapshot (snapshot mode: write the kept "
                     "seconds and those after). Sent as the supervisor identity (--creds under --secure).")
     p.add_argument("command", choices=RECORDER_COMMANDS, help="what the recorder should do")
-    p.add_argument("--run", type=cli_args.run_name, default="demo", help="run name (default demo)")
+    from truav.cli.run_lookup import add_run_args
+    add_run_args(p)
     p.add_argument("--wait", type=cli_args.positive_float, default=LISTENER_WAIT_S, metavar="S",
                    help=f"how long to wait for the recorder to be listening (default {LISTENER_WAIT_S:g})")
     cli_args.add_transport_args(p)
@@ -48,6 +50,10 @@ def cmd_record_ctl(args: argparse.Namespace) -> int:
         transport.apply_creds(args, CONTROL_IDENTITY)
     except ValueError as exc:
         raise cli_args.UserError(f"--creds: {exc}") from None
+    from truav.cli.run_lookup import explicit_router, find_run
+    if not explicit_router(args):  # the router of the live run named (its swarm.json), never a default port
+        find_run(args)
+    args.run = args.run or "demo"
     try:
         bus = transport.Bus(CONTROL_IDENTITY, args.run, transport.config_from_args(args))
     except Exception as exc:  # zenoh.ZError: no router there (the endpoint's form was checked before)
