@@ -5,6 +5,7 @@ kernel.
     python bench/bench_trainer.py            # batch 1, 10, 50 on one thread; steady state and start-up on all cores
     python bench/bench_trainer.py --full     # plus the paper's full run: 10 seeds x 5000 x 100 steps, all cores
     python bench/bench_trainer.py --agent truav   # TRUAV through the agent API against TRUAV's own trainer
+    python bench/bench_trainer.py --agent bench.idle_agent:Idle   # the API's own price: a class doing nothing
 
 --agent NAME times `truav train --agent NAME`'s trainer (agents.api_controller: the class's batched form
 if it has one, else one call per UAV and step) against TRUAV's fused trainer, batch 10 on one thread,
