@@ -122,13 +122,13 @@ def test_resim_takes_any_name_of_the_recorded_class():
     with pytest.raises(UserError) as refused:
         _agent_class(_resim_args("patrol"), rec, False)
     line = str(refused.value)
-    assert "\n" not in line and "recorded 'agents.random_agent:RandomAgent'" in line, line
+    assert "\n" not in line and "was flown by 'agents.random_agent:RandomAgent' (as recorded)" in line, line
     assert "--agent patrol" in line and "agents.patrol_agent:PatrolAgent" in line, line
 
 
 def test_resim_does_not_import_the_recorded_module_to_compare():
     """A recording from elsewhere never picks code that runs: its module path is compared, not imported."""
     rec = argparse.Namespace(agent="nosuchmodule_from_elsewhere:Agent", cfg=Config())
-    with pytest.raises(UserError, match="recorded 'nosuchmodule_from_elsewhere:Agent'"):
+    with pytest.raises(UserError, match="was flown by 'nosuchmodule_from_elsewhere:Agent'"):
         _agent_class(_resim_args("random"), rec, False)
     assert "nosuchmodule_from_elsewhere" not in sys.modules

@@ -160,7 +160,7 @@ def _agent_class(args, rec, branch: bool):
     if args.agent != rec.agent:  # another name of the same class (entry point, module path) is that class
         given = agent_loader.resolve(args.agent)
         if not agent_loader.same_class(rec.agent, given):
-            raise UserError(f"--agent {args.agent}: {args.file} recorded {rec.agent[:100]!r} as its agent class, and "
+            raise UserError(f"--agent {args.agent}: {args.file} was flown by {rec.agent[:100]!r} (as recorded), and "
                             f"--agent {args.agent} is {agent_loader.class_path(given)}, another class (give --agent "
                             f"{rec.agent[:100]} to re-simulate it)")
     if branch:
