@@ -123,7 +123,8 @@ def test_missed_actions_above_the_default_share_fail_the_run(tmp_path):
     share = 1 - world["actions_received"] / (2 * 40)
     assert share > 0.1, (share, text)  # the freeze's missed actions, whatever the host's load
     closing = _closing(text)
-    assert rc == 1 and "of the actions were missing (more than --max-missed 0.05" in closing, text
+    assert rc == 1 and "of the actions were missing (more than --max-missed 0.05): the fault plan's freeze " \
+        "faults, the likely cause" in closing, text
 
 
 LIVE_PLAN = '[[fault]]\nkind = "loss"\nstart = 0.0\nduration = 1000.0\nprobability = 1.0\nkeys = "uav/*/beacon"\n'

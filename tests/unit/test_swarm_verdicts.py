@@ -18,6 +18,8 @@ def test_missed_actions_name_the_load_only_when_the_host_was_loaded():
     assert loaded.startswith(quiet) and "load average 7.3 over the last minute on 2 core(s)" in loaded
     assert "likely cause" in loaded
     assert missed_text(0.49, 0.05, None, 2) == quiet  # no load average on this OS: nothing claimed
+    planned = missed_text(0.49, 0.05, 7.3, 2, cause="the fault plan's freeze faults")
+    assert planned == quiet + ": the fault plan's freeze faults, the likely cause"  # not the load, then
 
 
 def test_a_class_failure_names_the_uavs_the_calls_and_the_first_message():

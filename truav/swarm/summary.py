@@ -96,7 +96,7 @@ class SwarmEnd:
             if expected > 0:
                 missed = 1.0 - world.get("actions_received", 0) / expected
                 if missed > opts.max_missed_share:
-                    self._degraded(missed_text(missed, opts.max_missed_share, *host_load()))
+                    self._degraded(missed_text(missed, opts.max_missed_share, *host_load(), cause=self._miss_cause()))
         self._judge_parts()
         if full:
             o.fail(f"no space left on {self.out.absolute()}: {', '.join(full)} could not write {'its' if len(full) == 1 else 'their'} "
@@ -137,6 +137,17 @@ class SwarmEnd:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
                               f"UAVs held their last command for {opts.command_hold_s:g} s, then hovered "
                               f"(the world ran on)")
+
+    def _miss_cause(self) -> str | None:
+        """What made processes miss actions besides the host's load, if anything: the plan's crashes and pauses, a
+        restart, an agent that exited."""
+        kinds = sorted({f.kind for f in (self.plan.faults if self.plan else ()) if f.kind in ("crash", "freeze")})
+        if kinds:
+            return f"the fault plan's {' and '.join(kinds)} faults"
+        if self.outcome.restarts:
+            return f"{len(self.outcome.restarts)} process restart(s)"
+        exited = [f.split(" ", 1)[0] for f in self.outcome.failures + self.outcome.warnings if " exited mid-run " in f]
+        return f"{', '.join(exited)} down (exited mid-run)" if exited else None
 
     def _degraded(self, reason: str, tolerated: bool = False) -> None:
         """A run that went on degraded: a failure, or a warning if tolerated by its flag or if the run was
@@ -257,11 +268,14 @@ def host_load() -> tuple[float | None, int]:
     return load, cores
 
 
-def missed_text(share: float, limit: float, load: float | None, cores: int) -> str:
-    """The failure of a run that missed more than ``limit`` of its actions, naming the host's load when it is at
-    least LOADED_SHARE per core (then the likely cause)."""
+def missed_text(share: float, limit: float, load: float | None, cores: int, cause: str | None = None) -> str:
+    """The failure of a run that missed more than ``limit`` of its actions, naming ``cause`` (the run's own: its
+    plan's crashes, an agent down) if any, else the host's load when it is at least LOADED_SHARE per core (then the
+    likely cause)."""
     text = f"{100 * share:.0f}% of the actions were missing (more than --max-missed {limit:g})"
-    if load is not None and load >= LOADED_SHARE * cores:
+    if cause:
+        text += f": {cause}, the likely cause"
+    elif load is not None and load >= LOADED_SHARE * cores:
         text += (f": the host was loaded (load average {load:.1f} over the last minute on {cores} core(s), this "
                  f"swarm's processes included), the likely cause; a quieter host, a lower --rate or fewer --agents "
                  f"miss fewer")
