@@ -14,7 +14,9 @@ stdout but one summary when it stops, and exits
 
 * 0 after SIGTERM, SIGINT or a ``stop`` control message on
   ``truav/<run>/control/recorder``, once the file is finished (footer
-  written, readable by mcap's ``make_reader``);
+  written, readable by mcap's ``make_reader``); started alone (no supervisor),
+  also when the run it records ends (:meth:`Recorder.follow_run`), and it says
+  on stderr what it records and where, then its progress;
 * 2 for a user mistake (bad run name, output exists without ``--force``,
   config not TOML ...), with a one-line message on stderr;
 * 1 when recording failed (router unreachable, disk full ...).
@@ -106,6 +108,11 @@ IDLE_WAKE_S = 0.25  # writer wake-up when nothing is pending (bounds stop latenc
 WRITER_JOIN_TIMEOUT_S = 60.0  # a large backlog takes a while to write
 DEFAULT_READY_TIMEOUT_S = 10.0
 STOP_GRACE_S = 10.0  # stop_recorder: SIGTERM, then SIGKILL after this long
+RUN_END_GRACE_S = 1.0  # standalone: recording on after the run's last process left (its last messages)
+RUN_END_MAX_WAIT_S = 20.0  # standalone: the longest it waits for the run's processes to leave after its end
+PROGRESS_S = 10.0  # standalone: a progress line on stderr this often
+CONTROL_SHUTDOWN = "shutdown"  # truav/<run>/control/shutdown: the world's end of a run (and `truav-swarm down`)
+WORLD_LEFT = "the world left"
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -206,6 +213,11 @@ class Recorder:
         self._started_ns = 0
         self._summary: Optional[RecorderSummary] = None
         self._pause: Optional[PauseLedger] = None  # set while paused (writer thread only)
+        self._run_lock = threading.Lock()
+        self._run_end: Optional[tuple[str, float]] = None  # follow_run: (why the run ended, monotonic time of it)
+        self._alive: set[str] = set()  # follow_run: the run's processes with a liveliness token (but ours)
+        self._quiet_since: Optional[float] = time.monotonic()  # follow_run: since when none is alive
+        self.world_seen = False  # follow_run: the world's liveliness token was seen
         self._paused_ns = 0
         self._paused_messages = 0
 
@@ -270,6 +282,50 @@ class Recorder:
         """Ask the writer thread to split, pause, resume or snapshot (safe from a signal handler and
         from the bus's threads: the writer alone touches the files); ``signalled``: by a signal."""
         self._queue.put((command, by, time.time_ns(), signalled))
+
+    def follow_run(self) -> None:
+        """Standalone (no supervisor to stop it): end by itself when the run ends. The run ends with a
+        ``shutdown`` on ``truav/<run>/control/shutdown`` (the world publishes it at the run's end, as
+        ``truav-swarm down`` does), or when the world's liveliness token, once seen, is gone (a world that
+        died; it records on if the world comes back). It then records until every process of the run has left
+        (no liveliness token of the run but its own) and :data:`RUN_END_GRACE_S` more, at most
+        :data:`RUN_END_MAX_WAIT_S`; :meth:`run_end` says when. Call after :meth:`start`."""
+        assert self._bus is not None, "follow_run() before start()"
+        run = self.options.run
+        self._handles.append(self._bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_shutdown))
+        self._handles.append(self._bus.watch_liveliness(keys.all_alive(run), lambda k: self._on_token(k, True),
+                                                        lambda k: self._on_token(k, False)))
+
+    def _on_shutdown(self, key: str, msg: schema.Message, raw: bytes, recv_ns: int) -> None:
+        with self._run_lock:
+            if self._run_end is None or self._run_end[0] == WORLD_LEFT:
+                self._run_end = (f"the run ended (shutdown from {msg.src})", time.monotonic())
+
+    def _on_token(self, key: str, up: bool) -> None:
+        who = key.split("/alive/", 1)[-1]
+        if who == "recorder":
+            return
+        with self._run_lock:
+            (self._alive.add if up else self._alive.discard)(who)
+            self._quiet_since = None if self._alive else time.monotonic()
+            if who != "world":
+                return
+            if up:
+                self.world_seen = True
+                if self._run_end is not None and self._run_end[0] == WORLD_LEFT:
+                    self._run_end = None  # back (a brief disconnection): record on
+            elif self.world_seen and self._run_end is None:
+                self._run_end = (WORLD_LEFT, time.monotonic())
+
+    def run_end(self) -> tuple[Optional[str], bool]:
+        """(why the run ended, or None; whether to stop now: its processes left a grace ago, or it waited
+        the longest). Only with :meth:`follow_run`."""
+        with self._run_lock:
+            if self._run_end is None:
+                return None, False
+            reason, since = self._run_end
+            now, quiet = time.monotonic(), self._quiet_since
+            return reason, (quiet is not None and now - quiet >= RUN_END_GRACE_S) or now - since >= RUN_END_MAX_WAIT_S
 
     def _abort_start(self) -> None:
         """Startup failed: stop what runs and remove the (empty) file we created."""
@@ -471,13 +527,36 @@ def short_error(exc: BaseException) -> str:
     return (text[:cut] if cut > 0 else text).rstrip(" .!") or type(exc).__name__
 
 
-def run_until_stopped(recorder: Recorder, stop: threading.Event) -> RecorderSummary:
-    """Start ``recorder`` and block until ``stop`` or its own stop request is set."""
+def run_until_stopped(recorder: Recorder, stop: threading.Event, standalone: bool = False) -> RecorderSummary:
+    """Start ``recorder`` and block until ``stop`` or its own stop request is set. ``standalone`` (no
+    supervisor): say on stderr what it records and where, then its progress every :data:`PROGRESS_S`, and
+    stop by itself when the run ends (:meth:`Recorder.follow_run`)."""
     recorder.start()
+    opts = recorder.options
+    began = time.monotonic()
+    if standalone:
+        recorder.follow_run()
+        print(f"recorder: recording run {opts.run} (everything under {keys.prefix(opts.run)}/) into {opts.out}; "
+              "stops on Ctrl-C or once the run has ended", file=sys.stderr, flush=True)
     debug, before, since = Every(log), 0, time.monotonic()
+    next_progress, announced = began + PROGRESS_S, None
     try:
         while not (stop.is_set() or recorder.stop_requested.is_set()):
             stop.wait(IDLE_WAKE_S)
+            if standalone:
+                reason, due = recorder.run_end()
+                if reason is not None and reason != announced:
+                    announced = reason
+                    print(f"recorder: {reason}: finishing once its processes have left (at most "
+                          f"{RUN_END_MAX_WAIT_S:g} s)", file=sys.stderr, flush=True)
+                if due:
+                    recorder.stop_reason = reason or recorder.stop_reason
+                    break
+                if time.monotonic() >= next_progress:
+                    next_progress += PROGRESS_S
+                    state = "world alive" if recorder.world_seen else "no world seen yet"
+                    print(f"recorder: {recorder.written:,} messages in {time.monotonic() - began:.0f} s "
+                          f"(run {opts.run}: {state})", file=sys.stderr, flush=True)
             if debug.due():
                 now, written = time.monotonic(), recorder.written
                 log.debug("recorder: received and wrote %d messages in %.1f s (%d in all, %d the largest burst)",
@@ -511,7 +590,7 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
         reasons.append("supervisor gone")
         stop.set()
 
-    watch_supervisor(supervisor_gone)
+    standalone = watch_supervisor(supervisor_gone) is None
     requests = {}  # SIGHUP splits a recording in parts, SIGUSR1 takes a snapshot (only in those modes)
     if options.modes.split:
         requests[signal.SIGHUP] = CMD_SPLIT
@@ -523,7 +602,7 @@ def record(options: RecorderOptions, zconfig: Any, summary_json: Optional[str] =
 
     with _signals_set(stop, reasons), signals_handled(tuple(requests), on_request):
         try:
-            summary = run_until_stopped(recorder, stop)
+            summary = run_until_stopped(recorder, stop, standalone=standalone)
         except RecorderUsageError as exc:
             print(f"recorder: error: {exc}", file=sys.stderr)
             return EXIT_USAGE

@@ -280,7 +280,7 @@ REPLAY_EXAMPLE = ("Example, one live agent driven by a recorded world (a live ag
 
 
 # --- the parsers, each built by one function (the `truav log` spelling and its alias share it) ----------
-RECORD_HELP = "record every message of a run into an MCAP file (until Ctrl-C / SIGTERM)"
+RECORD_HELP = "record every message of a run into an MCAP file (until the run ends, or Ctrl-C)"
 PLAY_HELP = "re-publish a recording onto Zenoh with its original timing"
 REPORT_HELP = "pictures of a recorded run: map, metric timelines, agent latency; metrics.csv"
 
@@ -298,8 +298,10 @@ def add_record_parser(subparsers: Any, help: str) -> argparse.ArgumentParser:
         "record", help=help,
         description="Record every message under truav/<run>/ into an MCAP file: one channel per key "
                     "(msgpack, with a JSON Schema), JSON mirrors of beacons, positions and metrics for "
-                    "Foxglove, the run config as metadata. Stops on Ctrl-C, SIGTERM or a 'stop' control "
-                    "message on truav/<run>/control/recorder, finishes the file and prints a summary.")
+                    "Foxglove, the run config as metadata. Stops on Ctrl-C, SIGTERM, a 'stop' control "
+                    "message on truav/<run>/control/recorder or, started alone (not by `up`), once the run has "
+                    "ended (the world's shutdown, or the world gone) and its processes have left; says on stderr "
+                    "what it records, where, and its progress; finishes the file and prints a summary.")
     add_record_args(rec)
     return rec
 
