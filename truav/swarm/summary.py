@@ -91,12 +91,7 @@ class SwarmEnd:
             else:
                 o.fail(f"the world stopped after {done} of {opts.episodes} episode(s)")
         if world and o.ticked:
-            acting = world.get("ticks", 0) - done
-            expected = acting * self.n
-            if expected > 0:
-                missed = 1.0 - world.get("actions_received", 0) / expected
-                if missed > opts.max_missed_share:
-                    self._degraded(missed_text(missed, opts.max_missed_share, *host_load(), cause=self._miss_cause()))
+            self._judge_missed(world, world.get("ticks", 0) - done)
         self._judge_parts()
         if full:
             o.fail(f"no space left on {self.out.absolute()}: {', '.join(full)} could not write {'its' if len(full) == 1 else 'their'} "
@@ -137,6 +132,35 @@ class SwarmEnd:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
                               f"UAVs held their last command for {opts.command_hold_s:g} s, then hovered "
                               f"(the world ran on)")
+
+    def _planned_uavs(self) -> set[int]:
+        """The UAVs whose process the fault plan crashes or freezes: their misses are the plan's, not the run's."""
+        targets = {process_of(f.params.get("target", f.params.get("uav")))
+                   for f in (self.plan.faults if self.plan else ()) if f.kind in ("crash", "freeze")}
+        return {i for ids, name in zip(self.groups, self.agents) for i in ids
+                if f"agent{i}" in targets or name in targets}
+
+    def _judge_missed(self, world: dict, acting: int) -> None:
+        """More than --max-missed of the actions missing degrades the run. The UAVs the plan crashes or freezes
+        miss actions by design: their misses are said, and the limit judges the other UAVs' (all of them when the
+        plan touches no agent, or when per-UAV counts are missing)."""
+        o, opts = self.outcome, self.opts
+        planned = self._planned_uavs()
+        per_uav = {u.get("uav"): int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict)}
+        if acting <= 0:
+            return
+        if not planned or not per_uav:
+            missed = 1.0 - world.get("actions_received", 0) / (acting * self.n)
+        else:
+            planned_missed = sum(per_uav.get(i, 0) for i in planned)
+            o.warnings.append(f"{planned_missed} action(s) missed by the UAV(s) the fault plan crashes or freezes "
+                           f"({', '.join(map(str, sorted(planned)))}): expected, not held against --max-missed")
+            others = self.n - len(planned)
+            if others <= 0:
+                return
+            missed = sum(m for u, m in per_uav.items() if u not in planned) / (acting * others)
+        if missed > opts.max_missed_share:
+            self._degraded(missed_text(missed, opts.max_missed_share, *host_load(), cause=self._miss_cause()))
 
     def _miss_cause(self) -> str | None:
         """What made processes miss actions besides the host's load, if anything: the plan's crashes and pauses, a
