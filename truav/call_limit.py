@@ -3,7 +3,8 @@
 A hung or slow class then fails, named, instead of stalling a lock-step run or a training. On the main
 thread a SIGALRM timer interrupts the call (a pure-Python loop at once; code inside one C call, a numpy
 operation say, when that returns). Off the main thread no timer can interrupt it: the call is measured
-and fails when it returns late. Pure: no I/O.
+and fails when it returns late. ``call_limited`` bounds one call; ``CallBound`` a sweep of many (the
+trainer's calls into every UAV's instance), each as call_limited would, at one timer's price. Pure: no I/O.
 """
 
 from __future__ import annotations
@@ -12,6 +13,12 @@ import signal
 import threading
 import time
 from typing import Any, Callable
+
+try:  # signal.signal is this C function plus enum conversions of the handlers given and returned, which
+    # cost more than a whole sweep of calls that do nothing (CallBound installs its handler once a sweep)
+    from _signal import signal as _set_handler
+except ImportError:  # another Python: the wrapper itself
+    _set_handler = signal.signal
 
 MAX_CALL_LIMIT_S = 60.0
 """The largest ``call_limit_s`` a class may declare."""
@@ -76,7 +83,7 @@ class CallBound:
     def __enter__(self) -> Callable[..., Any]:
         if threading.current_thread() is not threading.main_thread():
             return self._measured
-        self._previous = signal.signal(signal.SIGALRM, self._expired)
+        self._previous = _set_handler(signal.SIGALRM, self._expired)
         self._armed = True
         signal.setitimer(signal.ITIMER_REAL, self.limit_s)
         return self._alarmed
@@ -86,7 +93,7 @@ class CallBound:
         if self._armed:
             self._armed = False
             signal.setitimer(signal.ITIMER_REAL, 0.0)
-            signal.signal(signal.SIGALRM, self._previous)
+            _set_handler(signal.SIGALRM, self._previous)
 
     def _expired(self, _signum: int, _frame: object) -> None:
         if not self._armed:  # fired as the block ended: no timer may outlive it

@@ -22,21 +22,22 @@ SEEDS = [0, 1]
 
 
 def test_one_call_timer_per_sweep_over_the_uavs_not_one_per_call(monkeypatch):
-    """Installing the SIGALRM handler per call cost more than a call that does nothing: now begin_episode's
-    calls and two sweeps per step (act, learn) install it, whatever the number of UAVs."""
-    installs = []
-    real = signal.signal
+    """Setting a timer (and installing its handler) per call cost more than a call that does nothing: now
+    begin_episode's calls and two sweeps per step (act, learn) set it, whatever the number of UAVs."""
+    arms = []
+    real = signal.setitimer
 
-    def counting(sig, handler):
-        if sig == signal.SIGALRM:
-            installs.append(handler)
-        return real(sig, handler)
+    def counting(which, seconds, *interval):
+        if which == signal.ITIMER_REAL and seconds > 0:
+            arms.append(seconds)
+        return real(which, seconds, *interval)
 
     ctl = ApiController("idle", Idle, SMALL, SEEDS)
-    monkeypatch.setattr(signal, "signal", counting)
+    monkeypatch.setattr(signal, "setitimer", counting)
     run_episodes(SMALL, SEEDS, ctl, 1)
     uavs, steps = len(SEEDS) * SMALL.scenario.n_uavs, SMALL.scenario.steps_per_episode
-    assert len(installs) <= 2 * uavs + 2 * 2 * steps  # set and restored: begin_episode per UAV, 2 sweeps per step
+    # begin_episode: one bounded call per UAV; then 2 sweeps per step (slack: a timer re-armed on a busy host)
+    assert len(arms) <= uavs + 3 * steps
 
 
 class Seer(UavAgent):
