@@ -99,3 +99,18 @@ def test_comparisons_fly_it_with_sensing_on():
     assert with_sensing("spread", Config()).learner.sense_range_m == SENSE_RANGE_M
     assert with_sensing("spread", CFG.replace(learner={"sense_range_m": 2000.0})).learner.sense_range_m == 2000.0
     assert with_sensing("patrol", Config()).learner.sense_range_m == 0.0
+
+
+def test_the_comparison_commands_fly_the_heuristic_by_default():
+    from truav.cli.main import build_parser
+    from truav.experiments import scale, velocity
+    from truav.experiments.cells import Cell
+    parser = build_parser()
+    for argv in (["experiment", "velocity"], ["experiment", "scale"]):
+        assert "spread" in parser.parse_args(argv).schemes, argv
+    assert "spread" in velocity.SCHEMES and "spread" in scale.SCHEMES
+    # its cells fly with its sensing on, and only its cells
+    assert Cell("spread", 15.0, (0,), 1, 1).config(Config()).learner.sense_range_m == SENSE_RANGE_M
+    assert Cell("patrol", 15.0, (0,), 1, 1).config(Config()).learner.sense_range_m == 0.0
+    helps = {a.dest: a.help for p in (parser._subparsers._group_actions[0].choices["evaluate"],) for a in p._actions}
+    assert "spread" in helps["against"]

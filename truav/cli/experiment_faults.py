@@ -34,7 +34,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--schemes", nargs="+", metavar="SCHEME",
                    help=f"compare these schemes under the same link loss, latency and process crash levels: "
                         f"{', '.join(SCHEMES)}, or an agent class (pkg.module:Class or a name registered in the "
-                        f"entry-point group truav.agents: trained in process, then flown greedily) "
+                        f"entry-point group truav.agents: trained in process, then flown greedily; spread is the "
+                        f"decentralized heuristic, flown with its sensing on, the bar a learner must clear) "
                         "(truav.swarm.scheme_faults: comparison.csv, comparison-<metric>.png); "
                         "federated and truav_online fly the TRUAV table learning online, with and without "
                         "Q-sharing (federated.every, 1 unless set); "

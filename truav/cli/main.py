@@ -335,9 +335,11 @@ def cmd_evaluate(args) -> int:
     _compile_first()
     rows = {}
     from agents.api_controller import AgentFailure
+    from agents.spread_agent import with_sensing  # the heuristic flies with its sensing on
     for label, kind in kinds.items():
         try:
-            result = run_with_progress(kind, cfg, eval_seeds, args.episodes, workers, False,
+            run_cfg = cfg if label == main_label else with_sensing(label, cfg)
+            result = run_with_progress(kind, run_cfg, eval_seeds, args.episodes, workers, False,
                                        q if label == main_label else None, label, args.quiet, start)
         except AgentFailure as exc:
             print(f"truav: error: {exc}", file=sys.stderr)
@@ -404,7 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override one value of the run's saved config (repeatable), e.g. --set channel.model=al-hourani")
     ev.add_argument("--against", nargs="*", default=[], metavar="NAME",
                     help=f"also run these on the same traffic: reference policies ({', '.join(REFERENCE_POLICIES)}) "
-                         f"or agent classes (pkg.module:Class or a registered name), untrained")
+                         f"or agent classes (pkg.module:Class or a registered name), untrained; spread is the "
+                         f"decentralized heuristic, flown with its sensing on: the bar a learner must clear")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
     policy_scenario.add_allow_arg(ev)
     ev.add_argument("--quiet", action="store_true")

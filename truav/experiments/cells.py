@@ -58,7 +58,8 @@ class Cell:
                                                "learner": {"episodes": self.episodes}}
         for section, key, value in self.overrides:
             sections.setdefault(section, {})[key] = value
-        return base.replace(**sections)
+        from agents.spread_agent import with_sensing  # the heuristic flies with its sensing on
+        return with_sensing(self.scheme, base.replace(**sections))
 
     def key(self, base: Config) -> str:
         cfg = self.config(base)

@@ -25,7 +25,7 @@ from truav.experiments import report
 from truav.experiments.cells import Cell, CellResult
 from truav.experiments.runner import seed_chunks
 
-SCHEMES = ("truav", "central")
+SCHEMES = ("truav", "central", "spread")
 UAVS = (5, 10, 20)
 VEHICLES = (200, 1000)
 REMOTE_ID_BYTES = 25

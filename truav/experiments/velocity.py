@@ -1,6 +1,7 @@
 """The paper's figure "Performance versus UAV velocity": schemes x speeds x
 seeds, each trained for the paper's episodes, then evaluated greedily.
-Schemes: truav, central, patrol (the paper's three) and, on request,
+Schemes: truav, central, patrol (the paper's three), spread (the decentralized heuristic,
+agents/spread_agent.py: the bar a learner must clear) and, on request,
 patrol_ctrl (the patrol under the centralized control plane) and agent API
 classes by name (pkg.module:Class, or a name an installed package registers).
 
@@ -25,7 +26,8 @@ from truav.stats import MIN_SEEDS_FOR_BAND
 from truav.experiments.cells import BUILTIN_SCHEMES, Cell, CellResult
 from truav.experiments.runner import seed_chunks
 
-SCHEMES = ("truav", "central", "patrol")
+SCHEMES = ("truav", "central", "patrol", "spread")
+"""spread: the decentralized heuristic (agents/spread_agent.py), the bar a learner must clear."""
 CHOICES = BUILTIN_SCHEMES
 """patrol_ctrl: the patrol under the centralized control plane, what the control plane alone costs.
 Besides these, an agents.api class by name (pkg.module:Class or a registered name)."""

@@ -23,6 +23,8 @@ episode (``federated.every``, 1 unless the config sets it; the shares on
 ``uav/*/qshare/*`` are one of the links the faults hit), ``truav_online``
 shares nothing (the federated one's counterpart: what the beacon faults alone
 cost a learning swarm).
+``spread``, the decentralized heuristic (agents/spread_agent.py, the bar a learner must clear), flies with its
+sensing on (agents.spread_agent.with_sensing) and, like any other agent class, as follows.
 Any other name in ``schemes`` is an agents.api class (pkg.module:Class or a registered name): trained in
 process first (``truav train --agent`` for ``train_episodes["truav"]`` episodes, its agent.npz under
 policy-<name>/), then flown greedily as one process per UAV (``up --agent NAME --qtable``), its crash
@@ -152,6 +154,8 @@ def train_agent(cfg: Config, out: Path, name: str, episodes: int, seed: int) -> 
     run = out / f"policy-{file_name(name)}"
     if (run / AGENT_FILE).is_file():
         return run
+    from agents.spread_agent import with_sensing  # the heuristic flies with its sensing on
+    cfg = with_sensing(name, cfg)
     run.mkdir(parents=True, exist_ok=True)
     cls = agent_loader.resolve(name, flag="--schemes")
     result = run_chunk(agent_loader.AGENT_KIND_PREFIX + name, cfg, [seed], episodes)
@@ -180,6 +184,8 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
             run_cfg = cfg.replace(federated={"every": (cfg.federated.every or 1) if scheme == "federated" else 0},
                                   learner={"epsilon_start": cfg.learner.epsilon_end})
         from truav.analysis.agent_loader import AGENT_KIND_PREFIX
+        from agents.spread_agent import with_sensing  # the heuristic flies with its sensing on
+        run_cfg = with_sensing(scheme, run_cfg)
         agent = is_agent_class(scheme)
         return run_swarm(run_cfg, SwarmOptions(
             run=f"cmp{n}", seed=seed, episodes=episodes_of(size, scheme), rate_hz=rate_hz, out=str(out / name),
