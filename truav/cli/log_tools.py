@@ -5,6 +5,7 @@ by :func:`truav.cli.log.add_log_commands`)::
                          [--topics PAT ...] [--exclude PAT ...] [--force]
     truav log merge OUT IN... [--force]
     truav log info FILE... [--json]
+    truav log ros2bag RECORDING --out BAG [--force]
 
 A user mistake (IN not an MCAP file or unfinished, OUT existing without --force, a contradictory or
 empty window, a pattern matching nothing) is one line on stderr and exit 2, before anything is
@@ -165,6 +166,37 @@ def cmd_log_info(args: argparse.Namespace) -> int:
     return EXIT_DAMAGED if damaged else EXIT_OK
 
 
+# --- truav log ros2bag ------------------------------------------------------------------------------
+def cmd_log_ros2bag(args: argparse.Namespace) -> int:
+    from recorder.log_copy import not_mcap_reason
+    from recorder.ros2_export import Ros2Unavailable, export, is_bag
+
+    problem = not_mcap_reason(args.recording)
+    if problem:
+        return _fail(f"RECORDING {problem}")
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        return _fail(f"--out {out}: exists; use --force to replace it")
+    if out.exists() and not (is_bag(out) or out.is_file()):
+        return _fail(f"--out {out}: is a directory but not a ROS 2 bag (no metadata.yaml); not replaced")
+    if not out.parent.is_dir():
+        return _fail(f"--out {out}: no directory {out.parent}")
+    try:
+        report = export(Path(args.recording), out, replace=args.force)
+    except Ros2Unavailable as exc:
+        return _fail(f"ros2bag {exc}")
+    except _damage_errors() as exc:
+        return _fail(f"RECORDING {_damage_line(args.recording, exc)}", EXIT_DAMAGED)
+    except OSError as exc:
+        return _fail(f"ros2bag failed: {exc.strerror or exc}", EXIT_FAILED)
+    poses = sum(n for topic, n in report.messages.items() if topic.endswith("/pose"))
+    print(f"{out}: ROS 2 bag (MCAP, CDR) of {args.recording}: {report.total:,} messages, {poses:,} poses of "
+          f"{sum(t.endswith('/pose') for t in report.messages)} UAVs, {report.messages['/truav/markers']:,} marker "
+          f"arrays, {report.messages['/truav/metrics']:,} diagnostics"
+          + (f"; {report.undecodable:,} undecodable payloads left out" if report.undecodable else ""))
+    return EXIT_OK
+
+
 # --- the parsers ----------------------------------------------------------------------------------------
 def add_tool_parsers(log_sub: Any) -> None:
     """``cut``, ``merge`` and ``info`` under ``truav log``."""
@@ -216,3 +248,20 @@ def add_tool_parsers(log_sub: Any) -> None:
     inf.add_argument("files", nargs="+", metavar="FILE", help="MCAP recordings")
     inf.add_argument("--json", action="store_true", help="print a JSON list, one object per file")
     inf.set_defaults(func=cmd_log_info)
+
+    bag = log_sub.add_parser(
+        "ros2bag", help="a recording's poses, markers and metrics as a ROS 2 bag (ros2 bag play, RViz)",
+        description="Write RECORDING as a ROS 2 bag directory BAG (rosbag2 format 9, MCAP storage, CDR messages "
+                    "with ros2msg schemas, ROS 2 Jazzy's types): /truav/uav_<i>/pose (geometry_msgs/msg/PoseStamped, "
+                    "frame map, x east y north in m, z the scenario's UAV altitude) for every observation, "
+                    "/truav/markers (visualization_msgs/msg/MarkerArray: UAVs, vehicles, RSUs) for every positions "
+                    "message, /truav/metrics (diagnostic_msgs/msg/DiagnosticArray: the world's step and episode "
+                    "metrics, each UAV's energy per step). Stamps are the recording's log times. Needs the ros2 "
+                    "extra (pip install -e '.[ros2]'). See docs/how-to/ros2.md.",
+        epilog="Exit codes: 0 written; 1 RECORDING is damaged (nothing is written; `truav log recover` keeps what is "
+               "sound) or writing failed; 2 a user mistake (missing or non-MCAP file, BAG exists without --force, "
+               "the ros2 extra not installed). See docs/reference/untrusted-recordings.md.")
+    bag.add_argument("recording", metavar="RECORDING", help="an MCAP recording of a swarm run")
+    bag.add_argument("--out", required=True, metavar="BAG", help="the bag directory to write")
+    bag.add_argument("--force", action="store_true", help="replace BAG (a bag directory or a file) if it exists")
+    bag.set_defaults(func=cmd_log_ros2bag)
