@@ -30,9 +30,9 @@ from truav.config import Config  # noqa: E402
 from truav.faults import FaultPlan, load_plan  # noqa: E402
 from truav.nemesis import heal_at, random_plan  # noqa: E402
 from truav.stats import Effect, effect_text, paired_effect  # noqa: E402
-from truav.swarm import invariants  # noqa: E402
+from truav.swarm import chaos_resume, invariants  # noqa: E402
 from truav.swarm.chaos_time import announce  # noqa: E402
-from truav.swarm.outdir import CHAOS_RUNS, OutDirError, entries, hold_run_dirs, prepare_chaos_dir  # noqa: E402
+from truav.swarm.outdir import CHAOS_RUNS, OutDirError, hold_run_dirs, prepare_chaos_dir  # noqa: E402
 from truav.swarm.supervisor import SwarmOptions, run_swarm  # noqa: E402
 
 ROWS = (("coverage_pct", "coverage %", 1.0), ("pdr", "PDR %", 100.0), ("delay_ms", "relay delay ms", 1.0),
@@ -167,10 +167,22 @@ def run_chaos(cfg: Config, opts: SwarmOptions, plan_path: str, plan: FaultPlan |
     """The same seed without and with the plan at ``plan_path`` (``plan``: that file already parsed)."""
     parsed = plan if plan is not None else load_plan(plan_path)  # fails early on a bad plan
     out = Path(opts.out or f"runs/chaos-{opts.run}")
+    now = chaos_resume.settings(cfg, opts, plan_path)
     with contextlib.ExitStack() as held:
         if not _hold(held, out, opts, resume=opts.resume):
             return 2
-        return _run_chaos_held(cfg, opts, plan_path, parsed, out)
+        try:  # before anything in out changes: which finished runs --resume keeps
+            kept = chaos_resume.kept_runs(out, now, opts.episodes) if opts.resume else {}
+        except OutDirError as exc:
+            print(f"truav-swarm: error: {exc}", file=sys.stderr)
+            return 2
+        chaos_resume.start_fresh_comparison(out, now)
+        progress = chaos_resume.Progress()
+        try:
+            return _run_chaos_held(cfg, opts, plan_path, parsed, out, kept, progress)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP, in a swarm run or between them
+            print(progress.stopped_line(opts.resume), file=sys.stderr, flush=True)
+            return chaos_resume.stop_code_of(exc)
 
 
 def _hold(held: contextlib.ExitStack, out: Path, opts: SwarmOptions, *, resume: bool,
@@ -188,26 +200,39 @@ def _hold(held: contextlib.ExitStack, out: Path, opts: SwarmOptions, *, resume: 
     return True
 
 
-def _run_chaos_held(cfg: Config, opts: SwarmOptions, plan_path: str, parsed: FaultPlan, out: Path) -> int:
+def _run_chaos_held(cfg: Config, opts: SwarmOptions, plan_path: str, parsed: FaultPlan, out: Path,
+                    kept: dict[str, str], progress: chaos_resume.Progress) -> int:
     print(announce(opts.episodes, cfg.scenario.steps_per_episode, opts.rate_hz, opts.lockstep), flush=True)
     results = {}
     rc_faulted = 0
     for name, path in (("baseline", None), ("faulted", plan_path)):
-        print(f"== {name} run ==", flush=True)
         sub = out / name
         run_opts = dataclasses.replace(opts, out=str(sub), fault_plan=path, plan=parsed if path else None, plot=False,
                                        references=False,  # chaos compares the run with its own clean one
                                        record=str(out / f"{name}.mcap") if opts.record else None,
-                                       resume=opts.resume and sub.is_dir() and bool(entries(sub)))
-        rc = run_swarm(cfg, run_opts)
+                                       # an unfinished run is made again from scratch, never continued
+                                       resume=False, force=opts.force or opts.resume)
+        progress.stage = f"the {name} run"
+        if name in kept:
+            print(f"== {name} run: finished before, kept ({sub}) ==", flush=True)
+            rc = 0
+        else:
+            print(f"== {name} run ==", flush=True)
+            rc = run_swarm(cfg, run_opts)
+            chaos_resume.raise_if_stopped(rc, sub)
+        if rc == 0 and chaos_resume.finished(sub, opts.episodes):
+            progress.finished.append(name)
         if name == "faulted":  # the checker judges it, however it ended
             rc_faulted = rc
-            held = _check(out, sub, rc, parsed, opts, run_opts.record)
+            progress.stage = "the check of the faulted run"
+            record = run_opts.record if run_opts.record and Path(run_opts.record).exists() else None
+            held = _check(out, sub, rc, parsed, opts, record)
             if rc or not held:
                 return rc or 1
         elif rc:
             return rc
         results[name] = _load(sub)
+    progress.stage = "the comparison of the two runs"
     table = degradation_table(results["baseline"], results["faulted"]) + "\n\n" + \
         effects_table(results["baseline"], results["faulted"])
     warning = baseline_warning(results["baseline"], cfg.scenario.n_uavs, opts.rate_hz)
@@ -241,7 +266,12 @@ def run_nemesis(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float
     with contextlib.ExitStack() as held:
         if not _hold(held, out, opts, resume=False, runs=("faulted",)):
             return 2
-        return _run_nemesis_held(cfg, opts, nemesis, duration_s, out)
+        try:
+            return _run_nemesis_held(cfg, opts, nemesis, duration_s, out)
+        except KeyboardInterrupt as exc:  # a nemesis run starts afresh: no --resume
+            print(f"truav-swarm: interrupted in the nemesis run; it cannot be resumed: run the same command with "
+                  f"--force to start it afresh", file=sys.stderr, flush=True)
+            return chaos_resume.stop_code_of(exc)
 
 
 def _run_nemesis_held(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s: float, out: Path) -> int:
@@ -271,5 +301,6 @@ def _run_nemesis_held(cfg: Config, opts: SwarmOptions, nemesis: str, duration_s:
                                    references=False,
                                    resume=False, router_timeout_s=timeout)
     rc = run_swarm(cfg, run_opts)
+    chaos_resume.raise_if_stopped(rc, sub)
     held = _check(out, sub, rc, plan, opts, record)
     return rc or (0 if held else 1)

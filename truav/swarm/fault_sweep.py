@@ -200,7 +200,8 @@ def run_sweep(cfg: Config, size_name: str, out: Path, seed: int = 0, qtable: str
                 done.write_text(text)
     else:
         texts = [point(n, kind, level) for n, (kind, level) in enumerate(points)]
-    from truav.swarm.chaos import BASELINE_MAX_MISSED_SHARE  # the same bar as chaos's no-fault run
+    # the same bar as chaos's no-fault run (chaos.BASELINE_MAX_MISSED_SHARE; chaos imports this module)
+    from truav.swarm.invariants import HOST_LOAD_MISSED_SHARE as BASELINE_MAX_MISSED_SHARE
     rows = []
     per_episode: dict[tuple[str, float], dict[str, list[float]]] = {}
     for (kind, level), text in zip(points, texts):

@@ -54,7 +54,11 @@ STATE_PATTERNS = ("agent*.npz", SCENARIO_FILE)
 TEMP_PATTERNS = ("agent*.npz.tmp.npz", "agent*.*.tmp", "world.json.*.tmp", "summary.json.*.tmp", "pids.json.*.tmp",
                  "swarm.json.*.tmp", ".swarm.json.tmp")
 """Temporaries a process killed while writing leaves (named with its PID: see truav.atomic)."""
-CHAOS_PATTERNS = ("degradation.txt", "chaos.png", "chaos.json", "nemesis-plan.toml", "invariants.txt", "invariants.json")
+CHAOS_RESULTS = ("degradation.txt", "chaos.png", "chaos.json", "invariants.txt", "invariants.json")
+"""The comparison of a chaos run's two runs: made again from them at every end (removed at every start)."""
+CHAOS_SETTINGS_FILE = "chaos-settings.json"
+"""The settings a chaos run's two runs were made with: --resume keeps a finished one only under the same."""
+CHAOS_PATTERNS = CHAOS_RESULTS + ("nemesis-plan.toml", CHAOS_SETTINGS_FILE)
 CHAOS_RUNS = ("baseline", "faulted")
 
 
