@@ -115,6 +115,8 @@ RUN: dict[str, list[str]] = {
     "PYTHONPATH=examples truav-swarm up --lockstep --agent cell_agent:CellAgent --qtable runs/cell-agent --greedy "
     "--episodes 1 --record runs/cell-agent.mcap --out runs/swarm-cell-agent-rec": SWARM,
     "PYTHONPATH=examples truav log resim runs/cell-agent.mcap --agent cell_agent:CellAgent": [],
+    "truav-swarm up --lockstep --episodes 2 --record runs/ros2-demo.mcap --out runs/swarm-ros2": FEW,
+    "truav log ros2bag runs/ros2-demo.mcap --out runs/ros2-demo_bag": [],
     "truav-swarm chaos --nemesis random --duration 10m --seed 1 --out runs/chaos-soak":
         ["--duration", "15s", "--rate", "5", "--steps", "50", *SMALL_CITY, "--no-plot", "--quiet"],
     "truav-swarm chaos --plan runs/chaos-soak/nemesis-plan.toml --out runs/chaos-soak-again":
@@ -176,6 +178,10 @@ CHECKED: dict[str, str] = {
     "truav experiment faults --quick --schemes federated truav_online --rate 5 --out runs/faults-federated": LONG,
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
+    "pip install -e '.[ros2]' -c constraints.txt": SETUP + " ([dev] includes rosbags)",
+    **{c: "ROS 2's own tools (not installed here); tests/unit/test_ros2bag.py and tests/swarm/test_ros2bag_swarm.py "
+          "read the bags with rosbags and mcap-ros2-support" for c in (
+        "ros2 bag info runs/ros2-demo_bag", "ros2 bag play runs/ros2-demo_bag", "rviz2")},
     "truav-swarm router -l tcp/127.0.0.1:7460": "a router of the reader's own, for the replay and its control "
                                                 "below; routers on loopback run in every swarm test",
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7460 --paused":
@@ -217,6 +223,7 @@ STATED_HOW: dict[str, str] = {
     "truav experiment velocity": "over an hour: extrapolated from the measured rates of its parts (the page says how)",
     "truav experiment faults --qtable runs/train-15mps": MEASURED_APART,
     "truav experiment faults --quick": MEASURED_APART,
+    "truav experiment faults --quick --schemes truav central patrol --rate 5 --out runs/faults-schemes": MEASURED_APART,
     **{c: MEASURED_APART for c in (
         "PYTHONPATH=examples truav train --agent cell_agent:CellAgent --seeds 2 --episodes 100 --out runs/cell-agent",
         "PYTHONPATH=examples truav evaluate runs/cell-agent --against patrol hover",

@@ -23,7 +23,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
     add_config_args(p)
     p.add_argument("--quick", action="store_true",
-                   help="3 levels each, 3 short episodes per point (the effects paired over them; about 3 minutes); "
+                   help="3 levels each, 3 short episodes per point (the effects paired over them; about 2.5 minutes per "
+                        "scheme at the default rate, more at a lower --rate); "
                         "default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
     policy_scenario.add_allow_arg(p)
