@@ -192,8 +192,10 @@ def test_a_short_nemesis_run_heals_and_its_checker_reports_every_invariant(tmp_p
     assert {(f.kind, f.params.get("target")) for f in plan.faults} >= {("crash", None), ("crash", "router")}
     # the schedule ran as written: every start and end, in the plan's order
     summary = json.loads((out / "faulted" / "summary.json").read_text())
+    from types import SimpleNamespace
     from truav.swarm.fault_control import FaultController
-    expected = [(f.kind, phase) for _, _, phase, f in sorted(FaultController(None, "soak", plan, {})._schedule(),
+    no_bus = SimpleNamespace(subscribe=lambda *args, **kwargs: None)  # the schedule alone: nothing sent live
+    expected = [(f.kind, phase) for _, _, phase, f in sorted(FaultController(no_bus, "soak", plan, {})._heap,
                                                              key=lambda e: e[:2])]
     assert [(k, ph) for _, k, ph in summary["fault_events"]] == expected, text
     report = json.loads((out / "invariants.json").read_text())
