@@ -121,6 +121,24 @@ def parse_origin(text: str) -> tuple[float, float]:
     return lat, lon
 
 
+def to_latlon(origin: tuple[float, float], area_m: float, x: float, y: float) -> tuple[float, float]:
+    """The area's (x east, y north) in metres -> (latitude, longitude) in degrees, the area's centre at
+    ``origin`` (equirectangular: exact enough for a few km). Every geographic view uses it (Foxglove's
+    map, the MAVLink bridge)."""
+    half = area_m / 2.0
+    m_per_deg_lat = EARTH_RADIUS_M * math.pi / 180.0
+    return (origin[0] + (y - half) / m_per_deg_lat,
+            origin[1] + (x - half) / (m_per_deg_lat * math.cos(math.radians(origin[0]))))
+
+
+def from_latlon(origin: tuple[float, float], area_m: float, lat: float, lon: float) -> tuple[float, float]:
+    """The inverse of :func:`to_latlon`: (latitude, longitude) -> the area's (x, y) in metres."""
+    half = area_m / 2.0
+    m_per_deg_lat = EARTH_RADIUS_M * math.pi / 180.0
+    return (half + (lon - origin[1]) * m_per_deg_lat * math.cos(math.radians(origin[0])),
+            half + (lat - origin[0]) * m_per_deg_lat)
+
+
 # --- colours ---------------------------------------------------------------------------
 _TAB10 = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16), (0.58, 0.4, 0.74),
           (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5), (0.74, 0.74, 0.13), (0.09, 0.75, 0.81))
@@ -174,8 +192,6 @@ class FoxgloveMirror:
         self.origin = origin
         self._relayed: dict[int, int] = {}  # uav -> packets relayed in its last observation
         self._last_static_tick: Optional[int] = None
-        self._m_per_deg_lat = EARTH_RADIUS_M * math.pi / 180.0
-        self._m_per_deg_lon = self._m_per_deg_lat * math.cos(math.radians(origin[0]))
 
     # --- entry points ---------------------------------------------------------------------
     def feed(self, kind: str, body: dict, log_time_ns: int) -> list[Out]:
@@ -207,9 +223,7 @@ class FoxgloveMirror:
 
     # --- converters ----------------------------------------------------------------------------
     def latlon(self, x: float, y: float) -> tuple[float, float]:
-        half = self.geometry.area_m / 2.0
-        return (self.origin[0] + (y - half) / self._m_per_deg_lat,
-                self.origin[1] + (x - half) / self._m_per_deg_lon)
+        return to_latlon(self.origin, self.geometry.area_m, x, y)
 
     def _obs(self, b: dict, t: int) -> list[Out]:
         uav = int(b["uav"])

@@ -38,6 +38,7 @@ def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
     if parts_only:
         add_process_commands(sub)
         return ap
+    from truav.cli.swarm_mavlink import add_mavlink_command
     from truav.cli.swarm_ops import add_ops_commands
     from truav.cli.swarm_replay import add_replay_ctl
     from truav.cli.swarm_schema import add_schema_commands
@@ -49,6 +50,7 @@ def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
     add_security_commands(sub)
     add_schema_commands(sub)
     add_replay_ctl(sub)
+    add_mavlink_command(sub)
 
     try:
         from truav.cli.log import add_swarm_commands

@@ -73,7 +73,8 @@ def _origin(text: str):
 def add_geo_origin_arg(p: argparse.ArgumentParser) -> None:
     from recorder.foxglove import DEFAULT_ORIGIN
     p.add_argument("--geo-origin", type=_origin, default=DEFAULT_ORIGIN, metavar="LAT,LON",
-                   help="where the area's centre sits on Foxglove's map, degrees (default %.4f,%.4f, Paris)"
+                   help="where the area's centre sits on the map (Foxglove's, a ground station's), degrees "
+                        "(default %.4f,%.4f, Paris)"
                    % DEFAULT_ORIGIN)
 
 

@@ -98,21 +98,38 @@ def serve(run: str, zenoh_config: Any, mirror: FoxgloveMirror, port: int = DEFAU
     server = foxglove.start_server(name=f"truav {run}", host=LOOPBACK, port=port, context=context,
                                    capabilities=[foxglove.Capability.Time])
     view = FoxgloveView(mirror, context)
+    last_time = 0
+
+    def each(key: str, payload: bytes, recv_ns: int) -> None:
+        nonlocal last_time
+        view.handle(key, payload, recv_ns)
+        if recv_ns - last_time > 50_000_000:  # the app's clock follows the bus, 20 times a second
+            last_time = recv_ns
+            server.broadcast_time(recv_ns)
+
     try:
-        with Bus(SRC_VIEW, run, zenoh_config) as bus:
-            receiver = bus.receive_raw(keys.everything(run))
-            if ready is not None:
-                ready(server.port)
-            last_time = 0
-            while not stop.is_set():
-                item = receiver.try_recv()
-                if item is None:
-                    time.sleep(PULL_IDLE_S)
-                    continue
-                view.handle(*item)
-                if item[2] - last_time > 50_000_000:  # the app's clock follows the bus, 20 times a second
-                    last_time = item[2]
-                    server.broadcast_time(item[2])
+        follow(run, zenoh_config, SRC_VIEW, stop, each, ready=lambda: ready(server.port) if ready else None)
     finally:
         server.stop()
     return view
+
+
+def follow(run: str, zenoh_config: Any, src: str, stop: threading.Event,
+           each: Callable[[str, bytes, int], None], every_pass: Optional[Callable[[], None]] = None,
+           ready: Optional[Callable[[], None]] = None) -> None:
+    """Every message of ``run`` (``truav/<run>/**``, raw, as the recorder subscribes) to ``each(key, payload,
+    receive time)`` until ``stop`` is set; ``every_pass`` runs between messages and when none comes (a
+    periodic sender's clock). The live views' one subscription: Foxglove's (:func:`serve`) and MAVLink's
+    (truav/swarm/mavlink_bridge.py)."""
+    with Bus(src, run, zenoh_config) as bus:
+        receiver = bus.receive_raw(keys.everything(run))
+        if ready is not None:
+            ready()
+        while not stop.is_set():
+            if every_pass is not None:
+                every_pass()
+            item = receiver.try_recv()
+            if item is None:
+                time.sleep(PULL_IDLE_S)
+                continue
+            each(*item)

@@ -1,0 +1,119 @@
+"""`truav-swarm mavlink`: a live run's UAVs as MAVLink systems for a ground-control station.
+
+A thin wrapper: :func:`truav.swarm.view.follow` (the live views' one subscription to ``truav/<run>/**``)
+feeds :class:`truav.swarm.mavlink_messages.MavlinkFleet`, whose packets go out over one UDP socket to the
+ground station (``127.0.0.1:14550`` by default, where QGroundControl listens) every ``period_s``. What the
+ground station sends back comes in on the same socket: a command to a UAV (COMMAND_LONG, COMMAND_INT,
+SET_POSITION_TARGET_GLOBAL_INT) is answered COMMAND_ACK MAV_RESULT_UNSUPPORTED, since the swarm has no
+way yet to steer one UAV from outside (docs/how-to/ground-control.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+from recorder.schemas import envelope_fields
+from truav.swarm.mavlink_messages import MavlinkFleet, commands_to_refuse, mav
+from truav.swarm.view import follow
+
+log = logging.getLogger("truav.mavlink")
+
+SRC_MAVLINK = "mavlink"
+DEFAULT_GCS = ("127.0.0.1", 14550)  # the UDP port ground stations listen on (QGroundControl, MAVProxy)
+DEFAULT_RATE_HZ = 2.0
+MAX_DATAGRAM = 2048  # a MAVLink 2 frame is at most 280 bytes; more is not MAVLink
+
+
+@dataclass
+class BridgeStats:
+    samples: int = 0
+    odd: int = 0  # bus bodies that did not fit their kind
+    sent: int = 0  # datagrams
+    refused: dict[int, int] = field(default_factory=dict)  # command -> times acked UNSUPPORTED
+
+
+class Bridge:
+    """The fleet, a UDP socket and the clock that paces the telemetry."""
+
+    def __init__(self, fleet: MavlinkFleet, gcs: tuple[str, int], rate_hz: float = DEFAULT_RATE_HZ,
+                 on_shutdown: Optional[Callable[[], None]] = None) -> None:
+        self.fleet = fleet
+        self.on_shutdown = on_shutdown  # the run's shutdown was heard
+        self.gcs = gcs
+        self.period_ns = int(1e9 / rate_hz)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1" if gcs[0].startswith("127.") else "0.0.0.0", 0))
+        self.sock.setblocking(False)
+        self.start_ns = time.monotonic_ns()
+        self._next_ns = self.start_ns
+        self._parser = mav.MAVLink(None)
+        self._parser.robust_parsing = True
+        self.stats = BridgeStats()
+
+    def handle(self, key: str, payload: bytes, recv_ns: int) -> None:
+        self.stats.samples += 1
+        env = envelope_fields(payload)
+        if env is None:
+            return
+        if env[0] == "control" and env[4].get("command") == "shutdown" and self.on_shutdown is not None:
+            self.on_shutdown()
+        try:
+            self.fleet.feed(env[0], env[4], recv_ns)
+        except Exception:  # an odd body: count it, keep serving
+            self.stats.odd += 1
+
+    def every_pass(self) -> None:
+        now = time.monotonic_ns()
+        if now >= self._next_ns:
+            self._next_ns = max(self._next_ns + self.period_ns, now)
+            for packet in self.fleet.packets((now - self.start_ns) // 1_000_000, time.time()):
+                self._send(packet, self.gcs)
+        self._answer()
+
+    def _send(self, packet: bytes, to: tuple[str, int]) -> None:
+        try:
+            self.sock.sendto(packet, to)
+            self.stats.sent += 1
+        except OSError:  # nobody listening (ICMP port unreachable) or a full buffer: telemetry is lossy
+            pass
+
+    def _answer(self) -> None:
+        for _ in range(64):  # bounded per pass
+            try:
+                data, sender = self.sock.recvfrom(MAX_DATAGRAM)
+            except (BlockingIOError, ConnectionRefusedError, OSError):
+                return
+            try:
+                msgs = self._parser.parse_buffer(data) or []
+            except Exception:  # not MAVLink
+                continue
+            for msg in msgs:
+                ask = commands_to_refuse(msg)
+                if ask is None:
+                    continue
+                target, command = ask
+                ack = self.fleet.unsupported_ack(target, command, msg.get_srcSystem(), msg.get_srcComponent())
+                if ack is not None:
+                    self.stats.refused[command] = self.stats.refused.get(command, 0) + 1
+                    log.warning("command %d to system %d refused (MAV_RESULT_UNSUPPORTED): the swarm cannot be "
+                                "steered from outside yet", command, target)
+                    self._send(ack, sender)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def run_bridge(run: str, zenoh_config: Any, bridge: Bridge, stop: Optional[threading.Event] = None,
+               ready: Optional[Callable[[], None]] = None) -> BridgeStats:
+    """Serve ``run``'s UAVs to the ground station until ``stop`` is set."""
+    stop = stop or threading.Event()
+    try:
+        follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
+    finally:
+        bridge.close()
+    return bridge.stats
