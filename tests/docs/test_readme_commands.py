@@ -140,6 +140,11 @@ CHECKED: dict[str, str] = {
     "pip install -e . -c constraints.txt": SETUP,
     "pip install -e '.[dev]' -c constraints.txt": SETUP,
     "pip install -e '.[central]' -c constraints.txt": SETUP + " ([dev] includes PyTorch)",
+    "pip install -e '.[mavlink]' -c constraints.txt": SETUP + " ([dev] includes pymavlink)",
+    "truav-swarm up --run gcs --episodes 20": "the background run the ground-control how-to's bridge serves; "
+                                              "tests/swarm/test_mavlink_bridge.py runs a swarm with the bridge",
+    "truav-swarm mavlink --run gcs": "runs until the run ends, for a ground station in another window; "
+                                     "tests/swarm/test_mavlink_bridge.py runs it against a pymavlink listener",
     "python -m pytest -q -n 3": "the test suite this test is part of",
     "truav-swarm status": OTHER_TERMINAL,
     "truav-swarm down --run demo": OTHER_TERMINAL,
