@@ -70,6 +70,7 @@ def samples() -> list[schema.Message]:
         schema.AgentSnapshot(uav=3, tick=7, arrays={"q_rows": ("<i8", (2,), bytes(16))}),
         schema.QShare(uav=3, tick=7, episode=2, part=0, parts=2, states=np.array([5, 17]), counts=np.array([4, 1]),
                       q=np.linspace(-1.0, 2.5, 32)),
+        schema.Override(uav=3, release=False, goal=(120.5, 4000.0), speed=7.5),
     ]
 
 

@@ -49,6 +49,8 @@ def expected_kind(key: str) -> str | None:
         return KIND_BY_KEY.get((keys.UAV, rest[2])) if len(rest) == 3 else None
     if rest[0] == keys.WORLD:
         return KIND_BY_KEY.get(tuple(rest)) if len(rest) == 2 else None
+    if rest[0] == keys.CONTROL_ROOT and len(rest) >= 2 and rest[1] == keys.OVERRIDE:  # control/override/<i> only
+        return schema.KIND_OVERRIDE if len(rest) == 3 and keys.parse_uav_chunk(rest[2]) is not None else None
     if rest[0] == keys.GROUP:  # group/<first>-<last>/beacons, nothing else under group/
         return schema.KIND_BEACONS if keys.parse_group(key) is not None else None
     return KIND_BY_KEY.get((rest[0],)) if len(rest) >= 2 else None
@@ -88,6 +90,8 @@ def check_placed(facts: KeyFacts, key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
     if kind == _COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+    if kind == schema.KIND_OVERRIDE and isinstance(msg, schema.Override) and last != str(msg.uav):
+        raise SchemaError(R_KEY_MISMATCH, f"override of uav {msg.uav} on {key}", src=msg.src)
     if kind == schema.KIND_QSHARE and isinstance(msg, schema.QShare) and last != str(msg.part):
         raise SchemaError(R_KEY_MISMATCH, f"qshare part {msg.part} on {key}", src=msg.src)
 

@@ -8,7 +8,8 @@ a process installs on its Bus:
   ``world``; beacons, actions, state uploads, Q shares and health reports only from ``uav/<i>`` about UAV ``i``;
   commands only from ``controller``; a replay's status only from ``replay``;
   control only from ``supervisor`` (and the world's end-of-run ``shutdown``);
-  fault announcements only from the supervisor.  Without ``--secure`` the
+  an override (a UAV steered from outside) only from ``supervisor`` or ``operator``, its goal inside the area;
+  fault announcements only from the supervisor (and the world's ``override`` events).  Without ``--secure`` the
   ``src`` field can be forged, so this stops mistakes and naive forgeries;
   with ``--secure`` the router's ACL makes the key itself proof of the sender.
 * **values the world can produce** (:class:`Bounds`, from the scenario): UAV
@@ -202,8 +203,11 @@ class Guard:
             if not (src == SUPERVISOR or (src == keys.SRC_WORLD and msg.command == CONTROL_SHUTDOWN)):
                 return R_SENDER, f"control {msg.command!r} from {src}"
         elif isinstance(msg, schema.Fault):
-            if src != SUPERVISOR:
+            if not (src == SUPERVISOR or (src == keys.SRC_WORLD and msg.fault == schema.FAULT_OVERRIDE)):
                 return R_SENDER, f"fault from {src}"
+        elif isinstance(msg, schema.Override):
+            if src not in (SUPERVISOR, keys.SRC_OPERATOR):
+                return R_SENDER, f"override from {src}"
         elif isinstance(msg, schema.Command):
             if src != keys.SRC_CONTROLLER:
                 return R_SENDER, f"command from {src}"
@@ -245,6 +249,9 @@ class Guard:
                 # An older tick's action is an answer delayed behind a newer one, not malformed: passed on,
                 # the world counts it as stale (world.process.world_process).
                 self._last_action[msg.uav] = max(self._last_action[msg.uav], msg.tick)
+        elif isinstance(msg, schema.Override):
+            if not msg.release and not b.in_area(msg.goal):
+                return R_IMPLAUSIBLE, f"override goal {msg.goal} outside the area"
         elif isinstance(msg, schema.Positions):
             if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
                 return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"

@@ -20,6 +20,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.wire.sch
 ``metrics/episode``             world -> recorder   ``metrics`` (scope "episode")
 ``fault/<kind>``                faults -> all       ``fault``
 ``control/<a>[/<b>...]``        operator -> all     ``control``
+``control/override/<i>``        operator -> world   ``override`` (steer UAV i to a goal, or release it)
 ``alive/world``                 liveliness token of the world process
 ``alive/uav/<i>``               liveliness token of agent i
 ``alive/recorder``              liveliness token of the recorder
@@ -28,7 +29,7 @@ key (after ``truav/<run>/``)    direction           payload kind (truav.wire.sch
 
 Sender identities (the ``src`` field of every message and the identity of a
 :class:`truav.bus.transport.Bus`) are ``world``, ``recorder``, ``fault``,
-``replay``, ``controller`` or ``uav/<i>``; helpers for those live here too.
+``replay``, ``controller``, ``operator`` (who steers a UAV from outside) or ``uav/<i>``; helpers for those live here too.
 
 Nothing here talks to Zenoh: these are plain string builders and parsers, so
 run names and ids are validated with a clear :class:`ValueError`.
@@ -46,6 +47,7 @@ MAX_CELLS = 1024  # range-limited beacon cells per axis are in [0, MAX_CELLS)
 _CHUNK_RE = re.compile(r"[A-Za-z0-9_-]+")
 _UAV_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/(?:alive/)?uav/(0|[1-9][0-9]*)(?:/.*)?")
 _UAV_IDENTITY_RE = re.compile(r"uav/(0|[1-9][0-9]*)")
+_UAV_CHUNK_RE = re.compile(r"0|[1-9][0-9]{0,3}")
 _RUN_KEY_RE = re.compile(r"truav/([A-Za-z0-9_-]+)(?:/.*)?")
 _GROUP_KEY_RE = re.compile(r"truav/[A-Za-z0-9_-]+/group/(0|[1-9][0-9]*)-(0|[1-9][0-9]*)/beacons")
 
@@ -55,6 +57,7 @@ SRC_RECORDER = "recorder"
 SRC_FAULT = "fault"
 SRC_REPLAY = "replay"
 SRC_CONTROLLER = "controller"
+SRC_OPERATOR = "operator"  # steers a UAV from outside: control/override/<i> (truav-swarm steer, the MAVLink bridge)
 
 # First chunks (after ``truav/<run>/``) of the data keys, and the world's two keys.
 WORLD = "world"
@@ -64,6 +67,7 @@ UAV = "uav"
 METRICS_ROOT = "metrics"  # metrics(run, scope) builds its keys
 FAULT_ROOT = "fault"
 CONTROL_ROOT = "control"
+OVERRIDE = "override"  # control/override/<i>: a UAV steered from outside
 GROUP = "group"  # group/<first>-<last>/beacons: the beacons of one process's UAVs first..last, batched
 REPLAY_ROOT = "replay"  # replay/status (a replay's position, ~5 Hz) and replay/ctl (its queryable)
 REPLAY_STATUS = "status"
@@ -301,6 +305,15 @@ def control(run: str, *parts: str) -> str:
     return "/".join([f"{prefix(run)}/{CONTROL_ROOT}", *(_check_chunk(p, "control key part") for p in parts)])
 
 
+def control_override(run: str, i: int) -> str:
+    """``truav/<run>/control/override/<i>``: steer UAV ``i`` to a goal from outside, or release it."""
+    return f"{prefix(run)}/{CONTROL_ROOT}/{OVERRIDE}/{validate_uav_id(i)}"
+
+
+def all_overrides(run: str) -> str:
+    return f"{prefix(run)}/{CONTROL_ROOT}/{OVERRIDE}/*"
+
+
 def all_control(run: str) -> str:
     return f"{prefix(run)}/{CONTROL_ROOT}/**"
 
@@ -352,6 +365,12 @@ def parse_uav_id(key: str) -> int | None:
         return None
     i = int(m.group(1))
     return i if i < MAX_UAVS else None
+
+
+def parse_uav_chunk(chunk: str) -> int | None:
+    """The UAV id a key chunk spells (``"3"``; no leading zeros, below MAX_UAVS), else None."""
+    m = _UAV_CHUNK_RE.fullmatch(chunk) if isinstance(chunk, str) else None
+    return int(chunk) if m is not None and int(chunk) < MAX_UAVS else None
 
 
 def parse_run(key: str) -> str | None:

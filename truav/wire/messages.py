@@ -18,7 +18,7 @@ from truav.wire.field_checks import (Check, _action, _beacon_fields, _action_or_
 from truav.wire.keys import MAX_UAVS
 from truav.wire.schema_names import (
     _ENVELOPE_KEYS, KIND_ACTION, KIND_BEACON, KIND_COMMAND, KIND_CONTROL, KIND_FAULT, KIND_HEALTH, KIND_METRICS,
-    KIND_OBS, KIND_POSITIONS, KIND_QSHARE, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
+    KIND_OBS, KIND_OVERRIDE, KIND_POSITIONS, KIND_QSHARE, KIND_REJECTION, KIND_REPLAY_STATUS, KIND_STATE, KIND_TICK, MAX_ARGS_NODES, MAX_DETAIL_LEN,
     MAX_NAME_LEN, MAX_ARGS_STR_LEN, MAX_CONTROL_PAYLOAD_BYTES, MAX_QSHARE_PARTS, MAX_QSHARE_PAYLOAD_BYTES,
     MAX_QSHARE_ROWS, INT64_MAX,
     MAX_FAULT_PARAMS, MAX_HEALTH_REASONS, MAX_HEALTH_SENDERS, MAX_METRIC_VALUES, MAX_PARAM_STR_LEN, MAX_PAYLOAD_BYTES,
@@ -254,6 +254,27 @@ class Control(Envelope):
     CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType({"command": _name, "args": _json_like})
     command: str
     args: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Override(Envelope):
+    """Operator -> world: steer UAV ``uav`` from outside, overriding its agent's actions, until released.
+
+    While overridden the world flies the UAV toward ``goal`` (world.steer) instead of its agent's action; the
+    agent still gets its observations and learns as usual. ``release`` ends the override (``goal`` and
+    ``speed`` are then ignored). The world tells every start and end on ``fault/override``."""
+
+    KIND: ClassVar[str] = KIND_OVERRIDE
+    PLACE: ClassVar[tuple[str, ...]] = (keys.CONTROL_ROOT, keys.OVERRIDE)
+    CHECKS: ClassVar[Mapping[str, Check]] = MappingProxyType(
+        {"uav": _uav_id, "release": _bool, "goal": _vec2, "speed": _nonneg})
+    uav: int
+    release: bool
+    """True: end the override, the agent flies the UAV again."""
+    goal: tuple[float, float]
+    """The point (x, y) in m to fly to (clipped to the area); the UAV hovers once within one step of it."""
+    speed: float
+    """m/s to fly at: the half or full speed of the 16 actions nearest to it; 0 (or above the UAV's): full."""
 
 
 @dataclass(frozen=True)
@@ -534,7 +555,7 @@ class QShare(Envelope):
 
 
 Message = Union[Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare]
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare, Override]
 M = TypeVar("M", bound=Envelope)
 
 _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
@@ -543,7 +564,7 @@ _ENVELOPE_FIELDS = frozenset(f.name for f in fields(Envelope))
 def _build_registry() -> Mapping[str, type[Envelope]]:
     registry: dict[str, type[Envelope]] = {}
     for cls in (Tick, Obs, Beacon, Action, Metrics, Fault, Control, Positions, State, Command, Health, Beacons,
-                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare):
+                Rejection, ReplayStatus, WorldSnapshot, AgentSnapshot, QShare, Override):
         body = [f.name for f in fields(cls) if f.name not in _ENVELOPE_FIELDS]
         assert body == list(cls.CHECKS), f"{cls.__name__}: CHECKS must list the fields in order"
         checks = {"src": _src, "seq": _uint64, "t": _uint63, "inc": _uint63, **cls.CHECKS}
@@ -614,6 +635,7 @@ _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     **{kind: {**_SMALL_LIMITS, "max_map_len": max(MAX_SNAPSHOT_ARRAYS, 18), "max_array_len": 3,
               "max_bin_len": MAX_SNAPSHOT_BYTES} for kind in (KIND_WORLD_SNAPSHOT, KIND_AGENT_SNAPSHOT)},
     KIND_QSHARE: {**_SMALL_LIMITS, "max_array_len": MAX_QSHARE_ROWS * 16},
+    KIND_OVERRIDE: _SMALL_LIMITS,
 })
 _LOOSE_LIMITS: Mapping[str, int] = MappingProxyType(
     {k: max(lim[k] for lim in _UNPACK_LIMITS.values()) for k in _SMALL_LIMITS})

@@ -58,6 +58,7 @@ SENDERS: Mapping[str, tuple[str, str]] = {
     "world_snapshot": ("world", "recorder (lock-step, --snapshot-every)"),
     "agent_snapshot": ("uav/i", "recorder (lock-step, --snapshot-every)"),
     "qshare": ("uav/i", "all agents (federated TRUAV, federated.every > 0), recorder"),
+    "override": ("operator or supervisor", "world (and recorder)"),
 }
 """Per kind: (the only ``src`` the guard accepts, who listens)."""
 
@@ -86,7 +87,8 @@ _POS = f"[x, y] in the square area [0, area_m]; guard: both in {_C['area']}"
 ENVELOPE_NOTES: Mapping[str, tuple[str, str]] = {
     "v": ("", "schema version"),
     "kind": ("", "message kind: which table below the rest of the map follows"),
-    "src": ("", "sender identity: `world`, `uav/<i>`, `controller`, `supervisor`, `recorder`, `fault`, `replay`; "
+    "src": ("", "sender identity: `world`, `uav/<i>`, `controller`, `supervisor`, `operator`, `recorder`, `fault`, "
+                "`replay`; "
                 "must match the key and the kind (see Keys)"),
     "seq": ("", "per sender, per kind: 0, 1, 2, ... (a gap means messages were lost; a restart begins at 0 "
                 "with a new `inc`)"),
@@ -219,6 +221,13 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
                               "<= (episode + 1) x steps_per_episode"),
         "q": ("", "the rows, row-major: 16 values per state (action order of Action numbering); each finite, "
                   "|value| <= federated.q_bound, else the whole share is refused"),
+    },
+    "override": {
+        "uav": ("", "the UAV to steer, the `<i>` of the key; guard: < the scenario's n_uavs"),
+        "release": ("", "true ends the override: the agent flies the UAV again (goal and speed are not read)"),
+        "goal": ("m", f"[x, y] to fly to (world.steer: the one of the 16 actions that gets nearest it, hover "
+                      f"within one step); guard: both in {_C['area']} unless released"),
+        "speed": ("m/s", "the half or full speed of the actions nearest to it; 0 or above the UAV's: full speed"),
     },
     "beacons": {
         "entries": ("m, m/s", "one process's beacons of a tick, each [uav, tick, [x, y], [vx, vy]] with a "
@@ -371,6 +380,8 @@ def key_of(kind: str) -> str:
     place = MESSAGE_CLASSES[kind].PLACE
     if kind == schema_names.KIND_QSHARE:  # one key per part of a share
         return f"{keys.UAV}/<i>/{keys.QSHARE}/<n>"
+    if kind == schema_names.KIND_OVERRIDE:  # one key per UAV
+        return f"{keys.CONTROL_ROOT}/{keys.OVERRIDE}/<i>"
     if place[0] == keys.UAV:
         return f"{keys.UAV}/<i>/{'/'.join(place[1:])}"
     if len(place) == 1:

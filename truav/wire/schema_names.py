@@ -25,6 +25,7 @@ KIND_REPLAY_STATUS = "replay_status"
 KIND_WORLD_SNAPSHOT = "world_snapshot"
 KIND_AGENT_SNAPSHOT = "agent_snapshot"
 KIND_QSHARE = "qshare"
+KIND_OVERRIDE = "override"
 
 # --- enumerated string values ------------------------------------------------
 SCOPE_STEP = "step"
@@ -47,6 +48,7 @@ FAULT_PARTITION = "partition"
 FAULT_CRASH = "crash"
 FAULT_FREEZE = "freeze"
 FAULT_KINDS = (FAULT_LOSS, FAULT_LATENCY, FAULT_PARTITION, FAULT_CRASH, FAULT_FREEZE)
+FAULT_OVERRIDE = "override"  # the world's fault/override events: a UAV steered from outside (control/override/<i>)
 
 # --- limits -------------------------------------------------------------------
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: the largest payload of any kind (positions)
