@@ -138,6 +138,8 @@ def reference_check_placement(key: str, msg: Message) -> None:
         raise SchemaError(R_KEY_MISMATCH, f"{msg.fault} fault on {key}", src=msg.src)
     if kind == schema.KIND_COMMAND and isinstance(msg, schema.Command) and last != str(msg.uav):
         raise SchemaError(R_KEY_MISMATCH, f"command for uav {msg.uav} on {key}", src=msg.src)
+    if kind == schema.KIND_OVERRIDE and isinstance(msg, schema.Override) and last != str(msg.uav):  # (added since)
+        raise SchemaError(R_KEY_MISMATCH, f"override of uav {msg.uav} on {key}", src=msg.src)
 
 
 # --- the reference guard (Guard.check before the fast path, verbatim) ----------------------------------
@@ -155,9 +157,12 @@ class ReferenceGuard(Guard):
         elif isinstance(msg, schema.Control):
             if not (src == SUPERVISOR or (src == keys.SRC_WORLD and msg.command == CONTROL_SHUTDOWN)):
                 return R_SENDER, f"control {msg.command!r} from {src}"
-        elif isinstance(msg, schema.Fault):
-            if src != SUPERVISOR:
+        elif isinstance(msg, schema.Fault):  # (the world's override events added since, with the override kind)
+            if not (src == SUPERVISOR or (src == keys.SRC_WORLD and msg.fault == schema.FAULT_OVERRIDE)):
                 return R_SENDER, f"fault from {src}"
+        elif isinstance(msg, schema.Override):  # (added since, with the kind)
+            if src not in (SUPERVISOR, keys.SRC_OPERATOR):
+                return R_SENDER, f"override from {src}"
         elif isinstance(msg, schema.Command):
             if src != keys.SRC_CONTROLLER:
                 return R_SENDER, f"command from {src}"
@@ -203,6 +208,9 @@ class ReferenceGuard(Guard):
             if msg.part >= msg.parts or len(msg.counts) != len(msg.states) or len(msg.q) != 16 * len(msg.states):
                 return R_IMPLAUSIBLE, (f"qshare of uav {msg.uav}: part {msg.part} of {msg.parts}, {len(msg.states)} "
                                        f"states, {len(msg.counts)} counts, {len(msg.q)} values")
+        elif isinstance(msg, schema.Override):  # (added since, with the kind)
+            if not msg.release and not b.in_area(msg.goal):
+                return R_IMPLAUSIBLE, f"override goal {msg.goal} outside the area"
         elif isinstance(msg, schema.Positions):
             if len(msg.uavs) != b.n_uavs or len(msg.vehicles) > b.max_count:
                 return R_IMPLAUSIBLE, f"{len(msg.uavs)} UAVs, {len(msg.vehicles)} vehicles"
@@ -213,7 +221,8 @@ class ReferenceGuard(Guard):
 SENDER_OF = {schema.KIND_TICK: "world", schema.KIND_OBS: "world", schema.KIND_POSITIONS: "world",
              schema.KIND_METRICS: "world", schema.KIND_FAULT: SUPERVISOR, schema.KIND_CONTROL: SUPERVISOR,
              schema.KIND_COMMAND: keys.SRC_CONTROLLER, schema.KIND_BEACONS: "uav/3", schema.KIND_REJECTION: "world",
-             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY, schema.KIND_WORLD_SNAPSHOT: "world"}
+             schema.KIND_REPLAY_STATUS: keys.SRC_REPLAY, schema.KIND_WORLD_SNAPSHOT: "world",
+             schema.KIND_OVERRIDE: keys.SRC_OPERATOR}
 
 
 def samples() -> list[Message]:
@@ -249,6 +258,8 @@ def samples() -> list[Message]:
                                                     "rng": ("<u8", (6,), bytes(48))}),
         schema.QShare(uav=3, tick=7, episode=2, part=0, parts=1, states=np.array([5, 17]), counts=np.array([4, 1]),
                       q=np.arange(32, dtype=np.float64)),
+        schema.Override(uav=3, release=False, goal=(120.5, 40.0), speed=7.5),
+        schema.Override(uav=3, release=True, goal=(-9e9, 0.0), speed=0.0),
     ]
 
 
@@ -358,7 +369,7 @@ EXPECTS = (None, *MESSAGE_CLASSES, "no_such_kind", "")
 
 GUARDED_KINDS = (schema.KIND_TICK, schema.KIND_OBS, schema.KIND_BEACON, schema.KIND_ACTION, schema.KIND_METRICS,
                  schema.KIND_FAULT, schema.KIND_CONTROL, schema.KIND_POSITIONS, schema.KIND_STATE,
-                 schema.KIND_COMMAND, schema.KIND_HEALTH, schema.KIND_REJECTION)
+                 schema.KIND_COMMAND, schema.KIND_HEALTH, schema.KIND_REJECTION, schema.KIND_OVERRIDE)
 """The kinds whose sender and values the guard checks (a new kind decodes through the corpus all the same)."""
 
 
