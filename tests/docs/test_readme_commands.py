@@ -187,6 +187,15 @@ CHECKED: dict[str, str] = {
     **{c: "ROS 2's own tools (not installed here); tests/unit/test_ros2bag.py and tests/swarm/test_ros2bag_swarm.py "
           "read the bags with rosbags and mcap-ros2-support" for c in (
         "ros2 bag info runs/ros2-demo_bag", "ros2 bag play runs/ros2-demo_bag", "rviz2")},
+    "truav-swarm up --run ros2live --episodes 20": "the background run the ROS 2 how-to's bridge serves; "
+                                                   "tests/swarm/test_ros2_bridge.py runs a swarm with the bridge",
+    "truav-swarm ros2 --run ros2live": "runs until the run ends, for ROS 2 on another terminal; "
+                                       "tests/swarm/test_ros2_bridge.py runs it against zenoh-ros2-sdk",
+    **{c: "the ROS 2 machine's (rmw_zenoh_cpp and ros2 are not installed here); tests/swarm/test_ros2_bridge.py "
+          "lists, echoes and finds the node with zenoh-ros2-sdk, an independent rmw_zenoh client" for c in (
+        "export RMW_IMPLEMENTATION=rmw_zenoh_cpp", "export 'ZENOH_CONFIG_OVERRIDE=connect/endpoints=[\"tcp/SWARM_HOST:PORT\"]'",
+        "ros2 run rmw_zenoh_cpp rmw_zenohd", "ros2 topic list -t", "ros2 node list",
+        "ros2 topic echo /truav/uav_0/pose")},
     "truav-swarm router -l tcp/127.0.0.1:7460": "a router of the reader's own, for the replay and its control "
                                                 "below; routers on loopback run in every swarm test",
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7460 --paused":

@@ -41,6 +41,7 @@ def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
     from truav.cli.swarm_mavlink import add_mavlink_command
     from truav.cli.swarm_ops import add_ops_commands
     from truav.cli.swarm_replay import add_replay_ctl
+    from truav.cli.swarm_ros2 import add_ros2_command
     from truav.cli.swarm_schema import add_schema_commands
     from truav.cli.swarm_secure import add_security_commands
     from truav.cli.swarm_up import add_up_commands
@@ -51,6 +52,7 @@ def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
     add_schema_commands(sub)
     add_replay_ctl(sub)
     add_mavlink_command(sub)
+    add_ros2_command(sub)
 
     try:
         from truav.cli.log import add_swarm_commands

@@ -116,12 +116,15 @@ def serve(run: str, zenoh_config: Any, mirror: FoxgloveMirror, port: int = DEFAU
 
 def follow(run: str, zenoh_config: Any, src: str, stop: threading.Event,
            each: Callable[[str, bytes, int], None], every_pass: Optional[Callable[[], None]] = None,
-           ready: Optional[Callable[[], None]] = None) -> None:
+           ready: Optional[Callable[[], None]] = None, opened: Optional[Callable[[Bus], None]] = None) -> None:
     """Every message of ``run`` (``truav/<run>/**``, raw, as the recorder subscribes) to ``each(key, payload,
     receive time)`` until ``stop`` is set; ``every_pass`` runs between messages and when none comes (a
-    periodic sender's clock). The live views' one subscription: Foxglove's (:func:`serve`) and MAVLink's
-    (truav/swarm/mavlink_bridge.py)."""
+    periodic sender's clock); ``opened`` gets the Bus first (a view that also publishes on its session).
+    The live views' one subscription: Foxglove's (:func:`serve`), MAVLink's (truav/swarm/mavlink_bridge.py)
+    and ROS 2's (truav/swarm/ros2_bridge.py)."""
     with Bus(src, run, zenoh_config) as bus:
+        if opened is not None:
+            opened(bus)
         receiver = bus.receive_raw(keys.everything(run))
         if ready is not None:
             ready()

@@ -1,0 +1,116 @@
+"""`truav-swarm ros2` beside a live swarm, seen by zenoh-ros2-sdk (an rmw_zenoh client nobody here wrote,
+given the message definitions rosbags ships: it would otherwise clone them from git): it lists every UAV's
+pose topic with its type, finds the bridge's node in the graph, and echoes poses at the world's positions;
+every sample carries rmw_zenoh's attachment."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+pytest.importorskip("rosbags", reason="the ROS 2 bridge is the optional extra 'ros2'")
+pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk, the independent rmw_zenoh client, is in the 'test' extra")
+
+from tests.support.ros2_msgdefs import write_msgdefs  # noqa: E402
+from tests.support.swarm_up import up  # noqa: E402,F401
+from truav.bus.transport import Bus, make_config  # noqa: E402
+from truav.wire import keys  # noqa: E402
+
+AGENTS = 3
+POSE = "geometry_msgs/msg/PoseStamped"
+UAV_ALTITUDE_M = 100.0  # the default scenario's scenario.uav_altitude_m
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_an_independent_rmw_zenoh_client_lists_the_topics_sees_the_node_and_echoes_the_worlds_poses(up, tmp_path) -> None:
+    import zenoh_ros2_sdk as sdk
+    from zenoh_ros2_sdk.attachment import Attachment
+    from zenoh_ros2_sdk.keyexpr import topic_keyexpr
+    from zenoh_ros2_sdk.utils import ros2_to_dds_type
+
+    sdk.get_registry(str(write_msgdefs(tmp_path / "msgs")))  # before any SDK session: offline definitions
+    u = up("ros2", "--agents", str(AGENTS), "--episodes", "1", "--steps", "400", "--max-missed", "1")
+    endpoint = u.wait_ticking()
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    log = open(tmp_path / "ros2.log", "wb")
+    bridge = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "ros2", "--out", str(u.out)],
+                              stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    log.close()
+    world: dict[int, dict[int, tuple[float, float]]] = {i: {} for i in range(AGENTS)}  # uav -> tick -> pos
+    lock = threading.Lock()
+    echoed: dict[int, list] = {i: [] for i in range(AGENTS)}
+    attachments: list[Attachment] = []
+    subscribers = []
+    session = None
+
+    def obs(_key, msg, _r, _t) -> None:
+        with lock:
+            world[msg.uav][msg.tick] = (float(msg.pos[0]), float(msg.pos[1]))
+
+    try:
+        with Bus("observer", u.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
+            bus.subscribe(keys.all_obs(u.run), obs)
+            deadline = time.monotonic() + 90.0
+            topics: dict[str, list[str]] = {}
+            while time.monotonic() < deadline:  # the graph: every UAV's topic with its type
+                assert bridge.poll() is None, (tmp_path / "ros2.log").read_text()
+                topics = dict(sdk.get_topic_names_and_types(domain_id=0, router_ip=host, router_port=int(port)))
+                if all(f"/truav/uav_{i}/pose" in topics for i in range(AGENTS)):
+                    break
+                time.sleep(0.2)
+            session = sdk.ZenohSession.get_instance(host, int(port))
+            info = sdk.get_topic_info("/truav/uav_0/pose", domain_id=0, router_ip=host, router_port=int(port),
+                                      verbose=True)
+            nodes = [str(r.ok.key_expr) for r in session.liveliness.get("@ros2_lv/0/*/*/*/NN/**", timeout=2.0)
+                     if r.ok is not None]
+            for i in range(AGENTS):
+                subscribers.append(sdk.ROS2Subscriber(
+                    f"/truav/uav_{i}/pose", POSE, lambda m, i=i: echoed[i].append(m), domain_id=0,
+                    router_ip=host, router_port=int(port)))
+            key = topic_keyexpr(0, "/truav/uav_1/pose", ros2_to_dds_type(POSE), subscribers[1].type_hash)
+            raw = session.session.declare_subscriber(
+                key, lambda s: attachments.append(Attachment.from_bytes(s.attachment.to_bytes())))
+            while time.monotonic() < deadline and not (all(len(e) >= 5 for e in echoed.values())
+                                                       and len(attachments) >= 5):
+                assert bridge.poll() is None, (tmp_path / "ros2.log").read_text()
+                time.sleep(0.1)
+            raw.undeclare()
+            time.sleep(0.5)  # the last observations reach the observer too
+    finally:
+        for s in subscribers:
+            s.close()
+        if session is not None:
+            session.close()
+        _stop(bridge)
+    out = (tmp_path / "ros2.log").read_text()
+    for i in range(AGENTS):
+        assert topics.get(f"/truav/uav_{i}/pose") == [POSE], (topics, out)
+    assert topics.get("/truav/markers") == ["visualization_msgs/msg/MarkerArray"], topics
+    assert topics.get("/truav/metrics") == ["diagnostic_msgs/msg/DiagnosticArray"], topics
+    assert info is not None and [(p.node_namespace, p.node_name) for p in info.publishers] == [("/truav", "bridge_ros2")]
+    assert any(k.endswith("/NN/%/%truav/bridge_ros2") for k in nodes), nodes
+    for i in range(AGENTS):
+        assert len(echoed[i]) >= 5, ({k: len(v) for k, v in echoed.items()}, out)
+        for m in echoed[i]:  # each pose is the world's position of that UAV at one of its ticks
+            p = m.pose.position
+            assert m.header.frame_id == "map" and p.z == UAV_ALTITUDE_M
+            assert any(abs(p.x - x) < 1e-9 and abs(p.y - y) < 1e-9 for x, y in world[i].values()), (i, p, world[i])
+    assert len(attachments) >= 5, out
+    seqs = [a.sequence_id for a in attachments]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs) and len({a.gid for a in attachments}) == 1
+    assert all(len(a.gid) == 16 and abs(a.timestamp_ns - time.time_ns()) < 600e9 for a in attachments)
+    assert bridge.returncode == 143, out  # SIGTERM: one line, 143
+    assert "truav-swarm ros2: stopped: " in out and "Traceback" not in out
