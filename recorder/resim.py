@@ -31,7 +31,7 @@ from agents.qlearning import QLearners, geofence
 from agents.reward import Reward
 from agents.state import StateEncoder
 from recorder.metadata import RECORDING_METADATA, read_config_toml, read_run_info
-from recorder.reader import read_metadata
+from recorder.reader import iter_messages, read_metadata
 from recorder.record_modes import PARTS_INDEX_SUFFIX, PART_METADATA, REASON_END
 from truav import seeding
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
@@ -42,6 +42,7 @@ from truav.errors import UserError
 from truav.wire import keys, schema
 from truav.wire.world_messages import observation_messages
 from world.env import World
+from world.steer import apply_overrides
 from world.uavs import N_ACTIONS
 from world.world_state import restore_world, world_state
 
@@ -159,6 +160,59 @@ def start_tables(qtable: str | None, index: int, n_uavs: int) -> list[np.ndarray
     return [tables[index, i][None, None] for i in range(n_uavs)]
 
 
+Goal = tuple[float, float, float]
+"""An override's goal: (x, y, speed), as world.steer takes it."""
+OverrideEvents = dict[int, list[tuple[int, Goal | None]]]
+"""Tick -> the overrides that start (a goal) or end (None) there, in the order the world applied them:
+[(uav, goal or None), ...]."""
+
+
+def recorded_overrides(path: str | os.PathLike[str], run: str, n_uavs: int) -> OverrideEvents:
+    """The world's fault/override events in the recording (UAVs steered from outside, control/override/<i>), by the
+    tick the world applied them from; an event that does not decode or names no valid tick, UAV or goal is left
+    out (the re-simulation then diverges there, and says so)."""
+    events: list[tuple[int, int, int, Goal | None]] = []
+    for _, payload, _, _ in iter_messages(path, include=[keys.fault(run, schema.FAULT_OVERRIDE)]):
+        try:
+            msg = schema.decode(payload, schema.KIND_FAULT)
+        except schema.SchemaError:
+            continue
+        event = _override_event(msg, n_uavs)
+        if event is not None:
+            events.append((event[0], msg.seq, *event[1:]))
+    out: OverrideEvents = {}
+    for tick, _, uav, goal in sorted(events, key=lambda e: e[:2]):
+        out.setdefault(tick, []).append((uav, goal))
+    return out
+
+
+def _override_event(msg: schema.Fault, n_uavs: int) -> tuple[int, int, Goal | None] | None:
+    if msg.src != keys.SRC_WORLD or msg.fault != schema.FAULT_OVERRIDE:
+        return None
+    p, uav = msg.params, keys.parse_uav_identity(msg.target)
+    tick = p.get("tick")
+    if uav is None or uav >= n_uavs or type(tick) is not int or tick < 0:
+        return None
+    if msg.phase == schema.PHASE_END:
+        return tick, uav, None
+    x, y, speed = p.get("x"), p.get("y"), p.get("speed")
+    if not all(isinstance(v, (int, float)) and np.isfinite(v) for v in (x, y, speed)) or speed < 0:
+        return None
+    return tick, uav, (float(x), float(y), float(speed))
+
+
+def overridden_before(events: OverrideEvents, tick: int) -> dict[int, Goal]:
+    """The UAVs steered from outside when ``tick`` begins (every event of an earlier tick applied)."""
+    active: dict[int, Goal] = {}
+    for t in sorted(t for t in events if t < tick):
+        for uav, goal in events[t]:
+            if goal is None:
+                active.pop(uav, None)
+            else:
+                active[uav] = goal
+    return active
+
+
 @dataclass
 class Round:
     """One tick as the processes would have sent it."""
@@ -178,8 +232,9 @@ class Resimulation:
     """The world and every agent of a lock-step run, stepped in process (see the module docstring)."""
 
     def __init__(self, cfg: Config, seed: int, episodes: int, tables: list | None = None,
-                 train: bool = True, agent_cls: type | None = None):
-        """``agent_cls``: the agents.api class the run's agents flew (its recording's ``agent``), run through
+                 train: bool = True, agent_cls: type | None = None, overrides: OverrideEvents | None = None):
+        """``overrides``: the run's UAVs steered from outside (:func:`recorded_overrides`), applied at the ticks the
+        world applied them (world.process.world_process.WorldNode._steer). ``agent_cls``: the agents.api class the run's agents flew (its recording's ``agent``), run through
         agents.api_decision.ApiDecision as agents.process.api_process runs it; else TRUAV's own agents. ``tables``: each
         UAV's start, a Q-table (S, 16) for TRUAV's agents or a state_dict for a class's, or None (fresh)."""
         self.cfg, self.seed, self.episodes = cfg, seed, episodes
@@ -195,6 +250,8 @@ class Resimulation:
                   for i in range(n)]
         self.tick = 0
         self.episode = 0
+        self.override_events: OverrideEvents = overrides or {}
+        self.overridden: dict[int, Goal] = {}
         self._obs = self.world.reset([seeding.world_rng(seed)])
         self._done = False  # the next round is the episode's `done` observation
 
@@ -245,6 +302,14 @@ class Resimulation:
                 self._obs = self.world.start_episode()
         else:
             chosen = np.array([[a.action for a in actions]], np.int64)
+            for uav, goal in self.override_events.get(tick, ()):
+                if goal is None:
+                    self.overridden.pop(uav, None)
+                else:
+                    self.overridden[uav] = goal
+            if self.overridden:
+                sc = self.cfg.scenario
+                chosen = apply_overrides(chosen, self._obs.pos, self.overridden, sc.uav_speed_mps, sc.step_s, sc.area_m)
             self._obs, _, self._done = self.world.step(chosen)
         return Round(tick, episode, done, obs, beacons, actions, summary)
 
@@ -268,6 +333,7 @@ class Resimulation:
         for agent, state in zip(self.agents, agents):
             restore_decision(agent, state)
         self.tick = tick
+        self.overridden = overridden_before(self.override_events, tick)
 
     # -- what a branch changes ------------------------------------------------------------------------
     def set_tables(self, tables: list[np.ndarray]) -> None:
@@ -332,4 +398,5 @@ def payload_fields(msg: Any) -> dict[str, Any]:
 _ENVELOPE = frozenset(schema.Envelope.__dataclass_fields__)
 
 
-__all__ = ["ApiResimAgent", "RecordedRun", "Resimulation", "Round", "load_run", "payload_fields", "start_tables"]
+__all__ = ["ApiResimAgent", "RecordedRun", "Resimulation", "Round", "load_run", "overridden_before", "payload_fields",
+           "recorded_overrides", "start_tables"]

@@ -68,6 +68,12 @@ class WorldStats:
     rejoins: int = 0
     """An agent's liveliness token that vanished and came back within REJOIN_S (the world's or its own
     connection flapped, e.g. after a stall): not an agent that left, so not in ``losses``."""
+    overrides: list[dict] = field(default_factory=list)
+    """Every start and end of a UAV steered from outside (control/override/<i>), in order: {"tick" (the first
+    tick it applied to / the first its agent flew again), "uav", "phase" (start, end), "by" (its sender), and
+    for a start "x", "y" (m, the goal clipped to the area), "speed" (m/s, 0: full)}; also told on fault/override."""
+    overridden_at_end: list[int] = field(default_factory=list)
+    """The UAVs still overridden when the run ended."""
     per_uav: list[dict] = field(default_factory=list)
     """Per UAV id 0..n_uavs-1: {"uav", "received", "applied", "late", "stale", "missed", "rejected": {reason: n}}
     (UavAccounts.per_uav); received = applied + late + stale, missed = acting ticks it hovered without an

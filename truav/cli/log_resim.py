@@ -64,7 +64,7 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
 
 
 def cmd_resim(args: argparse.Namespace) -> int:
-    from recorder.resim import Resimulation, load_run, start_tables
+    from recorder.resim import Resimulation, load_run, recorded_overrides, start_tables
     from recorder.resim_branch import branch_config
     from recorder.resim_verify import first_tick
     from truav.checks import check_out_dir
@@ -100,7 +100,8 @@ def cmd_resim(args: argparse.Namespace) -> int:
                         {f"UAV {u}'s state": s for u, s in enumerate(starts)})
         else:
             starts = start_tables(rec.qtable, rec.qtable_index, n)
-        sim = Resimulation(rec.cfg, rec.seed, rec.episodes, starts, train=not rec.greedy, agent_cls=agent_cls)
+        sim = Resimulation(rec.cfg, rec.seed, rec.episodes, starts, train=not rec.greedy, agent_cls=agent_cls,
+                           overrides=recorded_overrides(args.file, rec.run, n))
         if branch:
             if args.from_tick >= sim.total_ticks:
                 raise UserError(f"--from {args.from_tick}: the run has ticks 0-{sim.total_ticks - 1}")
@@ -115,6 +116,10 @@ def cmd_resim(args: argparse.Namespace) -> int:
           f"{rec.cfg.scenario.steps_per_episode} steps, lock-step"
           f"{', from ' + rec.qtable if rec.qtable else ''}{', greedy' if rec.greedy else ''}"
           f"{', agent class ' + rec.agent if rec.agent else ''}", flush=True)
+    steered = sum(len(v) for v in sim.override_events.values())
+    if steered:
+        print(f"overrides: {steered} start(s) and end(s) of UAVs steered from outside (the recording's fault/override), "
+              f"applied at their ticks", flush=True)
     bar = _progress(sim.total_ticks, args.quiet)
     try:
         if branch:

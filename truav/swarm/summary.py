@@ -232,6 +232,7 @@ class SwarmEnd:
             "control_plane": cp, "elapsed_s": elapsed, "federated": federated_traffic(cfg, world, agents, opts.rate_hz),
             "interrupted": o.interrupted_by is not None, "outcome": outcome, "endpoint": self.endpoint,
             "fault_events": events, "fault_plans_sent": sent, "timeline": timeline,
+            "overrides": (world or {}).get("overrides") or [],
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
             "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
@@ -387,6 +388,23 @@ def _print_results(cfg, opts, world, agents, cp, events, elapsed, o: Outcome, se
     lines += [(t, f"fault {kind} {phase} at {t:.1f} s") for t, kind, phase in events]  # after a plan sent at once
     for _, line in sorted(lines, key=lambda tl: tl[0]):
         print(line)
+    for line in override_lines(world):
+        print(line)
+
+
+def override_lines(world: dict | None) -> list[str]:
+    """One line per UAV steered from outside (world.json overrides; summary.json overrides)."""
+    out = []
+    for o in (world or {}).get("overrides") or []:
+        if o.get("phase") == "start":
+            out.append(f"override: UAV {o.get('uav')} steered by {o.get('by')} from tick {o.get('tick')} to "
+                       f"({jsonio.num(o.get('x')):.0f}, {jsonio.num(o.get('y')):.0f}) m (summary.json overrides)")
+        else:
+            out.append(f"override: UAV {o.get('uav')} released by {o.get('by')} at tick {o.get('tick')}")
+    still = (world or {}).get("overridden_at_end") or []
+    if still:
+        out.append(f"override: UAV(s) {', '.join(map(str, still))} still steered from outside when the run ended")
+    return out
 
 
 def federated_traffic(cfg: Config, world, agents, rate_hz: float) -> dict | None:

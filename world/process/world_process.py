@@ -46,6 +46,7 @@ from truav.wire.snapshot_messages import fits, snapshot_due, snapshot_every_opti
 from truav.wire.world_messages import observation_messages
 from world.env import World
 from world.uavs import HOVER
+from world.steer import apply_overrides
 from world.world_state import world_state
 from world.world_stats import UavAccounts, WorldStats, action_digest, write_stats
 
@@ -185,6 +186,8 @@ class WorldNode:
         self._uav_metrics_key = None
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
+        self._override_inbox: list[schema.Override] = []  # overrides heard, applied at the next acting tick
+        self.overrides: dict[int, tuple[float, float, float]] = {}  # UAV -> (x, y, speed) it is steered to
         self._tick = -1
         self._left: dict[str, float] = {}  # token key -> when it vanished (a quick return is no loss)
         self._snapshot_too_large = False  # said once
@@ -212,12 +215,14 @@ class WorldNode:
         plan = load_plan(opts.fault_plan) if opts.fault_plan else None
         self.faults = attach_plan(bus, run, plan, 1.0 / opts.rate_hz)
         bus.subscribe(keys.all_actions(run), self._on_action)
-        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)  # the only control it obeys
+        bus.subscribe(keys.control(run, CONTROL_SHUTDOWN), self._on_control)  # the shutdown, and ...
+        bus.subscribe(keys.all_overrides(run), self._on_override)  # ... a UAV steered from outside
         bus.watch_liveliness(keys.all_alive_uavs(run), self._on_join, self._on_leave)
         if self.central:
             bus.watch_liveliness(keys.alive_controller(run), lambda k: self._on_controller(True),
                                  lambda k: self._on_controller(False))
         bus.prepare(keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run),
+                    keys.fault(run, schema.FAULT_OVERRIDE),
                     *(keys.uav_obs(run, i) for i in range(self.n_uavs)))
         gc.freeze()  # start-up objects never become garbage: spare the world collector stalls mid-run
         self._notices_closing = threading.Event()
@@ -262,6 +267,42 @@ class WorldNode:
             "uav %d's action for tick %d came %s (not applied; counted as %s in the stats)", msg.uav, msg.tick,
             "after a newer one of it (out of order)" if stale else "after its round closed",
             "stale_actions" if stale else "late_actions")
+
+    def _on_override(self, key, msg: schema.Override, raw, recv_ns) -> None:
+        """An override (or its release) from outside: applied from the next acting tick on (_steer)."""
+        if msg.uav >= self.n_uavs:
+            return
+        with self._cond:
+            self._override_inbox.append(msg)
+
+    def _steer(self, tick: int, obs, actions: np.ndarray) -> np.ndarray:
+        """``actions`` with every overridden UAV's replaced by world.steer's toward its goal, after taking the
+        overrides heard since the last acting tick; each start and end told on fault/override (with the tick it
+        applies to: a re-simulation applies it there) and kept in the statistics."""
+        with self._cond:
+            inbox, self._override_inbox = self._override_inbox, []
+        sc = self.cfg.scenario
+        for msg in inbox:
+            uav = msg.uav
+            if msg.release:
+                if self.overrides.pop(uav, None) is None:
+                    continue  # not overridden: nothing ends
+                params = {"tick": tick, "by": msg.src}
+                phase = schema.PHASE_END
+            else:
+                x, y = (min(max(float(v), 0.0), sc.area_m) for v in msg.goal)
+                self.overrides[uav] = (x, y, msg.speed)
+                params = {"tick": tick, "x": x, "y": y, "speed": msg.speed, "by": msg.src}
+                phase = schema.PHASE_START
+            self.stats.overrides.append({"uav": uav, "phase": phase, **params})
+            self.bus.publish(keys.fault(self.opts.run, schema.FAULT_OVERRIDE), schema.Fault(
+                fault=schema.FAULT_OVERRIDE, phase=phase, target=keys.uav_identity(uav), params=params))
+            log.info("tick %d: uav %d %s by %s%s", tick, uav,
+                     "overridden" if phase == schema.PHASE_START else "released (its agent flies it again)", msg.src,
+                     f": steered to ({params['x']:.0f}, {params['y']:.0f}) m" if phase == schema.PHASE_START else "")
+        if not self.overrides:
+            return actions
+        return apply_overrides(actions, obs.pos, self.overrides, sc.uav_speed_mps, sc.step_s, sc.area_m)
 
     def _on_refused(self, key: str, exc: schema.SchemaError) -> None:
         """A message the bus refused: noted for the UAV of its key (under --secure only that UAV may put there;
@@ -390,8 +431,8 @@ class WorldNode:
                 if not opts.lockstep:
                     start, next_due = self._await_tick(next_due, period, tick)
                     deadline = start + opts.deadline_frac * period
-                actions = self._tick_round(tick, episode, obs, False,
-                                           None if opts.lockstep else deadline)
+                actions = self._steer(tick, obs, self._tick_round(tick, episode, obs, False,
+                                                                  None if opts.lockstep else deadline))
                 digest.update(np.ascontiguousarray(actions[0], np.int64).tobytes())
                 obs, metrics, done = self.world.step(actions, *self._control_round(obs))
                 self._publish_step(tick, episode, metrics, actions)
@@ -417,6 +458,7 @@ class WorldNode:
             log.info("episode %d: coverage %s%% pdr %s delay %s ms", episode, shown(summary["coverage_pct"], ".1f"),
                      shown(summary["pdr"], ".3f"), shown(summary["delay_ms"], ".0f"))
         self.stats.ticks = tick
+        self.stats.overridden_at_end = sorted(self.overrides)
         self.stats.last_tick_wall_s = time.time()
         if not opts.lockstep:  # let the last tick run its period: agents are still learning from it
             self._sleep_until(next_due)
