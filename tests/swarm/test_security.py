@@ -68,7 +68,7 @@ def test_acl_is_default_deny_and_names_every_identity_by_certificate() -> None:
     acl = security.acl_config(table)
     assert acl["enabled"] is True and acl["default_permission"] == "deny"
     assert {cn for s in acl["subjects"] for cn in s["cert_common_names"]} == \
-        {"world", "recorder", "supervisor", "view", "replay", "controller", "uav/0", "uav/1", "uav/2"}
+        {"world", "recorder", "supervisor", "view", "operator", "replay", "controller", "uav/0", "uav/1", "uav/2"}
     rule_ids = {r["id"] for r in acl["rules"]}
     assert all(set(p["rules"]) <= rule_ids for p in acl["policies"])
     assert not any(r["permission"] != "allow" for r in acl["rules"])  # deny is the default, nothing else

@@ -1,7 +1,7 @@
 """Who may do what on a locked bus: the one table of grants and Zenoh's ``access_control`` section.
 
 :func:`grants` says, for each identity (``world``, ``uav/<i>``, ``recorder``, ``supervisor``, ``replay``,
-``controller``, ``view``), the keys it may put, the key expressions it may subscribe to, the liveliness
+``controller``, ``view``, ``operator``), the keys it may put, the key expressions it may subscribe to, the liveliness
 tokens it may declare and those it may watch; :func:`acl_config` turns that table into Zenoh's
 ``access_control`` section (default deny, subjects are certificate common names) and :func:`explain`
 into lines for ``truav-swarm acl explain``. How Zenoh applies it: :mod:`truav.bus.security`.
@@ -13,7 +13,7 @@ import fnmatch
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from truav.wire import keys
+from truav.wire import keys, schema_names
 
 ROUTER = "router"
 WORLD = keys.SRC_WORLD
@@ -22,6 +22,7 @@ SUPERVISOR = "supervisor"
 REPLAY = keys.SRC_REPLAY
 CONTROLLER = keys.SRC_CONTROLLER  # the central scheme's controller (agents.process.central_process)
 VIEW = "view"  # the Foxglove bridge (truav.swarm.view)
+OPERATOR = keys.SRC_OPERATOR  # steers a UAV from outside (truav-swarm steer, the MAVLink bridge's repositions)
 
 REPLAY_RUN_SUFFIX = "-replay"
 
@@ -77,7 +78,9 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
         Grant(WORLD,
               put=(f"{p}/world/*", keys.all_obs(run), keys.all_metrics(run), keys.all_rejected(run),
                    # The world announces the end of the run: its only control key.
-                   keys.control(run, "shutdown")),
+                   keys.control(run, "shutdown"),
+                   # and when a UAV steered from outside starts and ends (control/override/<i>)
+                   keys.fault(run, schema_names.FAULT_OVERRIDE)),
               subscribe=(keys.all_actions(run), keys.all_control(run), keys.world_tick(run)),
               tokens=(keys.alive_world(run),), watch=(keys.all_alive_uavs(run), keys.alive_controller(run))),
         # Scheme central: every UAV's state upload in, one command per UAV out.
@@ -95,6 +98,10 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
                          keys.replay_status(replay_run(run))),  # a replay's position (replay-ctl)
               watch=(keys.all_alive(run),), ask=(keys.replay_ctl(replay_run(run)),)),
         Grant(VIEW, subscribe=(keys.everything(run),)),
+        # Steers a UAV from outside: only the override keys (the supervisor may too, through control/**), and
+        # hears the world's confirmation.
+        Grant(OPERATOR, put=(keys.all_overrides(run),), subscribe=(keys.fault(run, schema_names.FAULT_OVERRIDE),),
+              watch=(keys.all_alive(run),)),
         # The replay publishes into its own run; it takes commands there (control/replay, the ctl queryable)
         # and, under --lockstep, hears the live agents' answers and tokens of that run.
         Grant(REPLAY, put=(f"{r}/**",),
@@ -116,7 +123,7 @@ def grants(run: str, n_uavs: int, batch_group_size: int = 1) -> tuple[Grant, ...
 
 def component_names(n_uavs: int) -> tuple[str, ...]:
     """File stems of the credentials: router, world, ..., uav-0, uav-1, ..."""
-    return (ROUTER, WORLD, RECORDER, SUPERVISOR, VIEW, REPLAY, CONTROLLER, *(file_stem(keys.uav_identity(i)) for i in range(n_uavs)))
+    return (ROUTER, WORLD, RECORDER, SUPERVISOR, VIEW, OPERATOR, REPLAY, CONTROLLER, *(file_stem(keys.uav_identity(i)) for i in range(n_uavs)))
 
 
 def file_stem(identity: str) -> str:

@@ -157,3 +157,6 @@ def add_ops_commands(sub) -> None:
     vw.add_argument("-v", "--verbose", action="store_true")
     add_transport_args(vw)
     vw.set_defaults(func=cmd_view)
+
+    from truav.cli.swarm_steer import add_steer_command
+    add_steer_command(sub)
