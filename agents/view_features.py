@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.api import LocalView
+from agents.api import BatchedViews, LocalView
 from truav.config import Config
 
 DEFAULT_PEERS = 4
@@ -157,6 +157,38 @@ class ViewEncoder:
         out += slots
         vec = np.array(out, np.float32)
         # the caps (an RSU-less city's inf distance: the diagonal); np.clip's own checks cost twice this
+        return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
+
+    def batch(self, views: BatchedViews) -> np.ndarray:
+        """Every UAV's vector at once, (B, U, size) float32: what __call__ gives each UAV's LocalView built from
+        the same step (the heard peers, nearest first, ties by id; a vectorized environment's observations)."""
+        pos = np.asarray(views.pos, np.float64)
+        B, U = pos.shape[:2]
+        raw = (pos[..., 0], pos[..., 1], np.full((B, U), float(views.speed_max)), views.vehicles_in_range,
+               views.covered, views.exclusive, views.queued_packets, views.relayed, views.energy_j,
+               views.nearest_rsu_m, np.asarray(views.heard).sum(-1), np.full((B, U), float(views.step)))
+        own = [np.asarray(v, np.float64) / k for v, k in zip(raw, self._scale)]
+        densest = np.asarray(views.densest_sector)
+        onehot = [(densest == s).astype(np.float64) for s in range(1, self._sectors + 1)]
+        slots = []
+        if self.peers:
+            heard = np.asarray(views.heard, np.bool_)
+            rel = np.asarray(views.peer_pos, np.float64) - pos[:, :, None, :]
+            dist = np.hypot(rel[..., 0], rel[..., 1])
+            order = np.argsort(np.where(heard, dist, np.inf), axis=-1, kind="stable")[..., : self.peers]
+            take = lambda a: np.take_along_axis(a, order, axis=-1)  # noqa: E731
+            speed = float(views.speed_max) if views.speed_max > 0 else 1.0
+            vel = np.asarray(views.peer_vel, np.float64)
+            got = (take(rel[..., 0]) / self._area, take(rel[..., 1]) / self._area, take(vel[..., 0]) / speed,
+                   take(vel[..., 1]) / speed, take(dist) / self._area, np.ones(order.shape))
+            mask = take(heard)
+            n = len(PEER_FIELDS)
+            for k in range(self.peers):
+                for j in range(n):
+                    fill = self._fill[n * k + j]
+                    slots.append(np.where(mask[..., k], got[j][..., k], fill) if k < order.shape[-1]
+                                 else np.full((B, U), fill))
+        vec = np.stack(own + onehot + slots, axis=-1).astype(np.float32)
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
 
