@@ -1,5 +1,6 @@
 """`truav-swarm mavlink` beside a live swarm: a pymavlink listener on loopback hears every UAV as its own
-MAVLink system, at the world's positions, with its Remote ID; a reposition is refused honestly."""
+MAVLink system, at the world's positions, with its Remote ID; a reposition steers that UAV (an override):
+acked accepted, its world position gets closer to the point over the next ticks."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ AGENTS = 3
 AREA_M = 5000.0  # the default scenario's
 
 
-def test_bridge_sends_each_uav_as_a_system_at_the_worlds_positions_and_refuses_a_reposition(up) -> None:
+def test_bridge_sends_each_uav_as_a_system_at_the_worlds_positions_and_a_reposition_steers_it(up) -> None:
     u = up("mav", "--agents", str(AGENTS), "--episodes", "1", "--steps", "400", "--max-missed", "1")
     endpoint = u.wait_ticking()
     gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255)
@@ -46,12 +47,13 @@ def test_bridge_sends_each_uav_as_a_system_at_the_worlds_positions_and_refuses_a
     located: set[int] = set()
     batteries: dict[int, int] = {}
     ack = None
+    at_ack = 0  # UAV 1's world positions heard when the ack came
     try:
         with Bus("observer", u.run, make_config(connect=[endpoint], connect_timeout_ms=5000)) as bus:
             bus.subscribe(keys.world_positions(u.run), positions)
             deadline = time.monotonic() + 90.0
             asked = False
-            while time.monotonic() < deadline and ack is None:
+            while time.monotonic() < deadline and (ack is None or len(world[1]) < at_ack + 15):
                 assert bridge.poll() is None, (u.out.parent / "mavlink.log").read_text()
                 msg = gcs.recv_match(blocking=True, timeout=0.5)
                 if msg is None:
@@ -67,8 +69,8 @@ def test_bridge_sends_each_uav_as_a_system_at_the_worlds_positions_and_refuses_a
                     located.add(sysid)
                 elif kind == "BATTERY_STATUS":
                     batteries[sysid] = msg.energy_consumed
-                elif kind == "COMMAND_ACK":
-                    ack = msg
+                elif kind == "COMMAND_ACK" and ack is None:
+                    ack, at_ack = msg, len(world[1])
                 done = all(len(fixes.get(s, [])) >= 3 for s in range(1, AGENTS + 1)) and \
                     heartbeats >= set(range(1, AGENTS + 1)) and len(basic) == AGENTS and len(located) == AGENTS
                 if done and not asked:  # steer UAV 1 (system 2) to the area's centre
@@ -95,6 +97,11 @@ def test_bridge_sends_each_uav_as_a_system_at_the_worlds_positions_and_refuses_a
             assert nearest < 1.0, (sysid, (x, y), nearest)
     assert ack is not None, out
     assert ack.get_srcSystem() == 2 and ack.command == mavutil.mavlink.MAV_CMD_DO_REPOSITION
-    assert ack.result == mavutil.mavlink.MAV_RESULT_UNSUPPORTED
+    assert ack.result == mavutil.mavlink.MAV_RESULT_ACCEPTED
+    centre = (AREA_M / 2, AREA_M / 2)  # DEFAULT_ORIGIN, where the reposition pointed
+    after = [math.dist(p, centre) for p in world[1][at_ack:]]
+    assert len(after) >= 15 and after[-1] < after[0] - 60.0, after  # 15 m a step at full speed, a few steps late
+    assert all(b <= a + 1e-6 or b <= 15.0 for a, b in zip(after[5:], after[6:])), after  # nearer every step
     assert bridge.returncode == 143, out  # SIGTERM: one line, 143
-    assert "truav-swarm mavlink: stopped: " in out and "Traceback" not in out
+    assert "truav-swarm mavlink: stopped: " in out and "1 reposition(s) sent on as overrides" in out, out
+    assert "Traceback" not in out

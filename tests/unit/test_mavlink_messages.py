@@ -73,6 +73,28 @@ def test_a_reposition_is_acked_unsupported_only_for_a_uav_of_the_bridge() -> Non
     assert f.unsupported_ack(2, mav.MAV_CMD_DO_REPOSITION, 255, 190) is None
 
 
+def test_a_reposition_names_its_uav_point_and_speed() -> None:
+    f = _fleet(first_uav=10)
+    f.feed("positions", {"tick": 1, "uavs": [[1.0, 1.0]] * 12, "vehicles": []}, 0)
+    lat, lon = to_latlon(DEFAULT_ORIGIN, 5000.0, 1200.0, 3400.0)
+    long_ = mav.MAVLink_command_long_message(2, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, math.nan, lat, lon, 100)
+    uav, (x, y), speed = f.reposition_goal(long_)
+    assert uav == 11 and math.isclose(x, 1200.0, abs_tol=0.1) and math.isclose(y, 3400.0, abs_tol=0.1) and speed == 0
+    int_ = mav.MAVLink_command_int_message(1, 1, 0, mav.MAV_CMD_DO_REPOSITION, 0, 0, 7.5, 0, 0, math.nan,
+                                           round(lat * 1e7), round(lon * 1e7), 100)
+    uav, (x, y), speed = f.reposition_goal(int_)
+    assert uav == 10 and math.isclose(x, 1200.0, abs_tol=0.1) and speed == 7.5
+    target = mav.MAVLink_set_position_target_global_int_message(0, 2, 1, 6, 0b110111111000, round(lat * 1e7),
+                                                                round(lon * 1e7), 100, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert f.reposition_goal(target)[0] == 11 and math.isclose(f.reposition_goal(target)[1][1], 3400.0, abs_tol=0.1)
+    far = mav.MAVLink_command_long_message(2, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, lat + 1.0, lon, 100)
+    nan = mav.MAVLink_command_long_message(2, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, math.nan, math.nan, 100)
+    assert f.reposition_goal(far) == (11, None, 0.0) and f.reposition_goal(nan) == (11, None, 0.0)
+    other = mav.MAVLink_command_long_message(2, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+    stranger = mav.MAVLink_command_long_message(99, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, lat, lon, 100)
+    assert f.reposition_goal(other) is None and f.reposition_goal(stranger) is None
+
+
 @pytest.mark.parametrize("argv, flag", [(["--udp-out", "localhost"], "--udp-out"), (["--udp-out", "127.0.0.1:0"], "--udp-out"),
                                         (["--geo-origin", "48.8,2.3,35"], "--geo-origin"), (["--rate", "0"], "--rate"),
                                         (["--ground-alt", "nan"], "--ground-alt"), (["--run", "nosuch"], "--run nosuch")])

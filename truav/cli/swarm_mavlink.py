@@ -63,6 +63,8 @@ def cmd_mavlink(args) -> int:
     out = find_run(args)
     scenario = Path(out) / SCENARIO_FILE
     cfg = load_config(scenario if scenario.is_file() else None)  # a bad file: ConfigError, one line naming it
+    steering = argparse.Namespace(**vars(args))  # repositions go out as the operator (its credentials)
+    part_creds(steering, "operator")
     part_creds(args, "view")
     setup_logging(args.verbose)
     geometry = Geometry.from_config(cfg)
@@ -81,11 +83,13 @@ def cmd_mavlink(args) -> int:
 
     why = "stopped"
     try:
-        mavlink_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready)
+        mavlink_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready,
+                                  steer_config=config_from_args(steering))
         why = "the run shut down"
     finally:  # Ctrl-C and SIGTERM too (exit 130 / 143): one line of what was done
         st = bridge.stats
         print(f"truav-swarm mavlink: {why}: {st.sent} datagram(s) sent to {args.udp_out[0]}:{args.udp_out[1]}, "
+              f"{st.steered} reposition(s) sent on as overrides, {st.denied} denied (no point inside the area), "
               f"{sum(st.refused.values())} command(s) refused as unsupported"
               + (f", {st.odd} bus message(s) that did not fit their kind" if st.odd else ""), file=sys.stderr)
     return 0

@@ -3,9 +3,11 @@
 A thin wrapper: :func:`truav.swarm.view.follow` (the live views' one subscription to ``truav/<run>/**``)
 feeds :class:`truav.swarm.mavlink_messages.MavlinkFleet`, whose packets go out over one UDP socket to the
 ground station (``127.0.0.1:14550`` by default, where QGroundControl listens) every ``period_s``. What the
-ground station sends back comes in on the same socket: a command to a UAV (COMMAND_LONG, COMMAND_INT,
-SET_POSITION_TARGET_GLOBAL_INT) is answered COMMAND_ACK MAV_RESULT_UNSUPPORTED, since the swarm has no
-way yet to steer one UAV from outside (docs/how-to/ground-control.md).
+ground station sends back comes in on the same socket: a reposition of a UAV (MAV_CMD_DO_REPOSITION in
+COMMAND_LONG or COMMAND_INT, SET_POSITION_TARGET_GLOBAL_INT) becomes an override of that UAV
+(control/override/<i>, sent as the ``operator`` identity: the world flies it to the point), acked
+MAV_RESULT_ACCEPTED (MAV_RESULT_DENIED for a point outside the area or not given); any other command is
+answered MAV_RESULT_UNSUPPORTED (docs/how-to/ground-control.md).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any, Callable, Optional
 from recorder.schemas import envelope_fields
 from truav.swarm.mavlink_messages import MavlinkFleet, commands_to_refuse, mav
 from truav.swarm.view import follow
+from truav.wire import keys, schema
 
 log = logging.getLogger("truav.mavlink")
 
@@ -35,6 +38,8 @@ class BridgeStats:
     odd: int = 0  # bus bodies that did not fit their kind
     sent: int = 0  # datagrams
     refused: dict[int, int] = field(default_factory=dict)  # command -> times acked UNSUPPORTED
+    steered: int = 0  # repositions sent on as overrides (acked ACCEPTED)
+    denied: int = 0  # repositions to a point outside the area or none (acked DENIED)
 
 
 class Bridge:
@@ -54,6 +59,8 @@ class Bridge:
         self._parser = mav.MAVLink(None)
         self._parser.robust_parsing = True
         self.stats = BridgeStats()
+        self.steer: Optional[Callable[[int, tuple[float, float], float], None]] = None
+        """Sends an override of a UAV to a goal (run_bridge sets it); None: repositions are unsupported."""
 
     def handle(self, key: str, payload: bytes, recv_ns: int) -> None:
         self.stats.samples += 1
@@ -93,6 +100,8 @@ class Bridge:
             except Exception:  # not MAVLink
                 continue
             for msg in msgs:
+                if self.steer is not None and self._reposition(msg, sender):
+                    continue
                 ask = commands_to_refuse(msg)
                 if ask is None:
                     continue
@@ -104,16 +113,51 @@ class Bridge:
                                 "steered from outside yet", command, target)
                     self._send(ack, sender)
 
+    def _reposition(self, msg: Any, sender: tuple[str, int]) -> bool:
+        """A reposition of a UAV of this bridge: sent on as an override and acked; False for anything else."""
+        try:
+            goal = self.fleet.reposition_goal(msg)
+        except (AttributeError, TypeError, ValueError):
+            return False
+        if goal is None:
+            return False
+        uav, xy, speed = goal
+        command = int(getattr(msg, "command", mav.MAV_CMD_DO_REPOSITION))
+        result = mav.MAV_RESULT_DENIED
+        if xy is not None:
+            self.steer(uav, xy, speed)
+            self.stats.steered += 1
+            result = mav.MAV_RESULT_ACCEPTED
+            log.info("reposition of system %d: UAV %d steered to (%.0f, %.0f) m", msg.target_system, uav, *xy)
+        else:
+            self.stats.denied += 1
+            log.warning("reposition of system %d denied: no point inside the area", msg.target_system)
+        ack = self.fleet.command_ack(msg.target_system, command, result, msg.get_srcSystem(), msg.get_srcComponent())
+        if ack is not None:
+            self._send(ack, sender)
+        return True
+
     def close(self) -> None:
         self.sock.close()
 
 
 def run_bridge(run: str, zenoh_config: Any, bridge: Bridge, stop: Optional[threading.Event] = None,
-               ready: Optional[Callable[[], None]] = None) -> BridgeStats:
-    """Serve ``run``'s UAVs to the ground station until ``stop`` is set."""
+               ready: Optional[Callable[[], None]] = None, steer_config: Any = None) -> BridgeStats:
+    """Serve ``run``'s UAVs to the ground station until ``stop`` is set. ``steer_config``: the zenoh config of
+    the ``operator`` identity (under --secure its credentials) that sends repositions on as overrides; None:
+    repositions are acked unsupported."""
+    from truav.bus.transport import Bus
     stop = stop or threading.Event()
     try:
-        follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
+        if steer_config is None:
+            follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
+            return bridge.stats
+        with Bus(keys.SRC_OPERATOR, run, steer_config) as bus:
+            def steer(uav: int, xy: tuple[float, float], speed: float) -> None:
+                bus.publish(keys.control_override(run, uav),
+                            schema.Override(uav=uav, release=False, goal=xy, speed=speed))
+            bridge.steer = steer
+            follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
     finally:
         bridge.close()
     return bridge.stats

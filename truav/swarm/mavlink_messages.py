@@ -29,7 +29,7 @@ from typing import Any, Optional
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire version
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
-from recorder.foxglove import to_latlon  # noqa: E402
+from recorder.foxglove import from_latlon, to_latlon  # noqa: E402
 
 SYSIDS_PER_BRIDGE = 254
 """System ids 1..254 (0: broadcast, 255: the ground station by convention)."""
@@ -202,15 +202,44 @@ class MavlinkFleet:
             out.extend(m.pack(ln) for m in self.messages(uav, boot_ms, unix_s))
         return out
 
-    def unsupported_ack(self, sysid: int, command: int, to_system: int, to_component: int) -> Optional[bytes]:
-        """A COMMAND_ACK MAV_RESULT_UNSUPPORTED from ``sysid`` to the sender of ``command``; None when
-        ``sysid`` is no UAV of this bridge. The swarm has no way yet to steer one UAV from outside
-        (docs/how-to/ground-control.md), so a reposition is refused, not pretended."""
+    def command_ack(self, sysid: int, command: int, result: int, to_system: int, to_component: int) -> Optional[bytes]:
+        """A COMMAND_ACK of ``result`` (MAV_RESULT_*) from ``sysid`` to the sender of ``command``; None when
+        ``sysid`` is no UAV of this bridge."""
         uav = uav_of(sysid, self.s.first_uav)
         if uav is None or uav not in self.tracks:
             return None
-        msg = mav.MAVLink_command_ack_message(command, mav.MAV_RESULT_UNSUPPORTED, 0, 0, to_system, to_component)
+        msg = mav.MAVLink_command_ack_message(command, result, 0, 0, to_system, to_component)
         return msg.pack(self.link(sysid))
+
+    def unsupported_ack(self, sysid: int, command: int, to_system: int, to_component: int) -> Optional[bytes]:
+        """:meth:`command_ack` MAV_RESULT_UNSUPPORTED: a command the bridge does not carry out."""
+        return self.command_ack(sysid, command, mav.MAV_RESULT_UNSUPPORTED, to_system, to_component)
+
+    def reposition_goal(self, msg: Any) -> Optional[tuple[int, Optional[tuple[float, float]], float]]:
+        """(UAV, goal (x, y) in m or None, speed m/s (0: full)) of a ground station's reposition (MAV_CMD_DO_REPOSITION
+        in COMMAND_LONG or COMMAND_INT, or SET_POSITION_TARGET_GLOBAL_INT) to a UAV of this bridge; goal None
+        when the point is not given (NaN, or the position ignored by the type mask), unreadable or outside the
+        area. None for any other message, or a system that is no UAV of this bridge."""
+        name = msg.get_type()
+        uav = uav_of(int(getattr(msg, "target_system", 0)), self.s.first_uav)
+        if uav is None or uav not in self.tracks:
+            return None
+        speed = 0.0
+        if name == "COMMAND_LONG" and msg.command == mav.MAV_CMD_DO_REPOSITION:
+            lat, lon, speed = float(msg.param5), float(msg.param6), float(msg.param1)
+        elif name == "COMMAND_INT" and msg.command == mav.MAV_CMD_DO_REPOSITION:
+            lat, lon, speed = msg.x / 1e7, msg.y / 1e7, float(msg.param1)
+        elif name == "SET_POSITION_TARGET_GLOBAL_INT":
+            ignore = mav.POSITION_TARGET_TYPEMASK_X_IGNORE | mav.POSITION_TARGET_TYPEMASK_Y_IGNORE
+            lat, lon = (math.nan, math.nan) if msg.type_mask & ignore else (msg.lat_int / 1e7, msg.lon_int / 1e7)
+        else:
+            return None
+        speed = speed if math.isfinite(speed) and speed > 0 else 0.0  # -1 (MAVLink's "default"): full speed
+        if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
+            return uav, None, speed
+        x, y = from_latlon(self.s.origin, self.s.area_m, lat, lon)
+        inside = 0.0 <= x <= self.s.area_m and 0.0 <= y <= self.s.area_m
+        return uav, ((x, y) if inside else None), speed
 
 
 def _i16(v: float) -> int:
