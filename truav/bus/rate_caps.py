@@ -27,7 +27,8 @@ def rate_caps(run: str, n_uavs: int, rate_hz: float, beacon_every: int = 1,
     ``rate_hz``: the rate the schema needs there (one per tick; beacons every ``beacon_every`` ticks;
     health every schema.HEALTH_PERIOD_S, rejections every REJECTION_PERIOD_S; each part key of a federated
     Q share once every ``share_every_ticks`` ticks, at least MIN_CAP_HZ) times RATE_CAP_MARGIN. Control and
-    fault keys (the supervisor's, rare and bursty: several faults at one instant) are not capped."""
+    fault keys (the supervisor's, rare and bursty: several faults at one instant; the operator's overrides and
+    the world's override events likewise) are not capped: the world keeps one pending override per UAV."""
     share_hz = max(rate_hz / share_every_ticks if share_every_ticks > 0 else 0.0, MIN_CAP_HZ)
     per_tick = (keys.world_tick(run), keys.world_positions(run), keys.metrics_step(run), keys.metrics_episode(run))
     needed: list[tuple[str, float]] = [(k, rate_hz) for k in per_tick]

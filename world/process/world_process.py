@@ -186,7 +186,8 @@ class WorldNode:
         self._uav_metrics_key = None
         self._cond = threading.Condition()
         self._actions: dict[int, int] = {}
-        self._override_inbox: list[schema.Override] = []  # overrides heard, applied at the next acting tick
+        # Overrides heard since the last acting tick, the newest per UAV (a flood costs one entry per UAV).
+        self._override_inbox: dict[int, schema.Override] = {}
         self.overrides: dict[int, tuple[float, float, float]] = {}  # UAV -> (x, y, speed) it is steered to
         self._tick = -1
         self._left: dict[str, float] = {}  # token key -> when it vanished (a quick return is no loss)
@@ -269,20 +270,22 @@ class WorldNode:
             "stale_actions" if stale else "late_actions")
 
     def _on_override(self, key, msg: schema.Override, raw, recv_ns) -> None:
-        """An override (or its release) from outside: applied from the next acting tick on (_steer)."""
+        """An override (or its release) from outside: applied from the next acting tick on (_steer); of several for
+        one UAV before then, the newest."""
         if msg.uav >= self.n_uavs:
             return
         with self._cond:
-            self._override_inbox.append(msg)
+            self._override_inbox.pop(msg.uav, None)  # the newest last: applied in the order the UAVs were told
+            self._override_inbox[msg.uav] = msg
 
     def _steer(self, tick: int, obs, actions: np.ndarray) -> np.ndarray:
         """``actions`` with every overridden UAV's replaced by world.steer's toward its goal, after taking the
         overrides heard since the last acting tick; each start and end told on fault/override (with the tick it
         applies to: a re-simulation applies it there) and kept in the statistics."""
         with self._cond:
-            inbox, self._override_inbox = self._override_inbox, []
+            inbox, self._override_inbox = self._override_inbox, {}
         sc = self.cfg.scenario
-        for msg in inbox:
+        for msg in inbox.values():
             uav = msg.uav
             if msg.release:
                 if self.overrides.pop(uav, None) is None:
