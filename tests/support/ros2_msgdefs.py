@@ -20,3 +20,12 @@ def write_msgdefs(directory: Path) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(store.generate_msgdef(name, ros_version=2)[0].split(SEPARATOR)[0])
     return directory
+
+
+def offline_sdk_registry(directory: Path) -> None:
+    """zenoh-ros2-sdk's global message registry, new, reading the definitions written to ``directory``: call it
+    before any SDK session. New each time: the SDK's registry remembers the types it loaded into a session's
+    store, so a second test's session (a new store) would otherwise miss them."""
+    from zenoh_ros2_sdk import message_registry
+    message_registry._registry = None
+    message_registry.get_registry(str(write_msgdefs(directory)))

@@ -59,3 +59,10 @@ def test_zenoh_ros2_sdk_reads_our_attachment_and_spells_our_keys() -> None:
     t = "geometry_msgs/msg/PoseStamped"
     assert rmw_zenoh.topic_keyexpr(5, "/truav/uav_0/pose", t, "RIHS01_x") == \
         topic_keyexpr(5, "/truav/uav_0/pose", ros2_to_dds_type(t), "RIHS01_x")
+
+
+def test_a_subscription_token_is_a_publishers_under_ms() -> None:
+    assert rmw_zenoh.subscription_token(0, "aac3178e146ba6f1fc6e6a4085e77f21", 0, 11, "/truav", "bridge_r",
+                                        "/truav/uav_1/goal", "geometry_msgs/msg/PoseStamped", "RIHS01_x") == \
+        "@ros2_lv/0/aac3178e146ba6f1fc6e6a4085e77f21/0/11/MS/%/%truav/bridge_r/%truav%uav_1%goal/" \
+        "geometry_msgs::msg::dds_::PoseStamped_/RIHS01_x/::,10:,:,:,,"

@@ -62,6 +62,15 @@ def part_creds(args, identity: str) -> None:
         raise UsageError(str(exc)) from None
 
 
+def operator_config(args):
+    """The zenoh config a bridge steers with (a reposition, a ROS 2 goal): the ``operator`` identity's (under
+    --creds its credentials of the same directory), whatever identity the bridge reads as. Call it before
+    :func:`part_creds` for the read identity."""
+    steering = argparse.Namespace(**vars(args))
+    part_creds(steering, "operator")
+    return config_from_args(steering)
+
+
 def _origin(text: str):
     from recorder.foxglove import parse_origin
     try:

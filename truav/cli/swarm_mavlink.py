@@ -11,8 +11,8 @@ from pathlib import Path
 
 from truav.cli.args import UserError, int_in, positive_float
 from truav.cli.run_lookup import add_run_args, find_run
-from truav.cli.swarm_common import (add_geo_origin_arg, add_transport_args, config_from_args, part_creds,
-                                    setup_logging)
+from truav.cli.swarm_common import (add_geo_origin_arg, add_transport_args, config_from_args, operator_config,
+                                    part_creds, setup_logging)
 
 MAX_RATE_HZ = 50.0
 GCS_HELP = "the ground station's UDP endpoint HOST:PORT, an IPv4 address (default 127.0.0.1:14550, QGroundControl's)"
@@ -63,8 +63,7 @@ def cmd_mavlink(args) -> int:
     out = find_run(args)
     scenario = Path(out) / SCENARIO_FILE
     cfg = load_config(scenario if scenario.is_file() else None)  # a bad file: ConfigError, one line naming it
-    steering = argparse.Namespace(**vars(args))  # repositions go out as the operator (its credentials)
-    part_creds(steering, "operator")
+    steer_config = operator_config(args)  # repositions go out as the operator (its credentials)
     part_creds(args, "view")
     setup_logging(args.verbose)
     geometry = Geometry.from_config(cfg)
@@ -84,7 +83,7 @@ def cmd_mavlink(args) -> int:
     why = "stopped"
     try:
         mavlink_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready,
-                                  steer_config=config_from_args(steering))
+                                  steer_config=steer_config)
         why = "the run shut down"
     finally:  # Ctrl-C and SIGTERM too (exit 130 / 143): one line of what was done
         st = bridge.stats

@@ -1,4 +1,5 @@
-"""`truav-swarm ros2`: a running swarm as ROS 2 topics over rmw_zenoh (``ros2 topic list/echo``, RViz);
+"""`truav-swarm ros2`: a running swarm as ROS 2 topics over rmw_zenoh (``ros2 topic list/echo``, RViz), steered
+by goals from ROS 2 (as the ``operator`` identity);
 truav/swarm/ros2_bridge.py does the work, truav/wire/rmw_zenoh.py formats rmw_zenoh's keys."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from pathlib import Path
 
 from truav.cli.args import UserError, int_in
 from truav.cli.run_lookup import add_run_args, find_run
-from truav.cli.swarm_common import add_transport_args, config_from_args, part_creds, setup_logging
+from truav.cli.swarm_common import add_transport_args, config_from_args, operator_config, part_creds, setup_logging
 
 
 def cmd_ros2(args) -> int:
@@ -26,6 +27,7 @@ def cmd_ros2(args) -> int:
     out = find_run(args)
     scenario = Path(out) / SCENARIO_FILE
     cfg = load_config(scenario if scenario.is_file() else None)  # a bad file: ConfigError, one line naming it
+    steer_config = operator_config(args)  # goals go out as the operator (its credentials)
     part_creds(args, "view")
     setup_logging(args.verbose)
     typestore = get_typestore(Stores.ROS2_JAZZY)
@@ -36,17 +38,19 @@ def cmd_ros2(args) -> int:
     def ready() -> None:
         print(f"ROS 2: run {args.run} as node {ros2_bridge.NAMESPACE}/{bridge.node} on ROS_DOMAIN_ID "
               f"{args.domain_id}, {len(bridge.topics)} topics (/truav/uav_<i>/pose, /truav/markers, "
-              f"/truav/metrics) through the router at {', '.join(args.connect or ['(the zenoh config)'])}"
+              f"/truav/metrics) and {cfg.scenario.n_uavs} goal subscriptions (/truav/uav_<i>/goal) through the router at {', '.join(args.connect or ['(the zenoh config)'])}"
               + ("" if scenario.is_file() else f" (no {scenario}: the default scenario's geometry)"), flush=True)
 
     why = "stopped"
     try:
-        ros2_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready)
+        ros2_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready,
+                               steer_config=steer_config)
         why = "the run shut down"
     finally:  # Ctrl-C and SIGTERM too (exit 130 / 143): one line of what was done
         st = bridge.stats
         print(f"truav-swarm ros2: {why}: {sum(st.published.values())} ROS 2 message(s) published on "
-              f"{len(st.published)} topic(s)"
+              f"{len(st.published)} topic(s), {st.steered} goal(s) sent on as overrides, {st.refused} refused "
+              f"(another frame than map, outside the area, or not a PoseStamped)"
               + (f", {st.odd} bus message(s) that did not fit their kind" if st.odd else ""), file=sys.stderr)
     return 0
 
@@ -54,7 +58,8 @@ def cmd_ros2(args) -> int:
 def add_ros2_command(sub) -> None:
     from truav.wire.rmw_zenoh import MAX_DOMAIN_ID
     p = sub.add_parser("ros2", help="a running swarm as ROS 2 topics over rmw_zenoh: each UAV's pose, markers "
-                                    "for RViz, the metrics (needs the ros2 extra)")
+                                    "for RViz, the metrics; a PoseStamped on /truav/uav_N/goal steers UAV N "
+                                    "(sent as the operator; needs the ros2 extra)")
     add_run_args(p)
     p.add_argument("--domain-id", type=int_in(0, MAX_DOMAIN_ID), default=0, metavar="N",
                    help="the ROS_DOMAIN_ID the ROS 2 side uses (default 0)")

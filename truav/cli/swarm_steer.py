@@ -17,6 +17,7 @@ from truav.cli.args import int_in, non_negative_float, positive_float
 from truav.cli.config import UsageError
 from truav.cli.run_lookup import add_run_args, find_run, run_there
 from truav.cli.swarm_common import add_transport_args, config_from_args, part_creds
+from truav.swarm.steering import inside_area, send_override
 from truav.wire import keys, schema
 
 CONFIRM_WAIT_S = 5.0
@@ -50,12 +51,11 @@ def cmd_steer(args) -> int:
     sc = _scenario(out).scenario
     if args.uav >= sc.n_uavs:
         raise UsageError(f"UAV {args.uav}: run {args.run!r} has UAVs 0-{sc.n_uavs - 1}")
-    if args.to is not None and not all(0.0 <= v <= sc.area_m for v in args.to):
+    if args.to is not None and not inside_area(args.to, sc.area_m):
         raise UsageError(f"--to {args.to[0]:g},{args.to[1]:g}: outside run {args.run!r}'s area, "
                          f"[0, {sc.area_m:g}] m on each axis")
     part_creds(args, keys.SRC_OPERATOR)
     release = args.to is None
-    msg = schema.Override(uav=args.uav, release=release, goal=args.to or (0.0, 0.0), speed=args.speed)
     confirmed: list[schema.Fault] = []
     heard = threading.Event()
     me = keys.uav_identity(args.uav)
@@ -76,7 +76,7 @@ def cmd_steer(args) -> int:
         if not bus.await_subscribers(key, LISTENER_WAIT_S):
             print(f"truav-swarm steer: warning: nothing of run {args.run} listens for overrides (yet); sending "
                   f"anyway", file=sys.stderr)
-        bus.publish(key, msg)
+        send_override(bus, args.run, args.uav, args.to, args.speed)
         heard.wait(args.wait)
     what = f"UAV {args.uav} of run {args.run}: " + (
         "released (its agent flies it again)" if release else

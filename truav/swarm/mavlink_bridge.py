@@ -22,7 +22,8 @@ from typing import Any, Callable, Optional
 from recorder.schemas import envelope_fields
 from truav.swarm.mavlink_messages import MavlinkFleet, commands_to_refuse, mav
 from truav.swarm.view import follow
-from truav.wire import keys, schema
+from truav.swarm.steering import send_override
+from truav.wire import keys
 
 log = logging.getLogger("truav.mavlink")
 
@@ -153,10 +154,7 @@ def run_bridge(run: str, zenoh_config: Any, bridge: Bridge, stop: Optional[threa
             follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
             return bridge.stats
         with Bus(keys.SRC_OPERATOR, run, steer_config) as bus:
-            def steer(uav: int, xy: tuple[float, float], speed: float) -> None:
-                bus.publish(keys.control_override(run, uav),
-                            schema.Override(uav=uav, release=False, goal=xy, speed=speed))
-            bridge.steer = steer
+            bridge.steer = lambda uav, xy, speed: send_override(bus, run, uav, xy, speed)
             follow(run, zenoh_config, SRC_MAVLINK, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready)
     finally:
         bridge.close()

@@ -30,6 +30,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire versi
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
 from recorder.foxglove import from_latlon, to_latlon  # noqa: E402
+from truav.swarm.steering import inside_area  # noqa: E402
 
 SYSIDS_PER_BRIDGE = 254
 """System ids 1..254 (0: broadcast, 255: the ground station by convention)."""
@@ -238,8 +239,7 @@ class MavlinkFleet:
         if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
             return uav, None, speed
         x, y = from_latlon(self.s.origin, self.s.area_m, lat, lon)
-        inside = 0.0 <= x <= self.s.area_m and 0.0 <= y <= self.s.area_m
-        return uav, ((x, y) if inside else None), speed
+        return uav, ((x, y) if inside_area((x, y), self.s.area_m) else None), speed
 
 
 def _i16(v: float) -> int:

@@ -8,6 +8,12 @@ router) puts it on rmw_zenoh's key expression with rmw_zenoh's attachment, after
 liveliness tokens: one node (``/truav/bridge_<run>``) and one publisher per topic
 (:mod:`truav.wire.rmw_zenoh` formats all three). A ROS 2 machine sees it through an rmw_zenoh router linked
 to the run's router (docs/how-to/ros2.md).
+
+Steering: given the ``operator`` identity's config, the bridge also subscribes to ``/truav/uav_<i>/goal``
+(geometry_msgs/msg/PoseStamped, frame ``map``, x east and y north in metres, as the poses), declaring each
+subscription's graph token (``MS``); a goal inside the area becomes an override of that UAV
+(:func:`truav.swarm.steering.send_override`, as `truav-swarm steer` and the MAVLink bridge send it), a goal
+in another frame, outside the area or not a PoseStamped is counted and logged, never sent.
 """
 
 from __future__ import annotations
@@ -19,15 +25,25 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
-from recorder.ros2_messages import MARKERS_TOPIC, MARKERS_TYPE, METRICS_TOPIC, METRICS_TYPE, POSE_TYPE, pose_topic
+from recorder.ros2_messages import (FRAME, MARKERS_TOPIC, MARKERS_TYPE, METRICS_TOPIC, METRICS_TYPE, POSE_TYPE,
+                                    pose_topic)
 from recorder.schemas import envelope_fields
+from truav.swarm.steering import inside_area, send_override
 from truav.swarm.view import follow
-from truav.wire import rmw_zenoh
+from truav.wire import keys, rmw_zenoh
 
 log = logging.getLogger("truav.ros2")
 
 SRC_ROS2 = "ros2"
 NAMESPACE = "/truav"
+GOAL_TYPE = POSE_TYPE
+MAX_GOAL_BYTES = 4096  # a PoseStamped is ~100 bytes; more is not a goal (untrusted: bounded before decoding)
+GOALS_QUEUED = 256  # goals waiting for the bridge's loop; beyond, the oldest are dropped
+GOALS_PER_PASS = 64
+
+
+def goal_topic(uav: int) -> str:
+    return f"/truav/uav_{uav}/goal"
 
 
 def node_name(run: str) -> str:
@@ -40,6 +56,8 @@ class BridgeStats:
     samples: int = 0
     odd: int = 0  # bus bodies that did not fit their kind
     published: dict[str, int] = field(default_factory=dict)  # ROS 2 topic -> messages put
+    steered: int = 0  # goals sent on as overrides
+    refused: int = 0  # goals not sent: another frame, outside the area, not a PoseStamped
 
 
 class _Publisher:
@@ -68,15 +86,71 @@ class Ros2Bridge:
         self._node_token: Any = None
         self._entities = 0
         self._publishers: dict[str, _Publisher] = {}
+        self.n_uavs = n_uavs
+        self.steer: Optional[Callable[[int, tuple[float, float]], None]] = None
+        """Sends an override of a UAV to a goal (run_bridge sets it); None: no goal topics."""
+        self._goals: Any = None
+        self._goal_tokens: list[Any] = []
 
     def open(self, session: Any) -> None:
-        """Declare the node and every topic known from the start (each UAV's pose, the markers, the metrics)."""
+        """Declare the node and every topic known from the start (each UAV's pose, the markers, the metrics),
+        and with steering each UAV's goal subscription."""
         self._session = session
         self._session_id = str(session.info.zid())
         self._node_token = session.liveliness().declare_token(
             rmw_zenoh.node_token(self.domain_id, self._session_id, 0, NAMESPACE, self.node))
         for topic, ros_type in self.topics:
             self._publisher(topic, ros_type)
+        if self.steer is not None:
+            self._subscribe_goals()
+
+    def _subscribe_goals(self) -> None:
+        import zenoh
+        type_hash = self.typestore.hash_rihs01(GOAL_TYPE)
+        for i in range(self.n_uavs):
+            self._entities += 1
+            self._goal_tokens.append(self._session.liveliness().declare_token(rmw_zenoh.subscription_token(
+                self.domain_id, self._session_id, 0, self._entities, NAMESPACE, self.node, goal_topic(i),
+                GOAL_TYPE, type_hash)))
+        every = rmw_zenoh.topic_keyexpr(self.domain_id, goal_topic(0), GOAL_TYPE, type_hash).replace("/uav_0/", "/*/")
+        self._goals = self._session.declare_subscriber(every, zenoh.handlers.RingChannel(GOALS_QUEUED))
+
+    def every_pass(self) -> None:
+        """The goals heard since the last pass, each sent on as an override or refused (bounded per pass)."""
+        if self._goals is None:
+            return
+        for _ in range(GOALS_PER_PASS):
+            sample = self._goals.try_recv()
+            if sample is None:
+                return
+            self._goal(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _goal(self, key: str, data: bytes) -> None:
+        parts = key.split("/")  # <domain>/truav/uav_<i>/goal/<type>/<hash>
+        uav = int(parts[2][4:]) if len(parts) > 2 and parts[2].startswith("uav_") and parts[2][4:].isdigit() else -1
+        why = ""
+        if not 0 <= uav < self.n_uavs:
+            why = f"{key}: no UAV of this run"
+        elif len(data) > MAX_GOAL_BYTES:
+            why = f"{goal_topic(uav)}: {len(data)} bytes, not a PoseStamped"
+        else:
+            try:
+                msg = self.typestore.deserialize_cdr(data, GOAL_TYPE)
+                frame, xy = msg.header.frame_id, (float(msg.pose.position.x), float(msg.pose.position.y))
+            except Exception:  # untrusted bytes: anything rosbags cannot read is not a goal
+                frame, xy, why = "", (0.0, 0.0), f"{goal_topic(uav)}: not a CDR PoseStamped"
+            if not why and frame != FRAME:
+                why = f"{goal_topic(uav)}: frame {frame[:40]!r}, goals are in frame {FRAME!r}"
+            elif not why and not inside_area(xy, self.mapper.geometry.area_m):
+                why = f"{goal_topic(uav)}: ({xy[0]:g}, {xy[1]:g}) m is outside the area [0, " \
+                      f"{self.mapper.geometry.area_m:g}] m"
+        if why:
+            self.stats.refused += 1
+            log.warning("goal refused: %s", why)
+            return
+        self.steer(uav, xy)
+        self.stats.steered += 1
+        log.info("goal on %s: UAV %d steered to (%.0f, %.0f) m", goal_topic(uav), uav, *xy)
 
     def _publisher(self, topic: str, ros_type: str) -> _Publisher:
         pub = self._publishers.get(topic)
@@ -111,8 +185,21 @@ class Ros2Bridge:
 
 
 def run_bridge(run: str, zenoh_config: Any, bridge: Ros2Bridge, stop: Optional[threading.Event] = None,
-               ready: Optional[Callable[[], None]] = None) -> BridgeStats:
-    """Publish ``run`` as ROS 2 topics until ``stop`` is set (the tokens go with the session)."""
-    follow(run, zenoh_config, SRC_ROS2, stop or threading.Event(), bridge.handle, ready=ready, opened=lambda bus:
-           bridge.open(bus.session))
+               ready: Optional[Callable[[], None]] = None, steer_config: Any = None) -> BridgeStats:
+    """Publish ``run`` as ROS 2 topics until ``stop`` is set (the tokens go with the session). ``steer_config``:
+    the zenoh config of the ``operator`` identity (under --secure its credentials) that sends goals on as
+    overrides; None: no goal topics."""
+    from truav.bus.transport import Bus
+    stop = stop or threading.Event()
+
+    def serve() -> None:
+        follow(run, zenoh_config, SRC_ROS2, stop, bridge.handle, every_pass=bridge.every_pass, ready=ready,
+               opened=lambda bus: bridge.open(bus.session))
+
+    if steer_config is None:
+        serve()
+        return bridge.stats
+    with Bus(keys.SRC_OPERATOR, run, steer_config) as operator:
+        bridge.steer = lambda uav, xy: send_override(operator, run, uav, xy)
+        serve()
     return bridge.stats

@@ -10,7 +10,7 @@ swarm the same way, so a ROS 2 machine using rmw_zenoh lists and echoes it:
 * the graph's liveliness tokens, a node's
   ``@ros2_lv/<domain_id>/<session_id>/<node_id>/<node_id>/NN/<enclave>/<namespace>/<node_name>`` and a
   publisher's ``@ros2_lv/<domain_id>/<session_id>/<node_id>/<entity_id>/MP/<enclave>/<namespace>/<node_name>/
-  <qualified_name>/<type_name>/<type_hash>/<qos>``, names mangled (each ``/`` as ``%``; ``%`` when empty);
+  <qualified_name>/<type_name>/<type_hash>/<qos>`` (a subscription's the same under ``MS``), names mangled (each ``/`` as ``%``; ``%`` when empty);
 * every sample's attachment: the sequence number (int64 little-endian), the source timestamp (int64 ns since
   the UNIX epoch, little-endian), one byte the GID's length (16) and the publisher's 16-byte GID.
 """
@@ -25,10 +25,11 @@ from typing import NamedTuple
 ADMIN_SPACE = "@ros2_lv"
 NODE = "NN"
 PUBLISHER = "MP"
+SUBSCRIPTION = "MS"
 GID_LEN = 16
 MAX_DOMAIN_ID = 232  # ROS 2's range for ROS_DOMAIN_ID (0-232 on every RMW)
 DEFAULT_PUBLISHER_QOS = "::,10:,:,:,,"
-"""A publisher's QoS in rmw_zenoh's compact form (``qos_to_keyexpr``): reliability, durability, history and
+"""A publisher's (and the bridge's subscriptions') QoS in rmw_zenoh's compact form (``qos_to_keyexpr``): reliability, durability, history and
 liveliness at the defaults (empty: reliable, volatile, keep last, automatic), depth 10, no deadline, no lifespan."""
 
 _ATTACHMENT = struct.Struct("<qqB")
@@ -73,10 +74,19 @@ def node_token(domain_id: int, session_id: str, node_id: int, namespace: str, no
 
 def publisher_token(domain_id: int, session_id: str, node_id: int, entity_id: int, namespace: str,
                     node_name: str, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_PUBLISHER_QOS,
-                    enclave: str = "") -> str:
-    return "/".join((ADMIN_SPACE, str(domain_id), session_id, str(node_id), str(entity_id), PUBLISHER,
+                    enclave: str = "", kind: str = PUBLISHER) -> str:
+    """A publisher's token (``kind`` MP), or a subscription's (MS: :func:`subscription_token`)."""
+    return "/".join((ADMIN_SPACE, str(domain_id), session_id, str(node_id), str(entity_id), kind,
                      mangle(enclave), mangle(namespace), node_name, mangle(check_name(topic, "topic")),
                      dds_type_name(ros_type), type_hash, qos))
+
+
+def subscription_token(domain_id: int, session_id: str, node_id: int, entity_id: int, namespace: str,
+                       node_name: str, topic: str, ros_type: str, type_hash: str, qos: str = DEFAULT_PUBLISHER_QOS,
+                       enclave: str = "") -> str:
+    """A subscription's token: a publisher's fields under MS (so ``ros2 topic info`` counts it)."""
+    return publisher_token(domain_id, session_id, node_id, entity_id, namespace, node_name, topic, ros_type,
+                           type_hash, qos, enclave, kind=SUBSCRIPTION)
 
 
 def gid(session_id: str, entity_id: int) -> bytes:
