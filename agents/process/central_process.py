@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.process.agent_process_lockstep import Inexact
 from truav import jsonio
 from truav.analysis import runio
 from truav.analysis.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
@@ -116,6 +117,7 @@ class ControllerNode:
         self._done_tick = -1
         self._episode = -1
         self._stop = threading.Event()
+        self.inexact = Inexact()  # lock-step: decisions taken without a live UAV's upload (controller.json)
         self.stats = {"ticks": 0, "commands": 0, "states": 0, "stale_states": 0, "late_states": 0, "skipped_ticks": 0,
                       "episodes": 0, "decide_ms": [], "policy": opts.policy or "online learning"}
         run = opts.run

@@ -235,7 +235,7 @@ def metadata_hostile() -> bytes:
     return one_chunk(declared([]), SUMMARY[:2], meta)
 
 
-ALL = frozenset({"check", "info", "cut", "merge", "recover", "report", "resim", "play"})
+ALL = frozenset({"check", "info", "cut", "merge", "recover", "report", "resim", "play", "ros2bag"})
 FAMILIES: dict[str, tuple[Callable[[], bytes], frozenset]] = {  # name -> (builder, the tools that meet damage)
     "huge_chunk": (lambda: with_bad(1, declared_size=64 * GiB), ALL),
     "zstd_bomb_declared": (lambda: with_bad(1, declared_size=256 << 20, data=bomb("zstd", 256 << 20)), ALL),
@@ -279,6 +279,7 @@ def _tools(path: Path, out: Path) -> dict[str, list[str]]:
         "report": ["report", str(path), "--out", str(out / "report")],
         "resim": ["resim", str(path), "--quiet"],
         "play": ["play", str(path), "-e", "tcp/127.0.0.1:1", "--no-keys", "--quiet"],
+        "ros2bag": ["ros2bag", str(path), "--out", str(out / "bag")],
     }
 
 

@@ -27,7 +27,7 @@ from truav.cli.swarm import main as swarm_main
 
 REPO = Path(__file__).resolve().parents[2]
 LOG_ACTIONS = ("record", "play", "report", "check", "recover", "record-ctl", "cut", "merge", "info", "play-ctl",
-               "resim")
+               "resim", "ros2bag")
 ALIASES = {  # (program, alias) -> the truav log action it names
     ("truav", "report"): "report",
     ("truav-swarm", "record"): "record",

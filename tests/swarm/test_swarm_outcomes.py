@@ -179,7 +179,7 @@ uav = 1
 
 
 def test_after_a_freeze_and_a_crash_every_agent_wrote_its_final_checkpoint_and_statistics(tmp_path):
-    """...and more than --max-missed of the actions missing fails the run."""
+    """...and the actions the plan's crashed and frozen UAVs missed are said, not held against --max-missed."""
     plan = tmp_path / "plan.toml"
     plan.write_text(PLAN)  # agent 1 is still frozen when the world ends: the supervisor must thaw it
     out = tmp_path / "swarm"
@@ -187,11 +187,13 @@ def test_after_a_freeze_and_a_crash_every_agent_wrote_its_final_checkpoint_and_s
                                                    quiet=True, fault_plan=str(plan), checkpoint_every=5,
                                                    listen=free_loopback_endpoint(), max_missed_share=0.05))
     summary = json.loads((out / "summary.json").read_text())
-    # a crashed agent and one frozen for the last 2 s miss well over 5% of the actions: the run says so
-    (failure,) = summary["outcome"]["failures"]  # the host's load may follow, named as the likely cause
-    assert rc == 1 and failure.startswith(
-        f"{round(100 * (1 - summary['world']['actions_received'] / (3 * 100)))}% of the actions were missing "
-        f"(more than --max-missed 0.05)"), summary["outcome"]
+    # a crashed agent and one frozen for the last 2 s miss well over 5% of the actions: by the plan's design, so
+    # a warning counts them and the limit judges UAV 2's alone (which only a very busy host makes miss)
+    assert any("action(s) missed by the UAV(s) the fault plan crashes or freezes (0, 1)" in w
+               for w in summary["outcome"]["warnings"]), summary["outcome"]
+    failures = summary["outcome"]["failures"]
+    assert (rc == 0 and not failures) or (rc == 1 and len(failures) == 1 and "of the actions were missing (more "
+                                          "than --max-missed 0.05)" in failures[0]), summary["outcome"]
     events = {(kind, phase) for _, kind, phase in summary["fault_events"]}
     assert {("crash", "start"), ("crash", "end"), ("freeze", "start")} <= events
     for i in range(3):

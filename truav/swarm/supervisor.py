@@ -267,6 +267,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         with Bus(SUPERVISOR, opts.run, self.bus_config) as bus:
             self.bus = bus
             bus.guard = guard.for_config(self.cfg)  # what the world and agents refuse, the monitor refuses too
+            bus.rejections.quiet_reasons = frozenset({guard.R_TICK})  # a monitor behind a fast lock-step run: its lag
             # Real time: a flood costs the monitor a bounded amount of work, as it does the world and agents.
             bus.receive_ring = None if opts.lockstep else transport.REALTIME_RECEIVE_RING
             self.monitor.attach(bus, opts.run, central=self.central, tracks_from_world=opts.scheme != "truav")

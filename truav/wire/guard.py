@@ -71,6 +71,9 @@ class Rejections:
         self._senders: set[str] = set()
         self._counts: dict[tuple[str, str], int] = {}
         self._lock = threading.Lock()
+        self.quiet_reasons: frozenset[str] = frozenset()
+        """Reasons counted but logged at debug level only: an observer that lags (the supervisor's monitor in a fast
+        lock-step run) drops messages outside its tick window through its own lateness, not the sender's fault."""
 
     def add(self, reason: str, sender: str | None, key: str = "", detail: str = "") -> None:
         shown = sender or "unknown sender"
@@ -85,7 +88,7 @@ class Rejections:
             first = pair not in self._counts
             self._counts[pair] = self._counts.get(pair, 0) + 1
         if first:
-            self._log.warning("%s: dropping malformed message on %s from %s: %s (further '%s' drops from this "
+            (self._log.debug if reason in self.quiet_reasons else self._log.warning)("%s: dropping malformed message on %s from %s: %s (further '%s' drops from this "
                               "sender only counted)", self._owner, key or "?",
                               OTHER_SENDERS if sender == OTHER_SENDERS else shown, detail[:160] or reason, reason)
 
