@@ -31,9 +31,13 @@ ENVS, SEEDS, EPISODES = 16, 10, 20
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("variants", nargs="+", help="NAME JSON pairs")
+    ap.add_argument("variants", nargs="*", help="NAME JSON pairs")
     ap.add_argument("--out", default="docs/figures/learned-policy-search.csv")
+    ap.add_argument("--figure", help="draw FIGURE.png from OUT (each variant's coverage, the heuristic's)")
     args = ap.parse_args()
+    if args.figure:
+        figure(Path(args.out), Path(args.figure))
+        return
     torch.set_num_threads(1)
     cfg = config()
     seeds = [s + EVAL_SEED_OFFSET for s in range(SEEDS)]
@@ -56,6 +60,34 @@ def main() -> None:
                 new = False
             w.writerows([name, spec, s, f"{c:.4f}", f"{p:.4f}", f"{times['total_s']:.0f}"]
                          for s, (c, p) in enumerate(zip(cov, spread)))
+
+
+def figure(table: Path, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+    names = list(dict.fromkeys(r["variant"] for r in rows))
+    cov = [np.array([float(r["coverage_pct"]) for r in rows if r["variant"] == n]) for n in names]
+    spread = np.array([float(r["spread_pct"]) for r in rows if r["variant"] == names[0]])
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    stats = [mean_ci(c) for c in cov]
+    ax.barh(range(len(names)), [m for m, _ in stats], xerr=[h for _, h in stats], color="C0", alpha=0.8, capsize=3)
+    m, h = mean_ci(spread)
+    ax.axvspan(m - h, m + h, color="C3", alpha=0.2, lw=0)
+    ax.axvline(m, color="C3", label=f"heuristic spread {m:.1f}%")
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("coverage (%), greedy on held-out traffic")
+    ax.set_xlim(0, 70)
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"--preset paper, 15 m/s: mean of {len(spread)} seeds x {EPISODES} episodes, 95% intervals",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

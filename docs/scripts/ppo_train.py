@@ -7,7 +7,8 @@
 Training (truav.analysis.ppo_train): under --preset paper at 15 m/s with learner.sense_range_m = 1500, on
 training seeds 0..ENVS-1 (ENVS environments x 5 UAVs = the vector's slots): behaviour cloning of the heuristic
 `spread` (BC_EPISODES episodes, then DAGGER rounds of the learner flying and the heuristic labelling), then PPO
-with shared parameters for PPO_STEPS slot-steps. Evaluation: the agent `ppo` through the agent API (the per-UAV
+with shared parameters for PPO_STEPS slot-steps on the local reward plus a team term (COVERAGE_BONUS x the
+share of all vehicles covered). Evaluation: the agent `ppo` through the agent API (the per-UAV
 form a swarm flies), `spread` and the patrol, SEEDS seeds x EPISODES greedy episodes on held-out traffic
 (world seed + EVAL_SEED_OFFSET); prints means with 95% intervals and the paired differences, writes OUT.csv.
 """
@@ -44,9 +45,9 @@ def main() -> None:
     ap.add_argument("--bc-episodes", type=int, default=10)
     ap.add_argument("--bc-epochs", type=int, default=10)
     ap.add_argument("--dagger", type=int, default=3, help="DAgger rounds (default %(default)s)")
-    ap.add_argument("--ppo-steps", type=int, default=0,
-                    help="PPO slot-steps after cloning (default %(default)s: it lowered coverage, see the page)")
-    ap.add_argument("--lr", type=float, default=1e-4)
+    ap.add_argument("--ppo-steps", type=int, default=320_000, help="PPO slot-steps after cloning (default %(default)s)")
+    ap.add_argument("--lr", type=float, default=3e-5)
+    ap.add_argument("--coverage-bonus", type=float, default=5.0, help="the team term's weight (TruavVecEnv)")
     ap.add_argument("--n-steps", type=int, default=100)
     ap.add_argument("--ent-coef", type=float, default=0.0)
     ap.add_argument("--seeds", type=int, default=10)
@@ -61,7 +62,7 @@ def main() -> None:
         torch.set_num_threads(1)
         model, times = train(cfg, list(range(args.envs)), bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs,
                              dagger_rounds=args.dagger, ppo_steps=args.ppo_steps, lr=args.lr, n_steps=args.n_steps,
-                             ent_coef=args.ent_coef)
+                             ent_coef=args.ent_coef, coverage_bonus=args.coverage_bonus)
         np.savez(WEIGHTS, **export(model, cfg, 4))
         print(f"trained in {times['total_s']:.0f} s (cloning {times['clone_s']:.0f} s); wrote {WEIGHTS}")
     seeds = [s + EVAL_SEED_OFFSET for s in range(args.seeds)]

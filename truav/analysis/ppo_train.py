@@ -82,7 +82,7 @@ def clone(model: PPO, obs: np.ndarray, actions: np.ndarray, returns: np.ndarray,
         with torch.no_grad():
             pick = torch.as_tensor(rng.choice(n, min(n, 20000), replace=False))
             acc = float((policy.get_distribution(o[pick]).distribution.logits.argmax(-1) == a[pick]).float().mean())
-        say(f"  clone epoch {epoch + 1}/{epochs}: loss {float(loss.detach()):.3f}, accuracy {acc:.3f}", flush=True)
+        say(f"  clone epoch {epoch + 1}/{epochs}: loss {float(loss.detach()):.3f}, accuracy {acc:.3f}")
     return acc
 
 
