@@ -1,0 +1,106 @@
+"""Where a swarm's processes run on a Ray cluster: a pure plan (no Ray, no I/O).
+
+One Zenoh router per node, each linked to the first node's router (the core node, which also
+hosts the world, the recorder, the controller and the supervisor's own session); the agent
+processes (the run's groups of ``--agents-per-process`` UAVs, truav.swarm.swarm_options.agent_groups)
+dealt to the nodes in turn, so their counts differ by at most one. Every process connects only to
+its node's router, as in the hand-made deployment (deploy/README.md). Nodes that share an address
+(a test cluster on one machine) get consecutive ports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from truav.swarm.swarm_options import agent_groups, group_name
+
+CORE_PROCESSES = ("world", "recorder", "controller", "view")
+"""The processes of the core node (the first router's node)."""
+
+
+class PlanError(ValueError):
+    """The cluster or the options cannot hold the swarm (one line for the user)."""
+
+
+@dataclass(frozen=True)
+class RayNode:
+    node_id: str
+    address: str
+    cpus: float
+
+
+@dataclass(frozen=True)
+class RouterPlace:
+    node_id: str
+    endpoint: str
+    connect: str | None  # the core router it links to; None for the core router itself
+
+    @property
+    def name(self) -> str:
+        return "router" if self.connect is None else f"router-{self.node_id[:8]}"
+
+
+@dataclass(frozen=True)
+class AgentPlace:
+    node_id: str
+    uavs: tuple[int, ...]
+
+    @property
+    def name(self) -> str:
+        return group_name(list(self.uavs))
+
+
+@dataclass(frozen=True)
+class RayPlan:
+    nodes: tuple[RayNode, ...]
+    routers: tuple[RouterPlace, ...]
+    agents: tuple[AgentPlace, ...]
+
+    @property
+    def core_node(self) -> str:
+        return self.routers[0].node_id
+
+    @property
+    def core_endpoint(self) -> str:
+        return self.routers[0].endpoint
+
+    def node_of(self, process: str) -> str:
+        """The node of a process by its name (the supervisor's names: world, agent3, agents0-9, router...)."""
+        for place in (*self.routers, *self.agents):
+            if place.name == process:
+                return place.node_id
+        return self.core_node
+
+    def endpoint_of(self, process: str) -> str:
+        """The router endpoint a process connects to: its node's."""
+        node = self.node_of(process)
+        return next(r.endpoint for r in self.routers if r.node_id == node)
+
+    def lines(self) -> list[str]:
+        out = []
+        for k, (node, router) in enumerate(zip(self.nodes, self.routers)):
+            parts = [f"router {router.endpoint}" + (f" -> {router.connect}" if router.connect else "")]
+            parts += ["world", "recorder"] if k == 0 else []
+            parts += [a.name for a in self.agents if a.node_id == node.node_id]
+            out.append(f"node {node.node_id} ({node.address}): " + ", ".join(parts))
+        return out
+
+
+def place(nodes: list[RayNode], n_uavs: int, agents_per_process: int, port: int,
+          external: tuple[int, ...] = ()) -> RayPlan:
+    """The plan for ``nodes`` (the first is the core node) and the run's options; PlanError if it cannot be."""
+    if not nodes:
+        raise PlanError("--ray: the cluster has no alive Ray node")
+    seen: dict[str, int] = {}
+    routers = []
+    for node in nodes:
+        offset = seen.get(node.address, 0)
+        seen[node.address] = offset + 1
+        if not 0 < port + offset <= 65535:
+            raise PlanError(f"--ray-port {port}: the routers' ports {port}..{port + offset} must lie in 1..65535")
+        host = f"[{node.address}]" if ":" in node.address else node.address
+        endpoint = f"tcp/{host}:{port + offset}"
+        routers.append(RouterPlace(node.node_id, endpoint, routers[0].endpoint if routers else None))
+    groups = agent_groups(n_uavs, agents_per_process, external)
+    agents = tuple(AgentPlace(nodes[k % len(nodes)].node_id, tuple(g)) for k, g in enumerate(groups))
+    return RayPlan(tuple(nodes), tuple(routers), agents)
