@@ -110,8 +110,9 @@ class Bridge:
                 ack = self.fleet.unsupported_ack(target, command, msg.get_srcSystem(), msg.get_srcComponent())
                 if ack is not None:
                     self.stats.refused[command] = self.stats.refused.get(command, 0) + 1
-                    log.warning("command %d to system %d refused (MAV_RESULT_UNSUPPORTED): the swarm cannot be "
-                                "steered from outside yet", command, target)
+                    if self.stats.refused[command] == 1:  # once per command: ground stations retry and poll
+                        log.warning("command %d to system %d refused (MAV_RESULT_UNSUPPORTED): the bridge takes "
+                                    "repositions only", command, target)
                     self._send(ack, sender)
 
     def _reposition(self, msg: Any, sender: tuple[str, int]) -> bool:
