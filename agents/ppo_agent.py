@@ -6,7 +6,9 @@ truav/analysis/ppo_train.py (docs/results/learned-policy.md), exported to numpy 
 run time, the same arithmetic in an agent process and in the in-process evaluation. It learns nothing while it
 flies (``truav train --agent ppo`` flies it greedy); its weights are ``weights`` (a class attribute: a subclass
 names another file). Trained under --preset paper at 15 m/s with learner.sense_range_m = 1500: fly it with
-that sensing (``--set learner.sense_range_m=1500``), without which its sector features are all zero.
+that sensing (``--set learner.sense_range_m=1500``), without which its sector features are all zero. Weights
+trained with the memory features (``memory`` in the file) have each instance remember its own last action and
+vehicles in range (agents.view_features.Memory), reset at each episode's start.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from agents.api import LocalView, UavAgent
 from agents.ppo_policy import NumpyPolicy
-from agents.view_features import ViewEncoder
+from agents.view_features import NO_ACTION, Memory, ViewEncoder
 from truav.config import Config
 
 WEIGHTS = Path(__file__).with_name("weights") / "ppo_paper_15mps.npz"
@@ -40,14 +42,22 @@ class PpoAgent(UavAgent):
     def __init__(self, cfg: Config, uav: int, rng: np.random.Generator):
         super().__init__(cfg, uav, rng)
         self.policy = load_policy(str(self.weights))
-        self.encoder = ViewEncoder(cfg, self.policy.peers if self.policy.peers is not None else 4)
+        self.encoder = ViewEncoder(cfg, self.policy.peers if self.policy.peers is not None else 4, self.policy.memory)
+        self.last = Memory()
         if self.encoder.size != self.policy.n_features:
             raise ValueError(f"{self.weights.name} expects {self.policy.n_features} features, this run's view has "
                              f"{self.encoder.size} (learner.sense_sectors {cfg.learner.sense_sectors}; trained with "
                              f"{self.policy.sense_sectors})")
 
+    def begin_episode(self, episode: int, train: bool) -> None:
+        self.last = Memory()
+
     def act(self, view: LocalView) -> int:
-        return int(self.policy.greedy(self.encoder(view)[None, :])[0])
+        if view.step == 0:  # the episode's first view: nothing to remember yet
+            self.last = Memory()
+        action = int(self.policy.greedy(self.encoder(view, self.last)[None, :])[0])
+        self.last = Memory(action, view.vehicles_in_range)
+        return action
 
 
 __all__ = ["PpoAgent", "WEIGHTS", "load_policy"]

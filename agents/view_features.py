@@ -12,7 +12,10 @@ meaning; docs/reference/pettingzoo-observation.md is generated from it):
   nothing sensed);
 - the K nearest heard peers (K = `peers`) in slots k = 1..K, nearest first (ties by UAV id): relative
   position, the peer's velocity, distance and a mask (1: a heard peer; 0: padding, with each feature's
-  documented fill).
+  documented fill);
+- with ``memory`` on (off by default), last: what the UAV itself did at the previous step, which a view does
+  not hold and the caller remembers (a `Memory`): its action one-hot (N_ACTIONS + 1 slots, the last HOVER;
+  all 0 at step 0), its velocity (that action's) and the change of its vehicles in range since then.
 
 Open-ended values (relayed, energy) are capped at `CAP`; every value lies in the declared bounds.
 Beacon fields (`HeardBeacon.fields`) are not encoded: they are what an agent class chose to say.
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.api import BatchedViews, LocalView
+from truav.actions import HOVER, N_ACTIONS
 from truav.config import Config
 
 DEFAULT_PEERS = 4
@@ -41,6 +45,27 @@ N_OWN = 12
 """The own-state features, first in the vector."""
 PEER_FIELDS = ("dx", "dy", "vx", "vy", "distance", "mask")
 """The features of each heard-peer slot, in order."""
+NO_ACTION = -2
+"""A Memory's action before the first step of an episode (its one-hot is all 0)."""
+
+
+@dataclass(frozen=True)
+class Memory:
+    """What a UAV did at the previous step (the memory features): its action (0..N_ACTIONS-1, HOVER, or
+    NO_ACTION at step 0) and its vehicles in range then (0 at step 0). Scalars for one UAV, (B, U) arrays for
+    ``ViewEncoder.batch``."""
+
+    action: object = NO_ACTION
+    in_range: object = 0
+
+
+def action_velocity(action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An action's velocity as a share of full speed (east, north): 0 hovering or before the first step."""
+    a = np.asarray(action, np.int64)
+    moving = (a >= 0) & (a < N_ACTIONS)
+    angle = (a % 8) * (math.pi / 4)
+    speed = np.where(moving, np.where(a >= 8, 1.0, 0.5), 0.0)
+    return speed * np.cos(angle), speed * np.sin(angle)
 
 
 @dataclass(frozen=True)
@@ -65,8 +90,9 @@ class Feature:
     """A padded peer slot's value (None for features that are never padding)."""
 
 
-def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Feature, ...]:
-    """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots, in order."""
+def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False) -> tuple[Feature, ...]:
+    """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots (and the memory
+    features with ``memory``), in order."""
     sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
     share, U, area, speed = sc.n_vehicles / sc.n_uavs, float(sc.n_uavs), float(sc.area_m), float(sc.uav_speed_mps)
     fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
@@ -110,31 +136,49 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS) -> tuple[Featu
     ]
     out += [Feature(f"peer{k}_{field}", f"peer{{k}}_{field}", *rest)
             for k in range(1, peers + 1) for field, *rest in peer]
+    if memory:
+        out += [Feature(f"last_action_{a}", "last_action_{a}", "1", 1.0, "1", 0.0, 1.0,
+                        f"1 if the UAV's action at the previous step was a (0..{N_ACTIONS - 1}; {N_ACTIONS}: hover); "
+                        "all 0 at step 0") for a in range(N_ACTIONS + 1)]
+        out += [Feature(f"last_{c}", f"last_{c}", "m/s", speed, "scenario.uav_speed_mps", -1.0, 1.0,
+                        f"own velocity {d} at the previous step (its action's; 0 hovering or at step 0)")
+                for c, d in (("vx", "east"), ("vy", "north"))]
+        out.append(Feature("in_range_change", "in_range_change", "1", share, fair, -U, U,
+                           "vehicles in range now minus at the previous step (0 before it: now)"))
     return tuple(out)
 
 
 class ViewEncoder:
     """A LocalView -> its feature vector (float32, :func:`observation_features` order) for runs of ``cfg``."""
 
-    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS):
+    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False):
         if isinstance(peers, bool) or not isinstance(peers, int) or peers < 0:
             raise ValueError(f"peers must be an int >= 0 (the heard peers encoded), got {peers!r}")
-        self.cfg, self.peers = cfg, peers
-        self.features = observation_features(cfg, peers)
+        self.cfg, self.peers, self.memory = cfg, peers, bool(memory)
+        self.features = observation_features(cfg, peers, self.memory)
         self.size = len(self.features)
         self.low = np.array([f.low for f in self.features], np.float32)
         self.high = np.array([f.high for f in self.features], np.float32)
         self._names = {f.name: i for i, f in enumerate(self.features)}
         self._scale = [f.scale for f in self.features[:N_OWN]]
         self._sectors = cfg.learner.sense_sectors
-        self._fill = [f.fill_value for f in self.features[N_OWN + self._sectors:]]
+        self._fill = [f.fill_value for f in self.features[N_OWN + self._sectors:]][: len(PEER_FIELDS) * peers]
+        self._share = cfg.scenario.n_vehicles / cfg.scenario.n_uavs
         self._area = float(cfg.scenario.area_m)
 
     def index(self, name: str) -> int:
         """The position of the feature ``name`` in the vector."""
         return self._names[name]
 
-    def __call__(self, view: LocalView) -> np.ndarray:
+    def _memory(self, last: Memory, in_range) -> list[np.ndarray]:
+        a = np.asarray(last.action, np.int64)
+        index = np.where(a == HOVER, N_ACTIONS, a)
+        onehot = [(index == k).astype(np.float64) for k in range(N_ACTIONS + 1)]
+        vx, vy = action_velocity(a)
+        change = (np.asarray(in_range, np.float64) - np.asarray(last.in_range, np.float64)) / self._share
+        return onehot + [vx, vy, change]
+
+    def __call__(self, view: LocalView, last: Memory | None = None) -> np.ndarray:
         # Plain Python floats (float64) for a few dozen numbers: several times cheaper than numpy's calls.
         s = self._scale
         raw = (view.pos[0], view.pos[1], view.speed_max, view.vehicles_in_range, view.covered, view.exclusive,
@@ -155,13 +199,16 @@ class ViewEncoder:
                 slots[n * k: n * k + n] = ((b.pos[0] - x) / area, (b.pos[1] - y) / area, b.vel[0] / speed,
                                            b.vel[1] / speed, d / area, 1.0)
         out += slots
+        if self.memory:
+            out += [float(v) for v in self._memory(last or Memory(), view.vehicles_in_range)]
         vec = np.array(out, np.float32)
         # the caps (an RSU-less city's inf distance: the diagonal); np.clip's own checks cost twice this
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
-    def batch(self, views: BatchedViews) -> np.ndarray:
+    def batch(self, views: BatchedViews, last: Memory | None = None) -> np.ndarray:
         """Every UAV's vector at once, (B, U, size) float32: what __call__ gives each UAV's LocalView built from
-        the same step (the heard peers, nearest first, ties by id; a vectorized environment's observations)."""
+        the same step (the heard peers, nearest first, ties by id; a vectorized environment's observations),
+        ``last`` holding (B, U) arrays."""
         pos = np.asarray(views.pos, np.float64)
         B, U = pos.shape[:2]
         raw = (pos[..., 0], pos[..., 1], np.full((B, U), float(views.speed_max)), views.vehicles_in_range,
@@ -188,8 +235,13 @@ class ViewEncoder:
                     fill = self._fill[n * k + j]
                     slots.append(np.where(mask[..., k], got[j][..., k], fill) if k < order.shape[-1]
                                  else np.full((B, U), fill))
-        vec = np.stack(own + onehot + slots, axis=-1).astype(np.float32)
+        mem = []
+        if self.memory:
+            last = last or Memory(np.full((B, U), NO_ACTION), np.zeros((B, U)))
+            mem = [np.broadcast_to(m, (B, U)) for m in self._memory(last, views.vehicles_in_range)]
+        vec = np.stack(own + onehot + slots + mem, axis=-1).astype(np.float32)
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
 
-__all__ = ["CAP", "DEFAULT_PEERS", "Feature", "PEER_FIELDS", "ViewEncoder", "observation_features"]
+__all__ = ["CAP", "DEFAULT_PEERS", "Feature", "Memory", "NO_ACTION", "PEER_FIELDS", "ViewEncoder", "action_velocity",
+           "observation_features"]

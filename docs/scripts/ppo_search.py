@@ -5,8 +5,10 @@
 Each NAME with its keyword arguments of truav.analysis.ppo_train.train (training seeds 0..15, --preset paper at
 15 m/s, learner.sense_range_m = 1500) is trained, then flown greedy on held-out traffic (seeds 0..9 + EVAL_SEED_OFFSET,
 20 episodes each, in the vector environment: the same actions as the agent API's evaluation, checked on the
-shipped weights); prints its coverage with a 95% interval and its paired difference with the heuristic, and
-appends one row per seed to OUT (default docs/figures/learned-policy-search.csv).
+shipped weights); prints its coverage with a 95% interval, its paired difference with the heuristic and how often
+its action is the heuristic's on the states it visits (truav.analysis.ppo_train.agreement, training seeds, 2
+episodes: over all and per decision kind), and appends one row per seed to OUT (default
+docs/figures/learned-policy-search.csv).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 import torch
 
 from ppo_train import config
-from truav.analysis.ppo_train import export, greedy_coverage, train
+from truav.analysis.ppo_train import KINDS, agreement, export, greedy_coverage, train
 from truav.analysis.trainer import run_chunk
 from truav.seeding import EVAL_SEED_OFFSET
 from truav.stats import effect_text, mean_ci, paired_effect
@@ -48,8 +50,12 @@ def main() -> None:
         kwargs = json.loads(spec)
         t = time.perf_counter()
         model, times = train(cfg, list(range(ENVS)), say=lambda line: None, **kwargs)
-        cov = greedy_coverage(export(model, cfg, 4), cfg, seeds, EPISODES, 4)
+        arrays = export(model, cfg, 4, kwargs.get("memory", False))
+        cov = greedy_coverage(arrays, cfg, seeds, EPISODES, 4)
         m, h = mean_ci(cov)
+        agree = agreement(arrays, cfg, list(range(ENVS)), 2)
+        print(f"{name} agreement with spread: {agree['all']:.3f}; " + ", ".join(
+            f"{k} {agree[k]:.3f} ({100 * agree[k + '_share']:.0f}% of states)" for k in KINDS), flush=True)
         print(f"{name} {spec}: {m:.1f} ± {h:.1f}%, minus spread "
               f"{effect_text(paired_effect(spread, cov), digits=1, noun='seeds')}; trained in "
               f"{times['total_s']:.0f} s ({time.perf_counter() - t:.0f} s with the evaluation)", flush=True)

@@ -49,6 +49,9 @@ def main() -> None:
     ap.add_argument("--lr", type=float, default=3e-5)
     ap.add_argument("--coverage-bonus", type=float, default=5.0, help="the team term's weight (TruavVecEnv)")
     ap.add_argument("--n-steps", type=int, default=100)
+    ap.add_argument("--memory", action="store_true",
+                    help="observe the memory features too (own previous action, velocity, change in range)")
+    ap.add_argument("--seed", type=int, default=0, help="the training's seed (default %(default)s)")
     ap.add_argument("--ent-coef", type=float, default=0.0)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--episodes", type=int, default=20)
@@ -62,8 +65,9 @@ def main() -> None:
         torch.set_num_threads(1)
         model, times = train(cfg, list(range(args.envs)), bc_episodes=args.bc_episodes, bc_epochs=args.bc_epochs,
                              dagger_rounds=args.dagger, ppo_steps=args.ppo_steps, lr=args.lr, n_steps=args.n_steps,
-                             ent_coef=args.ent_coef, coverage_bonus=args.coverage_bonus)
-        np.savez(WEIGHTS, **export(model, cfg, 4))
+                             ent_coef=args.ent_coef, coverage_bonus=args.coverage_bonus, memory=args.memory,
+                             seed=args.seed)
+        np.savez(WEIGHTS, **export(model, cfg, 4, args.memory))
         print(f"trained in {times['total_s']:.0f} s (cloning {times['clone_s']:.0f} s); wrote {WEIGHTS}")
     seeds = [s + EVAL_SEED_OFFSET for s in range(args.seeds)]
     cov = {}

@@ -21,7 +21,9 @@ libraries can train on it, observing what an agent process sees.
   sensing off); the ``peers`` (K, default 4) nearest heard peers' relative position, velocity, distance
   and a mask (padding: documented fills, mask 0). Each scaled to O(1), in the Box's bounds.
   ``env.observation_features()`` names each with its unit and scale; docs/reference/pettingzoo-observation.md
-  is generated from it.
+  is generated from it. With ``memory=True`` (env name truav_memory_v1) each observation also holds what
+  the UAV did at the previous step: its action one-hot, its velocity, the change of its vehicles in range
+  (agents.view_features.Memory; an agent process remembers it itself, agents/ppo_agent.py).
 - One algorithm, two drivers: the views are built by the in-process API driver
   (agents.api_controller.ApiController, whose API agent here acts what ``step`` is given), so an
   observation is the encoding of exactly the view an API agent receives in process at the same seed and
@@ -49,7 +51,7 @@ except ImportError as exc:  # pragma: no cover - depends on the install
 
 from agents.api import UavAgent
 from agents.api_controller import ApiController
-from agents.view_features import DEFAULT_PEERS, Feature, ViewEncoder
+from agents.view_features import DEFAULT_PEERS, NO_ACTION, Feature, Memory, ViewEncoder
 from truav import seeding
 from truav.analysis.sumo_traffic import make_world
 from truav.config import Config
@@ -78,7 +80,7 @@ class TruavParallelEnv(ParallelEnv):
     metadata = {"name": "truav_v1", "render_modes": [], "is_parallelizable": True}
 
     def __init__(self, cfg: Config | None = None, render_mode: str | None = None, *, preset: str | None = None,
-                 sense_range_m: float | None = None, peers: int = DEFAULT_PEERS):
+                 sense_range_m: float | None = None, peers: int = DEFAULT_PEERS, memory: bool = False):
         cfg = cfg or Config()
         if preset is not None:
             cfg = cfg.replace(**preset_overrides(preset))
@@ -86,7 +88,10 @@ class TruavParallelEnv(ParallelEnv):
             cfg = cfg.replace(learner={"sense_range_m": float(sense_range_m)})
         self.cfg = cfg
         self.render_mode = render_mode
-        self.encoder = ViewEncoder(cfg, peers)
+        self.encoder = ViewEncoder(cfg, peers, memory)
+        if memory:
+            self.metadata = {**self.metadata, "name": "truav_memory_v1"}
+        self._last = Memory(np.full(cfg.scenario.n_uavs, NO_ACTION, np.int64), np.zeros(cfg.scenario.n_uavs))
         self.possible_agents = [f"uav_{i}" for i in range(cfg.scenario.n_uavs)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
@@ -110,7 +115,8 @@ class TruavParallelEnv(ParallelEnv):
 
     def _observations(self) -> dict[str, np.ndarray]:
         views = self._driver.views[0]
-        return {a: self.encoder(views[i]) for i, a in enumerate(self.agents)}
+        return {a: self.encoder(views[i], Memory(int(self._last.action[i]), int(self._last.in_range[i])))
+                for i, a in enumerate(self.agents)}
 
     @staticmethod
     def _info(obs: LocalObs, i: int) -> dict[str, float]:
@@ -132,6 +138,7 @@ class TruavParallelEnv(ParallelEnv):
             obs = self._world.start_episode()
             self._episode += 1
         self._driver.begin_episode(self._episode, obs)
+        self._last.action[:], self._last.in_range[:] = NO_ACTION, 0
         self.agents = list(self.possible_agents)
         return self._observations(), {a: self._info(obs, i) for i, a in enumerate(self.agents)}
 
@@ -142,6 +149,8 @@ class TruavParallelEnv(ParallelEnv):
         for agent, action in actions.items():
             if agent in self._index:
                 self._actions[self._index[agent]] = int(action)
+        self._last.in_range[:] = [v.vehicles_in_range for v in self._driver.views[0]]
+        self._last.action[:] = self._actions
         obs, _, done = self._world.step(self._driver.act(self._driver.t))
         self._driver.observe(obs, done)
         observations = self._observations()
@@ -164,5 +173,5 @@ class TruavParallelEnv(ParallelEnv):
 
 
 def parallel_env(cfg: Config | None = None, **kwargs) -> TruavParallelEnv:
-    """PettingZoo-style constructor: parallel_env(cfg, preset=..., sense_range_m=..., peers=...)."""
+    """PettingZoo-style constructor: parallel_env(cfg, preset=..., sense_range_m=..., peers=..., memory=...)."""
     return TruavParallelEnv(cfg, **kwargs)

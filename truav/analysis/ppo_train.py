@@ -30,11 +30,24 @@ from truav.analysis.ppo_vec_env import TruavVecEnv, to_slot_actions
 from truav.config import Config
 
 
+KINDS = ("serving", "chasing", "keeping", "wandering")
+"""The heuristic's decision at a state (agents/spread_agent.py): serving its cluster, chasing a sensed goal,
+keeping what is in range (hovering), wandering with nothing in range."""
+
+
+def decision_kind(teacher: SpreadBatched, views) -> np.ndarray:
+    """Each slot's KINDS index of the decision ``teacher`` just took (after its act on ``views``)."""
+    serving, chasing = teacher.last[:, 3] > 0, teacher.goal[:, 0] >= 0
+    in_range = np.asarray(views.vehicles_in_range).reshape(-1) > 0
+    return np.where(serving, 0, np.where(chasing, 1, np.where(in_range, 2, 3)))
+
+
 def teacher_data(env: TruavVecEnv, episodes: int, gamma: float,
-                 flier: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 flier: Callable[[np.ndarray], np.ndarray] | None = None,
+                 kinds: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(observations (N, F), the heuristic's slot actions (N,), discounted returns (N,)) of ``episodes``
     episodes of every slot, the heuristic flying, or ``flier`` (observations -> slot actions; DAgger: the
-    heuristic labels the states the learner visits)."""
+    heuristic labels the states the learner visits); appends each step's decision kinds to ``kinds``."""
     B, U = env.B, env.U
     teacher = SpreadBatched(env.cfg, [[seeding.agent_rng(s, u) for u in range(U)] for s in env.seeds])
     obs_l, act_l, rew_l = [], [], []
@@ -44,6 +57,8 @@ def teacher_data(env: TruavVecEnv, episodes: int, gamma: float,
         ep_obs, ep_act, ep_rew = [], [], []
         while True:
             a = to_slot_actions(teacher.act(env.views)).reshape(-1)
+            if kinds is not None:
+                kinds.append(decision_kind(teacher, env.views))
             ep_obs.append(obs)
             ep_act.append(a)
             obs, r, done, _ = env.step(a if flier is None else flier(obs))
@@ -86,7 +101,23 @@ def clone(model: PPO, obs: np.ndarray, actions: np.ndarray, returns: np.ndarray,
     return acc
 
 
-def export(model: PPO, cfg: Config, peers: int) -> dict[str, np.ndarray]:
+def agreement(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int], episodes: int) -> dict[str, float]:
+    """The share of the states the exported greedy policy visits where its action is the heuristic's: over
+    all ("all") and per decision kind of the heuristic (KINDS; with each kind's share of the states)."""
+    policy = NumpyPolicy(arrays)
+    env = TruavVecEnv(cfg, seeds, policy.peers or 4, memory=policy.memory)
+    kinds: list = []
+    obs, labels, _ = teacher_data(env, episodes, 0.0, lambda o: to_slot_actions(policy.greedy(o)), kinds)
+    same = to_slot_actions(policy.greedy(obs)) == labels
+    kind = np.concatenate(kinds)
+    out = {"all": float(same.mean())}
+    for i, name in enumerate(KINDS):
+        out[name] = float(same[kind == i].mean()) if (kind == i).any() else float("nan")
+        out[f"{name}_share"] = float((kind == i).mean())
+    return out
+
+
+def export(model: PPO, cfg: Config, peers: int, memory: bool = False) -> dict[str, np.ndarray]:
     """The policy branch and action head of SB3's MlpPolicy as agents.ppo_policy's arrays."""
     linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
     linears.append(model.policy.action_net)
@@ -95,7 +126,8 @@ def export(model: PPO, cfg: Config, peers: int) -> dict[str, np.ndarray]:
         out[f"w{i}"] = lin.weight.detach().numpy().T.astype(np.float32).copy()
         out[f"b{i}"] = lin.bias.detach().numpy().astype(np.float32).copy()
     out.update(peers=np.array(peers), n_features=np.array(out["w0"].shape[0]),
-               sense_sectors=np.array(cfg.learner.sense_sectors), speed_mps=np.array(cfg.scenario.uav_speed_mps))
+               sense_sectors=np.array(cfg.learner.sense_sectors), speed_mps=np.array(cfg.scenario.uav_speed_mps),
+               memory=np.array(int(memory)))
     return out
 
 
@@ -103,7 +135,7 @@ def greedy_coverage(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int]
                     peers: int) -> np.ndarray:
     """Each seed's mean coverage (%) over ``episodes`` greedy episodes of the exported policy, in a vector."""
     policy = NumpyPolicy(arrays)
-    env = TruavVecEnv(cfg, seeds, peers)
+    env = TruavVecEnv(cfg, seeds, peers, memory=policy.memory)
     obs, cov = env.reset(), []
     for _ in range(episodes):
         while True:
@@ -116,10 +148,11 @@ def greedy_coverage(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int]
 
 def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 20, bc_epochs: int = 8,
           ppo_steps: int = 0, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0,
-          coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, say: Callable[[str], None] = print) -> tuple[PPO, dict]:
+          coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, memory: bool = False,
+          say: Callable[[str], None] = print) -> tuple[PPO, dict]:
     """Clone the heuristic, then PPO for ``ppo_steps`` slot-steps; returns the model and timings."""
     torch.manual_seed(seed)
-    env = TruavVecEnv(cfg, seeds, peers, coverage_bonus)
+    env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory)
     slots = env.num_envs
     model = PPO("MlpPolicy", env, learning_rate=lr, n_steps=n_steps, batch_size=min(slots * n_steps, 2000),
                 n_epochs=5, gamma=0.99, gae_lambda=0.95, ent_coef=ent_coef, seed=seed, verbose=0, device="cpu")
@@ -131,7 +164,7 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
         say(f"  teacher: {len(obs)} samples in {times['teacher_s']:.0f} s")
         times["accuracy"] = clone(model, obs, act, ret, bc_epochs, seed, say=say)
         for r in range(dagger_rounds):  # the learner flies, the heuristic labels; trained on everything so far
-            flier = NumpyPolicy(export(model, cfg, peers)).greedy
+            flier = NumpyPolicy(export(model, cfg, peers, memory)).greedy
             more = teacher_data(env, bc_episodes, model.gamma, lambda o: to_slot_actions(flier(o)))
             obs, act, ret = (np.concatenate([x, y]) for x, y in zip((obs, act, ret), more))
             say(f"  DAgger round {r + 1}/{dagger_rounds}: {len(obs)} samples")
@@ -145,4 +178,4 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
     return model, times
 
 
-__all__ = ["clone", "export", "greedy_coverage", "teacher_data", "train"]
+__all__ = ["KINDS", "agreement", "clone", "decision_kind", "export", "greedy_coverage", "teacher_data", "train"]

@@ -6,7 +6,8 @@ is one slot of the vector, acting on its own observation only. Slot i is UAV i %
 - Observations: each UAV's LocalView encoded as the PettingZoo environment encodes it
   (agents.view_features.ViewEncoder, here its batched form ``batch``), built by the in-process API driver
   (agents.api_controller.ApiController) from one World stepping all B environments at once: the same
-  numbers as ``truav.analysis.pettingzoo_env`` for the same seed and step (tests/unit/test_ppo_vec_env.py).
+  numbers as ``truav.analysis.pettingzoo_env`` for the same seed and step (tests/unit/test_ppo_vec_env.py),
+  with ``memory`` its memory features too (each UAV's previous action and vehicles in range).
 - Actions: Discrete(17): the 16 of truav.actions, and 16 for HOVER (the heuristic hovers; a policy imitating
   it needs to).
 - Rewards: the paper's local reward (agents.reward), plus ``coverage_bonus`` x the share of all vehicles the
@@ -25,7 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from agents.api import BatchedAgents, BatchedViews
 from agents.api_controller import ApiController
-from agents.view_features import DEFAULT_PEERS, ViewEncoder
+from agents.view_features import DEFAULT_PEERS, NO_ACTION, Memory, ViewEncoder
 from truav import seeding
 from truav.actions import HOVER, N_ACTIONS
 from truav.analysis.sumo_traffic import make_world
@@ -67,10 +68,12 @@ class _GivenClass:
 class TruavVecEnv(VecEnv):
     """See the module's docstring."""
 
-    def __init__(self, cfg: Config, seeds: list[int], peers: int = DEFAULT_PEERS, coverage_bonus: float = 0.0):
+    def __init__(self, cfg: Config, seeds: list[int], peers: int = DEFAULT_PEERS, coverage_bonus: float = 0.0,
+                 memory: bool = False):
         self.cfg, self.seeds, self.coverage_bonus = cfg, list(seeds), float(coverage_bonus)
         self.B, self.U = len(seeds), cfg.scenario.n_uavs
-        self.encoder = ViewEncoder(cfg, peers)
+        self.encoder = ViewEncoder(cfg, peers, memory)
+        self.last = Memory(np.full((self.B, self.U), NO_ACTION, np.int64), np.zeros((self.B, self.U)))
         self.render_mode = None
         box = spaces.Box(self.encoder.low, self.encoder.high, (self.encoder.size,), np.float32)
         super().__init__(self.B * self.U, box, spaces.Discrete(N_ACTIONS + 1))
@@ -88,7 +91,7 @@ class TruavVecEnv(VecEnv):
         return self.driver.views
 
     def _obs(self) -> np.ndarray:
-        return self.encoder.batch(self.driver.views).reshape(self.B * self.U, -1)
+        return self.encoder.batch(self.driver.views, self.last).reshape(self.B * self.U, -1)
 
     def reset(self) -> np.ndarray:
         if self.episode < 0:
@@ -97,6 +100,7 @@ class TruavVecEnv(VecEnv):
             obs = self.world.start_episode()
         self.episode += 1
         self.driver.begin_episode(self.episode, obs)
+        self.last.action[:], self.last.in_range[:] = NO_ACTION, 0
         return self._obs()
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -104,6 +108,7 @@ class TruavVecEnv(VecEnv):
 
     def step_wait(self):
         self.group.actions = to_world_actions(self._pending)
+        self.last.action[:], self.last.in_range[:] = self.group.actions, self.driver.views.vehicles_in_range
         obs, _, done = self.world.step(self.driver.act(self.driver.t))
         self.driver.observe(obs, done)
         reward = self.group.rewards
