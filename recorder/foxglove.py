@@ -85,6 +85,7 @@ class Geometry:
     comm_range_m: float = 500.0
     uav_altitude_m: float = 100.0
     rsu_xy: tuple[tuple[float, float], ...] = ((1000.0, 1000.0), (4000.0, 1000.0), (1000.0, 4000.0), (4000.0, 4000.0))
+    step_s: float = 1.0  # a tick's sim seconds (a velocity from consecutive positions)
 
     @classmethod
     def from_toml(cls, text: Optional[str]) -> "Geometry":
@@ -104,7 +105,8 @@ class Geometry:
         """From a :class:`truav.config.Config`."""
         sc, block = cfg.scenario, cfg.roads.block_m
         return cls(area_m=sc.area_m, block_m=block, comm_range_m=sc.comm_range_m, uav_altitude_m=sc.uav_altitude_m,
-                   rsu_xy=tuple((float(i) * block, float(j) * block) for i, j in sc.rsu_intersections))
+                   rsu_xy=tuple((float(i) * block, float(j) * block) for i, j in sc.rsu_intersections),
+                   step_s=sc.step_s)
 
 
 def parse_origin(text: str) -> tuple[float, float]:

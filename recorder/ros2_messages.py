@@ -6,6 +6,11 @@ typestore, so neither the wire format nor the message definitions are written by
 * ``/truav/uav_<i>/pose`` (``geometry_msgs/msg/PoseStamped``) for every observation the world sent UAV
   ``i`` (every tick): frame ``map``, x east and y north in metres as in the recording, z the scenario's
   UAV altitude (``scenario.uav_altitude_m``), identity orientation;
+* ``/truav/uav_<i>/velocity`` (``geometry_msgs/msg/TwistStamped``) with each pose after the first of an
+  episode: frame ``map``, the linear x (east) and y (north) in m/s from this position and the UAV's previous
+  one in the same episode (their difference over the ticks between them x ``scenario.step_s``), z and the
+  angular velocity 0. Never across an episode's reset (the UAVs jump back to their starts), nor across a
+  position that was not finite;
 * ``/truav/markers`` (``visualization_msgs/msg/MarkerArray``) for every positions message of the world
   (every few ticks): a DELETEALL, then the UAVs (spheres with a label), the vehicles and the RSUs (cube lists);
 * ``/truav/metrics`` (``diagnostic_msgs/msg/DiagnosticArray``) for every metrics message of the world (one
@@ -35,6 +40,7 @@ FRAME = "map"
 MARKERS_TOPIC = "/truav/markers"
 METRICS_TOPIC = "/truav/metrics"
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+VELOCITY_TYPE = "geometry_msgs/msg/TwistStamped"
 MARKERS_TYPE = "visualization_msgs/msg/MarkerArray"
 METRICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
 OBS_VALUES = ("energy_j", "covered", "vehicles_in_range", "relayed", "queued_packets")
@@ -46,6 +52,10 @@ _EMPTY_BYTES = np.zeros(0, dtype=np.uint8)  # a uint8[] field (rosbags holds the
 
 def pose_topic(uav: int) -> str:
     return f"/truav/uav_{uav}/pose"
+
+
+def velocity_topic(uav: int) -> str:
+    return f"/truav/uav_{uav}/velocity"
 
 
 class Ros2Message(NamedTuple):
@@ -60,6 +70,7 @@ class Ros2Mapper:
     def __init__(self, typestore: Any, geometry: Geometry = Geometry()) -> None:
         self.geometry = geometry
         self._t = typestore.types
+        self._last: dict[int, tuple[int, int, float, float]] = {}  # uav -> (episode, tick, x, y) of its last pose
 
     def feed(self, kind: Any, key: str, body: dict, log_ns: int) -> list[Ros2Message]:
         """The ROS 2 messages of one decoded bus message ([] for kinds not exported or a body that does not fit)."""
@@ -86,13 +97,37 @@ class Ros2Mapper:
 
     def _obs(self, key: str, body: dict, log_ns: int) -> list[Ros2Message]:
         uav, xy = _uav(body, key), _finite_xy(body.get("pos"))
+        if uav is not None and xy is None:
+            self._last.pop(uav, None)  # no velocity across a position that is not one
         if uav is None or xy is None:
             return []
         pose = self._t[POSE_TYPE](header=self._header(log_ns), pose=self._pose(xy[0], xy[1], self.geometry.uav_altitude_m))
         values = _numbers({k: body[k] for k in OBS_VALUES if k in body})
         status = self._status(f"truav/uav_{uav}", values, f"tick {body.get('tick')!s:.20}")
-        return [Ros2Message(pose_topic(uav), POSE_TYPE, pose),
-                Ros2Message(METRICS_TOPIC, METRICS_TYPE, self._diagnostics(log_ns, [status]))]
+        out = [Ros2Message(pose_topic(uav), POSE_TYPE, pose)]
+        velocity = self._velocity(uav, body.get("episode"), body.get("tick"), xy)
+        if velocity is not None:
+            t = self._t
+            twist = t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=velocity[0], y=velocity[1], z=0.0),
+                                                 angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
+            out.append(Ros2Message(velocity_topic(uav), VELOCITY_TYPE,
+                                   t[VELOCITY_TYPE](header=self._header(log_ns), twist=twist)))
+        return out + [Ros2Message(METRICS_TOPIC, METRICS_TYPE, self._diagnostics(log_ns, [status]))]
+
+    def _velocity(self, uav: int, episode: Any, tick: Any, xy: tuple[float, float]) -> Optional[tuple[float, float]]:
+        """(vx, vy) m/s from the UAV's previous position in this episode to ``xy``; None for the first of an
+        episode, or a tick not after the last one seen (a repeat: the last one is kept)."""
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (episode, tick)):
+            self._last.pop(uav, None)
+            return None
+        last = self._last.get(uav)
+        if last is not None and (episode, tick) <= last[:2]:
+            return None
+        self._last[uav] = (episode, tick, xy[0], xy[1])
+        if last is None or last[0] != episode:
+            return None
+        dt = (tick - last[1]) * self.geometry.step_s
+        return (xy[0] - last[2]) / dt, (xy[1] - last[3]) / dt
 
     def _status(self, name: str, values: dict[str, float], message: str) -> Any:
         t = self._t

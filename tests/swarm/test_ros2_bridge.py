@@ -98,6 +98,7 @@ def test_an_independent_rmw_zenoh_client_lists_the_topics_sees_the_node_and_echo
     out = (tmp_path / "ros2.log").read_text()
     for i in range(AGENTS):
         assert topics.get(f"/truav/uav_{i}/pose") == [POSE], (topics, out)
+        assert topics.get(f"/truav/uav_{i}/velocity") == ["geometry_msgs/msg/TwistStamped"], topics
     assert topics.get("/truav/markers") == ["visualization_msgs/msg/MarkerArray"], topics
     assert topics.get("/truav/metrics") == ["diagnostic_msgs/msg/DiagnosticArray"], topics
     assert info is not None and [(p.node_namespace, p.node_name) for p in info.publishers] == [("/truav", "bridge_ros2")]

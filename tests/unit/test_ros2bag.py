@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.recordings import N_UAVS, TICKS, make_swarm_recording
-from tests.support.ros2bags import decoded_by_mcap_ros2, poses_by_rosbags, recorded_poses
+from tests.support.ros2bags import decoded_by_mcap_ros2, poses_by_rosbags, recorded_poses, rosbags_highlevel
 from truav.cli.main import main
 from truav.config import Config
 
@@ -34,6 +34,7 @@ def test_rosbags_reads_every_pose_equal_to_the_recordings(exported) -> None:
     assert {t: [(s, x, y) for s, x, y, _ in p] for t, p in got.items()} == want
     assert {z for p in got.values() for *_, z in p} == {ALTITUDE}
     assert types == {**{t: "geometry_msgs/msg/PoseStamped" for t in want},
+                     **{f"/truav/uav_{u}/velocity": "geometry_msgs/msg/TwistStamped" for u in range(N_UAVS)},
                      "/truav/markers": "visualization_msgs/msg/MarkerArray",
                      "/truav/metrics": "diagnostic_msgs/msg/DiagnosticArray"}
 
@@ -54,6 +55,58 @@ def test_mcap_ros2_support_decodes_every_message(exported) -> None:
     energy = [kv.value for a in decoded["/truav/metrics"] for s in a.status if s.name == "truav/uav_0"
               for kv in s.values if kv.key == "energy_j"]
     assert energy == ["10.0"] * TICKS
+
+
+def test_velocity_is_each_step_of_a_uav_within_an_episode_never_across_a_reset(exported) -> None:
+    """rosbags reads each UAV's TwistStamped: one with every pose but the first of an episode, stamped as that
+    pose, its linear x, y the position's change since the UAV's previous one over the scenario's step."""
+    import msgpack
+    from rosbags.typesys import Stores, get_typestore
+
+    from recorder.reader import iter_messages
+    recording, bag = exported
+    step_s = Config().scenario.step_s
+    obs: dict[int, list[tuple[int, int, int, float, float]]] = {}  # uav -> (log ns, episode, tick, x, y)
+    for _key, payload, log_ns, _ in iter_messages(recording):
+        b = msgpack.unpackb(payload)
+        if b.get("kind") == "obs":
+            obs.setdefault(b["uav"], []).append((log_ns, b["episode"], b["tick"], *map(float, b["pos"])))
+    got: dict[str, list[tuple[int, float, float, float]]] = {}
+    with rosbags_highlevel.AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        conns = [c for c in reader.connections if c.topic.endswith("/velocity")]
+        for conn, _, raw in reader.messages(connections=conns):
+            m = reader.deserialize(raw, conn.msgtype)
+            assert m.header.frame_id == "map" and m.twist.angular.z == 0.0
+            got.setdefault(conn.topic, []).append((m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
+                                                   m.twist.linear.x, m.twist.linear.y, m.twist.linear.z))
+    for uav, seen in obs.items():
+        want = [(t, (x - px) / ((k - pk) * step_s), (y - py) / ((k - pk) * step_s), 0.0)
+                for (_, pe, pk, px, py), (t, e, k, x, y) in zip(seen, seen[1:]) if e == pe]
+        assert len(want) == TICKS - TICKS // 60 and len(want) < len(seen)  # none at an episode's first tick
+        assert [(t, round(vx, 9), round(vy, 9), vz) for t, vx, vy, vz in got[f"/truav/uav_{uav}/velocity"]] == \
+            [(t, round(vx, 9), round(vy, 9), vz) for t, vx, vy, vz in want]
+        assert max(abs(vx) for _, vx, _, _ in want) > 1.0  # the UAVs move: not a trivial zero
+
+
+def test_mapper_velocity_skips_resets_repeats_and_non_finite_positions() -> None:
+    from rosbags.typesys import Stores, get_typestore
+
+    from recorder.foxglove import Geometry
+    from recorder.ros2_messages import Ros2Mapper
+    mapper = Ros2Mapper(get_typestore(Stores.ROS2_JAZZY), Geometry(step_s=0.5))
+
+    def vel(episode, tick, x, y):
+        out = mapper.feed("obs", "truav/r/uav/3/obs", {"uav": 3, "episode": episode, "tick": tick, "pos": [x, y]}, 1)
+        twists = [m.message.twist.linear for m in out if m.topic == "/truav/uav_3/velocity"]
+        return (twists[0].x, twists[0].y) if twists else None
+
+    assert vel(0, 0, 100.0, 100.0) is None  # the first: nothing to differ from
+    assert vel(0, 1, 110.0, 95.0) == (20.0, -10.0)  # 10 m east, 5 m south in 0.5 s
+    assert vel(0, 1, 500.0, 500.0) is None  # a repeated tick: not a step
+    assert vel(0, 3, 120.0, 95.0) == (10.0, 0.0)  # a lost tick between: over the two steps
+    assert vel(1, 0, 4000.0, 4000.0) is None  # an episode's reset: never a jump across it
+    assert vel(1, 1, 4000.0, 4010.0) == (0.0, 20.0)
+    assert vel(1, 2, float("nan"), 1.0) is None and vel(1, 3, 4000.0, 4020.0) is None  # not across a NaN
 
 
 def test_mistakes_are_one_line_and_exit_2(exported, tmp_path: Path, capsys) -> None:

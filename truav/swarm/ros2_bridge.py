@@ -2,7 +2,8 @@
 
 A thin wrapper: :func:`truav.swarm.view.follow` (the live views' one subscription to ``truav/<run>/**``)
 feeds :class:`recorder.ros2_messages.Ros2Mapper` (the same mapping ``truav log ros2bag`` writes into a bag:
-``/truav/uav_<i>/pose`` PoseStamped, ``/truav/markers`` MarkerArray, ``/truav/metrics`` DiagnosticArray);
+``/truav/uav_<i>/pose`` PoseStamped, ``/truav/uav_<i>/velocity`` TwistStamped, ``/truav/markers``
+MarkerArray, ``/truav/metrics`` DiagnosticArray);
 rosbags' typestore serializes each message to CDR, and the Bus's own Zenoh session (a client of the run's
 router) puts it on rmw_zenoh's key expression with rmw_zenoh's attachment, after declaring the graph's
 liveliness tokens: one node (``/truav/bridge_<run>``) and one publisher per topic
@@ -26,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 from recorder.ros2_messages import (FRAME, MARKERS_TOPIC, MARKERS_TYPE, METRICS_TOPIC, METRICS_TYPE, POSE_TYPE,
-                                    pose_topic)
+                                    VELOCITY_TYPE, pose_topic, velocity_topic)
 from recorder.schemas import envelope_fields
 from truav.swarm.steering import inside_area, send_override
 from truav.swarm.view import follow
@@ -79,6 +80,7 @@ class Ros2Bridge:
         self.node = node_name(run)
         self.on_shutdown = on_shutdown
         self.topics = [(pose_topic(i), POSE_TYPE) for i in range(n_uavs)] + [
+            (velocity_topic(i), VELOCITY_TYPE) for i in range(n_uavs)] + [
             (MARKERS_TOPIC, MARKERS_TYPE), (METRICS_TOPIC, METRICS_TYPE)]
         self.stats = BridgeStats()
         self._session: Any = None
