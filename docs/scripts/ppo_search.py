@@ -36,9 +36,15 @@ def main() -> None:
     ap.add_argument("variants", nargs="*", help="NAME JSON pairs")
     ap.add_argument("--out", default="docs/figures/learned-policy-search.csv")
     ap.add_argument("--figure", help="draw FIGURE.png from OUT (each variant's coverage, the heuristic's)")
+    ap.add_argument("--pool", nargs="+", metavar="LABEL=NAME,NAME",
+                    help="compare pools of OUT's variants (the training runs of one setting with different seeds): "
+                         "each pool's per-seed mean over its runs, minus spread, and each pool minus the first")
     args = ap.parse_args()
     if args.figure:
         figure(Path(args.out), Path(args.figure))
+        return
+    if args.pool:
+        pool(Path(args.out), args.pool)
         return
     torch.set_num_threads(1)
     cfg = config()
@@ -66,6 +72,27 @@ def main() -> None:
                 new = False
             w.writerows([name, spec, s, f"{c:.4f}", f"{p:.4f}", f"{times['total_s']:.0f}"]
                          for s, (c, p) in enumerate(zip(cov, spread)))
+
+
+def pool(table: Path, specs: list[str]) -> None:
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+    runs = {}
+    for r in rows:
+        runs.setdefault(r["variant"], {})[int(r["seed"])] = (float(r["coverage_pct"]), float(r["spread_pct"]))
+    pools = {}
+    for spec in specs:
+        label, names = spec.split("=", 1)
+        per_run = [np.array([runs[n][s][0] for s in sorted(runs[n])]) for n in names.split(",")]
+        spread = np.array([runs[names.split(",")[0]][s][1] for s in sorted(runs[names.split(",")[0]])])
+        pools[label] = cov = np.mean(per_run, axis=0)
+        m, h = mean_ci(cov)
+        means = ", ".join(f"{c.mean():.1f}" for c in per_run)
+        print(f"{label}: {m:.1f} ± {h:.1f}% (runs {means}); minus spread "
+              f"{effect_text(paired_effect(spread, cov), digits=1, noun='seeds')}")
+    first = next(iter(pools))
+    for label, cov in list(pools.items())[1:]:
+        print(f"{label} - {first}: {effect_text(paired_effect(pools[first], cov), digits=1, noun='seeds')}")
 
 
 def figure(table: Path, path: Path) -> None:

@@ -149,13 +149,15 @@ def greedy_coverage(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int]
 def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 20, bc_epochs: int = 8,
           ppo_steps: int = 0, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0,
           coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, memory: bool = False,
-          say: Callable[[str], None] = print) -> tuple[PPO, dict]:
-    """Clone the heuristic, then PPO for ``ppo_steps`` slot-steps; returns the model and timings."""
+          net: list[int] | None = None, say: Callable[[str], None] = print) -> tuple[PPO, dict]:
+    """Clone the heuristic, then PPO for ``ppo_steps`` slot-steps; returns the model and timings. ``net``: the
+    hidden layers' widths of the policy and the value network (None: MlpPolicy's, two of 64)."""
     torch.manual_seed(seed)
     env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory)
     slots = env.num_envs
     model = PPO("MlpPolicy", env, learning_rate=lr, n_steps=n_steps, batch_size=min(slots * n_steps, 2000),
-                n_epochs=5, gamma=0.99, gae_lambda=0.95, ent_coef=ent_coef, seed=seed, verbose=0, device="cpu")
+                n_epochs=5, gamma=0.99, gae_lambda=0.95, ent_coef=ent_coef, seed=seed, verbose=0, device="cpu",
+                policy_kwargs=None if net is None else {"net_arch": list(net)})
     times = {}
     t0 = time.perf_counter()
     if bc_episodes:
