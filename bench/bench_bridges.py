@@ -160,7 +160,8 @@ def line(r: dict) -> str:
     return (f"{'LOADED ' if r['loaded'] else ''}{r['setting']:>7s} {r['agents']} UAVs {r['ticks']} ticks at "
             f"{r['rate_hz']:g} Hz, load {r['load_before']:.2f}: missed {r['missed_pct']:.3f}% of actions, tick "
             f"lateness p99 {r['tick_p99_ms']:.1f} ms"
-            + ("" if r["setting"] == "none" else f", bridge {r['bridge_cores']:.3f} cores") + f"{hb}, exit {r['exit_code']}")
+            + ("" if r["setting"] == "none" else f", bridge {r['bridge_cores']:.3f} cores")
+            + f"{hb}, exit {r['exit_code']}")
 
 
 def table(rows: list[dict]) -> str:

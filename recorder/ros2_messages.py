@@ -108,8 +108,9 @@ class Ros2Mapper:
         velocity = self._velocity(uav, body.get("episode"), body.get("tick"), xy)
         if velocity is not None:
             t = self._t
-            twist = t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=velocity[0], y=velocity[1], z=0.0),
-                                                 angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
+            vector = t["geometry_msgs/msg/Vector3"]
+            twist = t["geometry_msgs/msg/Twist"](linear=vector(x=velocity[0], y=velocity[1], z=0.0),
+                                                 angular=vector(x=0.0, y=0.0, z=0.0))
             out.append(Ros2Message(velocity_topic(uav), VELOCITY_TYPE,
                                    t[VELOCITY_TYPE](header=self._header(log_ns), twist=twist)))
         return out + [Ros2Message(METRICS_TOPIC, METRICS_TYPE, self._diagnostics(log_ns, [status]))]

@@ -15,10 +15,10 @@ from truav.swarm.ros2_bridge import GOAL_TYPE, MAX_GOAL_BYTES, Ros2Bridge  # noq
 
 def _pose(store, x: float, y: float, frame: str = "map") -> bytes:
     t = store.types
-    msg = t[GOAL_TYPE](header=t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=1, nanosec=0),
-                                                       frame_id=frame),
-                       pose=t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x, y=y, z=100.0),
-                                                        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
+    header = t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id=frame)
+    pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x, y=y, z=100.0),
+                                       orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+    msg = t[GOAL_TYPE](header=header, pose=pose)
     return bytes(store.serialize_cdr(msg, GOAL_TYPE))
 
 

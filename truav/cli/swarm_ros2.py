@@ -38,7 +38,8 @@ def cmd_ros2(args) -> int:
     def ready() -> None:
         print(f"ROS 2: run {args.run} as node {ros2_bridge.NAMESPACE}/{bridge.node} on ROS_DOMAIN_ID "
               f"{args.domain_id}, {len(bridge.topics)} topics (/truav/uav_<i>/pose and velocity, /truav/markers, "
-              f"/truav/metrics) and {cfg.scenario.n_uavs} goal subscriptions (/truav/uav_<i>/goal) through the router at {', '.join(args.connect or ['(the zenoh config)'])}"
+              f"/truav/metrics) and {cfg.scenario.n_uavs} goal subscriptions (/truav/uav_<i>/goal) through the "
+              f"router at {', '.join(args.connect or ['(the zenoh config)'])}"
               + ("" if scenario.is_file() else f" (no {scenario}: the default scenario's geometry)"), flush=True)
 
     why = "stopped"
