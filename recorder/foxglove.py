@@ -174,7 +174,9 @@ def _pose(x: float, y: float, z: float) -> fm.Pose:
     return fm.Pose(position=fm.Vector3(x=x, y=y, z=z), orientation=_IDENTITY)
 
 
-def _finite_xy(p: Any) -> Optional[tuple[float, float]]:
+def finite_xy(p: Any) -> Optional[tuple[float, float]]:
+    """A message's (x, y) as floats, or None unless it is a pair of finite numbers (the bridges and exports read
+    untrusted bodies through it)."""
     try:
         x, y = float(p[0]), float(p[1])
     except (TypeError, ValueError, IndexError, KeyError):
@@ -230,7 +232,7 @@ class FoxgloveMirror:
     def _obs(self, b: dict, t: int) -> list[Out]:
         uav = int(b["uav"])
         self._relayed[uav] = int(b.get("relayed", 0))
-        xy = _finite_xy(b["pos"])
+        xy = finite_xy(b["pos"])
         if xy is None:
             return []
         alt = self.geometry.uav_altitude_m
@@ -250,7 +252,7 @@ class FoxgloveMirror:
         g = self.geometry
         stamp = _stamp(t)
         entities = []
-        uavs = [_finite_xy(p) for p in b["uavs"]]
+        uavs = [finite_xy(p) for p in b["uavs"]]
         for i, xy in enumerate(uavs):
             if xy is None:
                 continue
@@ -275,7 +277,7 @@ class FoxgloveMirror:
         q = VEHICLE_GRID_M
         vehicles = []
         for p in b["vehicles"]:
-            xy = _finite_xy(p)
+            xy = finite_xy(p)
             if xy is not None:
                 vehicles.append(fm.CubePrimitive(pose=_pose(round(xy[0] / q) * q, round(xy[1] / q) * q, 5.0),
                                                  size=_VEHICLE_SIZE, color=_VEHICLE_COLOR))

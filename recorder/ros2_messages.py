@@ -31,7 +31,7 @@ from typing import Any, NamedTuple, Optional
 
 import numpy as np
 
-from recorder.foxglove import Geometry, _finite_xy, uav_rgb
+from recorder.foxglove import Geometry, finite_xy, uav_rgb
 from recorder.report_data import _numbers, _uav
 from truav.wire.keys import MAX_UAVS
 from truav.wire.schema_names import MAX_VEHICLE_POSITIONS
@@ -96,7 +96,7 @@ class Ros2Mapper:
                                            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
 
     def _obs(self, key: str, body: dict, log_ns: int) -> list[Ros2Message]:
-        uav, xy = _uav(body, key), _finite_xy(body.get("pos"))
+        uav, xy = _uav(body, key), finite_xy(body.get("pos"))
         if uav is not None and xy is None:
             self._last.pop(uav, None)  # no velocity across a position that is not one
         if uav is None or xy is None:
@@ -162,7 +162,7 @@ class Ros2Mapper:
         point = self._t["geometry_msgs/msg/Point"]
         markers = [self._marker(log_ns, "", 0, m.CUBE, m.DELETEALL)]  # UAVs gone since (NaN) do not linger
         for i, p in enumerate(uavs[:MAX_UAVS]):
-            xy = _finite_xy(p)
+            xy = finite_xy(p)
             if xy is None:
                 continue
             rgba = (*uav_rgb(i), 1.0)
@@ -171,7 +171,7 @@ class Ros2Mapper:
             markers.append(self._marker(log_ns, "uav_labels", i, m.TEXT_VIEW_FACING, m.ADD,
                                         self._pose(xy[0], xy[1], g.uav_altitude_m + 80.0), (0.0, 0.0, 60.0), rgba,
                                         text=f"UAV {i}"))
-        cars = [point(x=xy[0], y=xy[1], z=5.0) for xy in map(_finite_xy, vehicles[:MAX_VEHICLE_POSITIONS])
+        cars = [point(x=xy[0], y=xy[1], z=5.0) for xy in map(finite_xy, vehicles[:MAX_VEHICLE_POSITIONS])
                 if xy is not None]
         markers.append(self._marker(log_ns, "vehicles", 0, m.CUBE_LIST, m.ADD, scale=(40.0, 40.0, 10.0),
                                     rgba=(0.15, 0.15, 0.15, 1.0), points=cars))

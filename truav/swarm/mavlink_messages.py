@@ -29,7 +29,7 @@ from typing import Any, Optional
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink picks its wire version
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
-from recorder.foxglove import from_latlon, to_latlon  # noqa: E402
+from recorder.foxglove import finite_xy, from_latlon, to_latlon  # noqa: E402
 from truav.swarm.steering import inside_area  # noqa: E402
 
 SYSIDS_PER_BRIDGE = 254
@@ -58,14 +58,6 @@ def uas_id(run: str, uav: int) -> bytes:
     """The Remote ID serial of a UAV: ``TRUAV`` + the UAV id, and as much of the run's name as fits (20 bytes)."""
     text = f"TRUAV{uav}-{run}".encode("ascii", "replace")[:UAS_ID_LEN]
     return text.ljust(UAS_ID_LEN, b"\0")
-
-
-def _finite_xy(p: Any) -> Optional[tuple[float, float]]:
-    try:
-        x, y = float(p[0]), float(p[1])
-    except (TypeError, ValueError, IndexError, KeyError):
-        return None
-    return (x, y) if math.isfinite(x) and math.isfinite(y) else None
 
 
 @dataclass
@@ -112,9 +104,9 @@ class MavlinkFleet:
             tick = int(body["tick"])
             for i, p in enumerate(body["uavs"]):
                 if sysid_of(i, self.s.first_uav) is not None:
-                    self._position(i, _finite_xy(p), tick, recv_ns)
+                    self._position(i, finite_xy(p), tick, recv_ns)
         elif kind == "beacon":
-            uav, vel = int(body["uav"]), _finite_xy(body["vel"])
+            uav, vel = int(body["uav"]), finite_xy(body["vel"])
             if sysid_of(uav, self.s.first_uav) is not None and vel is not None:
                 t = self.tracks.setdefault(uav, UavTrack())
                 t.vel, t.vel_ns = vel, recv_ns
