@@ -196,6 +196,19 @@ CHECKED: dict[str, str] = {
         "export RMW_IMPLEMENTATION=rmw_zenoh_cpp", "export 'ZENOH_CONFIG_OVERRIDE=connect/endpoints=[\"tcp/SWARM_HOST:PORT\"]'",
         "ros2 run rmw_zenoh_cpp rmw_zenohd", "ros2 topic list -t", "ros2 node list",
         "ros2 topic echo /truav/uav_0/pose")},
+    "ros2 topic pub --once /truav/uav_1/goal geometry_msgs/msg/PoseStamped '{header: {frame_id: map}, pose: "
+    "{position: {x: 2500.0, y: 2500.0}}}'": "the ROS 2 machine's; tests/swarm/test_ros2_bridge.py publishes a goal "
+                                            "with zenoh-ros2-sdk, an independent rmw_zenoh client",
+    "truav-swarm up --run steer --agents 5 --episodes 2": "the background run the steering how-to steers; "
+                                                         "tests/swarm/test_steer_swarm.py steers a swarm",
+    **{c: "needs the how-to's background run; tests/swarm/test_steer_swarm.py runs steer, its release and its "
+          "mistakes against a swarm" for c in (
+        "truav-swarm steer --run steer 3 --to 2500,1200", "truav-swarm steer --run steer 3 --to 400,400 --speed 7",
+        "truav-swarm steer --run steer 3 --release")},
+    **{c: "needs a --secure run's credentials; tests/swarm/test_steer_security.py checks the operator's rights "
+          "at the router" for c in (
+        "truav-swarm steer --run steer --creds creds 3 --to 2500,1200",
+        "truav-swarm acl explain --creds creds --identity operator")},
     "truav-swarm router -l tcp/127.0.0.1:7460": "a router of the reader's own, for the replay and its control "
                                                 "below; routers on loopback run in every swarm test",
     "truav-swarm replay runs/demo.mcap -e tcp/127.0.0.1:7460 --paused":
