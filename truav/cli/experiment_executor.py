@@ -33,17 +33,17 @@ RAY_PROBE_TIMEOUT_S = 3.0
 """How long --address's head may take to accept a TCP connection: ray.init itself waits minutes."""
 
 
-def check_ray_address(address: str) -> None:
+def check_ray_address(address: str, flag: str = "--address") -> None:
     """--address is `auto` (RAY_ADDRESS or a cluster started here) or HOST:PORT / ray://HOST:PORT of a
     head that accepts connections: checked before anything runs, as ray.init would hang on it."""
     if address == "auto":
         return
     m = RAY_ADDRESS_RE.fullmatch(address)
     if m is None or not 0 < int(m.group("port")) < 65536:
-        raise UsageError(f"--address {address}: expected HOST:PORT, ray://HOST:PORT or auto (e.g. HEAD:6379)")
+        raise UsageError(f"{flag} {address}: expected HOST:PORT, ray://HOST:PORT or auto (e.g. HEAD:6379)")
     host = m.group("host").strip("[]")
     try:
         socket.create_connection((host, int(m.group("port"))), timeout=RAY_PROBE_TIMEOUT_S).close()
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__.replace("Error", " error").lower()
-        raise UsageError(f"--address {address}: no Ray head answers there ({reason})") from None
+        raise UsageError(f"{flag} {address}: no Ray head answers there ({reason})") from None

@@ -16,6 +16,7 @@ from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_federated, check_out_dir, check_out_file
 from truav.cli.args import add_options, non_negative_int, positive_float, positive_int, tcp_port
 from truav.cli.config import UsageError, parse_sets
+from truav.cli.experiment_executor import check_ray_address
 from truav.config import MOBILITIES
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.nemesis import NEMESES
@@ -35,6 +36,9 @@ from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, R
 from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
 from world.process.world_process import WorldOptions
+
+RAY_PORT = 7447
+"""--ray-port's default: each node's router on the port a lone router uses."""
 
 MAX_AGENTS = 50
 """Agent processes `up` and `chaos` start without --force-agents (--agents-per-process K hosts K agents in
@@ -221,9 +225,26 @@ def cmd_chaos(args) -> int:
 
 
 def cmd_up(args) -> int:
+    if args.ray is None:
+        if args.ray_port != RAY_PORT:
+            raise UsageError(f"--ray-port {args.ray_port}: only with --ray ADDRESS")
+    else:
+        check_ray_address(args.ray, "--ray")  # ray.init would wait minutes for a head that is not there
+        for flag, given in (("-l/--listen", args.listen), ("--secure", args.secure)):
+            if given:  # the plan sets each node's endpoint; per-node credentials are not made yet
+                raise UsageError(f"{flag}: not with --ray (each node's router endpoint comes from --ray-port)")
     cfg, opts = swarm_options(args)
     opts.record_modes = record_modes(args)
-    return supervisor.run_swarm(cfg, opts)
+    if args.ray is None:
+        return supervisor.run_swarm(cfg, opts)
+    try:  # only here: the single-host `up` does not load Ray
+        from truav.swarm import ray_swarm
+    except ImportError:
+        raise UsageError("--ray: Ray is not installed; install TRUAV's ray extra") from None
+    try:
+        return ray_swarm.run_on_ray(cfg, opts, args.ray, args.ray_port)
+    except ray_swarm.PlanError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def record_modes(args) -> RecordModes:
@@ -329,6 +350,14 @@ def add_up_commands(sub) -> None:
     up.add_argument("--external-wait", type=positive_float, metavar="S",
                     help=f"seconds to wait for the --external UAVs to join before the run fails "
                          f"(default {DEFAULT_EXTERNAL_WAIT_S:g})")
+    ray = up.add_argument_group("on a Ray cluster (the ray extra; docs/how-to/ray-cluster.md)")
+    ray.add_argument("--ray", metavar="ADDRESS",
+                     help="place the swarm on the nodes of this Ray cluster (auto: the one this machine is in): one "
+                          "router per node linked to this node's, the world and recorder here, the agent processes "
+                          "spread over the nodes, each connected to its node's router (truav/swarm/ray_plan.py)")
+    ray.add_argument("--ray-port", type=tcp_port, default=RAY_PORT, metavar="PORT",
+                     help=f"--ray: the TCP port of each node's router (nodes sharing an address: the next ports) "
+                          f"(default {RAY_PORT})")
     add_options(up.add_argument_group("recording in parts or snapshots (with --record; recorder/record_modes.py)"),
                 RecordModes)
     up.set_defaults(func=cmd_up)

@@ -102,11 +102,7 @@ class Children:
     def start(self, name: str, argv: list[str]) -> subprocess.Popen:
         path = self.log_dir / f"{name}.log"
         self._log_offset[name] = path.stat().st_size if path.exists() else 0  # a restarted process appends
-        log = open(path, "ab")
-        self._logs.append(log)
-        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True,  # Ctrl-C reaches the supervisor only...
-                                env=child_env())  # ...and each child stops if the supervisor dies (truav.lifecycle)
+        proc = self._spawn(name, argv, path)
         self.procs[name] = proc
         self.argv[name] = argv
         self.starts[name] = self.starts.get(name, 0) + 1
@@ -118,6 +114,15 @@ class Children:
         if self.on_start is not None:
             self.on_start(name, proc)
         return proc
+
+    def _spawn(self, name: str, argv: list[str], log_path: Path):
+        """Start ``name`` here; a subclass starts it elsewhere (truav.swarm.ray_swarm: on a Ray node) and
+        returns an object with Popen's pid, returncode, poll, wait, send_signal and kill."""
+        log = open(log_path, "ab")
+        self._logs.append(log)
+        return subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True,  # Ctrl-C reaches the supervisor only...
+                                env=child_env())  # ...and each child stops if the supervisor dies (truav.lifecycle)
 
     def log_text(self, name: str) -> bytes:
         """What the current process of ``name`` has written to its log so far."""

@@ -109,9 +109,10 @@ def _python_module(*args: str) -> list[str]:
     return [sys.executable, "-m", *args]
 
 
-def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
+def run_swarm(cfg: Config, opts: SwarmOptions, children=Children) -> int:
     """Run a swarm to its end (or Ctrl-C, SIGTERM, SIGHUP), stop every process it started, summarise.
 
+    ``children(log_dir, pid_file, on_start)`` starts the processes (truav.swarm.ray_swarm: on Ray nodes).
     Returns the exit code (see the module docstring)."""
     out = opts.out_dir
     with contextlib.ExitStack() as held:
@@ -133,10 +134,10 @@ def run_swarm(cfg: Config, opts: SwarmOptions) -> int:
                 return 1
             print(f"truav-swarm: error: {exc}", file=sys.stderr)
             return 2
-        return _run_held(cfg, opts, out, plan)
+        return _run_held(cfg, opts, out, plan, children)
 
 
-def _run_held(cfg: Config, opts: SwarmOptions, out: Path, plan) -> int:
+def _run_held(cfg: Config, opts: SwarmOptions, out: Path, plan, children) -> int:
     interrupts = _Interrupts()
     with signals_handled((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), interrupts):
         try:  # before any process starts: else the world and every agent compile the same kernels side by side
@@ -144,13 +145,13 @@ def _run_held(cfg: Config, opts: SwarmOptions, out: Path, plan) -> int:
         except KeyboardInterrupt:
             print(f"interrupted ({interrupts.by or 'Ctrl-C'}) while compiling; nothing was started", flush=True)
             return Outcome(interrupted_by=interrupts.by or "Ctrl-C").exit_code()
-        return _Swarm(cfg, opts, out, plan, interrupts).run()
+        return _Swarm(cfg, opts, out, plan, interrupts, children).run()
 
 
 class _Swarm(SwarmWatch, SwarmEnd):
     """One run: its start-up here, its watch in SwarmWatch, its end and summary in SwarmEnd."""
 
-    def __init__(self, cfg: Config, opts: SwarmOptions, out: Path, plan, interrupts: _Interrupts):
+    def __init__(self, cfg: Config, opts: SwarmOptions, out: Path, plan, interrupts: _Interrupts, children=Children):
         self.cfg, self.opts, self.out, self.plan, self.interrupts = cfg, opts, out, plan, interrupts
         self.n = cfg.scenario.n_uavs
         self.groups = agent_groups(self.n, opts.agents_per_process, opts.external)  # external UAVs: no process
@@ -158,7 +159,7 @@ class _Swarm(SwarmWatch, SwarmEnd):
         self.central = opts.scheme == "central"
         self.fleet = self.agents + (["controller"] if self.central else [])
         """The processes a fault plan may kill or freeze; a frozen one is thawed before it is stopped."""
-        self.children = Children(out / "logs", out / PID_FILE, on_start=self._started if opts.verbose else None)
+        self.children = children(out / "logs", out / PID_FILE, on_start=self._started if opts.verbose else None)
         self.monitor = Monitor(self.n, period_s=1.0 / opts.rate_hz)
         self.outcome = Outcome()
         self.controller: FaultController | None = None
