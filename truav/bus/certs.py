@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from truav.bus.acl import ROUTER, CredentialsError, Grant, file_stem, grants
-from truav.bus.secure_configs import (CA_CERT, CA_KEY, DEFAULT_HOSTS, MANIFEST, ROUTER_CONFIG, Site,
+from truav.bus.secure_configs import (CA_CERT, CA_KEY, DEFAULT_HOSTS, INLINE_SUFFIX, MANIFEST, ROUTER_CONFIG,
+                                      TLS_FILE_KEYS, Site,
                                       _write_json, client_config, inline_material, router_config, site_configs,
                                       site_manifest, tls_endpoint, write_configs)
 
@@ -151,6 +152,42 @@ def _issue_site(d: Path, ca_key, ca_cert, site: Site, files: dict[str, dict], ma
         write_pair(d, file_stem(identity), *make_leaf(ca_key, ca_cert, identity, ()))
     write_configs(d, files, inline=True)
     _write_json(d / MANIFEST, manifest)
+
+
+def _pem(obj) -> bytes:
+    from cryptography.hazmat.primitives import serialization
+    if hasattr(obj, "private_bytes"):
+        return obj.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                 serialization.NoEncryption())
+    return obj.public_bytes(serialization.Encoding.PEM)
+
+
+def site_bundles(run: str, n_uavs: int, sites: Sequence[Site], *,
+                 days: int = DEFAULT_VALID_DAYS) -> dict[str, dict[str, bytes]]:
+    """The bundles of :func:`issue` with ``sites``, made in memory and written nowhere: per site, its files
+    by name (the CA certificate, its router's and its components' keys and certificates, their configs
+    with that material inline, the manifest). The CA key is in none and is dropped on return, so the
+    run's certificates are the only ones it ever signs (`truav-swarm up --ray --secure`)."""
+    import base64
+    ca_key, ca_cert = make_ca(days=days)
+    configs = site_configs(run, n_uavs, sites)
+    out: dict[str, dict[str, bytes]] = {}
+    for site in sites:
+        manifest = site_manifest(run, n_uavs, sites, site)
+        files = {CA_CERT: _pem(ca_cert)}
+        for stem, cn, hosts in [(ROUTER, site.router, tuple(manifest["hosts"])),
+                                *((file_stem(i), i, ()) for i in site.identities)]:
+            key, cert = make_leaf(ca_key, ca_cert, cn, hosts, server=stem == ROUTER)
+            files[f"{stem}.key"], files[f"{stem}.pem"] = _pem(key), _pem(cert)
+        for name, conf in configs[site.name].items():
+            tls = conf["transport"]["link"]["tls"]
+            for setting in TLS_FILE_KEYS:  # bare file names of this bundle, put inline (inline_material)
+                if setting in tls:
+                    tls[setting + INLINE_SUFFIX] = base64.b64encode(files[tls.pop(setting)]).decode("ascii")
+            files[name] = (json.dumps(conf, indent=1) + "\n").encode()
+        files[MANIFEST] = (json.dumps(manifest, indent=1) + "\n").encode()
+        out[site.name] = files
+    return out
 
 
 @dataclass(frozen=True)

@@ -230,9 +230,11 @@ def cmd_up(args) -> int:
             raise UsageError(f"--ray-port {args.ray_port}: only with --ray ADDRESS")
     else:
         check_ray_address(args.ray, "--ray")  # ray.init would wait minutes for a head that is not there
-        for flag, given in (("-l/--listen", args.listen), ("--secure", args.secure)):
-            if given:  # the plan sets each node's endpoint; per-node credentials are not made yet
-                raise UsageError(f"{flag}: not with --ray (each node's router endpoint comes from --ray-port)")
+        if args.listen:  # the plan sets each node's endpoint
+            raise UsageError("-l/--listen: not with --ray (each node's router endpoint comes from --ray-port)")
+        if args.secure and (args.batch_beacons or getattr(args, "external", None)):
+            raise UsageError(f"{'--batch-beacons' if args.batch_beacons else '--external'}: not with --ray --secure "
+                             "(the nodes' credentials are made for single-UAV beacons and agents the swarm runs)")
     cfg, opts = swarm_options(args)
     opts.record_modes = record_modes(args)
     if args.ray is None:
@@ -303,7 +305,8 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
     up.add_argument("--fault-plan", metavar="FILE", help="inject the faults of this plan (see deploy/plans/)")
     up.add_argument("--secure", action="store_true",
                     help="lock the bus: a fresh CA and one certificate per component in <out>/creds, mutual TLS, "
-                         "and the router's access control (see `truav-swarm acl explain`)")
+                         "and the router's access control (see `truav-swarm acl explain`); with --ray, each node's credentials made "
+                         "in memory and handed to that node only, in a private directory of its own")
     up.add_argument("--beacon-hz", type=positive_float, metavar="HZ",
                     help="real time: beacons at this rate instead of every tick (1: the Remote ID rate; must divide "
                          "--rate), offset by id")

@@ -12,10 +12,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from truav.bus.acl import CONTROLLER, RECORDER, SUPERVISOR, VIEW, WORLD
+from truav.bus.secure_configs import Site
 from truav.swarm.swarm_options import agent_groups, group_name
+from truav.wire.keys import uav_identity
 
 CORE_PROCESSES = ("world", "recorder", "controller", "view")
 """The processes of the core node (the first router's node)."""
+CORE_IDENTITIES = (WORLD, RECORDER, SUPERVISOR, CONTROLLER, VIEW)
+"""Under --secure, the identities whose keys go to the core node (its processes and the supervisor's session)."""
 
 
 class PlanError(ValueError):
@@ -76,10 +81,23 @@ class RayPlan:
         node = self.node_of(process)
         return next(r.endpoint for r in self.routers if r.node_id == node)
 
-    def lines(self) -> list[str]:
+    def sites(self) -> tuple[Site, ...]:
+        """Under --secure, the plan as a router-per-host deployment (truav.bus.secure_configs.Site): node k's
+        router is ``router/node<k>`` on its endpoint; each node holds only its processes' identities."""
+        out = []
+        for k, router in enumerate(self.routers):
+            host, _, port = router.endpoint.split("/", 1)[1].rpartition(":")
+            ids = [uav_identity(u) for a in self.agents if a.node_id == router.node_id for u in a.uavs]
+            out.append(Site(f"node{k}", host.strip("[]"), int(port), (*(CORE_IDENTITIES if k == 0 else ()), *ids)))
+        return tuple(out)
+
+    def lines(self, secure: bool = False) -> list[str]:
+        """What runs where; ``secure``: the routers' TLS endpoints, linked in a full mesh (their configs')."""
         out = []
         for k, (node, router) in enumerate(zip(self.nodes, self.routers)):
-            parts = [f"router {router.endpoint}" + (f" -> {router.connect}" if router.connect else "")]
+            shown = [f"tls/{r.endpoint.split('/', 1)[1]}" if secure else r.endpoint for r in self.routers[:k + 1]]
+            links = ", ".join(shown[:-1]) if secure else router.connect
+            parts = [f"router {shown[-1]}" + (f" -> {links}" if links else "")]
             parts += ["world", "recorder"] if k == 0 else []
             parts += [a.name for a in self.agents if a.node_id == node.node_id]
             out.append(f"node {node.node_id} ({node.address}): " + ", ".join(parts))

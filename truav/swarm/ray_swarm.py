@@ -9,14 +9,23 @@ supervisor is the local one (truav.swarm.supervisor.run_swarm): it gets :class:`
 its processes, every agent's ``-e`` pointing at its node's router. Logs and the run's files are
 written on each node under the same path: a shared file system (as on Slurm, or a volume on KubeRay),
 or one machine. Only this module imports Ray.
+
+Under --secure the supervisor makes the CA and every certificate in memory (a router-per-host deployment of
+the plan's nodes, truav.bus.certs.site_bundles) and hands each node's :class:`CredentialsActor` only that
+node's bundle through Ray; the actor writes it into a private directory of its node's own (mode 0700) that
+the node's processes get as --creds, and removes it when the run ends. No shared file system sees a key.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import signal
+import stat
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -24,6 +33,10 @@ import ray
 from ray.exceptions import GetTimeoutError, RayActorError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+from truav.bus.acl import SUPERVISOR, file_stem
+from truav.bus.certs import site_bundles
+from truav.bus.secure_configs import tls_endpoint
+from truav.bus.zenoh_config import make_config
 from truav.lifecycle import child_env
 from truav.swarm import supervisor
 from truav.swarm.children import Children
@@ -64,6 +77,31 @@ class ProcessActor:
     def send_signal(self, sig: int) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
+
+
+@ray.remote(num_cpus=0, max_restarts=0)
+class CredentialsActor:
+    """One node's credentials (--secure): its bundle's files in a new private directory on this node."""
+
+    def __init__(self, files: dict[str, bytes]):
+        self.directory = tempfile.mkdtemp(prefix="truav-creds-")  # mode 0700, on this node's own disk
+        os.chmod(self.directory, 0o700)
+        atexit.register(self.remove)
+        for name, data in files.items():
+            fd = os.open(os.path.join(self.directory, os.path.basename(name)), os.O_WRONLY | os.O_CREAT | os.O_EXCL,
+                         0o600)  # keys and configs holding them: owner only
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+
+    def path(self) -> str:
+        return self.directory
+
+    def listing(self) -> tuple[int, list[str]]:
+        """The directory's mode and file names (what a test checks)."""
+        return stat.S_IMODE(os.stat(self.directory).st_mode), sorted(os.listdir(self.directory))
+
+    def remove(self) -> None:
+        shutil.rmtree(self.directory, ignore_errors=True)
 
 
 class RayProcess:
@@ -107,9 +145,9 @@ class RayProcess:
         self.send_signal(signal.SIGTERM)
 
 
-def with_endpoint(argv: list[str], endpoint: str) -> list[str]:
-    """``argv`` with the value of every ``-e`` (the router it connects to) replaced by ``endpoint``."""
-    return [endpoint if k > 0 and argv[k - 1] == "-e" else a for k, a in enumerate(argv)]
+def with_endpoint(argv: list[str], endpoint: str, flag: str = "-e") -> list[str]:
+    """``argv`` with the value of every ``flag`` (``-e``: the router it connects to) replaced by ``endpoint``."""
+    return [endpoint if k > 0 and argv[k - 1] == flag else a for k, a in enumerate(argv)]
 
 
 class RayChildren(Children):
@@ -120,17 +158,40 @@ class RayChildren(Children):
     def __init__(self, log_dir: Path, pid_file: Path | None = None, on_start=None):
         super().__init__(log_dir, None, on_start)  # PIDs of other nodes: `down` stops the run through the bus
         self.actors: list = []
+        self.creds_actors: list = []
+        self.creds_dirs: dict[str, str] = {}  # --secure: each node's credentials directory, on that node
+
+    def secure_setup(self, out: Path, opts, n_uavs: int, endpoint: str, share_every_ticks: int = 0):
+        """--secure (the supervisor's hook, as truav.bus.security.secure_setup): the CA and certificates made
+        here in memory, each node's bundle handed to its :class:`CredentialsActor`; the router's and the
+        processes' arguments (the core node's directory: :meth:`_spawn` puts each node's own) and the
+        supervisor's zenoh config (this driver runs on the core node)."""
+        sites = self.plan.sites()
+        bundles = site_bundles(opts.run, n_uavs, sites)
+        for router, site in zip(self.plan.routers, sites):
+            actor = CredentialsActor.options(scheduling_strategy=NodeAffinitySchedulingStrategy(
+                router.node_id, soft=False)).remote(bundles.pop(site.name))
+            self.creds_actors.append(actor)
+            self.creds_dirs[router.node_id] = ray.get(actor.path.remote(), timeout=CALL_TIMEOUT_S)
+        core = self.creds_dirs[self.plan.core_node]
+        sup = make_config(None, [tls_endpoint(self.plan.core_endpoint)], connect_timeout_ms=5000,
+                          config_file=str(Path(core) / f"{file_stem(SUPERVISOR)}.json5"))
+        return ["--creds", core], ["--creds", core], sup
 
     def _spawn(self, name: str, argv: list[str], log_path: Path):
         if name == "router" and not any(r.name in self.procs for r in self.plan.routers[1:]):
             for r in self.plan.routers[1:]:  # the other nodes' routers, linked to this one, once
-                linked = [*argv[:argv.index("-l")], "-l", r.endpoint, "-e", r.connect]
+                linked = (with_endpoint(argv, self.creds_dirs[r.node_id], "--creds") if self.creds_dirs
+                          else [*argv[:argv.index("-l")], "-l", r.endpoint, "-e", r.connect])  # --creds: its config's
                 self.argv[r.name] = linked
                 self.starts[r.name] = 1
                 self.started_at[r.name] = time.monotonic()
                 self.procs[r.name] = self._actor(r.name, r.node_id, linked, self.log_dir / f"{r.name}.log")
         if name != "router":
-            argv = with_endpoint(argv, self.plan.endpoint_of(name))
+            endpoint = self.plan.endpoint_of(name)
+            argv = with_endpoint(argv, tls_endpoint(endpoint) if self.creds_dirs else endpoint)
+        if self.creds_dirs:
+            argv = with_endpoint(argv, self.creds_dirs[self.plan.node_of(name)], "--creds")
         return self._actor(name, self.plan.node_of(name), argv, log_path)
 
     def _actor(self, name: str, node_id: str, argv: list[str], log_path: Path) -> RayProcess:
@@ -148,6 +209,13 @@ class RayChildren(Children):
         for actor in self.actors:
             ray.kill(actor)
         self.actors = []
+        for actor in self.creds_actors:  # the keys go with the run
+            try:
+                ray.get(actor.remove.remote(), timeout=CALL_TIMEOUT_S)
+            except (RayActorError, GetTimeoutError):
+                pass  # its node is gone, and its directory with the node's temp dir or at its worker's exit
+            ray.kill(actor)
+        self.creds_actors = []
 
 
 def cluster_nodes() -> list[RayNode]:
@@ -169,7 +237,7 @@ def run_on_ray(cfg, opts, address: str, port: int, say=print) -> int:
         plan = place(cluster_nodes(), cfg.scenario.n_uavs, opts.agents_per_process, port, opts.external)
         opts.listen = plan.core_endpoint
         say(f"Ray cluster {address}: {len(plan.nodes)} node(s)", flush=True)  # --quiet too: where things run
-        for line in plan.lines():
+        for line in plan.lines(secure=opts.secure):
             say(f"  {line}", flush=True)
         children = type("PlacedChildren", (RayChildren,), {"plan": plan})
         return supervisor.run_swarm(cfg, opts, children)

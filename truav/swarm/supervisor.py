@@ -220,7 +220,8 @@ class _Swarm(SwarmWatch, SwarmEnd):
         self.creds_args: list[str] = []
         self.bus_config = make_config(connect=[self.endpoint], connect_timeout_ms=5000)
         if self.opts.secure:  # fresh credentials for this endpoint; every process gets its own certificate
-            router_args, self.creds_args, self.bus_config = secure_setup(
+            setup = getattr(self.children, "secure_setup", secure_setup)  # on Ray: each node's own (ray_swarm)
+            router_args, self.creds_args, self.bus_config = setup(
                 self.out, self.opts, self.n, self.endpoint,
                 self.cfg.federated.every * self.cfg.scenario.steps_per_episode)
             self.endpoint = tls_endpoint(self.endpoint)
