@@ -104,12 +104,13 @@ def figure(table: Path, path: Path) -> None:
     names = list(dict.fromkeys(r["variant"] for r in rows))
     cov = [np.array([float(r["coverage_pct"]) for r in rows if r["variant"] == n]) for n in names]
     spread = np.array([float(r["spread_pct"]) for r in rows if r["variant"] == names[0]])
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(7.5, 1.6 + 0.35 * len(names)))
     stats = [mean_ci(c) for c in cov]
     ax.barh(range(len(names)), [m for m, _ in stats], xerr=[h for _, h in stats], color="C0", alpha=0.8, capsize=3)
     m, h = mean_ci(spread)
     ax.axvspan(m - h, m + h, color="C3", alpha=0.2, lw=0)
     ax.axvline(m, color="C3", label=f"heuristic spread {m:.1f}%")
+    ax.axvline(60.0, color="k", ls="--", lw=1, label="target 60%")
     ax.set_yticks(range(len(names)), names, fontsize=8)
     ax.invert_yaxis()
     ax.set_xlabel("coverage (%), greedy on held-out traffic")

@@ -3,6 +3,7 @@
 
     python docs/scripts/ppo_train.py                 # train, write agents/weights/ppo_paper_15mps.npz, evaluate
     python docs/scripts/ppo_train.py --eval-only     # evaluate the shipped weights
+    python docs/scripts/ppo_train.py --eval-only --speed 5 --out docs/figures/learned-policy-5mps   # at 5 m/s
 
 Training (truav.analysis.ppo_train): under --preset paper at 15 m/s with learner.sense_range_m = 1500, on
 training seeds 0..ENVS-1 (ENVS environments x 5 UAVs = the vector's slots): behaviour cloning of the heuristic
@@ -53,11 +54,12 @@ def main() -> None:
                     help="observe the memory features too (own previous action, velocity, change in range)")
     ap.add_argument("--seed", type=int, default=0, help="the training's seed (default %(default)s)")
     ap.add_argument("--ent-coef", type=float, default=0.0)
+    ap.add_argument("--speed", type=float, default=15.0, help="scenario.uav_speed_mps of the evaluation (and training)")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--out", default="docs/figures/learned-policy", help="OUT.csv (default %(default)s)")
     args = ap.parse_args()
-    cfg = config()
+    cfg = config(args.speed)
     if not args.eval_only:
         import torch
 
@@ -83,7 +85,7 @@ def main() -> None:
         w = csv.writer(f)
         w.writerow(["scheme", "speed_mps", "seed", "coverage_pct"])
         for kind, values in cov.items():
-            w.writerows([kind, 15.0, seed, f"{v:.4f}"] for seed, v in enumerate(values))
+            w.writerows([kind, args.speed, seed, f"{v:.4f}"] for seed, v in enumerate(values))
 
 
 if __name__ == "__main__":
