@@ -77,12 +77,17 @@ def test_standalone_record_says_what_it_records_and_ends_with_the_run(tmp_path: 
     else:
         token.close()  # the world died: its liveliness token is gone
     try:
-        stdout, _ = proc.communicate(timeout=EXIT_S)  # by itself: no signal, no stop command
+        proc.wait(timeout=EXIT_S)  # by itself: no signal, no stop command
     except subprocess.TimeoutExpired:
         raise AssertionError(f"the recorder kept running after the run ended: {''.join(err)}") from None
-    assert proc.returncode == 0, stdout + "".join(err)
+    stdout = proc.stdout.read()  # a summary's few lines: the pipe never filled
     reason = "the run ended (shutdown from world)" if end == "shutdown" else "the world left"
+    finishing = f"{reason}: finishing once its processes have left"
+    deadline = time.monotonic() + READY_S  # stderr is the fixture's thread's alone: it reads to the end
+    while not any(finishing in line for line in err) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.returncode == 0, stdout + "".join(err)
     assert f"({reason})" in stdout.splitlines()[0], stdout
-    assert any(f"{reason}: finishing once its processes have left" in line for line in err), err
+    assert any(finishing in line for line in err), err
     report = check(out)
     assert report.finished and report.messages >= 5 and not report.problems

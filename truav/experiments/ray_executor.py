@@ -37,7 +37,9 @@ def ray_session(workers: int, address: str | None):
     if address:
         ray.init(address=address, log_to_driver=False)
     else:
-        ray.init(num_cpus=max(1, workers), include_dashboard=False, _node_ip_address="127.0.0.1",
+        # address="local": an instance of its own, even beside a cluster already running on this machine
+        # (without it ray.init joins that cluster, another run's or another user's, and refuses num_cpus)
+        ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, _node_ip_address="127.0.0.1",
                  log_to_driver=False)
     try:
         yield ray
