@@ -122,3 +122,27 @@ def place(nodes: list[RayNode], n_uavs: int, agents_per_process: int, port: int,
     groups = agent_groups(n_uavs, agents_per_process, external)
     agents = tuple(AgentPlace(nodes[k % len(nodes)].node_id, tuple(g)) for k, g in enumerate(groups))
     return RayPlan(tuple(nodes), tuple(routers), agents)
+
+
+def without_node(plan: RayPlan, lost: str) -> tuple[RayPlan, dict[str, str]]:
+    """The plan once node ``lost`` is gone, and the agent processes it moves (name -> new node): the node and
+    its router leave the plan; each of its agent processes, in plan order, goes to the node left holding the
+    fewest (ties: the earlier node in the plan); nothing else moves. PlanError if ``lost`` is the core node
+    (the world's and the recorder's, which the run cannot survive) or not in the plan."""
+    if lost == plan.core_node:
+        raise PlanError(f"node {lost} holds the world and the recorder: the run cannot survive its loss")
+    if lost not in {n.node_id for n in plan.nodes}:
+        raise PlanError(f"node {lost} is not in the plan")
+    nodes = tuple(n for n in plan.nodes if n.node_id != lost)
+    load = {n.node_id: sum(a.node_id == n.node_id for a in plan.agents) for n in nodes}
+    order = {n.node_id: k for k, n in enumerate(nodes)}
+    agents, moved = [], {}
+    for a in plan.agents:
+        if a.node_id == lost:
+            target = min(load, key=lambda node: (load[node], order[node]))
+            load[target] += 1
+            moved[a.name] = target
+            a = AgentPlace(target, a.uavs)
+        agents.append(a)
+    routers = tuple(r for r in plan.routers if r.node_id != lost)
+    return RayPlan(nodes, routers, tuple(agents)), moved
