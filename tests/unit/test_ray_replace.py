@@ -38,3 +38,61 @@ def test_the_core_node_or_the_last_node_cannot_be_lost():
     single = place(NODES[:1], n_uavs=2, agents_per_process=1, port=7447)
     with pytest.raises(PlanError):
         without_node(single, "a")
+
+
+class _Proc:
+    def __init__(self, code=None, ended=None):
+        self.returncode, self.ended_wall_ns = code, ended
+
+    def poll(self):
+        return self.returncode
+
+
+class _Children:
+    """What truav.swarm.ray_recovery reads of RayChildren: its plan, start counts and processes."""
+
+    def __init__(self, plan):
+        self.plan, self.starts, self.procs = plan, {}, {}
+
+
+def test_a_restart_on_a_dead_node_replans_once_and_names_the_loss():
+    from truav.swarm.ray_recovery import NodeRecovery, loss_entries, loss_lines
+    plan = place(NODES, n_uavs=6, agents_per_process=1, port=7447)  # a: 0 3, b: 1 4, c: 2 5
+    children = _Children(plan)
+    alive = {"a", "b", "c"}
+    said = []
+    recovery = NodeRecovery(lambda: alive, say=lambda line, **_: said.append(line))
+    children.starts = {f"agent{i}": 1 for i in range(6)}
+    children.procs = {"agent1": _Proc(-9, 1_000), "agent4": _Proc(-9, 900), "router-b": _Proc(None)}
+    assert recovery.plan_for(children, "agent1") is plan and not recovery.losses  # b alive, its router up: here
+    alive.discard("b")
+    assert recovery.plan_for(_Children(plan), "agent1") is plan  # a first start: no check
+    new = recovery.plan_for(children, "agent1")
+    assert children.plan is new and new.node_of("agent1") == "a" and new.node_of("agent4") == "c"
+    [loss] = recovery.losses
+    assert (loss.node_id, loss.cause, loss.lost_wall_ns, loss.uavs) == ("b", "its Ray node died", 900, [1, 4])
+    assert recovery.plan_for(children, "agent4") is new and len(recovery.losses) == 1  # the same loss, once
+    assert said == ["Ray node b (10.0.0.2) lost (its Ray node died); its agents placed again: agent1 -> node a, "
+                    "agent4 -> node c"]
+    costs = [{"process": "agent4", "down_s": 0.5, "to_first_action_s": 3.0, "missed_total": 18},
+             {"process": "agent1", "down_s": 0.6, "to_first_action_s": 4.0, "missed_total": 23},
+             {"process": "agent1", "down_s": 0.5, "to_first_action_s": 1.0, "missed_total": 5}]  # a later death
+    [entry] = loss_entries(recovery.losses, costs, t0_wall_ns=0)
+    assert entry["outage_s"] == 4.6 and entry["missed_actions"] == 41
+    assert entry["agents_moved"] == {"agent1": "a", "agent4": "c"}
+    assert loss_lines([entry]) == ["Ray node b (10.0.0.2) lost at 0.0 s (its Ray node died): agent1 -> node a, "
+                                   "agent4 -> node c, resumed from their checkpoints; 4.6 s outage, 41 action(s) "
+                                   "missed by its 2 UAV(s)"]
+
+
+def test_a_node_whose_router_died_is_lost_and_under_secure_its_agents_stay_down():
+    from truav.swarm.ray_recovery import NodeRecovery
+    plan = place(NODES, n_uavs=3, agents_per_process=1, port=7447)
+    children = _Children(plan)
+    children.starts = {"agent2": 1}
+    children.procs = {"router-c": _Proc(-9)}
+    recovery = NodeRecovery(lambda: {"a", "b", "c"}, secure=True, say=lambda *a, **k: None)
+    assert recovery.plan_for(children, "agent2") is plan  # not moved: its keys are on c only
+    [loss] = recovery.losses
+    assert loss.cause == "its router's process died (killed by SIGKILL); the node is up"
+    assert loss.refused and "--secure" in loss.refused and not loss.moved

@@ -86,6 +86,9 @@ def wait_for_port(endpoint: str, timeout: float) -> bool:
 class Children:
     """Processes this supervisor started; only these are ever signalled."""
 
+    node_losses: tuple = ()
+    """The cluster nodes lost mid-run (truav.swarm.ray_recovery.NodeLoss, under --ray); none on one host."""
+
     def __init__(self, log_dir: Path, pid_file: Path | None = None, on_start=None):
         self.log_dir = log_dir
         self.pid_file = pid_file

@@ -9,7 +9,8 @@ invariant below is checked from what the run left (summary.json, the logs,
 * the recording passes `truav log check` (the CLI, run as a user would);
   when the router was killed, messages published while no router was up are
   lost on the wire: gaps that all fall within a router outage (from its death
-  to :data:`RECONNECT_SLACK_S` after its restart) are reported, not violations;
+  to :data:`RECONNECT_SLACK_S` after its restart), or a lost Ray node's outage
+  (:func:`node_outages`), are reported, not violations;
 * every agent restarted (by the plan or the supervisor) resumed from its last
   checkpoint (its log: the step it resumed at is the step of the last
   checkpoint it wrote before it died);
@@ -108,7 +109,7 @@ def check_run(out: Path, rc: int, plan: FaultPlan, rate_hz: float, record: str |
     rows = [Invariant("the run ended ok", rc == 0 and outcome.get("result") == "ok",
                       f"exit code {rc}, result {outcome.get('result')}"
                       + (f": {'; '.join(outcome.get('failures') or [])}" if outcome.get("failures") else ""))]
-    rows.append(_log_check(record, summary.get("router_outages_wall_ns") or []))
+    rows.append(_log_check(record, (summary.get("router_outages_wall_ns") or []) + node_outages(summary)))
     rows.append(_resumed(out, procs))
     rows.append(_quiet_tail(summary, plan, rate_hz))
     rows.append(_left_behind(procs))
@@ -155,10 +156,18 @@ def _log_check(record: str | None, outages: list[list[int]]) -> Invariant:
         if not unexplained:
             return Invariant(name, True, f"{_outside_parentheses(problem.split(f'{record}: ', 1)[-1])}, all in "
                                          f"{gaps} gap(s) while the router "
-                                         f"was down ({len(outages)} outage(s)); nothing else")
-        return Invariant(name, False, f"{problem}; {len(unexplained)} gap(s) outside any router outage, e.g. "
+                                         f"or a Ray node was down ({len(outages)} outage(s)); nothing else")
+        return Invariant(name, False, f"{problem}; {len(unexplained)} gap(s) outside any router or node outage, e.g. "
                                       f"{unexplained[0]}")
     return Invariant(name, False, f"exit {done.returncode}: {problem}")
+
+
+def node_outages(summary: dict) -> list[list[int]]:
+    """The outage of each Ray node lost mid-run (summary.json's ``node_losses``, truav.swarm.ray_recovery), as
+    (lost, back) wall-clock ns: its loss to the last of its agents acting again (the run's end if one never did)."""
+    end = int(summary.get("t0_wall_ns") or 0) + int(float(summary.get("elapsed_s") or 0) * 1e9)
+    return [[n["lost_wall_ns"], n["lost_wall_ns"] + int(n["outage_s"] * 1e9) if n.get("outage_s") is not None
+             else max(end, n["lost_wall_ns"])] for n in summary.get("node_losses") or []]
 
 
 def only_losses(problem: str, record: str) -> bool:

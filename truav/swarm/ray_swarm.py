@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import ray
-from ray.exceptions import GetTimeoutError, RayActorError
+from ray.exceptions import ActorUnschedulableError, GetTimeoutError, RayActorError
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from truav.bus.acl import SUPERVISOR, file_stem
@@ -41,6 +41,7 @@ from truav.lifecycle import child_env
 from truav.swarm import supervisor
 from truav.swarm.children import Children
 from truav.swarm.ray_plan import PlanError, RayNode, RayPlan, place  # noqa: F401 - PlanError: `up` catches it
+from truav.swarm.ray_recovery import NodeRecovery
 
 CALL_TIMEOUT_S = 30.0
 """A call to a process's actor that takes longer counts its node as lost."""
@@ -110,13 +111,15 @@ class RayProcess:
     def __init__(self, actor):
         self.actor = actor
         self.returncode: int | None = None
+        self.ended_wall_ns: int | None = None  # when it was first seen gone (truav.swarm.ray_recovery)
         self.pid = self._call(actor.pid) or -1
 
     def _call(self, method, *args):
         try:
             return ray.get(method.remote(*args), timeout=CALL_TIMEOUT_S)
-        except (RayActorError, GetTimeoutError):  # its node or worker is gone: so is the process
+        except (RayActorError, ActorUnschedulableError, GetTimeoutError):  # its node or worker is gone: so is the process
             self.returncode = -signal.SIGKILL
+            self.ended_wall_ns = self.ended_wall_ns or time.time_ns()
             return None
 
     def poll(self) -> int | None:
@@ -124,6 +127,7 @@ class RayProcess:
             code = self._call(self.actor.poll)
             if self.returncode is None:
                 self.returncode = code
+                self.ended_wall_ns = None if code is None else time.time_ns()
         return self.returncode
 
     def wait(self, timeout: float | None = None) -> int:
@@ -160,12 +164,15 @@ class RayChildren(Children):
         self.actors: list = []
         self.creds_actors: list = []
         self.creds_dirs: dict[str, str] = {}  # --secure: each node's credentials directory, on that node
+        self.recovery = NodeRecovery(lambda: {n.node_id for n in cluster_nodes()})  # a lost node's agents elsewhere
+        self.node_losses = self.recovery.losses  # the summary's (truav.swarm.summary)
 
     def secure_setup(self, out: Path, opts, n_uavs: int, endpoint: str, share_every_ticks: int = 0):
         """--secure (the supervisor's hook, as truav.bus.security.secure_setup): the CA and certificates made
         here in memory, each node's bundle handed to its :class:`CredentialsActor`; the router's and the
         processes' arguments (the core node's directory: :meth:`_spawn` puts each node's own) and the
         supervisor's zenoh config (this driver runs on the core node)."""
+        self.recovery.secure = True
         sites = self.plan.sites()
         bundles = site_bundles(opts.run, n_uavs, sites)
         for router, site in zip(self.plan.routers, sites):
@@ -188,6 +195,7 @@ class RayChildren(Children):
                 self.started_at[r.name] = time.monotonic()
                 self.procs[r.name] = self._actor(r.name, r.node_id, linked, self.log_dir / f"{r.name}.log")
         if name != "router":
+            self.recovery.plan_for(self, name)  # its node lost: self.plan without it
             endpoint = self.plan.endpoint_of(name)
             argv = with_endpoint(argv, tls_endpoint(endpoint) if self.creds_dirs else endpoint)
         if self.creds_dirs:

@@ -20,6 +20,7 @@ from truav.swarm import external
 from truav.swarm.children import exit_text
 from truav.swarm.outdir import SUMMARY_FILE
 from truav.swarm.references import references_for, references_line
+from truav.swarm.ray_recovery import loss_entries, loss_lines
 from truav.swarm.restart_cost import restart_costs, restart_lines
 from truav.wire import keys
 from truav.swarm.swarm_options import (AGENT_EXIT_GRACE_S, AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S,
@@ -127,6 +128,13 @@ class SwarmEnd:
                 for reason in failures:
                     o.fail(reason)
                 o.warnings.extend(warnings)
+        for loss in self.children.node_losses:  # a Ray node lost mid-run (truav.swarm.ray_recovery)
+            what = f"Ray node {loss.node_id[:8]} ({loss.address}) was lost ({loss.cause})"
+            if loss.refused:
+                o.fail(f"{what}; its agents were not placed again: {loss.refused}", ends_run=False)
+            else:
+                o.warnings.append(f"{what}; its agents ({', '.join(loss.moved)}) were placed again on the nodes left "
+                                  f"and resumed from their checkpoints")
         lost = ((world or {}).get("controller_losses") or []) if self.central else []
         if lost:
             o.warnings.append(f"the controller was lost at {', '.join(f'{t:g}' for t in lost)} s after tick 0; the "
@@ -146,15 +154,23 @@ class SwarmEnd:
         plan touches no agent, or when per-UAV counts are missing)."""
         o, opts = self.outcome, self.opts
         planned = self._planned_uavs()
+        on_lost = {u for loss in self.children.node_losses for u in loss.uavs} - planned  # on a lost Ray node
         per_uav = {u.get("uav"): int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict)}
         if acting <= 0:
             return
+        if on_lost and per_uav:
+            o.warnings.append(f"{sum(per_uav.get(i, 0) for i in on_lost)} action(s) missed by the UAV(s) of the lost "
+                              f"Ray node(s) ({', '.join(map(str, sorted(on_lost)))}): the loss's cost, not held against "
+                              f"--max-missed")
+            planned = planned | on_lost
         if not planned or not per_uav:
             missed = 1.0 - world.get("actions_received", 0) / (acting * self.n)
         else:
-            planned_missed = sum(per_uav.get(i, 0) for i in planned)
-            o.warnings.append(f"{planned_missed} action(s) missed by the UAV(s) the fault plan crashes or freezes "
-                           f"({', '.join(map(str, sorted(planned)))}): expected, not held against --max-missed")
+            planned_missed = sum(per_uav.get(i, 0) for i in planned - on_lost)
+            if planned - on_lost:
+                o.warnings.append(f"{planned_missed} action(s) missed by the UAV(s) the fault plan crashes or freezes "
+                                  f"({', '.join(map(str, sorted(planned - on_lost)))}): expected, not held against "
+                                  f"--max-missed")
             others = self.n - len(planned)
             if others <= 0:
                 return
@@ -219,6 +235,7 @@ class SwarmEnd:
         with monitor.lock:
             costs = restart_costs(self.deaths, self.children.incarnations, monitor.live_up, monitor.step_times,
                                   monitor.missed_at, dict(zip(self.agents, self.groups)), monitor.t0)
+        losses = loss_entries(list(self.children.node_losses), costs, self.t0_wall_ns)
         refs, no_refs = references_for(cfg, opts.scheme, opts.seed, world, opts.references) if o.ticked else (None, None)
         fit_line = Fit(**opts.policy_fit).line() if opts.policy_fit else None
         if fit_line and fit_line not in o.warnings:  # a mismatch the user allowed, or a record that is missing
@@ -236,7 +253,7 @@ class SwarmEnd:
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
             "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
-            "restart_costs": costs, "references": refs}, indent=1).encode()
+            "restart_costs": costs, "node_losses": losses, "references": refs}, indent=1).encode()
         write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o, sent)
@@ -257,6 +274,8 @@ class SwarmEnd:
             print(f"restarted {r['process']} at {r['restarted_s']:.1f} s (it died at {r['died_s']:.1f} s, "
                   f"{r['cause']}; restart {r['number']})")
         for line in restart_lines(costs):
+            print(line)
+        for line in loss_lines(losses):
             print(line)
         for note in o.warnings:
             print(f"warning: {note}")
