@@ -22,6 +22,8 @@ from typing import Callable
 import numpy as np
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.vec_env import VecEnv
 
 from agents.ppo_policy import NumpyPolicy
 from agents.spread_agent import SpreadBatched
@@ -146,6 +148,18 @@ def greedy_coverage(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int]
     return np.mean(cov, axis=0)
 
 
+def make_ppo(env: VecEnv, *, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0, seed: int = 0,
+             net: list[int] | None = None) -> PPO:
+    """The PPO model ``train`` fine-tunes (MlpPolicy; ``net``: its hidden widths, None: two of 64), with an
+    in-memory logger: without one, Stable-Baselines3 makes a ``SB3-<date>`` directory in the temporary
+    directory at every ``learn``."""
+    model = PPO("MlpPolicy", env, learning_rate=lr, n_steps=n_steps, batch_size=min(env.num_envs * n_steps, 2000),
+                n_epochs=5, gamma=0.99, gae_lambda=0.95, ent_coef=ent_coef, seed=seed, verbose=0, device="cpu",
+                policy_kwargs=None if net is None else {"net_arch": list(net)})
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
+
+
 def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 20, bc_epochs: int = 8,
           ppo_steps: int = 0, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0,
           coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, memory: bool = False,
@@ -154,10 +168,7 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
     hidden layers' widths of the policy and the value network (None: MlpPolicy's, two of 64)."""
     torch.manual_seed(seed)
     env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory)
-    slots = env.num_envs
-    model = PPO("MlpPolicy", env, learning_rate=lr, n_steps=n_steps, batch_size=min(slots * n_steps, 2000),
-                n_epochs=5, gamma=0.99, gae_lambda=0.95, ent_coef=ent_coef, seed=seed, verbose=0, device="cpu",
-                policy_kwargs=None if net is None else {"net_arch": list(net)})
+    model = make_ppo(env, lr=lr, n_steps=n_steps, ent_coef=ent_coef, seed=seed, net=net)
     times = {}
     t0 = time.perf_counter()
     if bc_episodes:
@@ -180,4 +191,5 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
     return model, times
 
 
-__all__ = ["KINDS", "agreement", "clone", "decision_kind", "export", "greedy_coverage", "teacher_data", "train"]
+__all__ = ["KINDS", "agreement", "clone", "decision_kind", "export", "greedy_coverage", "make_ppo", "teacher_data",
+           "train"]
