@@ -29,7 +29,7 @@ def test_every_scheme_meets_the_same_link_faults_and_its_own_crash():
 def test_points_share_one_baseline_per_scheme_and_rows_count_missed_decisions():
     size = cmp.SIZES["quick"]
     pts = cmp.points(size, ("truav", "central"))
-    assert pts.count(("central", "none", 0.0)) == 1 and len(pts) == 2 * 7
+    assert pts.count(("central", "none", 0.0)) == 1 and len(pts) == 2 * 9
     summary = {"world": {"episodes": [{"coverage_pct": 10.0, "pdr": 0.5, "delay_ms": 3.0, "energy_j": 1e3}],
                          "ticks": 11, "deadline_misses": 2, "hover_answers": 3},
                "agents": [{"commands": {"fresh": 5, "held": 1, "hovered": 3}}, {"commands": {"held": 4}}]}
@@ -111,3 +111,46 @@ def test_the_faults_command_takes_an_agent_class_and_names_one_it_cannot_load(tm
     assert not out.exists()
     assert cmp.is_agent_class("agents.random_agent:RandomAgent") and not cmp.is_agent_class("federated")
     assert cmp.file_name("agents.random_agent:RandomAgent") == "agents.random_agent-RandomAgent"
+
+
+def test_partitions_cut_the_first_uavs_off_the_rest_for_a_share_of_the_run_and_are_a_kind_of_every_size():
+    """kind partition: UAVs 0..n//2-1 cannot hear the others (under central, nor the controller, which stays with
+    the rest), from CRASH_AT of the run for ``level`` of it (to the end at 0.8); the sizes sweep it like the crash."""
+    truav = plan("truav", "partition", 0.4)
+    assert [f.kind for f in truav.faults] == ["partition"] and truav.faults[0].start == 2.0
+    assert truav.faults[0].duration == pytest.approx(4.0)
+    assert truav.faults[0].params["groups"] == [[0, 1], [2, 3, 4]]
+    central = plan("central", "partition", 0.8)
+    assert central.faults[0].params["groups"] == [[0, 1], ["controller", 2, 3, 4]]
+    assert central.faults[0].duration == float("inf")  # to the end of the run
+    assert cmp.plan_text("spread", "partition", 0.0, 10.0) == ""
+    assert "partition" in [k for k, _, _ in cmp.KINDS]
+    for size in cmp.SIZES.values():
+        pts = cmp.points(size, ("ppo",))
+        assert [lv for s, k, lv in pts if k == "partition"] == [x for x in size.partition_share if x > 0] != []
+
+
+def test_a_comparison_takes_a_size_of_its_own(tmp_path, monkeypatch):
+    """run_comparison(size=CompareSize(...)): a docs script sizes its runs (seeds x a few levels) itself."""
+    import json
+
+    from truav.config import Config
+    from truav.swarm import supervisor
+    names = []
+
+    def fake_run_swarm(cfg, opts):
+        name = opts.out.rsplit("/", 1)[-1]
+        names.append(name)
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(
+            {"interrupted": False, "outcome": {"result": "ok"},
+             "world": {"episodes": [{"coverage_pct": 1.0, "pdr": 0.1, "delay_ms": 1.0, "energy_j": 1.0}] * opts.episodes,
+                       "ticks": 10}}))
+        return 0
+
+    monkeypatch.setattr(supervisor, "run_swarm", fake_run_swarm)
+    size = cmp.CompareSize((0.0, 0.5), (0.0,), (0.0,), 1, 20, {"truav": 1, "central": 1}, 1, partition_share=(0.0, 0.8))
+    cmp.run_comparison(Config(), size, tmp_path, ("patrol",), seed=2)
+    assert sorted(names) == ["patrol-loss-0.5", "patrol-none-0", "patrol-partition-0.8"]
+    rows = (tmp_path / "comparison.csv").read_text().splitlines()
+    assert sum(r.startswith("patrol,partition,") for r in rows) == 2  # the baseline and the partition

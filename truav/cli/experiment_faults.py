@@ -23,7 +23,7 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p = ex_sub.add_parser("faults", help="swarm metrics against beacon loss (0-50%%) and latency (0-500 ms)")
     add_config_args(p)
     p.add_argument("--quick", action="store_true",
-                   help="3 levels each, 3 short episodes per point (the effects paired over them; about 2.5 minutes per "
+                   help="3 levels each, 3 short episodes per point (the effects paired over them; about 3 minutes per "
                         "scheme at the default rate, more at a lower --rate); "
                         "default: the full sweep")
     p.add_argument("--qtable", metavar="RUN", help="fly this trained run's policy (default: train one first)")
@@ -33,7 +33,8 @@ def add_fault_sweep_parser(ex_sub) -> None:
     p.add_argument("--out", help="output directory (default runs/faults[-quick]); re-running with the same "
                                  "options resumes (other options are refused)")
     p.add_argument("--schemes", nargs="+", metavar="SCHEME",
-                   help=f"compare these schemes under the same link loss, latency and process crash levels: "
+                   help=f"compare these schemes under the same link loss, latency, process crash and partition "
+                        f"(the first half of the UAVs cut off from the rest) levels: "
                         f"{', '.join(SCHEMES)}, or an agent class (pkg.module:Class or a name registered in the "
                         f"entry-point group truav.agents: trained in process, then flown greedily; spread is the "
                         f"decentralized heuristic, flown with its sensing on, the bar a learner must clear) "

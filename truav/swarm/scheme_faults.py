@@ -9,7 +9,9 @@ controller for central; real time) of the same seed under the same fault levels:
 - link latency: the same links delayed by a fixed time;
 - process crash: one process SIGKILLed at 20% of the run and restarted after a
   share of the run has passed (at 0.8: never): agent 0 for truav and patrol,
-  the controller for central.
+  the controller for central;
+- partition: from 20% of the run, for a share of it (at 0.8: to the end), UAVs 0..n//2-1 cannot hear the
+  others nor be heard by them (under central the controller stays with the rest: the first UAVs lose it).
 
 One plan per level serves every scheme (a fault on another scheme's links
 matches nothing), so the schemes meet the same faults with the same seeds. The
@@ -55,11 +57,11 @@ SCHEMES = ("truav", "central", "patrol", "federated", "truav_online")
 LEARNING = ("federated", "truav_online")
 """The schemes that fly the TRUAV table learning online (not greedy) over CompareSize.learn_episodes."""
 KINDS = (("loss", "link loss (%)", 100.0), ("latency", "link latency (ms)", 1.0),
-         ("crash", "process down (% of the run)", 100.0))
+         ("crash", "process down (% of the run)", 100.0), ("partition", "UAVs 0-1 cut off (% of the run)", 100.0))
 METRICS = (("coverage_pct", "coverage (%)", 1.0), ("pdr", "PDR (%)", 100.0), ("delay_ms", "relay delay (ms)", 1.0),
            ("energy_j", "energy (kJ/UAV/episode)", 1e-3), ("missed_actions", "missed actions (% of UAV-ticks)", 100.0))
 CRASH_AT = 0.2
-"""Share of the run after which the crash fault kills its process."""
+"""Share of the run after which the crash fault kills its process and the partition starts."""
 LINK_KEYS = ("uav/*/beacon", "uav/*/state", "controller/cmd/*", "uav/*/qshare/*")
 """The schemes' radio links: TRUAV's (and the patrol's deployment) beacons, central's uplink and downlink,
 federated TRUAV's Q shares."""
@@ -78,13 +80,16 @@ class CompareSize:
     learn_episodes: int
     """Episodes of the learning schemes' runs: several, so that shares after the first ones are merged and
     flown (a share comes after an episode)."""
+    partition_share: tuple[float, ...] = ()
+    """Shares of the run the partition lasts (0: no partition; at 0.8 to the end)."""
 
 
 SIZES = {
     # 3 episodes a point even when quick: each effect's interval is paired over them (1 would give none)
-    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 3, 60, {"truav": 200, "central": 150}, 4),
+    "quick": CompareSize((0.0, 0.25, 0.5), (0.0, 250.0, 500.0), (0.0, 0.4, 0.8), 3, 60, {"truav": 200, "central": 150}, 4,
+                         (0.0, 0.4, 0.8)),
     "full": CompareSize((0.0, 0.1, 0.3, 0.5), (0.0, 100.0, 300.0, 500.0), (0.0, 0.2, 0.4, 0.8), 2, 100,
-                        {"truav": 2000, "central": 500}, 4),
+                        {"truav": 2000, "central": 500}, 4, (0.0, 0.2, 0.4, 0.8)),
 }
 
 
@@ -107,8 +112,9 @@ def run_seconds(size: CompareSize, rate_hz: float, scheme: str = "truav") -> flo
     return episodes_of(size, scheme) * (size.steps + 1) / rate_hz
 
 
-def plan_text(scheme: str, kind: str, level: float, run_s: float) -> str:
-    """The plan of one fault level, for ``scheme`` (only the crash target depends on it)."""
+def plan_text(scheme: str, kind: str, level: float, run_s: float, n_uavs: int = 5) -> str:
+    """The plan of one fault level, for ``scheme`` (only the crash target and the controller's side of a partition
+    depend on it) and a swarm of ``n_uavs``."""
     if level == 0.0:
         return ""
     if kind == "loss":
@@ -117,6 +123,12 @@ def plan_text(scheme: str, kind: str, level: float, run_s: float) -> str:
     if kind == "latency":
         return "".join(f'[[fault]]\nkind = "latency"\nstart = 0.0\nfixed_ms = {level}\nkeys = "{k}"\n\n'
                        for k in LINK_KEYS)
+    if kind == "partition":
+        cut = max(1, n_uavs // 2)
+        rest = (['"controller"'] if scheme == "central" else []) + [str(u) for u in range(cut, n_uavs)]
+        until = "" if CRASH_AT + level >= 1.0 else f"duration = {level * run_s:.3f}\n"
+        return (f'[[fault]]\nkind = "partition"\nstart = {CRASH_AT * run_s:.3f}\n{until}'
+                f'groups = [[{", ".join(str(u) for u in range(cut))}], [{", ".join(rest)}]]\n')
     target = 'target = "controller"' if scheme == "central" else "uav = 0"
     restart = "" if CRASH_AT + level >= 1.0 else f"restart_after = {level * run_s:.3f}\n"
     return f'[[fault]]\nkind = "crash"\nstart = {CRASH_AT * run_s:.3f}\n{target}\n{restart}'
@@ -127,7 +139,8 @@ def points(size: CompareSize, schemes: tuple[str, ...]) -> list[tuple[str, str, 
     out = []
     for scheme in schemes:
         out.append((scheme, "none", 0.0))
-        for kind, levels in (("loss", size.loss), ("latency", size.latency_ms), ("crash", size.down_share)):
+        for kind, levels in (("loss", size.loss), ("latency", size.latency_ms), ("crash", size.down_share),
+                             ("partition", size.partition_share)):
             out += [(scheme, kind, x) for x in levels if x > 0]
     return out
 
@@ -173,7 +186,7 @@ def run_point(cfg: Config, out: Path, seed: int, policies: dict[str, str | None]
     name = f"{file_name(scheme)}-{kind}-{level:g}"
 
     def start() -> int:
-        text = plan_text(scheme, kind, level, run_seconds(size, rate_hz, scheme))
+        text = plan_text(scheme, kind, level, run_seconds(size, rate_hz, scheme), cfg.scenario.n_uavs)
         plan = None
         if text:
             plan = out / f"{name}.toml"
@@ -219,10 +232,11 @@ def row_of(scheme: str, kind: str, level: float, summary: dict, n_uavs: int) -> 
     return row
 
 
-def run_comparison(cfg: Config, size_name: str, out: Path, schemes: tuple[str, ...], seed: int = 0,
+def run_comparison(cfg: Config, size_name: str | CompareSize, out: Path, schemes: tuple[str, ...], seed: int = 0,
                    qtable: str | None = None, policy: str | None = None, rate_hz: float = 10.0,
                    keep_steps: bool = False, executor: str = "local", address: str | None = None) -> list[Path]:
-    size = SIZES[size_name]
+    """Every scheme's swarm runs at every point of ``size_name`` (a name of SIZES, or a size of the caller's)."""
+    size = SIZES[size_name] if isinstance(size_name, str) else size_name
     out.mkdir(parents=True, exist_ok=True)
     if not keep_steps:
         cfg = cfg.replace(scenario={"steps_per_episode": size.steps})
