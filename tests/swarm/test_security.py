@@ -30,6 +30,7 @@ from truav.cli import swarm as swarm_cli
 from truav.config import Config
 from truav.wire import guard, keys, schema
 
+from tests.support.swarm_up import learners
 RUN = "sec"
 N = 3
 WAIT_S = 1.0  # how long a subscriber listens for puts that must not arrive (they would take ~1 ms)
@@ -329,7 +330,7 @@ class Swarm:
         self.out = out
         self.log_path = out.parent / f"{out.name}.log"
         with open(self.log_path, "wb") as log:
-            self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--out", str(out),
+            self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", *learners(args), "--out", str(out),
                                           "--quiet", "--no-plot", *SWARM_SET, *args],
                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 

@@ -209,7 +209,7 @@ def _gaps_outside(record: str, outages: list[tuple[int, int]]) -> tuple[int, lis
     return gaps, outside
 
 
-_RESUMED = re.compile(r"uav (\d+) resumed from checkpoint .* at step (\d+)")
+_RESUMED = re.compile(r"uav (\d+)(?: \(agent [^)]*\))? resumed from checkpoint .* at step (\d+)")  # --agent: its name
 _CHECKPOINT = re.compile(r"uav (\d+): checkpoint at step (\d+)")
 _JOINED = re.compile(r"uav (\d+) joined run")
 
