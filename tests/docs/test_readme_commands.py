@@ -48,8 +48,8 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up": SWARM,
     "truav train": TRAIN,
     "truav-swarm up --agents 8 --episodes 5 --out runs/swarm-8": SWARM,
-    "truav-swarm up --lockstep --out runs/swarm-lockstep": FEW,
-    "truav-swarm up --qtable runs/train-15mps --greedy --out runs/swarm-greedy": SWARM,
+    "truav-swarm up --scheme truav --lockstep --out runs/swarm-lockstep": FEW,
+    "truav-swarm up --scheme truav --qtable runs/train-15mps --greedy --out runs/swarm-greedy": SWARM,
     "truav-swarm up --record runs/swarm-rec.mcap --out runs/swarm-rec": FEW,
     "truav-swarm up --scheme patrol --out runs/swarm-patrol": FEW,
     "truav-swarm up --scheme central --out runs/swarm-central": SWARM,
@@ -57,13 +57,14 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up --scheme central --policy runs/train-central --out runs/swarm-central-trained": SWARM,
     "truav-swarm up -v --force": FEW,
     # 100 and 50 agents: the same options at 20 agents (2 processes of 10), a CI machine's share
-    "truav-swarm up --agents 100 --agents-per-process 10 --share-beacons --out runs/swarm-100": [*SWARM, "--agents", "20"],
-    "truav-swarm up --agents 100 --agents-per-process 20 --share-beacons --batch-beacons --lockstep "
-    "--out runs/swarm-100-lockstep": [*SWARM, "--agents", "20", "--agents-per-process", "10"],
-    "truav-swarm up --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
+    "truav-swarm up --scheme truav --agents 100 --agents-per-process 10 --share-beacons --out runs/swarm-100":
         [*SWARM, "--agents", "20"],
-    "truav-swarm up --beacon-cell 500 --out runs/swarm-cells": FEW,
-    "truav-swarm up --lockstep --set federated.every=1 --out runs/swarm-fed": FEW,
+    "truav-swarm up --scheme truav --agents 100 --agents-per-process 20 --share-beacons --batch-beacons --lockstep "
+    "--out runs/swarm-100-lockstep": [*SWARM, "--agents", "20", "--agents-per-process", "10"],
+    "truav-swarm up --scheme truav --agents 50 --beacon-hz 1 --agents-per-process 10 --share-beacons --out runs/swarm-50":
+        [*SWARM, "--agents", "20"],
+    "truav-swarm up --scheme truav --beacon-cell 500 --out runs/swarm-cells": FEW,
+    "truav-swarm up --scheme truav --lockstep --set federated.every=1 --out runs/swarm-fed": FEW,
     "truav-swarm up --secure --out runs/swarm-secure": FEW,
     "truav-swarm acl explain --identity uav/1": [],
     "truav-swarm certs --deployment deploy/three-hosts.toml --out creds": [],
@@ -75,7 +76,7 @@ RUN: dict[str, list[str]] = {
     "truav train --config my-config.toml --out runs/my-config": TRAIN,
     "truav traffic build": [],
     "truav train --mobility sumo --seeds 2 --episodes 500 --out runs/train-sumo": TRAIN,
-    "truav-swarm up --lockstep --mobility sumo --out runs/swarm-sumo": FEW,
+    "truav-swarm up --scheme truav --lockstep --mobility sumo --out runs/swarm-sumo": FEW,
     "truav experiment velocity --quick --mobility sumo --out runs/velocity-sumo": VELOCITY,
     "truav experiment velocity": VELOCITY,
     "truav experiment velocity --episodes-for central=1000": [*VELOCITY, "--episodes-for", "central=2"],
@@ -83,9 +84,9 @@ RUN: dict[str, list[str]] = {
     "truav experiment scale --episodes 1000": [*VELOCITY],
     "truav experiment velocity --schemes truav central patrol patrol_ctrl --episodes-for patrol_ctrl=100":
         [*VELOCITY, "--episodes-for", "patrol_ctrl=2"],
-    "truav-swarm up --record runs/demo.mcap --out runs/swarm-record": SWARM,
+    "truav-swarm up --scheme truav --record runs/demo.mcap --out runs/swarm-record": SWARM,
     "truav log check runs/demo.mcap": [],
-    "truav-swarm up --lockstep --record runs/lockstep.mcap --out runs/swarm-lockstep-rec": SWARM,
+    "truav-swarm up --scheme truav --lockstep --record runs/lockstep.mcap --out runs/swarm-lockstep-rec": SWARM,
     "truav log resim runs/lockstep.mcap": [],
     "truav log resim runs/lockstep.mcap --from 150 --greedy": ["--from", "3"],  # the tiny run has 6 ticks
     "truav report runs/demo.mcap": [],
@@ -215,7 +216,7 @@ CHECKED: dict[str, str] = {
         "starts paused, waiting for keys or bus commands; replay is tested in tests/swarm/test_replay.py",
     "truav-swarm replay-ctl --run demo -e tcp/127.0.0.1:7460 status": REPLAY_RUNNING,
     "pip install 'eclipse-zenoh>=1.0' 'msgpack>=1.0'": SETUP + " (both are TRUAV's own dependencies)",
-    "truav-swarm up --agents 3 --lockstep --episodes 1 --steps 20 --external 2 --out runs/swarm-external": OUTSIDE,
+    "truav-swarm up --scheme truav --agents 3 --lockstep --episodes 1 --steps 20 --external 2 --out runs/swarm-external": OUTSIDE,
     "'PYTHONPATH=~/mylab' truav train --agent bandit_agent:Bandit --seeds 4 --episodes 200 --out runs/bandit":
         OWN_CLASS,
     "'PYTHONPATH=~/mylab' truav evaluate runs/bandit --against patrol hover": OWN_CLASS,

@@ -29,7 +29,7 @@ def run_swarm(tmp: Path, name: str, delay: str = "", cfg: Config = CFG) -> Path:
     scenario.write_text(to_toml(cfg))
     out = tmp / name
     env = {**os.environ, DELAY_ENV: delay}
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(cfg.learner.episodes), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot"]
     rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=env, term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from truav.config import Config, to_toml
+from tests.support.swarm_up import learners
 
 
 def run_to_end(cmd: list[str], log_path: Path, timeout_s: float, *, env: dict | None = None,
@@ -35,7 +36,7 @@ def up_to_end(tmp: Path, name: str, cfg: Config, *args: str, timeout_s: float = 
     scenario = tmp / f"{name}.toml"
     scenario.write_text(to_toml(cfg))
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--run", name, "--scenario", str(scenario),
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *learners(args), "--run", name, "--scenario", str(scenario),
            "--out", str(out), "--quiet", "--no-plot", *args]
     rc = run_to_end(cmd, tmp / f"{name}.log", timeout_s, term_wait_s=60)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")

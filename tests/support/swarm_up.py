@@ -20,6 +20,12 @@ from truav.wire import keys
 SMALL = ["--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5"]
 
 
+def learners(args=()) -> list[str]:
+    """``--scheme truav`` (TRUAV's Q-learners, what a test of the swarm's machinery flies) unless ``args`` choose a
+    scheme or an agent class: `up` alone flies the demo's learned policy (truav.swarm.swarm_options.DEMO_SCHEME)."""
+    return [] if {"--scheme", "--agent"} & set(args) else ["--scheme", "truav"]
+
+
 def _running(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -35,8 +41,8 @@ class Up:
         self.log_path = tmp / "up.log"
         self.run = run
         log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--run", run, "--out",
-                                      str(self.out), "-l", free_loopback_endpoint(), "--quiet", "--no-plot",
+        self.proc = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", *learners(args), "--run", run,
+                                      "--out", str(self.out), "-l", free_loopback_endpoint(), "--quiet", "--no-plot",
                                       *SMALL, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         log.close()
         self.pids: dict[str, int] = {}

@@ -66,7 +66,7 @@ def test_realtime_per_link_delivery_matches_the_model(tmp_path):
     scenario = tmp_path / "rt.toml"
     scenario.write_text(to_toml(cfg))
     out = tmp_path / "rt"
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--rate", "20", "--seed", str(SEED), "--run", "rt",
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--rate", "20", "--seed", str(SEED), "--run", "rt",
            "--episodes", str(cfg.learner.episodes), "--scenario", str(scenario), "--out", str(out), "--quiet",
            "--no-plot"]
     assert run_to_end(cmd, tmp_path / "rt.log", 180.0) == 0, (tmp_path / "rt.log").read_text(errors="replace")

@@ -9,6 +9,7 @@ from agents.federated import (R_COUNT, R_ROUND, R_SHAPE, R_STATE, R_VALUE, Share
 from truav.analysis.driver import run_episodes
 from truav.analysis.trainer import run_chunk
 from truav.config import Config, ConfigError
+from tests.support.swarm_up import learners
 
 S, A = 50, 16
 
@@ -279,7 +280,7 @@ def _fed_swarm(tmp, name, cfg, plan_toml, *extra):
     (tmp / f"{name}.toml").write_text(to_toml(cfg))
     (tmp / f"{name}-plan.toml").write_text(plan_toml)
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *learners(extra), "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(cfg.learner.episodes), "--scenario", str(tmp / f"{name}.toml"), "--out", str(out),
            "--fault-plan", str(tmp / f"{name}-plan.toml"), "--quiet", "--no-plot", *extra]
     return run_to_end(cmd, tmp / f"{name}.log", 180.0, term_wait_s=30), out

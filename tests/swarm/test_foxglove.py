@@ -189,7 +189,7 @@ def test_up_with_foxglove_serves_live_channels_and_records_a_compact_file(tmp_pa
     """`truav-swarm up --foxglove PORT --record F`: a WebSocket client on loopback gets the
     advertised channels and their messages while it runs; the finished file is compacted."""
     port, record = free_port(), tmp_path / "live.mcap"
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--agents", "2", "--episodes", "1", "--steps", "60",
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--agents", "2", "--episodes", "1", "--steps", "60",
            "--set", "scenario.n_vehicles=40", "--foxglove", str(port), "--record", str(record),
            "--out", str(tmp_path / "out"), "--quiet", "--no-plot",
            "--max-missed", "1"]  # real time: a busy host's missed actions are not what this test is about

@@ -19,14 +19,14 @@ from pathlib import Path
 import pytest
 
 from tests.support.runs import run_to_end
-from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
+from tests.support.swarm_up import SMALL, learners, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
 from truav.cli import swarm as swarm_cli
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.outdir import MARKER_FILE
 
 
 def _up_argv(out: Path, *extra: str) -> list[str]:
-    return ["up", "--run", "hf", "--agents", "2", "--steps", "10", "--episodes", "1", "--lockstep", *SMALL,
+    return ["up", *learners(extra), "--run", "hf", "--agents", "2", "--steps", "10", "--episodes", "1", "--lockstep", *SMALL,
             "--out", str(out), "-l", free_loopback_endpoint(), "--quiet", "--no-plot", *extra]
 
 

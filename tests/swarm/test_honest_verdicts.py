@@ -16,7 +16,7 @@ import textwrap
 from pathlib import Path
 
 from tests.support.runs import run_to_end
-from tests.support.swarm_up import SMALL, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
+from tests.support.swarm_up import SMALL, learners, up  # noqa: F401  (the fixture: `up` runs, each closed at the end)
 from truav.config import Config, to_toml
 from truav.swarm.children import free_loopback_endpoint
 
@@ -70,7 +70,7 @@ def _swarm(tmp: Path, name: str, *extra: str, lockstep: bool = True, cfg: Config
     scenario.write_text(to_toml(cfg))
     out = tmp / name
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *(["--lockstep"] if lockstep else []), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *learners(extra), *(["--lockstep"] if lockstep else []), "--run", name,
            "--episodes", str(episodes), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot",
            "--no-references", "-l", free_loopback_endpoint(), *extra]
     rc = run_to_end(cmd, tmp / f"{name}.log", TIMEOUT_S, env=env)

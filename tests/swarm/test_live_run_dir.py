@@ -20,7 +20,7 @@ from tests.support.swarm_up import SMALL, up  # noqa: F401 - the fixture
 from truav.cli.swarm import main as swarm_main
 from truav.swarm.outdir import OutDirError, check_swarm_dir, prepare_chaos_dir
 
-TINY = ["--agents", "2", "--steps", "5", "--episodes", "1", *SMALL]
+TINY = ["--scheme", "truav", "--agents", "2", "--steps", "5", "--episodes", "1", *SMALL]
 
 HOLDER = """
 import sys, time

@@ -24,6 +24,7 @@ from truav.analysis.trainer import run_chunk
 from truav.config import Config, to_toml
 from truav.wire import keys
 from truav.wire.schema import LOCKSTEP_JOIN_GRACE_S
+from tests.support.swarm_up import learners
 
 SEED = 5
 EPISODES = 40
@@ -41,7 +42,7 @@ def run_up(tmp: Path, name: str, freeze_s: float, *extra: str) -> tuple[int, Pat
     plan = tmp / f"{name}-plan.toml"
     plan.write_text(f'[[fault]]\nkind = "freeze"\nstart = 1.0\nduration = {freeze_s}\nuav = 1\n')
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *learners(extra), "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--fault-plan", str(plan),
            "--quiet", "--no-plot", *extra]
     log = tmp / f"{name}.log"

@@ -59,7 +59,7 @@ def test_train_records_the_scenario_beside_the_tables(run25):
 
 
 @pytest.mark.parametrize("entry, argv", [
-    ("swarm", ["up", "--qtable", "{run}", "--greedy", "--set", "scenario.uav_speed_mps=15"]),
+    ("swarm", ["up", "--scheme", "truav", "--qtable", "{run}", "--greedy", "--set", "scenario.uav_speed_mps=15"]),
     ("truav", ["experiment", "faults", "--quick", "--qtable", "{run}", "--set", "scenario.uav_speed_mps=15"]),
     ("truav", ["evaluate", "{run}", "--speed", "15"]),
 ], ids=["up", "experiment-faults", "evaluate"])
@@ -73,14 +73,14 @@ def test_a_25_mps_policy_flown_at_15_mps_is_one_line_naming_both_speeds(run25, n
 
 def test_another_state_design_is_named_too(run25, nothing_starts, capsys):
     # the same table shape (a Q-table's size does not tell every state design apart: the edges here)
-    assert swarm_main(["up", "--qtable", str(run25), "--greedy", "--set", "learner.density_edges=[2.0, 6.0, 20.0]",
+    assert swarm_main(["up", "--scheme", "truav", "--qtable", str(run25), "--greedy", "--set", "learner.density_edges=[2.0, 6.0, 20.0]",
                        "--set", "scenario.uav_speed_mps=25", *SMALL]) == 2
     assert "was trained with learner.density_edges = [1.0, 5.0, 15.0]; this run has [2.0, 6.0, 20.0]" \
         in one_line_error(capsys)
 
 
 def test_a_wrong_file_as_qtable_is_one_line_not_numpys_pickle_message(run25, nothing_starts, capsys):
-    for main, argv in ((swarm_main, ["up", "--qtable", str(run25 / "metrics.csv"), *SMALL]),
+    for main, argv in ((swarm_main, ["up", "--scheme", "truav", "--qtable", str(run25 / "metrics.csv"), *SMALL]),
                        (truav_main, ["evaluate", str(run25 / "metrics.csv")]),
                        (truav_main, ["experiment", "faults", "--quick", "--qtable", str(run25 / "metrics.csv")])):
         assert main(argv) == 2

@@ -20,7 +20,7 @@ from truav.wire import keys
 from tests.support.swarm_up import SMALL
 from truav.swarm.children import free_loopback_endpoint
 
-RUN = ["--agents", "4", "--agents-per-process", "2", "--steps", "6", "--episodes", "1", "--lockstep", "--seed", "11",
+RUN = ["--scheme", "truav", "--agents", "4", "--agents-per-process", "2", "--steps", "6", "--episodes", "1", "--lockstep", "--seed", "11",
        "--quiet", "--no-plot", "--no-references", *SMALL]
 
 

@@ -26,6 +26,7 @@ from truav.analysis.trainer import run_chunk
 from truav.bus import transport
 from truav.config import Config
 from truav.wire import keys, schema
+from tests.support.swarm_up import learners
 
 RUN = "scale"
 SWARM_TIMEOUT_S = 240.0
@@ -145,7 +146,7 @@ def test_a_cell_beacon_reaches_only_subscribers_of_its_cell(bus_factory):
     (["agent", "--id", "0", "--lockstep", "--beacon-every", "10"], "--beacon-every: lock-step waits"),
 ])
 def test_scale_option_mistakes_are_one_line_usage_errors(argv, fragment, tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "truav.cli.swarm", *argv, "--out" if argv[0] == "up" else "--run",
+    proc = subprocess.run([sys.executable, "-m", "truav.cli.swarm", *argv, *(learners() if argv[0] == "up" else []), "--out" if argv[0] == "up" else "--run",
                            str(tmp_path / "out") if argv[0] == "up" else "x"], capture_output=True, text=True,
                           timeout=60, cwd=Path(__file__).parents[2])
     assert proc.returncode == 2, proc.stderr

@@ -23,6 +23,7 @@ from truav.analysis.driver import run_episodes
 from truav.config import Config, to_toml
 from truav.wire import keys, schema
 from tests.support.lockstep import Recorder
+from tests.support.swarm_up import learners
 
 SEED = 4
 EPISODES = 4
@@ -36,7 +37,7 @@ def up(tmp: Path, name: str, *extra: str) -> Path:
     scenario = tmp / f"{name}.toml"
     scenario.write_text(to_toml(CFG))
     out = tmp / name
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--seed", str(SEED), "--run", name,
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", *learners(extra), "--lockstep", "--seed", str(SEED), "--run", name,
            "--episodes", str(EPISODES), "--scenario", str(scenario), "--out", str(out), "--quiet", "--no-plot", *extra]
     rc = run_to_end(cmd, tmp / f"{name}.log", SWARM_TIMEOUT_S, env=dict(os.environ), term_wait_s=30)
     assert rc == 0, (tmp / f"{name}.log").read_text(errors="replace")

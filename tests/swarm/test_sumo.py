@@ -159,7 +159,7 @@ def test_lockstep_swarm_on_sumo_traffic_learns_the_trainers_tables(tiny, tmp_pat
     plain = Config().replace(**{**TINY, "scenario": {k: v for k, v in TINY["scenario"].items() if k != "mobility"}})
     (tmp_path / "tiny.toml").write_text(to_toml(plain))
     out = tmp_path / "swarm"
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--lockstep", "--mobility", "sumo", "--seed", str(seed),
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--lockstep", "--mobility", "sumo", "--seed", str(seed),
            "--run", "sumo", "--episodes", str(episodes), "--scenario", str(tmp_path / "tiny.toml"), "--out", str(out),
            "--quiet", "--no-plot"]
     rc = run_to_end(cmd, tmp_path / "swarm.log", 180.0, term_wait_s=30)

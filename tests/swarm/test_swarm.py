@@ -183,7 +183,7 @@ def test_no_swarm_process_outlives_its_supervisor(tmp_path, signum):
     children notice it is gone and stop by themselves, cleanly (agents write their statistics)."""
     out = tmp_path / "swarm"
     log = open(tmp_path / "up.log", "wb")
-    sup = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--run", "lifeline", "--agents", "2",
+    sup = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--run", "lifeline", "--agents", "2",
                             "--steps", "100", "--episodes", "50", "--set", "scenario.n_vehicles=40",
                             "--out", str(out), "--quiet", "--no-plot"],
                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True)

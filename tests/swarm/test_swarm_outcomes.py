@@ -35,7 +35,7 @@ def small_cfg(agents: int = 2, steps: int = 10) -> Config:
 # -- fresh state -------------------------------------------------------------------------
 def test_second_run_into_the_same_out_is_refused_and_resume_continues_it(tmp_path, capsys):
     out = tmp_path / "swarm"
-    argv = ["up", "--run", "fresh", "--agents", "2", "--steps", "10", "--episodes", "1", "--lockstep", *SMALL,
+    argv = ["up", "--scheme", "truav", "--run", "fresh", "--agents", "2", "--steps", "10", "--episodes", "1", "--lockstep", *SMALL,
             "--out", str(out), "-l", free_loopback_endpoint(), "--quiet", "--no-plot"]
     assert swarm_cli.main(argv) == 0
     with np.load(out / "agent0.npz") as ck:

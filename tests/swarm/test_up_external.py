@@ -19,6 +19,7 @@ import pytest
 
 from tests.support.waits import free_port
 from truav.lifecycle import child_env
+from tests.support.swarm_up import learners
 
 REPO = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "truav.cli.swarm"]
@@ -28,7 +29,7 @@ RUN_TIMEOUT_S = 240.0
 
 def _up(tmp: Path, *args: str) -> tuple[subprocess.Popen, Path]:
     log = tmp / "up.log"
-    proc = subprocess.Popen([*CLI, "up", "--agents", "3", "--episodes", "1", "--steps", str(STEPS), "--no-plot",
+    proc = subprocess.Popen([*CLI, "up", *learners(args), "--agents", "3", "--episodes", "1", "--steps", str(STEPS), "--no-plot",
                              "--out", str(tmp / "out"), "-l", f"tcp/127.0.0.1:{free_port()}",
                              "--set", "scenario.n_vehicles=60", "--set", "roads.warmup_steps=10", *args],
                             cwd=REPO, env=child_env(), stdout=log.open("w"), stderr=subprocess.STDOUT)
@@ -104,7 +105,7 @@ def test_external_uav_that_never_joins_fails_within_the_wait(tmp_path):
     (["--external-wait", "10"], "--external-wait"),
 ])
 def test_bad_external_values_are_one_line_exit_2(tmp_path, args, flag):
-    r = subprocess.run([*CLI, "up", "--agents", "3", "--out", str(tmp_path / "out"), *args], cwd=REPO,
+    r = subprocess.run([*CLI, "up", *learners(args), "--agents", "3", "--out", str(tmp_path / "out"), *args], cwd=REPO,
                        env=child_env(), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]

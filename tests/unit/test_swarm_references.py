@@ -1,10 +1,11 @@
-"""Issue 45: `truav-swarm up` ends with a scale for its numbers: hover and patrol flown in process on the
-same scenario, seed and episode count (truav.swarm.references)."""
+"""Issue 45: `truav-swarm up` ends with a scale for its numbers: hover, the heuristic spread (issue 56) and patrol
+flown in process on the same scenario, seed and episode count (truav.swarm.references)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from agents.spread_agent import with_sensing
 from truav.analysis.trainer import run_chunk
 from truav.config import Config
 from truav.swarm.references import references_for, references_line
@@ -16,14 +17,16 @@ WORLD = {"episodes": [{"coverage_pct": 9.8, "pdr": 0.116}, {"coverage_pct": 10.2
 def test_references_are_the_in_process_runs_of_the_same_seed_and_episodes() -> None:
     refs, why = references_for(CFG, "truav", 3, WORLD, True)
     assert why is None and refs["seed"] == 3 and refs["episodes"] == 2
-    for kind in ("hover", "patrol"):
-        m = run_chunk(kind, CFG, [3], 2, train=False).metrics
-        assert refs[kind]["coverage_pct"] == float(np.nanmean(m["coverage_pct"]))
-        assert refs[kind]["pdr"] == float(np.nanmean(m["pdr"]))
+    for name, kind, cfg in (("hover", "hover", CFG), ("patrol", "patrol", CFG),
+                            ("spread", "agent:spread", with_sensing("spread", CFG))):
+        m = run_chunk(kind, cfg, [3], 2, train=False).metrics
+        assert refs[name]["coverage_pct"] == float(np.nanmean(m["coverage_pct"]))
+        assert refs[name]["pdr"] == float(np.nanmean(m["pdr"]))
     line = references_line("truav", WORLD, refs, None, faults=True)
-    assert line.startswith("coverage 10.0%, PDR 0.120 (truav)\n  references on the same scenario, seed 3, 2 episodes, "
-                           "without the faults")
-    assert f"hover {refs['hover']['coverage_pct']:.1f}%, PDR {refs['hover']['pdr']:.3f}; patrol" in line
+    assert line.startswith("coverage: this swarm (truav) 10.0%, hover ")
+    assert line.splitlines()[1].startswith("  references on the same scenario, seed 3, 2 episodes, without the faults")
+    assert f"hover {refs['hover']['coverage_pct']:.1f}%, the heuristic spread" in line
+    assert f"PDR: this swarm 0.120, hover {refs['hover']['pdr']:.3f}, spread" in line
     assert "oracle ceiling: docs/results/reproduction.md" in line
 
 

@@ -103,11 +103,26 @@ def check_agent_scheme(args, cfg: Config) -> None:
         agent_loader.load(args.scheme[len(AGENT_KIND_PREFIX):], cfg, flag="--agent")
 
 
-def add_scheme_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scheme", type=scheme_name, default="truav",
-                   help="what flies the UAVs: truav (independent Q-learning agents, default), central (a controller "
-                        "process commands every UAV each tick), patrol (the pre-planned patrol), or agent:NAME "
-                        "(an agent class; `up --agent NAME`)")
+SCHEME_CHOICES_HELP = ("truav (independent Q-learning agents, learning from scratch), central (a controller process "
+                      "commands every UAV each tick), patrol (the pre-planned patrol), or agent:NAME (an agent class; "
+                      "`up --agent NAME`)")
+
+
+def add_scheme_arg(p: argparse.ArgumentParser, default: str | None = "truav", default_help: str | None = None) -> None:
+    """--scheme; ``default`` None: resolved by the command (:func:`resolve_scheme`), ``default_help`` saying to what."""
+    p.add_argument("--scheme", type=scheme_name, default=default,
+                   help=f"what flies the UAVs: {SCHEME_CHOICES_HELP} (default: {default_help or default})")
+
+
+def resolve_scheme(args, default: str) -> None:
+    """``args.scheme`` from --scheme, --agent NAME (agent:NAME) or ``default`` when neither is given; both given is
+    a mistake (one line, exit 2)."""
+    if args.agent is not None:
+        if args.scheme is not None:
+            raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
+        args.scheme = AGENT_KIND_PREFIX + args.agent
+    elif args.scheme is None:
+        args.scheme = default
 
 
 def add_command_hold_arg(p: argparse.ArgumentParser) -> None:

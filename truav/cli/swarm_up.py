@@ -25,7 +25,7 @@ from truav.swarm.checks import (check_agent_start, check_beacon_cell, check_cent
                                 check_scheme_flags)
 from truav.cli.swarm_common import (add_command_hold_arg, add_geo_origin_arg, add_lockstep_args, add_policy_args,
                                     add_scenario_args, add_scheme_arg, check_agent_scheme, lockstep_wait,
-                                    scenario_from)
+                                    resolve_scheme, scenario_from)
 from recorder.record_modes import RecordModes
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.cli.args import options_from
@@ -35,6 +35,8 @@ from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S, check_external
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY, RESTART_POLICIES
 from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
+from truav.swarm.swarm_options import DEMO_AGENT, DEMO_SCHEME, SENSING_AGENTS, with_agent_sensing
+from agents.spread_agent import SENSE_RANGE_M
 from world.process.world_process import WorldOptions
 
 RAY_PORT = 7447
@@ -66,10 +68,8 @@ def swarm_options(args):
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav.analysis import sumo_traffic
         sumo_traffic.sumo_home()
-    if args.agent is not None:  # an agents.api class flies the UAVs: the agent processes' scheme agent:NAME
-        if args.scheme != "truav":
-            raise UsageError(f"--agent {args.agent} and --scheme {args.scheme} exclude each other")
-        args.scheme = AGENT_KIND_PREFIX + args.agent
+    resolve_scheme(args, args.default_scheme)  # up: the demo's policy (DEMO_SCHEME); chaos: truav
+    cfg = with_agent_sensing(args.scheme, cfg)
     check_agent_scheme(args, cfg)
     n = cfg.scenario.n_uavs
     external = tuple(getattr(args, "external", None) or ())  # `up` only: chaos runs the swarm twice
@@ -263,12 +263,15 @@ def record_modes(args) -> RecordModes:
         raise UsageError(str(exc)) from None
 
 
-def add_up_args(up: argparse.ArgumentParser) -> None:
+def add_up_args(up: argparse.ArgumentParser, default_scheme: str, default_help: str) -> None:
     add_scenario_args(up)
-    add_scheme_arg(up)
+    add_scheme_arg(up, None, default_help)
+    up.set_defaults(default_scheme=default_scheme)
     up.add_argument("--agent", metavar="NAME",
                     help="fly your own agent class (pkg.module:Class or a name registered in the entry-point group "
-                         "truav.agents; docs/how-to/your-own-agent.md), one per UAV agent process")
+                         "truav.agents; docs/how-to/your-own-agent.md), one per UAV agent process; "
+                         f"{' and '.join(SENSING_AGENTS)} fly with their sensing on (learner.sense_range_m "
+                         f"{SENSE_RANGE_M:g}) unless --set gives another")
     add_policy_args(up)
     add_command_hold_arg(up)
     up.add_argument("--agents", type=positive_int,
@@ -331,8 +334,9 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
                          f"{DEFAULT_RESTART_LIMIT})")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--no-references", action="store_true",
-                    help="skip the references at the end (hover and patrol flown in process on the same scenario, "
-                         "seed and episodes, beside the run's coverage and PDR; about a second)")
+                    help="skip the references at the end (hover, the heuristic spread with its sensing, and patrol "
+                         "flown in process on the same scenario, seed and episodes, beside the run's coverage and "
+                         "PDR; 1-3 s)")
     up.add_argument("--quiet", action="store_true", help="no live status table")
     up.add_argument("--foxglove", type=tcp_port, nargs="?", const=8765, metavar="PORT",
                     help="serve the run live to the Foxglove app on ws://127.0.0.1:PORT (default 8765)")
@@ -344,7 +348,8 @@ def add_up_args(up: argparse.ArgumentParser) -> None:
 def add_up_commands(sub) -> None:
     """The `up` and `chaos` subcommands."""
     up = sub.add_parser("up", help="start router, world, agents (and recorder); live status; summary at the end")
-    add_up_args(up)
+    add_up_args(up, DEMO_SCHEME, f"{DEMO_SCHEME}, the learned decentralized policy {DEMO_AGENT} "
+                                 f"with its sensing on, as the demo flies it; --scheme truav learns from scratch")
     up.add_argument("--external", type=uav_ids, metavar="IDS",
                     help="leave these UAVs (e.g. 2 or 2,5) to your own agent: up starts everything else, prints the "
                          "command that flies each with examples/outside_agent.py (endpoint, credentials under "
@@ -367,7 +372,7 @@ def add_up_commands(sub) -> None:
 
     ch = sub.add_parser("chaos", help="run the same seed with and without a fault plan (degradation table + figure), "
                                       "or soak under a random nemesis; then check the invariants")
-    add_up_args(ch)
+    add_up_args(ch, "truav", "truav")
     ch.add_argument("--plan", metavar="FILE", help="fault plan TOML (examples in deploy/plans/)")
     ch.add_argument("--nemesis", choices=NEMESES,
                     help="instead of --plan: a seeded random plan (--seed) of crashes, pauses, router kills and link "

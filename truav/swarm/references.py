@@ -1,8 +1,9 @@
 """A scale for a run's numbers: the same scenario, seed and episode count flown in process by the
-reference policies (hover: the UAVs stay where they start; patrol: the hand-written baseline,
-agents.patrol, its fused kernel), printed beside the run's coverage and PDR.
+reference policies (hover: the UAVs stay where they start; spread: the decentralized heuristic,
+agents.spread_agent, with its sensing on, the bar a learner must clear; patrol: the hand-written baseline,
+agents.patrol, its fused kernel), printed beside the run's coverage and PDR, the coverages on one line.
 
-They take well under a second at the demo's size (the compiled kernels are loaded already), so
+They take about a second at the demo's size (3 s the first time in a process: the heuristic's imports), so
 `truav-swarm up` computes them at its end unless --no-references. They fly without the run's
 faults and without its bus: a scale for the result, not a replay of it. The oracle ceiling (what no
 planner can beat) is too slow to run here; docs/results/reproduction.md ("The ceiling of each
@@ -19,20 +20,25 @@ from truav import jsonio
 from truav.stats import shown
 from truav.config import Config
 
-REFERENCE_SCHEMES = ("hover", "patrol")
+REFERENCE_SCHEMES = ("hover", "spread", "patrol")
+KINDS = {"spread": "agent:spread"}
+"""The trainer's controller kind of a reference named otherwise (spread is an agents.api class)."""
+SAID = {"spread": "the heuristic spread"}
+"""How the coverage line names a reference, where its name alone does not say what it is."""
 CEILING_DOC = "docs/results/reproduction.md, \"The ceiling of each scenario\""
 
 
 def reference_metrics(cfg: Config, seed: int, episodes: int) -> dict:
     """Mean coverage (%) and PDR over ``episodes`` episodes of seed ``seed``, per reference scheme, and the
     seconds it took."""
+    from agents.spread_agent import with_sensing  # the heuristic flies with its sensing on
     from truav.analysis.trainer import run_chunk
 
     started = time.monotonic()
     out: dict = {"seed": seed, "episodes": episodes}
-    for kind in REFERENCE_SCHEMES:
-        metrics = run_chunk(kind, cfg, [seed], episodes, train=False).metrics
-        out[kind] = {name: _mean(list(np.ravel(metrics[name]))) for name in ("coverage_pct", "pdr")}
+    for name in REFERENCE_SCHEMES:
+        metrics = run_chunk(KINDS.get(name, name), with_sensing(name, cfg), [seed], episodes, train=False).metrics
+        out[name] = {key: _mean(list(np.ravel(metrics[key]))) for key in ("coverage_pct", "pdr")}
     out["elapsed_s"] = round(time.monotonic() - started, 2)
     return out
 
@@ -52,18 +58,21 @@ def _mean(values: list[float]) -> float:
 
 
 def references_line(scheme: str, world: dict | None, refs: dict | None, why_not: str | None, faults: bool) -> str:
-    """The summary's line: the run's coverage and PDR beside the references', or why there are none."""
+    """The summary's lines: the run's coverage beside the references' on the first, then where they were flown and
+    the PDRs; or the run's numbers and why there are no references."""
     own = run_metrics(world)
     if own is None:
         return "references: none (no episode finished)"
-    head = f"coverage {shown(own['coverage_pct'], '.1f', '%')}, PDR {shown(own['pdr'], '.3f')}"
     if refs is None:
-        return f"{head} (references not computed: {why_not})"
-    n = refs["episodes"]
-    return (f"{head} ({scheme})\n  references on the same scenario, seed {refs['seed']}, {n} episode{'s' if n != 1 else ''}"
-            + (", without the faults" if faults else "") + f" (flown in process, {refs['elapsed_s']:.1f} s): "
-            + "; ".join(f"{k} {shown(refs[k]['coverage_pct'], '.1f', '%')}, PDR {shown(refs[k]['pdr'], '.3f')}"
-                        for k in REFERENCE_SCHEMES)
+        return f"coverage {shown(own['coverage_pct'], '.1f', '%')}, PDR {shown(own['pdr'], '.3f')} " \
+               f"(references not computed: {why_not})"
+    n, names = refs["episodes"], [k for k in REFERENCE_SCHEMES if k in refs]
+    return (f"coverage: this swarm ({scheme}) {shown(own['coverage_pct'], '.1f', '%')}, "
+            + ", ".join(f"{SAID.get(k, k)} {shown(refs[k]['coverage_pct'], '.1f', '%')}" for k in names)
+            + f"\n  references on the same scenario, seed {refs['seed']}, {n} episode{'s' if n != 1 else ''}"
+            + (", without the faults" if faults else "") + f" (flown in process, {refs['elapsed_s']:.1f} s); "
+            + f"PDR: this swarm {shown(own['pdr'], '.3f')}, "
+            + ", ".join(f"{k} {shown(refs[k]['pdr'], '.3f')}" for k in names)
             + f"; the oracle ceiling: {CEILING_DOC}")
 
 

@@ -10,6 +10,8 @@ from pathlib import Path
 from agents.process.agent_process import AgentOptions
 from agents.process.central_process import ControllerOptions
 from recorder.record_modes import RecordModes
+from truav.analysis.agent_loader import AGENT_KIND_PREFIX
+from truav.config import Config
 from truav.faults import FaultPlan
 from truav.lifecycle import DEFAULT_ROUTER_TIMEOUT_S
 from truav.options import opt
@@ -24,6 +26,18 @@ DOWN_IDENTITY = "supervisor"
 """The sender of `truav-swarm down`'s shutdown request."""
 SHUTDOWN_SENDERS = {keys.SRC_WORLD: "the world, after its last episode", DOWN_IDENTITY: "`truav-swarm down`"}
 """Senders whose shutdown is expected; one from anyone else fails the run (and names the sender)."""
+
+DEMO_AGENT = "ppo"
+"""What `truav-swarm up` flies when given neither --scheme nor --agent (the README's command 1): the learned
+decentralized policy (agents/ppo_agent.py, numpy weights shipped with the project). In the demo's scenario (the
+defaults with 1.5 km sensing, 2 episodes from random starts) it covered 27.9% in process (seeds 0-29, greedy,
+truav.analysis.trainer.run_chunk), +1.3 ± 1.2 points above the heuristic spread (paired 95% interval) and twice
+hover's 14.2%, where TRUAV's Q-learners learning from scratch cover what hover does; under --preset paper it is
+no better there (+0.9 ± 1.7), so the demo keeps the default scenario. ``--scheme truav`` learns from scratch."""
+DEMO_SCHEME = AGENT_KIND_PREFIX + DEMO_AGENT
+SENSING_AGENTS = ("spread", "ppo")
+"""Built-in agent classes designed (spread) or trained (ppo) with sensing on: `up` flies them with
+learner.sense_range_m at agents.spread_agent.SENSE_RANGE_M where the scenario leaves sensing off."""
 
 STATUS_PERIOD_S = 1.0
 ROUTER_START_TIMEOUT_S = 15.0
@@ -100,7 +114,8 @@ class SwarmOptions:
     secure: bool = False
     """Mutual TLS and the router's access control, with fresh credentials in <out>/creds (truav.bus.security)."""
     scheme: str = "truav"
-    """truav (Q-learning agents) | central (a controller process commands every UAV) | patrol (the plan)."""
+    """truav (Q-learning agents) | central (a controller process commands every UAV) | patrol (the plan) |
+    agent:NAME (an agents.api class; the command line's default is :data:`DEMO_SCHEME`)."""
     policy: str | None = None
     """Scheme central: the trained controller to fly (`truav train --scheme central` run); None: learn online."""
     policy_index: int = ControllerOptions.policy_index
@@ -136,6 +151,15 @@ class SwarmOptions:
     def out_dir(self) -> Path:
         """The run's directory: ``out``, or runs/swarm-<run> by default."""
         return Path(self.out) if self.out else default_out_dir(self.run)
+
+
+def with_agent_sensing(scheme: str, cfg: Config) -> Config:
+    """The config a swarm of ``scheme`` flies: sensing on for SENSING_AGENTS where ``cfg`` leaves it off."""
+    from agents.spread_agent import SENSE_RANGE_M
+    named = scheme[len(AGENT_KIND_PREFIX):] if scheme.startswith(AGENT_KIND_PREFIX) else None
+    if named in SENSING_AGENTS and cfg.learner.sense_range_m == 0.0:
+        return cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
+    return cfg
 
 
 def agent_groups(n: int, per_process: int, external: tuple[int, ...] = ()) -> list[list[int]]:
