@@ -1,6 +1,7 @@
 """Issue 56: `truav-swarm up` given neither --scheme nor --agent (the README's command 1) flies the learned
 policy with the sensing it was trained with: in lock-step, every action of every step equals the in-process
-greedy run of agents.ppo_agent under the same scenario with learner.sense_range_m 1500."""
+greedy run of agents.ppo_agent under the same scenario with learner.sense_range_m 1500; its chosen hovers are
+not counted as missed actions."""
 
 from __future__ import annotations
 
@@ -25,3 +26,7 @@ def test_up_without_a_scheme_flies_the_learned_policy_with_its_sensing(tmp_path)
     assert summary["scheme"] == "agent:ppo"
     world = json.loads((out / "world.json").read_text())
     assert world["actions_digest"] == rec.digests  # every action of every step
+    # the policy hovers by choice (its 17th action); the live table's "missed actions" and the picture's "UAVs
+    # without an action" count only the UAVs the world heard nothing from (none here)
+    assert world["hover_answers"] > 0 and world["deadline_misses"] == 0
+    assert sum(h for _, h in summary["timeline"]["hovering"]) == 0

@@ -618,7 +618,7 @@ class WorldNode:
         values = {"covered": float(m.covered[0]), "generated": float(m.generated[0]),
                   "delivered": float(m.delivered[0]), "dropped": float(m.dropped_overflow[0] + m.dropped_deadline[0]),
                   "delay_sum_s": float(m.delay_sum_s[0]), "energy_j": float(m.energy_j[0].mean()),
-                  "hovering_uavs": float(np.sum(actions[0] == HOVER)),
+                  "hovering_uavs": float(len(self._missing)),  # no action heard: they hover (not a chosen HOVER)
                   "coverage_pct": 100.0 * float(m.covered[0]) / self.cfg.scenario.n_vehicles,
                   **rejection_metrics(self.bus.rejections), **self.uav_metrics()}
         self.bus.publish(keys.metrics_step(self.opts.run), schema.Metrics(
