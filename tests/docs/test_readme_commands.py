@@ -232,7 +232,8 @@ CHECKED: dict[str, str] = {
     "--out runs/bandit-greedy": OWN_CLASS,
     **{c: BENCH for c in (
         "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
-        "python bench/bench_trainer.py --agent truav", "python bench/bench_sumo.py",
+        "python bench/bench_trainer.py --agent truav", "python bench/bench_ppo_training.py",
+        "python bench/bench_ppo_training.py --full", "python bench/bench_sumo.py",
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
         "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",
