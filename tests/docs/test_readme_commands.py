@@ -116,6 +116,7 @@ RUN: dict[str, list[str]] = {
     "PYTHONPATH=examples truav-swarm up --lockstep --agent cell_agent:CellAgent --qtable runs/cell-agent --greedy "
     "--episodes 1 --record runs/cell-agent.mcap --out runs/swarm-cell-agent-rec": SWARM,
     "PYTHONPATH=examples truav log resim runs/cell-agent.mcap --agent cell_agent:CellAgent": [],
+    "truav config show --preset paper --set learner.sense_range_m=1500 '>' paper-1500.toml": [],
     "truav-swarm up --lockstep --episodes 2 --record runs/ros2-demo.mcap --out runs/swarm-ros2": FEW,
     "truav log ros2bag runs/ros2-demo.mcap --out runs/ros2-demo_bag": [],
     "truav-swarm chaos --nemesis random --duration 10m --seed 1 --out runs/chaos-soak":
@@ -185,6 +186,12 @@ CHECKED: dict[str, str] = {
     "truav experiment faults --qtable runs/train-15mps": LONG,
     "truav experiment faults --quick": LONG,
     "pip install -e '.[ros2]' -c constraints.txt": SETUP + " ([dev] includes rosbags)",
+    "pip install -e '.[marl]' -c constraints.txt": SETUP + " ([dev] includes Stable-Baselines3 and PyTorch)",
+    "python examples/train_sb3.py --steps 200000": "trains for minutes; tests/docs/test_train_sb3_howto.py runs "
+                                                   "the file with a tiny budget, then flies what it wrote",
+    "PYTHONPATH=examples truav-swarm up --agent train_sb3:Sb3Agent --scenario paper-1500.toml --out runs/swarm-sb3":
+        "flies the weights the training above writes (not run here); tests/docs/test_train_sb3_howto.py "
+        "flies a tiny training's weights",
     **{c: "ROS 2's own tools (not installed here); tests/unit/test_ros2bag.py and tests/swarm/test_ros2bag_swarm.py "
           "read the bags with rosbags and mcap-ros2-support" for c in (
         "ros2 bag info runs/ros2-demo_bag", "ros2 bag play runs/ros2-demo_bag", "rviz2")},
