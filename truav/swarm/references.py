@@ -3,7 +3,7 @@ reference policies (hover: the UAVs stay where they start; spread: the decentral
 agents.spread_agent, with its sensing on, the bar a learner must clear; patrol: the hand-written baseline,
 agents.patrol, its fused kernel), printed beside the run's coverage and PDR, the coverages on one line.
 
-They take about a second at the demo's size (3 s the first time in a process: the heuristic's imports), so
+They take about 3 s at the demo's size on a quiet 2-core machine (1 s once a process has flown them), so
 `truav-swarm up` computes them at its end unless --no-references. They fly without the run's
 faults and without its bus: a scale for the result, not a replay of it. The oracle ceiling (what no
 planner can beat) is too slow to run here; docs/results/reproduction.md ("The ceiling of each
