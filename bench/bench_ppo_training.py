@@ -34,7 +34,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from truav.cli.args import int_in  # noqa: E402
+from truav.cli.args import int_in, positive_float, run_main  # noqa: E402
 from truav.config import Config  # noqa: E402
 from truav.presets import preset_overrides  # noqa: E402
 
@@ -122,13 +122,13 @@ def median(runs: list[dict]) -> dict:
     return {k: statistics.median(r[k] for r in runs) for k in runs[0]}
 
 
-def main() -> None:
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int_in(1), default=SHIPPED_PPO_STEPS,
                     help="UAV-steps of PPO per run and task (default %(default)s, the shipped training's PPO budget)")
     ap.add_argument("--repeats", type=int_in(1), default=2, help="rounds of the two tasks, alternated (default 2)")
     ap.add_argument("--envs", type=int_in(1), default=16, help="environments per vector (default 16, as shipped)")
-    ap.add_argument("--speed", type=float, default=15.0, help="TRUAV's scenario.uav_speed_mps (default 15)")
+    ap.add_argument("--speed", type=positive_float, default=15.0, help="TRUAV's scenario.uav_speed_mps (default 15)")
     ap.add_argument("--threads", type=int_in(1), default=1, help="torch threads (default 1, as the shipped training)")
     ap.add_argument("--full", action="store_true", help="then run PPO for the paper's whole budget on TRUAV")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 16,000 UAV-steps per task, one round")
@@ -140,7 +140,7 @@ def main() -> None:
     except ImportError as e:
         print(f"bench_ppo_training: needs the marl and peer extras: pip install -e '.[marl,peer]' ({e.name})",
               file=sys.stderr)
-        sys.exit(2)
+        return 2
     torch.set_num_threads(args.threads)
     cfg = truav_config(args.speed)
     uavs, per_episode = cfg.scenario.n_uavs, cfg.scenario.steps_per_episode
@@ -177,7 +177,8 @@ def main() -> None:
         r = run("truav", cfg, args.envs, budget * uavs)
         print("paper budget, measured:" + line("truav", r))
         print(f"  {r['wall_s'] / 60:.1f} min of PPO for the paper's budget (target: at most 30 min)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_main("bench_ppo_training", main))
