@@ -45,11 +45,19 @@ from truav.swarm.ray_recovery import NodeRecovery
 
 CALL_TIMEOUT_S = 30.0
 """A call to a process's actor that takes longer counts its node as lost."""
+START_TIMEOUT_S = 180.0
+"""The first call, which waits for the actor's worker process to start: a busy node takes long (Ray's own
+worker start-up allows 60 s per attempt, and retries)."""
 ENV_PREFIXES = ("TRUAV_",)
 """The supervisor's environment variables handed to every process on the nodes."""
 
 
 def _die_with_parent() -> None:  # in the child, before exec: SIGKILL when the actor's worker dies
+    # A Ray worker blocks and ignores SIGINT (and ignores SIGQUIT): a child would inherit both through exec,
+    # and the recorder, which finishes its file on SIGINT, would never see it. Signals as a shell gives them.
+    signal.pthread_sigmask(signal.SIG_SETMASK, [])
+    for sig in (signal.SIGINT, signal.SIGQUIT):
+        signal.signal(sig, signal.SIG_DFL)
     try:
         import ctypes
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
@@ -112,11 +120,11 @@ class RayProcess:
         self.actor = actor
         self.returncode: int | None = None
         self.ended_wall_ns: int | None = None  # when it was first seen gone (truav.swarm.ray_recovery)
-        self.pid = self._call(actor.pid) or -1
+        self.pid = self._call(actor.pid, timeout=START_TIMEOUT_S) or -1
 
-    def _call(self, method, *args):
+    def _call(self, method, *args, timeout: float = CALL_TIMEOUT_S):
         try:
-            return ray.get(method.remote(*args), timeout=CALL_TIMEOUT_S)
+            return ray.get(method.remote(*args), timeout=timeout)
         except (RayActorError, ActorUnschedulableError, GetTimeoutError):  # its node or worker is gone: so is the process
             self.returncode = -signal.SIGKILL
             self.ended_wall_ns = self.ended_wall_ns or time.time_ns()
