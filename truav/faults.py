@@ -52,6 +52,13 @@ start of the run:
     target = "router"         # or "controller" (scheme central)
     restart_after = 1.0       # required for the router: the swarm cannot run without it
 
+    [[fault]]
+    kind = "crash"            # `up --ray` only: kill every process on a Ray node (its Ray workers:
+    start = 50.0              # its router and its agents); the supervisor places its agents again
+    target = "node"           # on the nodes left, resuming from their checkpoints
+    node = 2                  # its index in the placement `up --ray` prints (node 0, the world's
+                              # and the recorder's, cannot be lost); no restart_after
+
 Scheme central adds the controller's links: its uplink is `keys = "uav/*/state"`
 (received by `dst = "controller"`), its downlink `keys = "controller/cmd/*"`;
 a partition group may hold "controller" (`groups = [[0, 1], ["controller", 2, 3, 4]]`:
@@ -91,14 +98,16 @@ _ALLOWED = {
     "latency": {"fixed_ms", "jitter_ms", "keys", "src", "dst"},
     "partition": {"groups"},
     "obs_loss": {"probability", "uavs"},
-    "crash": {"uav", "target", "restart_after"},
+    "crash": {"uav", "target", "restart_after", "node"},
     "freeze": {"uav", "target"},
 }
 _COMMON = {"kind", "start", "duration"}
 CONTROLLER = "controller"
 """A process a crash or freeze may name by ``target`` (scheme central), and a partition's group member."""
 ROUTER, WORLD, RECORDER = "router", "world", "recorder"
-TARGETS = {"crash": (CONTROLLER, ROUTER), "freeze": (CONTROLLER, WORLD, RECORDER)}
+NODE = "node"
+"""A crash's target under `truav-swarm up --ray`: every process of one Ray node (its ``node`` index)."""
+TARGETS = {"crash": (CONTROLLER, ROUTER, NODE), "freeze": (CONTROLLER, WORLD, RECORDER)}
 """The processes a crash or freeze may name by ``target`` (agents are named by ``uav``)."""
 
 
@@ -284,11 +293,33 @@ def _check_params(where: str, kind: str, p: dict[str, Any]) -> dict[str, Any]:
                             f"got {p['target']!r}")
         if kind == "crash" and p.get("target") == ROUTER and "restart_after" not in p:
             raise PlanError(f"{where}: a crash of the router needs restart_after (the swarm cannot run without it)")
+        if "node" in p and p.get("target") != NODE:
+            raise PlanError(f"{where}: node: only with target = \"node\"")
+        if p.get("target") == NODE:
+            _node(where, p)
         if "uav" in p:
             _uav(where, "uav", p["uav"])
         if "restart_after" in p:
             p["restart_after"] = _number(where, "restart_after", p["restart_after"], 0.0)
     return p
+
+
+def _node(where: str, p: dict[str, Any]) -> None:
+    if "node" not in p:
+        _missing(where, "node (a Ray node's index in the placement `up --ray` prints)")
+    if isinstance(p["node"], bool) or not isinstance(p["node"], int) or not 0 <= p["node"] < 1024:
+        raise PlanError(f"{where}: node must be a Ray node's index in [1, 1024), got {p['node']!r}")
+    if p["node"] == 0:
+        raise PlanError(f"{where}: node 0 holds the world and the recorder: the run cannot survive its loss "
+                        f"(name another node)")
+    if "restart_after" in p:
+        raise PlanError(f"{where}: no restart_after for a node: the supervisor places its agents again on the "
+                        f"nodes left")
+
+
+def node_faults(plan: FaultPlan) -> list[tuple[int, int]]:
+    """The plan's node kills (truav-swarm up --ray): (fault index, node index) each."""
+    return [(n, f.params["node"]) for n, f in enumerate(plan.faults) if f.kind == "crash" and f.params.get("target") == NODE]
 
 
 def _missing(where: str, key: str):

@@ -22,7 +22,7 @@ from typing import Callable
 
 from truav.bus.fault_filter import CONTROL_FAULTS
 from truav.bus.transport import Bus
-from truav.faults import LINK_KINDS, Fault, FaultPlan, PlanError, plan_from_dict
+from truav.faults import LINK_KINDS, NODE, Fault, FaultPlan, PlanError, plan_from_dict
 from truav.wire import keys, schema
 
 log = logging.getLogger("truav.faults")
@@ -145,7 +145,10 @@ class FaultController:
         message = schema.Fault(fault=f.kind, phase=phase, target=_target(f), params=_params(f))
         if phase == schema.PHASE_START:  # before the signal: a router killed would take the message with it
             self.bus.publish(keys.fault(self.run, f.kind), message)
-        if f.kind == "crash":
+        if f.kind == "crash" and uav == NODE:  # `up --ray`: a whole node (no restart: its agents move)
+            if phase == schema.PHASE_START:
+                self.hooks["kill_node"](f.params["node"])
+        elif f.kind == "crash":
             (self.hooks["kill"] if phase == schema.PHASE_START else self.hooks["restart"])(uav)
         elif f.kind == "freeze":
             (self.hooks["freeze"] if phase == schema.PHASE_START else self.hooks["thaw"])(uav)

@@ -37,6 +37,7 @@ from truav.bus.acl import SUPERVISOR, file_stem
 from truav.bus.certs import site_bundles
 from truav.bus.secure_configs import tls_endpoint
 from truav.bus.zenoh_config import make_config
+from truav.faults import node_faults
 from truav.lifecycle import child_env
 from truav.swarm import supervisor
 from truav.swarm.children import Children
@@ -174,6 +175,7 @@ class RayChildren(Children):
         self.creds_dirs: dict[str, str] = {}  # --secure: each node's credentials directory, on that node
         self.recovery = NodeRecovery(lambda: {n.node_id for n in cluster_nodes()})  # a lost node's agents elsewhere
         self.node_losses = self.recovery.losses  # the summary's (truav.swarm.summary)
+        self.placed = self.plan  # the placement as started (a fault plan's node index is into its nodes)
 
     def secure_setup(self, out: Path, opts, n_uavs: int, endpoint: str, share_every_ticks: int = 0):
         """--secure (the supervisor's hook, as truav.bus.security.secure_setup): the CA and certificates made
@@ -215,7 +217,18 @@ class RayChildren(Children):
         actor = ProcessActor.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=False)) \
             .remote(argv, str(log_path.absolute()), os.getcwd(), env)
         self.actors.append(actor)
-        return RayProcess(actor)
+        proc = RayProcess(actor)
+        proc.node_id = node_id
+        return proc
+
+    def kill_node(self, k: int) -> None:
+        """The nemesis (a fault plan's crash of node ``k``, truav.faults): every process of that node killed
+        with its Ray worker, as when the node's workers are killed; the node is then lost (its router gone) and
+        its agents' restarts place them on the nodes left (truav.swarm.ray_recovery)."""
+        node = self.placed.nodes[k].node_id
+        for proc in list(self.procs.values()):
+            if getattr(proc, "node_id", None) == node and proc.poll() is None:
+                ray.kill(proc.actor)  # its worker dies, and the process with it (PR_SET_PDEATHSIG)
 
     def close_logs(self) -> None:
         super().close_logs()
@@ -251,6 +264,10 @@ def run_on_ray(cfg, opts, address: str, port: int, say=print) -> int:
         raise PlanError(f"--ray {address}: cannot join the cluster ({str(exc).splitlines()[0] if str(exc) else exc})") from None
     try:
         plan = place(cluster_nodes(), cfg.scenario.n_uavs, opts.agents_per_process, port, opts.external)
+        for n, k in node_faults(opts.plan) if opts.plan is not None else ():
+            if k >= len(plan.nodes):
+                raise PlanError(f"fault plan {opts.fault_plan}: fault #{n + 1} (crash) names node {k}, but the cluster "
+                                f"has {len(plan.nodes)} node(s) (0-{len(plan.nodes) - 1})")
         opts.listen = plan.core_endpoint
         say(f"Ray cluster {address}: {len(plan.nodes)} node(s)", flush=True)  # --quiet too: where things run
         for line in plan.lines(secure=opts.secure):

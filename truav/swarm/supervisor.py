@@ -53,7 +53,7 @@ from truav.bus import transport
 from truav.bus.security import SUPERVISOR, secure_setup, tls_endpoint
 from truav.bus.transport import Bus, make_config
 from truav.config import Config, to_toml
-from truav.faults import FaultPlan, load_plan
+from truav.faults import FaultPlan, load_plan, node_faults
 from truav.lifecycle import signals_handled
 from truav.options import to_argv
 from truav.wire import guard
@@ -122,6 +122,11 @@ def run_swarm(cfg: Config, opts: SwarmOptions, children=Children) -> int:
             if opts.listen:
                 check_listen(opts.listen)
             plan = opts.plan if opts.plan is not None else load_plan(opts.fault_plan) if opts.fault_plan else None
+            if plan is not None and node_faults(plan) and not hasattr(children, "kill_node"):
+                where = f"fault plan {opts.fault_plan}: " if opts.fault_plan else ""
+                print(f"truav-swarm: error: {where}fault #{node_faults(plan)[0][0] + 1} (crash) kills a Ray node: "
+                      f"only with --ray", file=sys.stderr)
+                return 2
             check_swarm_dir(out, resume=opts.resume, force=opts.force)
             # Held until the summary is written: no other run replaces or continues this one meanwhile.
             held.enter_context(hold_run_dirs([out], run=opts.run, command="truav-swarm up"))
@@ -278,7 +283,8 @@ class _Swarm(SwarmWatch, SwarmEnd):
             # With or without a plan: a plan sent to the live run (`truav-swarm faults`) is scheduled and told too.
             hooks = {"kill": self._plan_kill, "restart": self._plan_restart,
                      "freeze": lambda u: self.children.send(process_of(u), signal.SIGSTOP),
-                     "thaw": lambda u: self.children.send(process_of(u), signal.SIGCONT)}
+                     "thaw": lambda u: self.children.send(process_of(u), signal.SIGCONT),
+                     "kill_node": getattr(self.children, "kill_node", None)}  # --ray: truav.swarm.ray_swarm
             self.controller = FaultController(bus, opts.run, self.plan or FaultPlan(), hooks)
             scheme = ["--scheme", opts.scheme]
             if self.central:  # before the world, which waits for it (and the agents) before tick 0
