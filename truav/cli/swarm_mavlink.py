@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
-import sys
 import threading
-from pathlib import Path
 
 from truav.cli.args import UserError, int_in, positive_float
-from truav.cli.run_lookup import add_run_args, find_run
-from truav.cli.swarm_common import (add_geo_origin_arg, add_transport_args, config_from_args, operator_config,
-                                    part_creds, setup_logging)
+from truav.cli.run_lookup import add_run_args
+from truav.cli.swarm_bridges import open_bridge_run, serve_bridge
+from truav.cli.swarm_common import add_geo_origin_arg, add_transport_args
 
 MAX_RATE_HZ = 50.0
 GCS_HELP = "the ground station's UDP endpoint HOST:PORT, an IPv4 address (default 127.0.0.1:14550, QGroundControl's)"
@@ -57,15 +55,9 @@ def cmd_mavlink(args) -> int:
             raise
         raise UserError("truav-swarm mavlink needs pymavlink: pip install -e '.[mavlink]' -c constraints.txt") from None
     from recorder.foxglove import Geometry
-    from truav.config import load_config
-    from truav.swarm.outdir import SCENARIO_FILE
 
-    out = find_run(args)
-    scenario = Path(out) / SCENARIO_FILE
-    cfg = load_config(scenario if scenario.is_file() else None)  # a bad file: ConfigError, one line naming it
-    steer_config = operator_config(args)  # repositions go out as the operator (its credentials)
-    part_creds(args, "view")
-    setup_logging(args.verbose)
+    run = open_bridge_run(args)  # repositions go out as the operator (its credentials)
+    cfg = run.cfg
     geometry = Geometry.from_config(cfg)
     fleet = MavlinkFleet(FleetSettings(
         run=args.run, origin=args.geo_origin, area_m=geometry.area_m, uav_altitude_m=geometry.uav_altitude_m,
@@ -75,23 +67,17 @@ def cmd_mavlink(args) -> int:
     bridge = mavlink_bridge.Bridge(fleet, args.udp_out, rate_hz=args.rate, on_shutdown=stop.set)
     last = min(args.first_uav + SYSIDS_PER_BRIDGE - 1, cfg.scenario.n_uavs - 1)
 
-    def ready() -> None:
-        print(f"MAVLink: run {args.run}'s UAVs {args.first_uav}-{last} as systems 1-{last - args.first_uav + 1}, "
-              f"to udp {args.udp_out[0]}:{args.udp_out[1]}"
-              + ("" if scenario.is_file() else f" (no {scenario}: the default scenario's geometry)"), flush=True)
+    def ready_line() -> str:
+        return (f"MAVLink: run {args.run}'s UAVs {args.first_uav}-{last} as systems 1-{last - args.first_uav + 1}, "
+                f"to udp {args.udp_out[0]}:{args.udp_out[1]}")
 
-    why = "stopped"
-    try:
-        mavlink_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready,
-                                  steer_config=steer_config)
-        why = "the run shut down"
-    finally:  # Ctrl-C and SIGTERM too (exit 130 / 143): one line of what was done
+    def summary() -> str:
         st = bridge.stats
-        print(f"truav-swarm mavlink: {why}: {st.sent} datagram(s) sent to {args.udp_out[0]}:{args.udp_out[1]}, "
-              f"{st.steered} reposition(s) sent on as overrides, {st.denied} denied (no point inside the area), "
-              f"{sum(st.refused.values())} command(s) refused as unsupported"
-              + (f", {st.odd} bus message(s) that did not fit their kind" if st.odd else ""), file=sys.stderr)
-    return 0
+        return (f"{st.sent} datagram(s) sent to {args.udp_out[0]}:{args.udp_out[1]}, {st.steered} reposition(s) "
+                f"sent on as overrides, {st.denied} denied (no point inside the area), "
+                f"{sum(st.refused.values())} command(s) refused as unsupported")
+
+    return serve_bridge("mavlink", args, run, mavlink_bridge.run_bridge, bridge, stop, ready_line, summary)
 
 
 def add_mavlink_command(sub) -> None:

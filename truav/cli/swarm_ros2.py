@@ -4,13 +4,12 @@ truav/swarm/ros2_bridge.py does the work, truav/wire/rmw_zenoh.py formats rmw_ze
 
 from __future__ import annotations
 
-import sys
 import threading
-from pathlib import Path
 
 from truav.cli.args import UserError, int_in
-from truav.cli.run_lookup import add_run_args, find_run
-from truav.cli.swarm_common import add_transport_args, config_from_args, operator_config, part_creds, setup_logging
+from truav.cli.run_lookup import add_run_args
+from truav.cli.swarm_bridges import open_bridge_run, serve_bridge
+from truav.cli.swarm_common import add_transport_args
 
 
 def cmd_ros2(args) -> int:
@@ -20,40 +19,28 @@ def cmd_ros2(args) -> int:
         raise UserError("truav-swarm ros2 needs rosbags: pip install -e '.[ros2]' -c constraints.txt") from None
     from recorder.foxglove import Geometry
     from recorder.ros2_messages import Ros2Mapper
-    from truav.config import load_config
     from truav.swarm import ros2_bridge
-    from truav.swarm.outdir import SCENARIO_FILE
 
-    out = find_run(args)
-    scenario = Path(out) / SCENARIO_FILE
-    cfg = load_config(scenario if scenario.is_file() else None)  # a bad file: ConfigError, one line naming it
-    steer_config = operator_config(args)  # goals go out as the operator (its credentials)
-    part_creds(args, "view")
-    setup_logging(args.verbose)
+    run = open_bridge_run(args)  # goals go out as the operator (its credentials)
+    cfg = run.cfg
     typestore = get_typestore(Stores.ROS2_JAZZY)
     stop = threading.Event()
     bridge = ros2_bridge.Ros2Bridge(Ros2Mapper(typestore, Geometry.from_config(cfg)), typestore, args.run,
                                     cfg.scenario.n_uavs, domain_id=args.domain_id, on_shutdown=stop.set)
 
-    def ready() -> None:
-        print(f"ROS 2: run {args.run} as node {ros2_bridge.NAMESPACE}/{bridge.node} on ROS_DOMAIN_ID "
-              f"{args.domain_id}, {len(bridge.topics)} topics (/truav/uav_<i>/pose and velocity, /truav/markers, "
-              f"/truav/metrics) and {cfg.scenario.n_uavs} goal subscriptions (/truav/uav_<i>/goal) through the "
-              f"router at {', '.join(args.connect or ['(the zenoh config)'])}"
-              + ("" if scenario.is_file() else f" (no {scenario}: the default scenario's geometry)"), flush=True)
+    def ready_line() -> str:
+        return (f"ROS 2: run {args.run} as node {ros2_bridge.NAMESPACE}/{bridge.node} on ROS_DOMAIN_ID "
+                f"{args.domain_id}, {len(bridge.topics)} topics (/truav/uav_<i>/pose and velocity, /truav/markers, "
+                f"/truav/metrics) and {cfg.scenario.n_uavs} goal subscriptions (/truav/uav_<i>/goal) through the "
+                f"router at {', '.join(args.connect or ['(the zenoh config)'])}")
 
-    why = "stopped"
-    try:
-        ros2_bridge.run_bridge(args.run, config_from_args(args), bridge, stop=stop, ready=ready,
-                               steer_config=steer_config)
-        why = "the run shut down"
-    finally:  # Ctrl-C and SIGTERM too (exit 130 / 143): one line of what was done
+    def summary() -> str:
         st = bridge.stats
-        print(f"truav-swarm ros2: {why}: {sum(st.published.values())} ROS 2 message(s) published on "
-              f"{len(st.published)} topic(s), {st.steered} goal(s) sent on as overrides, {st.refused} refused "
-              f"(another frame than map, outside the area, or not a PoseStamped)"
-              + (f", {st.odd} bus message(s) that did not fit their kind" if st.odd else ""), file=sys.stderr)
-    return 0
+        return (f"{sum(st.published.values())} ROS 2 message(s) published on {len(st.published)} topic(s), "
+                f"{st.steered} goal(s) sent on as overrides, {st.refused} refused "
+                f"(another frame than map, outside the area, or not a PoseStamped)")
+
+    return serve_bridge("ros2", args, run, ros2_bridge.run_bridge, bridge, stop, ready_line, summary)
 
 
 def add_ros2_command(sub) -> None:

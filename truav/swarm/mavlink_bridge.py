@@ -19,9 +19,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
-from recorder.schemas import envelope_fields
 from truav.swarm.mavlink_messages import MavlinkFleet, commands_to_refuse, mav
-from truav.swarm.view import follow
+from truav.swarm.view import FedStats, feed_sample, follow
 from truav.swarm.steering import send_override
 from truav.wire import keys
 
@@ -34,9 +33,7 @@ MAX_DATAGRAM = 2048  # a MAVLink 2 frame is at most 280 bytes; more is not MAVLi
 
 
 @dataclass
-class BridgeStats:
-    samples: int = 0
-    odd: int = 0  # bus bodies that did not fit their kind
+class BridgeStats(FedStats):
     sent: int = 0  # datagrams
     refused: dict[int, int] = field(default_factory=dict)  # command -> times acked UNSUPPORTED
     steered: int = 0  # repositions sent on as overrides (acked ACCEPTED)
@@ -64,16 +61,7 @@ class Bridge:
         """Sends an override of a UAV to a goal (run_bridge sets it); None: repositions are unsupported."""
 
     def handle(self, key: str, payload: bytes, recv_ns: int) -> None:
-        self.stats.samples += 1
-        env = envelope_fields(payload)
-        if env is None:
-            return
-        if env[0] == "control" and env[4].get("command") == "shutdown" and self.on_shutdown is not None:
-            self.on_shutdown()
-        try:
-            self.fleet.feed(env[0], env[4], recv_ns)
-        except Exception:  # an odd body: count it, keep serving
-            self.stats.odd += 1
+        feed_sample(self.stats, payload, lambda kind, body: self.fleet.feed(kind, body, recv_ns), self.on_shutdown)
 
     def every_pass(self) -> None:
         now = time.monotonic_ns()

@@ -28,9 +28,8 @@ from typing import Any, Callable, Optional
 
 from recorder.ros2_messages import (FRAME, MARKERS_TOPIC, MARKERS_TYPE, METRICS_TOPIC, METRICS_TYPE, POSE_TYPE,
                                     VELOCITY_TYPE, pose_topic, velocity_topic)
-from recorder.schemas import envelope_fields
 from truav.swarm.steering import inside_area, send_override
-from truav.swarm.view import follow
+from truav.swarm.view import FedStats, feed_sample, follow
 from truav.wire import keys, rmw_zenoh
 
 log = logging.getLogger("truav.ros2")
@@ -53,9 +52,7 @@ def node_name(run: str) -> str:
 
 
 @dataclass
-class BridgeStats:
-    samples: int = 0
-    odd: int = 0  # bus bodies that did not fit their kind
+class BridgeStats(FedStats):
     published: dict[str, int] = field(default_factory=dict)  # ROS 2 topic -> messages put
     steered: int = 0  # goals sent on as overrides
     refused: int = 0  # goals not sent: another frame, outside the area, not a PoseStamped
@@ -167,18 +164,9 @@ class Ros2Bridge:
         return pub
 
     def handle(self, key: str, payload: bytes, recv_ns: int) -> None:
-        self.stats.samples += 1
-        env = envelope_fields(payload)
-        if env is None:
-            return
-        if env[0] == "control" and env[4].get("command") == "shutdown" and self.on_shutdown is not None:
-            self.on_shutdown()
-        try:
-            out = self.mapper.feed(env[0], key, env[4], recv_ns)
-        except Exception:  # an odd body: count it, keep serving
-            self.stats.odd += 1
-            return
-        for m in out:
+        out = feed_sample(self.stats, payload, lambda kind, body: self.mapper.feed(kind, key, body, recv_ns),
+                          self.on_shutdown)
+        for m in out or ():
             pub = self._publisher(m.topic, m.msgtype)
             data = self.typestore.serialize_cdr(m.message, m.msgtype)
             pub.seq += 1

@@ -16,7 +16,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Callable, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Optional, TypeVar
 
 import foxglove
 
@@ -136,3 +137,31 @@ def follow(run: str, zenoh_config: Any, src: str, stop: threading.Event,
                 time.sleep(PULL_IDLE_S)
                 continue
             each(*item)
+
+
+T = TypeVar("T")
+
+
+@dataclass
+class FedStats:
+    """What a bridge made of the run's messages: every one counted, and the bodies that did not fit their kind."""
+    samples: int = 0
+    odd: int = 0
+
+
+def feed_sample(stats: FedStats, payload: bytes, feed: Callable[[str, dict], T],
+                on_shutdown: Optional[Callable[[], None]] = None) -> Optional[T]:
+    """One message of the run as a bridge (MAVLink's, ROS 2's) takes it: counted, its envelope opened (None:
+    not an envelope), the run's shutdown told to ``on_shutdown``, then its kind and body given to ``feed``,
+    whose answer it returns; a body that did not fit its kind is counted odd (None): the bridge keeps serving."""
+    stats.samples += 1
+    env = envelope_fields(payload)
+    if env is None:
+        return None
+    if env[0] == "control" and env[4].get("command") == "shutdown" and on_shutdown is not None:
+        on_shutdown()
+    try:
+        return feed(env[0], env[4])
+    except Exception:  # an odd body: count it, keep serving
+        stats.odd += 1
+        return None
