@@ -55,24 +55,25 @@ def stop_when(proc: subprocess.Popen, ready: Callable[[], bool], signum: int, ti
         raise AssertionError(f"never ready to be stopped (exit {proc.returncode}):\n{out}\n{err}")
     below = descendants(proc.pid)
     proc.send_signal(signum)
-    try:
-        out, err = proc.communicate(timeout=end_timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate(timeout=30)
-        raise AssertionError(f"did not end {end_timeout_s:.0f} s after signal {signum}:\n{out}\n{err}")
+    out, err = _ended(proc, end_timeout_s, f"did not end {end_timeout_s:.0f} s after signal {signum}")
     wait_until(lambda: not any(alive(p) for p in below), 15.0, poll_s=0.1)  # reaped by init, if orphaned
     return proc.returncode, out, err, {p for p in below if alive(p)}
 
 
 def finish(proc: subprocess.Popen, timeout_s: float = 300.0) -> tuple[int, str, str]:
+    out, err = _ended(proc, timeout_s, f"did not end in {timeout_s:.0f} s")
+    return proc.returncode, out, err
+
+
+def _ended(proc: subprocess.Popen, timeout_s: float, late: str) -> tuple[str, str]:
+    """``proc``'s stdout and stderr once it ended within ``timeout_s``; else killed, and an AssertionError
+    saying ``late`` with what it wrote."""
     try:
-        out, err = proc.communicate(timeout=timeout_s)
+        return proc.communicate(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         proc.kill()
         out, err = proc.communicate(timeout=30)
-        raise AssertionError(f"did not end in {timeout_s:.0f} s:\n{out}\n{err}")
-    return proc.returncode, out, err
+        raise AssertionError(f"{late}:\n{out}\n{err}") from None
 
 
 def stopped_quietly(rc: int, out: str, err: str, code: int, line_re: str) -> None:

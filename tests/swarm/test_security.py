@@ -23,7 +23,8 @@ import pytest
 import zenoh
 
 from bench.hostile import flood, forged, live_keys
-from tests.support.waits import free_port, wait_matched
+from tests.support.secure_router import client, secure_router, until
+from tests.support.waits import wait_matched
 from agents.process.agent_process import DELAY_ENV
 from truav.bus import security, transport
 from truav.cli import swarm as swarm_cli
@@ -42,25 +43,8 @@ def session(conf: dict) -> zenoh.Session:
 
 @pytest.fixture(scope="module")
 def creds(tmp_path_factory):
-    d = tmp_path_factory.mktemp("creds")
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    security.issue(d, RUN, N, ep)
-    router = zenoh.open(zenoh.Config.from_file(str(d / security.ROUTER_CONFIG)))
-    try:
-        yield security.load(d, RUN)
-    finally:
-        router.close()
-
-
-def client(creds, identity: str) -> zenoh.Session:
-    return zenoh.open(zenoh.Config.from_file(str(creds.config_file(identity))))
-
-
-def until(pred, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return pred()
+    with secure_router(tmp_path_factory.mktemp("creds"), RUN, N) as issued:
+        yield issued
 
 
 # --- the table, the ACL, explain ------------------------------------------------------------------

@@ -8,9 +8,9 @@ from __future__ import annotations
 import time
 
 import pytest
-import zenoh
 
-from tests.support.waits import free_port, wait_matched
+from tests.support.secure_router import client, secure_router, until
+from tests.support.waits import wait_matched
 from truav.bus import security
 from truav.wire import keys
 
@@ -21,24 +21,8 @@ WAIT_S = 1.0  # how long a subscriber listens for puts that must not arrive (the
 
 @pytest.fixture(scope="module")
 def creds(tmp_path_factory):
-    d = tmp_path_factory.mktemp("creds")
-    security.issue(d, RUN, N, f"tcp/127.0.0.1:{free_port()}")
-    router = zenoh.open(zenoh.Config.from_file(str(d / security.ROUTER_CONFIG)))
-    try:
-        yield security.load(d, RUN)
-    finally:
-        router.close()
-
-
-def client(creds, identity: str) -> zenoh.Session:
-    return zenoh.open(zenoh.Config.from_file(str(creds.config_file(identity))))
-
-
-def until(pred, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return pred()
+    with secure_router(tmp_path_factory.mktemp("creds"), RUN, N) as issued:
+        yield issued
 
 
 def test_operator_is_issued_and_may_put_overrides_only():
