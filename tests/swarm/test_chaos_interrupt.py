@@ -26,6 +26,7 @@ LINE = (r"truav-swarm: interrupted in the (baseline|faulted) run[^;]*; run the s
 # on stderr.
 PLAN = '[[fault]]\nkind = "latency"\nstart = 0.0\nfixed_ms = 2.0\nkeys = "uav/*/beacon"\ndst = "uav/*"\n'
 RESUMED = "resumed from checkpoint"
+RESUMED_STEPS = 100  # steps an episode of the runs stopped, resumed and compared
 
 
 def _finished(sub: Path) -> bool:
@@ -52,10 +53,10 @@ def _numbers(path: Path) -> str:
     return "\n".join(line for line in path.read_text().splitlines() if not line.startswith("tick lateness"))
 
 
-def _args(tmp_path: Path, out: Path) -> list[str]:
+def _args(tmp_path: Path, out: Path, steps: int = 300) -> list[str]:
     plan = tmp_path / "latency.toml"
     plan.write_text(PLAN)
-    return ["chaos", "--plan", str(plan), "--lockstep", "--agents", "2", "--steps", "300", "--episodes", "2",
+    return ["chaos", "--plan", str(plan), "--lockstep", "--agents", "2", "--steps", str(steps), "--episodes", "2",
             "--quiet", "--set", "scenario.n_vehicles=40", "--set", "roads.warmup_steps=5", "--out", str(out)]
 
 
@@ -78,7 +79,9 @@ def test_chaos_stopped_by_sigterm_in_its_baseline_run_ends_in_one_line(tmp_path)
 @pytest.mark.timeout(600)  # five swarm runs one after another: beyond the suite's 300 s on a loaded host
 def test_chaos_stopped_by_ctrl_c_in_its_faulted_run_resumes_to_the_uninterrupted_comparison(tmp_path):
     stopped, whole = tmp_path / "stopped", tmp_path / "whole"
-    args = _args(tmp_path, stopped)
+    # Five runs of which every tick is paid for (a faulted lock-step tick waits out the beacons' latency, ~60 ms
+    # on a loaded host): 100 steps an episode leave the faulted run seconds of ticks to be stopped in.
+    args = _args(tmp_path, stopped, RESUMED_STEPS)
 
     # Ctrl-C while the faulted run ticks (its agents have tables to checkpoint)
     rc, so, se, left = stop_when(start(CHAOS, args, tmp_path),
@@ -102,7 +105,7 @@ def test_chaos_stopped_by_ctrl_c_in_its_faulted_run_resumes_to_the_uninterrupted
     assert RESUMED not in _agent_logs(stopped / "faulted"), "the interrupted faulted run was continued"
 
     # the comparison equals that of a run never stopped
-    rc, so, se = finish(start(CHAOS, _args(tmp_path, whole), tmp_path))
+    rc, so, se = finish(start(CHAOS, _args(tmp_path, whole, RESUMED_STEPS), tmp_path))
     assert rc == 0, so + se
     assert _numbers(stopped / "degradation.txt") == _numbers(whole / "degradation.txt")
     for name in ("baseline", "faulted"):
