@@ -3,6 +3,7 @@ a line a second per process and call site); without -v none of that appears."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from tests.support.swarm_up import Up
@@ -11,15 +12,24 @@ LINES = {"world.log": "truav.world DEBUG tick ", "agent0.log": "truav.agent DEBU
          "agent1.log": "truav.agent DEBUG uav 1 tick ", "recorder.log": "truav.recorder DEBUG recorder: received"}
 
 
-def _run(tmp: Path, *args: str) -> Up:
+def _start(tmp: Path, *args: str) -> Up:
     tmp.mkdir()
-    up = Up(tmp, "verbose", "--agents", "2", "--steps", "5", "--episodes", "1", "--lockstep",
-            "--record", str(tmp / "rec.mcap"), *args)
+    return Up(tmp, "verbose", "--agents", "2", "--steps", "5", "--episodes", "1", "--lockstep",
+              "--record", str(tmp / "rec.mcap"), *args)
+
+
+def _ended(ups: list[Up]) -> list[Up]:
+    """The swarms started side by side (each with its own router), each waited for; all closed, also when one
+    failed (a swarm still running killed with the processes it started)."""
     try:
-        assert up.wait(timeout=180) == 0, up.output()
+        for up in ups:
+            assert up.wait(timeout=180) == 0, up.output()
     finally:
-        up.close()
-    return up
+        for up in ups:
+            if up.proc.poll() is None and (up.out / "pids.json").is_file():
+                up.pids = json.loads((up.out / "pids.json").read_text())
+            up.close()
+    return ups
 
 
 def _logs(up: Up) -> dict[str, str]:
@@ -27,8 +37,8 @@ def _logs(up: Up) -> dict[str, str]:
 
 
 def test_verbose_adds_debug_lines_to_every_process_and_plain_has_none(tmp_path) -> None:
-    plain, verbose = _run(tmp_path / "plain"), _run(tmp_path / "verbose", "-v")
-    central = _run(tmp_path / "central", "-v", "--scheme", "central")
+    plain, verbose, central = _ended([_start(tmp_path / "plain"), _start(tmp_path / "verbose", "-v"),
+                                      _start(tmp_path / "central", "-v", "--scheme", "central")])
     for name, text in _logs(plain).items():
         assert " DEBUG " not in text, (name, text)
     assert "debug: supervisor" not in plain.output()
