@@ -4,7 +4,7 @@ class path ``agents.claim_agent:ClaimAgent``).
 Measured against the oracle (docs/results/learned-policy.md, "Toward 60%"), ``spread`` loses little to duplicated
 coverage and much to where its UAVs are: about two of its five UAVs have fewer than 10 vehicles in range at any
 step. This agent flies ``spread``'s decision (agents.spread_agent.decide: chase the densest sensed sector, the
-claims in beacons, the pushes) with three changes:
+claims in beacons, the pushes) with these changes:
 
 1. the climb: each hover over vehicles in range becomes a move on ``climb`` (a heading, full speed); every
    ``window`` steps it compares the mean of its objective (the vehicles only it has in range, ``exclusive``, or
@@ -12,7 +12,8 @@ claims in beacons, the pushes) with three changes:
    UAV is not chasing and has vehicles in range, where ``spread`` hovers for good once one step brought no more;
 2. peers' sectors: a sensed densest sector holding a heard peer nearer than ``peer_sector_m`` is left to that
    peer (its vehicles are presumably the peer's): sensing then says nothing, and the UAV climbs where it is;
-3. the chase's goal one comm range into the sector (``spread``: 1.5).
+3. the chase's goal one comm range into the sector (``spread``: 1.5), and a push off peers nearer than one comm
+   range (``spread``: two, every overlap of discs).
 
 Pure and deterministic: no random numbers, no I/O. The batched form runs the same arithmetic for every UAV of
 every seed, so a swarm (the per-UAV form) flies what the in-process evaluation flies.
@@ -108,8 +109,9 @@ class ClaimAgent(UavAgent):
 
     climb_params: dict = {}
     """ClimbParams' keyword arguments (a subclass may set other constants)."""
-    spread_params: dict = {"goal_ranges": 1.0}
-    """agents.spread_agent.Params' keyword arguments (the goal one comm range into the sector, not 1.5)."""
+    spread_params: dict = {"goal_ranges": 1.0, "repel_ranges": 1.0}
+    """agents.spread_agent.Params' keyword arguments (the goal one comm range into the sector, not 1.5; pushed off
+    peers nearer than one comm range, not two)."""
 
     def __init__(self, cfg: Config, uav: int, rng: np.random.Generator):
         super().__init__(cfg, uav, rng)
@@ -148,7 +150,7 @@ class ClaimBatched(BatchedAgents):
     """ClaimAgent for every UAV of every seed at once (as agents.spread_agent.SpreadBatched)."""
 
     climb_params: dict = {}
-    spread_params: dict = {"goal_ranges": 1.0}
+    spread_params: dict = {"goal_ranges": 1.0, "repel_ranges": 1.0}
 
     def __init__(self, cfg: Config, rngs: list[list[np.random.Generator]]):
         super().__init__(cfg, rngs)

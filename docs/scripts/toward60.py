@@ -2,8 +2,9 @@
 several sensing ranges (docs/results/learned-policy.md, "Toward 60%").
 
     python docs/scripts/toward60.py --out docs/figures/toward60
+    python docs/scripts/toward60.py --speed 5 --rows spread,claim --out docs/figures/toward60-5mps
 
-Under --preset paper at 15 m/s, each row flies SEEDS seeds x EPISODES greedy episodes on held-out traffic (world
+Under --preset paper at 15 m/s (--speed), each row (--rows: some of them) flies SEEDS seeds x EPISODES greedy episodes on held-out traffic (world
 seed + EVAL_SEED_OFFSET, as `truav evaluate` does) in this process, through the agent API's controller. Prints the
 page's Markdown table (means with 95% intervals over seeds; each row's difference from `spread` at 1500 m, paired on
 the same seeds) and writes OUT.csv (one row per design and seed).
@@ -42,14 +43,15 @@ ROWS = (  # (key, label, class, sensing range in m)
     ("spread_s5000", "spread, sensing 5000 m", SpreadAgent, 5000.0),
     ("climb", "spread + climb", variant("Climb", {"peer_sector_m": 0.0}, {}), 1500.0),
     ("climb_free", "spread + climb + peers' sectors left", variant("ClimbFree", {}, {}), 1500.0),
-    ("claim", "claim: + goal 500 m (the design)", ClaimAgent, 1500.0),
+    ("climb_free_goal", "+ goal 500 m", variant("ClimbFreeGoal", {}, {"goal_ranges": 1.0}), 1500.0),
+    ("claim", "claim: + push only within 500 m (the design)", ClaimAgent, 1500.0),
     ("claim_s1000", "claim, sensing 1000 m", ClaimAgent, 1000.0),
 )
 
 
-def measure(seeds: list[int], episodes: int, keys: set[str] | None = None) -> dict[str, np.ndarray]:
+def measure(seeds: list[int], episodes: int, keys: set[str] | None = None, speed: float = 15.0) -> dict[str, np.ndarray]:
     """{row key: coverage % per seed, the mean over its episodes}."""
-    base = Config().replace(**preset_overrides("paper")).replace(scenario={"uav_speed_mps": 15.0})
+    base = Config().replace(**preset_overrides("paper")).replace(scenario={"uav_speed_mps": speed})
     held_out = [s + EVAL_SEED_OFFSET for s in seeds]
     out = {}
     for key, label, cls, sense in ROWS:
@@ -78,8 +80,14 @@ def main() -> None:
     ap.add_argument("--out", default="docs/figures/toward60", help="OUT.csv (default %(default)s)")
     ap.add_argument("--seeds", type=int, default=SEEDS)
     ap.add_argument("--episodes", type=int, default=EPISODES)
+    ap.add_argument("--speed", type=float, default=15.0, help="UAV speed in m/s (default %(default)s)")
+    ap.add_argument("--rows", help="comma-separated row keys to fly (default: all; spread is always flown)")
     ap.add_argument("--replot", action="store_true", help="print the table from OUT.csv")
     args = ap.parse_args()
+    known = [key for key, *_ in ROWS]
+    keys = None if args.rows is None else {"spread", *args.rows.split(",")}
+    if keys is not None and not keys <= set(known):
+        ap.error(f"--rows: unknown {', '.join(sorted(keys - set(known)))} (known: {', '.join(known)})")
     out = Path(args.out).with_suffix(".csv")
     if args.replot:
         with open(out, newline="") as f:
@@ -87,11 +95,13 @@ def main() -> None:
         print(table({k: np.array([float(r["coverage_pct"]) for r in rows if r["design"] == k])
                      for k in dict.fromkeys(r["design"] for r in rows)}))
         return
-    cov = measure(list(range(args.seeds)), args.episodes)
+    cov = measure(list(range(args.seeds)), args.episodes, keys, args.speed)
     with open(out, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["design", "sense_range_m", "seed", "coverage_pct"])
         for key, _, _, sense in ROWS:
+            if key not in cov:
+                continue
             w.writerows([key, sense, seed, f"{v:.4f}"] for seed, v in enumerate(cov[key]))
     print(table(cov))
 
