@@ -162,7 +162,8 @@ def run_once(setting: str, address: str | None, args, k: int, loaded: bool) -> d
     n_ticks = int(world.get("ticks", ticks))
     missed = sum(int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict))
     tl = world.get("tick_lateness_ms") or {}
-    swarm, machine = sampler.cores(float(world.get("first_tick_wall_s") or 0), float(world.get("last_tick_wall_s") or 0))
+    swarm, machine = sampler.cores(float(world.get("first_tick_wall_s") or 0),
+                                   float(world.get("last_tick_wall_s") or 0))
     return {"setting": setting, "agents": args.agents, "per_process": args.per_process, "rate_hz": args.rate,
             "ticks": n_ticks, "exit_code": code, "load_before": load0, "load_after": os.getloadavg()[0],
             "loaded": loaded, "missed": missed, "missed_pct": 100.0 * missed / max(args.agents * n_ticks, 1),

@@ -123,7 +123,8 @@ def table(rows: list[Row], a) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--uavs", type=int, nargs="+", default=[100, 1000, 10000], help="swarm sizes (default 100 1000 10000)")
+    ap.add_argument("--uavs", type=int, nargs="+", default=[100, 1000, 10000],
+                    help="swarm sizes (default 100 1000 10000)")
     ap.add_argument("--rate", type=float, default=10.0, help="beacons per UAV per second (default 10: up's tick rate, "
                     "one beacon a tick; measured 10.1-10.3/s in the swarm summaries)")
     ap.add_argument("--neighbours", type=int, default=50, help="UAVs that hear a range-limited beacon (an assumption; "

@@ -66,8 +66,8 @@ def recorded(cluster, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("ray-rt")
     (tmp / "plan.toml").write_text(PLAN)
     out, mcap = tmp / "swarm", tmp / "run.mcap"
-    res = _up(*_ray_args(cluster, "rayrt", out), "--steps", "40", "--rate", "5", "--episodes", "1", "--record", str(mcap),
-              "--fault-plan", str(tmp / "plan.toml"))
+    res = _up(*_ray_args(cluster, "rayrt", out), "--steps", "40", "--rate", "5", "--episodes", "1",
+              "--record", str(mcap), "--fault-plan", str(tmp / "plan.toml"))
     return res, out, mcap
 
 
@@ -141,9 +141,9 @@ def test_status_and_down_find_a_ray_run_through_its_swarm_json(cluster, tmp_path
     port = int(free_loopback_endpoint().rsplit(":", 1)[1])
     log_path = tmp_path / "up.log"
     with open(log_path, "wb") as log:
-        up = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", *COMMON, *_ray_args(cluster, run, out, port),
-                               "--steps", "3000", "--episodes", "1"], stdout=log, stderr=subprocess.STDOUT,
-                              env=ENV, start_new_session=True)
+        up = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", *COMMON,
+                               *_ray_args(cluster, run, out, port), "--steps", "3000", "--episodes", "1"],
+                              stdout=log, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
     output = lambda: log_path.read_text(errors="replace")  # noqa: E731
     try:
         _bounded(lambda: (out / "swarm.json").is_file(), RUN_TIMEOUT_S, "swarm.json", up, output)
