@@ -31,8 +31,8 @@ from truav.config import Config
 
 
 class ClimbParams:
-    """The climb's constants (docs/results/learned-policy.md, "Toward 60%": chosen on training seeds 0-7, 10
-    episodes each; measured on held-out traffic)."""
+    """The climb's constants (docs/results/learned-policy.md, "Toward 60%": chosen on screens of 10 episodes per
+    seed; measured on held-out traffic)."""
 
     def __init__(self, window: int = 1, turn_deg: float = 135.0, full_speed: bool = True,
                  objective: str = "exclusive", peer_sector_m: float = 2000.0, lost_repel: bool = False):

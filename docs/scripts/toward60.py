@@ -3,6 +3,7 @@ several sensing ranges (docs/results/learned-policy.md, "Toward 60%").
 
     python docs/scripts/toward60.py --out docs/figures/toward60
     python docs/scripts/toward60.py --speed 5 --rows spread,claim --out docs/figures/toward60-5mps
+    python docs/scripts/toward60.py --first-seed 10 --rows spread,claim --out docs/figures/toward60-seeds10-19
 
 Under --preset paper at 15 m/s (--speed), each row (--rows: some of them) flies SEEDS seeds x EPISODES greedy episodes on held-out traffic (world
 seed + EVAL_SEED_OFFSET, as `truav evaluate` does) in this process, through the agent API's controller. Prints the
@@ -80,6 +81,7 @@ def main() -> None:
     ap.add_argument("--out", default="docs/figures/toward60", help="OUT.csv (default %(default)s)")
     ap.add_argument("--seeds", type=int, default=SEEDS)
     ap.add_argument("--episodes", type=int, default=EPISODES)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds FIRST_SEED.. (default %(default)s)")
     ap.add_argument("--speed", type=float, default=15.0, help="UAV speed in m/s (default %(default)s)")
     ap.add_argument("--rows", help="comma-separated row keys to fly (default: all; spread is always flown)")
     ap.add_argument("--replot", action="store_true", help="print the table from OUT.csv")
@@ -95,14 +97,15 @@ def main() -> None:
         print(table({k: np.array([float(r["coverage_pct"]) for r in rows if r["design"] == k])
                      for k in dict.fromkeys(r["design"] for r in rows)}))
         return
-    cov = measure(list(range(args.seeds)), args.episodes, keys, args.speed)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    cov = measure(seeds, args.episodes, keys, args.speed)
     with open(out, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["design", "sense_range_m", "seed", "coverage_pct"])
         for key, _, _, sense in ROWS:
             if key not in cov:
                 continue
-            w.writerows([key, sense, seed, f"{v:.4f}"] for seed, v in enumerate(cov[key]))
+            w.writerows([key, sense, seed, f"{v:.4f}"] for seed, v in zip(seeds, cov[key]))
     print(table(cov))
 
 
