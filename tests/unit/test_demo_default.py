@@ -58,3 +58,14 @@ def test_the_summary_line_puts_the_swarm_beside_hover_and_the_heuristic() -> Non
     assert first.startswith("coverage: this swarm (agent:ppo) 31.0%, hover ")
     assert f"hover {refs['hover']['coverage_pct']:.1f}%" in first
     assert f"the heuristic spread {refs['spread']['coverage_pct']:.1f}%" in first
+
+
+def test_a_q_table_run_without_a_scheme_is_told_to_add_scheme_truav(tmp_path, capsys) -> None:
+    """The demo's old habit, `up --qtable RUN` of a `truav train` run, is one line naming the flag that flies it."""
+    from truav.cli.swarm import main
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "qtables.npz").write_bytes(b"")  # what marks a `truav train` run; never read: the line comes first
+    assert main(["up", "--qtable", str(run), "--greedy", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--qtable" in err[0] and "add --scheme truav" in err[0], err

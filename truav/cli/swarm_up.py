@@ -69,7 +69,14 @@ def swarm_options(args):
     if cfg.scenario.mobility == "sumo":  # one line naming what to install, before anything starts
         from truav.analysis import sumo_traffic
         sumo_traffic.sumo_home()
+    defaulted = args.scheme is None and args.agent is None
     resolve_scheme(args, args.default_scheme)  # up: the demo's policy (DEMO_SCHEME); chaos: truav
+    if defaulted and args.qtable is not None and args.scheme != "truav":
+        from truav.analysis.agent_run import is_agent_run
+        if not is_agent_run(args.qtable):  # the old habit: a `truav train` run, flown by the Q-learners
+            raise UsageError(f"--qtable {args.qtable}: not a run of `truav train --agent NAME`; a `truav train` run's "
+                             f"Q-tables fly with --scheme truav (this is --scheme {args.scheme}, up's default): "
+                             f"add --scheme truav")
     cfg = with_agent_sensing(args.scheme, cfg)
     check_agent_scheme(args, cfg)
     n = cfg.scenario.n_uavs
