@@ -48,6 +48,7 @@ RUN: dict[str, list[str]] = {
     "truav-swarm up": SWARM,
     "truav train": TRAIN,
     "truav-swarm up --agents 8 --episodes 5 --out runs/swarm-8": SWARM,
+    "truav-swarm up --scheme truav --out runs/swarm-truav": FEW,
     "truav-swarm up --scheme truav --lockstep --out runs/swarm-lockstep": FEW,
     "truav-swarm up --scheme truav --qtable runs/train-15mps --greedy --out runs/swarm-greedy": SWARM,
     "truav-swarm up --record runs/swarm-rec.mcap --out runs/swarm-rec": FEW,
