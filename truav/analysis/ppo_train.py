@@ -46,12 +46,14 @@ def decision_kind(teacher: SpreadBatched, views) -> np.ndarray:
 
 def teacher_data(env: TruavVecEnv, episodes: int, gamma: float,
                  flier: Callable[[np.ndarray], np.ndarray] | None = None,
-                 kinds: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 kinds: list | None = None,
+                 teacher_cls: type = SpreadBatched) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(observations (N, F), the heuristic's slot actions (N,), discounted returns (N,)) of ``episodes``
     episodes of every slot, the heuristic flying, or ``flier`` (observations -> slot actions; DAgger: the
-    heuristic labels the states the learner visits); appends each step's decision kinds to ``kinds``."""
+    heuristic labels the states the learner visits); appends each step's decision kinds to ``kinds``.
+    ``teacher_cls``: the heuristic's batched form (`spread`'s, or e.g. agents.claim_agent.ClaimBatched)."""
     B, U = env.B, env.U
-    teacher = SpreadBatched(env.cfg, [[seeding.agent_rng(s, u) for u in range(U)] for s in env.seeds])
+    teacher = teacher_cls(env.cfg, [[seeding.agent_rng(s, u) for u in range(U)] for s in env.seeds])
     obs_l, act_l, rew_l = [], [], []
     obs = env.reset()
     for e in range(episodes):
@@ -163,22 +165,25 @@ def make_ppo(env: VecEnv, *, lr: float = 1e-4, n_steps: int = 100, ent_coef: flo
 def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 20, bc_epochs: int = 8,
           ppo_steps: int = 0, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0,
           coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, memory: bool = False,
-          net: list[int] | None = None, say: Callable[[str], None] = print) -> tuple[PPO, dict]:
-    """Clone the heuristic, then PPO for ``ppo_steps`` slot-steps; returns the model and timings. ``net``: the
-    hidden layers' widths of the policy and the value network (None: MlpPolicy's, two of 64)."""
+          net: list[int] | None = None, say: Callable[[str], None] = print,
+          teacher: type = SpreadBatched) -> tuple[PPO, dict]:
+    """Clone the heuristic (``teacher``, its batched form), then PPO for ``ppo_steps`` slot-steps; returns the
+    model and timings. ``net``: the hidden layers' widths of the policy and the value network (None: MlpPolicy's,
+    two of 64)."""
     torch.manual_seed(seed)
     env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory)
     model = make_ppo(env, lr=lr, n_steps=n_steps, ent_coef=ent_coef, seed=seed, net=net)
     times = {}
     t0 = time.perf_counter()
     if bc_episodes:
-        obs, act, ret = teacher_data(env, bc_episodes, model.gamma)
+        obs, act, ret = teacher_data(env, bc_episodes, model.gamma, teacher_cls=teacher)
         times["teacher_s"] = time.perf_counter() - t0
         say(f"  teacher: {len(obs)} samples in {times['teacher_s']:.0f} s")
         times["accuracy"] = clone(model, obs, act, ret, bc_epochs, seed, say=say)
         for r in range(dagger_rounds):  # the learner flies, the heuristic labels; trained on everything so far
             flier = NumpyPolicy(export(model, cfg, peers, memory)).greedy
-            more = teacher_data(env, bc_episodes, model.gamma, lambda o: to_slot_actions(flier(o)))
+            more = teacher_data(env, bc_episodes, model.gamma, lambda o: to_slot_actions(flier(o)),
+                                teacher_cls=teacher)
             obs, act, ret = (np.concatenate([x, y]) for x, y in zip((obs, act, ret), more))
             say(f"  DAgger round {r + 1}/{dagger_rounds}: {len(obs)} samples")
             times["accuracy"] = clone(model, obs, act, ret, max(2, bc_epochs // 2), seed + r + 1, say=say)
