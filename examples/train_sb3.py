@@ -23,6 +23,7 @@ if __name__ == "__main__":
 
     import numpy as np
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
 
     from truav.analysis.ppo_train import export
     from truav.analysis.ppo_vec_env import TruavVecEnv
@@ -37,6 +38,7 @@ if __name__ == "__main__":
     cfg = Config().replace(**preset_overrides("paper")).replace(learner={"sense_range_m": 1500})
     env = TruavVecEnv(cfg, seeds=list(range(8)), coverage_bonus=5.0)  # local reward + 5 x the share covered
     model = PPO("MlpPolicy", env, n_steps=100, batch_size=1000, learning_rate=3e-4, seed=0, verbose=0)
+    model.set_logger(Logger(folder=None, output_formats=[]))  # in memory: else SB3 leaves a dir in /tmp
     model.learn(total_timesteps=steps)
     WEIGHTS.parent.mkdir(parents=True, exist_ok=True)
     np.savez(WEIGHTS, **export(model, cfg, peers=4))  # numpy arrays: what the agent processes load
