@@ -1,6 +1,6 @@
 """Coverage ceilings of a scenario: what no trajectory planner can beat.
 
-    python docs/scripts/oracle_ceiling.py --preset paper [--seeds 5] [--episodes 20] [--skip 0] [--speed 15]
+    python docs/scripts/oracle_ceiling.py --preset paper [--seeds 5] [--episodes 20] [--skip 0] [--speed 15] [--held-out]
 
 Runs the world's own vehicles (UAVs hovering: traffic does not depend on
 them) and, at every step, places the U discs of radius comm_range by a
@@ -77,6 +77,8 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=15.0)
     ap.add_argument("--skip", type=int, default=0, help="episodes left out of the means (warm-up)")
     ap.add_argument("--json", help="write the per-seed figures here")
+    ap.add_argument("--held-out", action="store_true",
+                    help="the evaluations' held-out traffic: world seeds + EVAL_SEED_OFFSET (default: seeds 0..)")
     a = ap.parse_args()
     over = preset_overrides(a.preset)
     over.setdefault("scenario", {})["uav_speed_mps"] = a.speed
@@ -85,7 +87,8 @@ def main() -> None:
     r, U, N, T = sc.comm_range_m, sc.n_uavs, sc.n_vehicles, sc.steps_per_episode
     step_m = a.speed * sc.step_s
     world = World(cfg, a.seeds)
-    world.reset([seeding.world_rng(s) for s in range(a.seeds)])
+    offset = seeding.EVAL_SEED_OFFSET if a.held_out else 0
+    world.reset([seeding.world_rng(s + offset) for s in range(a.seeds)])
     hover = np.full((a.seeds, U), HOVER)
     out = {k: np.zeros((a.seeds, a.episodes)) for k in ("teleport", "fixed", "reachable")}
     chaser = [None] * a.seeds

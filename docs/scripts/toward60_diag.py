@@ -6,7 +6,8 @@
 Each scheme flies SEEDS held-out seeds (world seed + EVAL_SEED_OFFSET) x EPISODES greedy episodes; the steps of
 episodes SKIP.. are measured (the swarm and the traffic settled): coverage; vehicles in range summed over UAVs
 (its excess over coverage: vehicles in two UAVs' range); how many of the five UAVs have fewer than 10, 10-29 and
-30 or more vehicles in range; how many sit within 300 m of a traffic hotspot's site; the share of vehicles within
+30 or more vehicles in range; how many sit within 300 m of a traffic hotspot's site, and how many of those share
+their site with another; the share of vehicles within
 a comm range of a site. --oracle adds the greedy teleport oracle's coverage of the same steps (every 5th step;
 docs/scripts/oracle_ceiling.py).
 """
@@ -35,7 +36,8 @@ def run(kind: str, oracle: bool) -> dict[str, float]:
     obs = world.reset([seeding.world_rng(s) for s in seeds])
     R, block = cfg.scenario.comm_range_m, cfg.roads.block_m
     acc: dict[str, list[float]] = {k: [] for k in ("coverage", "in_range_sum", "uavs_below_10", "uavs_10_29",
-                                                   "uavs_30_up", "uavs_on_a_site", "vehicles_near_sites", "teleport")}
+                                                   "uavs_30_up", "uavs_on_a_site", "uavs_sharing_a_site",
+                                                   "vehicles_near_sites", "teleport")}
     for ep in range(EPISODES):
         if ep:
             obs = world.start_episode()
@@ -57,8 +59,10 @@ def run(kind: str, oracle: bool) -> dict[str, float]:
                 acc["uavs_10_29"].append(((n >= 10) & (n < 30)).sum())
                 acc["uavs_30_up"].append((n >= 30).sum())
                 sites = np.unique(world.hotspots[b], axis=0) * block
-                acc["uavs_on_a_site"].append((np.hypot(*(uav[b][:, None] - sites[None]).transpose(2, 0, 1)).min(1)
-                                              < 300.0).sum())
+                to_site = np.hypot(*(uav[b][:, None] - sites[None]).transpose(2, 0, 1))  # (U, sites)
+                on = to_site.min(1) < 300.0
+                acc["uavs_on_a_site"].append(on.sum())
+                acc["uavs_sharing_a_site"].append(on.sum() - len(set(to_site.argmin(1)[on].tolist())))
                 acc["vehicles_near_sites"].append(
                     (np.hypot(*(xy[b][:, None] - sites[None]).transpose(2, 0, 1)).min(1) <= R).mean())
                 if oracle and t % 5 == 0:
