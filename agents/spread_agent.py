@@ -36,12 +36,15 @@ SENSE_RANGE_M = 1500.0
 learner.sense_range_m on at this value where the run leaves sensing off (:func:`with_sensing`)."""
 NAMES = ("spread", "agents.spread_agent:SpreadAgent")
 """How a comparison names this scheme (its entry point and its class path)."""
+SENSING_NAMES = NAMES + ("claim", "agents.claim_agent:ClaimAgent")
+"""The heuristics designed around sensing at SENSE_RANGE_M: this one and ``claim`` (agents/claim_agent.py, which
+flies this one's decide with a climb)."""
 
 
 def with_sensing(scheme: str, cfg: Config) -> Config:
-    """The config a comparison flies ``scheme`` with: for this heuristic, sensing on (SENSE_RANGE_M) unless the
-    run already sets learner.sense_range_m; every other scheme's as it is."""
-    if scheme in NAMES and cfg.learner.sense_range_m == 0.0:
+    """The config a comparison flies ``scheme`` with: for these heuristics (SENSING_NAMES), sensing on
+    (SENSE_RANGE_M) unless the run already sets learner.sense_range_m; every other scheme's as it is."""
+    if scheme in SENSING_NAMES and cfg.learner.sense_range_m == 0.0:
         return cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
     return cfg
 
@@ -180,4 +183,4 @@ class SpreadBatched(BatchedAgents):
 
 SpreadAgent.batched = SpreadBatched
 
-__all__ = ["SpreadAgent", "SpreadBatched", "Params", "decide", "with_sensing", "SENSE_RANGE_M"]
+__all__ = ["SpreadAgent", "SpreadBatched", "Params", "decide", "with_sensing", "SENSE_RANGE_M", "SENSING_NAMES"]

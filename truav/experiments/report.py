@@ -52,7 +52,8 @@ SCHEME_STYLE = {"truav": ("TRUAV (distributed Q-learning)", "C0", "o"),
                 "patrol_ctrl": ("Patrol + centralized control plane", "C7", "v"),
                 "federated": ("Federated TRUAV (learning, Q-sharing)", "C1", "D"),
                 "truav_online": ("TRUAV learning online, no sharing", "C4", "P"),
-                "spread": ("Decentralized heuristic (spread)", "C5", "X")}
+                "spread": ("Decentralized heuristic (spread)", "C5", "X"),
+                "claim": ("Decentralized heuristic, climbing (claim)", "C6", "*")}
 
 
 def _pyplot():
