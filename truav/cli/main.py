@@ -407,7 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--against", nargs="*", default=[], metavar="NAME",
                     help=f"also run these on the same traffic: reference policies ({', '.join(REFERENCE_POLICIES)}) "
                          f"or agent classes (pkg.module:Class or a registered name), untrained; spread is the "
-                         f"decentralized heuristic, flown with its sensing on: the bar a learner must clear")
+                         f"decentralized heuristic, the bar a learner must clear, and claim the stronger climbing "
+                         f"one, both flown with their sensing on")
     ev.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1)
     policy_scenario.add_allow_arg(ev)
     ev.add_argument("--quiet", action="store_true")

@@ -278,7 +278,7 @@ def add_up_args(up: argparse.ArgumentParser, default_scheme: str, default_help: 
     up.add_argument("--agent", metavar="NAME",
                     help="fly your own agent class (pkg.module:Class or a name registered in the entry-point group "
                          "truav.agents; docs/how-to/your-own-agent.md), one per UAV agent process; "
-                         f"{' and '.join(SENSING_AGENTS)} fly with their sensing on (learner.sense_range_m "
+                         f"{', '.join(SENSING_AGENTS[:-1])} and {SENSING_AGENTS[-1]} fly with their sensing on (learner.sense_range_m "
                          f"{SENSE_RANGE_M:g}) unless --set gives another")
     add_policy_args(up)
     add_command_hold_arg(up)
