@@ -103,7 +103,7 @@ def run_once(setting: str, agents: int, rate: float, seconds: float, loaded: boo
     load0 = os.getloadavg()[0]
     cli = [sys.executable, "-m", "truav.cli.swarm"]
     up_log = open(tmp / "up.log", "wb")
-    up = subprocess.Popen([*cli, "up", "--run", run, "--agents", str(agents), "--episodes", "1", "--steps", str(ticks),
+    up = subprocess.Popen([*cli, "up", "--scheme", "truav", "--run", run, "--agents", str(agents), "--episodes", "1", "--steps", str(ticks),
                            "--rate", f"{rate:g}", "--out", str(out), "--quiet", "--no-plot", "--max-missed", "1",
                            *(["--force-agents"] if agents > 50 else [])],
                           cwd=ROOT, stdout=up_log, stderr=subprocess.STDOUT, start_new_session=True)

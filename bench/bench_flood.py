@@ -104,7 +104,7 @@ def main() -> None:
     out = Path(tempfile.mkdtemp(prefix="truav-bench-flood-"))
     run = "flood"
     log = open(out / "up.log", "wb")
-    up = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--run", run, "--agents", str(args.agents),
+    up = subprocess.Popen([sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--run", run, "--agents", str(args.agents),
                            "--steps", str(int(args.duration * rate)), "--episodes", "1", "--out", str(out / "swarm"),
                            "--quiet", "--no-plot"], stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     phases = []

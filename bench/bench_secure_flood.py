@@ -46,7 +46,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "swarm"
         steps = int(args.duration * args.rate)
-        cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--secure", "--run", run, "--agents", str(args.agents),
+        cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--scheme", "truav", "--secure", "--run", run, "--agents", str(args.agents),
                "--steps", str(steps), "--episodes", "1", "--rate", str(args.rate), "--out", str(out),
                "--quiet", "--no-plot"]
         log = open(Path(tmp) / "up.log", "wb")

@@ -91,11 +91,12 @@ def cli_module(code: Path) -> str:
     return "truav.swarm.cli" if (code / "truav" / "swarm" / "cli.py").exists() else "truav.swarm_cli"
 
 
-def accepts_force_agents(code: Path) -> bool:
-    """Whether checkout ``code``'s `up` has --force-agents (older ones had no limit to lift)."""
+def accepts(code: Path, flag: str) -> bool:
+    """Whether checkout ``code``'s `up` has ``flag`` (older ones had no --force-agents limit to lift, and
+    flew TRUAV's agents without a --scheme)."""
     sources = [*(code / "truav" / "cli").glob("swarm*.py"), *(code / "truav" / "swarm").glob("cli*.py"),
                code / "truav" / "swarm_cli.py"]
-    return any(p.exists() and "--force-agents" in p.read_text() for p in sources)
+    return any(p.exists() and f'"{flag}"' in p.read_text() for p in sources)
 
 
 def label(code: Path) -> str:
@@ -188,8 +189,10 @@ def run_checkout(code: Path, agents: int, rate: float, ticks: int, lockstep: boo
                  timeout_s: float = 1800.0) -> dict:
     """``truav-swarm up`` of checkout ``code`` once; its figures (see the module docstring)."""
     out = Path(tempfile.mkdtemp(prefix="truav-bench-cmp-"))
-    if agents > 50 and accepts_force_agents(code):
+    if agents > 50 and accepts(code, "--force-agents"):
         extra = [*extra, "--force-agents"]  # a benchmark may go past the interactive limit
+    if accepts(code, "--scheme"):
+        extra = ["--scheme", "truav", *extra]  # TRUAV's agents, whatever the checkout's demo flies by default
     cmd = [sys.executable, "-c", f"import sys; from {cli_module(code)} import main; sys.exit(main())", "up",
            "--agents", str(agents), "--episodes", "1", "--steps", str(ticks), "--rate", f"{rate:g}",
            "--out", str(out / "run"), "--quiet", "--no-plot", *(["--lockstep"] if lockstep else []), *extra]
