@@ -38,6 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_common  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("none", "mavlink", "ros2")
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -143,12 +147,11 @@ def run_once(setting: str, agents: int, rate: float, seconds: float, loaded: boo
         raise RuntimeError(f"{setting}: the swarm wrote no world.json (exit {code}); its log ends:\n{tail}")
     shutil.rmtree(tmp, ignore_errors=True)
     n_ticks = int(world.get("ticks", ticks))
-    missed = sum(int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict))
-    tl = world.get("tick_lateness_ms") or {}
+    missed = bench_common.missed(world)
     return {"setting": setting, "agents": agents, "rate_hz": rate, "ticks": n_ticks, "exit_code": code,
             "load_before": load0, "load_after": os.getloadavg()[0], "loaded": loaded,
             "missed_pct": 100.0 * missed / max(agents * n_ticks, 1),
-            "tick_p99_ms": float(tl.get("p99", float("nan"))) if isinstance(tl, dict) else float("nan"),
+            "tick_p99_ms": bench_common.tick_p99_ms(world),
             "bridge_cores": bridge_cpu / bridge_wall if bridge_wall > 0 else float("nan"),
             "heartbeat_systems": len(listener.systems) if listener is not None else None,
             "heartbeats": listener.heartbeats if listener is not None else None}
@@ -192,11 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10, up's)")
     ap.add_argument("--repeat", type=int, default=2, help="rounds of none, mavlink, ros2 (default 2)")
     ap.add_argument("--settings", default=",".join(SETTINGS), help="which of none,mavlink,ros2 (default all three)")
-    ap.add_argument("--max-load", type=float, default=1.0, help="refuse to start at or above this 1-minute load "
-                    "average (default 1)")
-    ap.add_argument("--load-wait", type=float, default=120.0, metavar="S", help="before each run, wait at most "
-                    "this long for the load to fall below --max-load (default 120)")
-    ap.add_argument("--anyway", action="store_true", help="run above --max-load, every figure marked LOADED")
+    bench_common.add_load_options(ap)
     ap.add_argument("--json", type=Path, metavar="FILE", help="also write the rows as JSON")
     args = ap.parse_args(argv)
     settings = [s for s in args.settings.split(",") if s]
@@ -216,30 +215,17 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"bench_bridges: error: the {needed} bridge needs {module}: pip install -e "
                       f"'.[{needed}]' -c constraints.txt", file=sys.stderr)
                 return 2
-    load = os.getloadavg()[0]
-    if load >= args.max_load and not args.anyway:
-        print(f"bench_bridges: error: load average {load:.2f} >= --max-load {args.max_load:g}: other jobs would be "
-              f"measured too; run it on a quiet machine (or --anyway, marked LOADED)", file=sys.stderr)
+    if bench_common.refuse_loaded("bench_bridges", args):
         return 2
     rows: list[dict] = []
     for _ in range(args.repeat):
         for s in settings:
-            load = os.getloadavg()[0]
-            if load >= args.max_load:
-                deadline = time.monotonic() + args.load_wait
-                while load >= args.max_load and time.monotonic() < deadline:
-                    time.sleep(5)
-                    load = os.getloadavg()[0]
-            loaded = load >= args.max_load
-            if loaded:
-                print(f"WARNING: load average {load:.2f} >= {args.max_load:g}: this run is measured beside other "
-                      f"jobs (LOADED)", flush=True)
+            loaded = bench_common.wait_for_load(args)
             r = run_once(s, args.agents, args.rate, args.seconds, loaded)
             rows.append(r)
             print(line(r), flush=True)
     print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+    bench_common.write_rows(args.json, rows)
     return 0
 
 

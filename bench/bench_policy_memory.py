@@ -20,7 +20,6 @@ the policies' memory.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import bench_common  # noqa: E402
 import policy_runs  # noqa: E402
 
 
@@ -127,8 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(r)
                 print(line(r), flush=True)
     print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+    bench_common.write_rows(args.json, rows)
     bad = [r for r in rows if r["exit_code"] != 0 or r["processes_seen"] != r["processes_expected"]
            or not r["complete_samples"]]
     if bad:

@@ -23,17 +23,16 @@ seconds for the load to fall below ``--max-load`` and records the load each run 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import bench_common  # noqa: E402
 import policy_runs  # noqa: E402
 
 BASELINE = "truav"
@@ -47,11 +46,10 @@ def run_once(scheme: str, scenario: Path, agents: int, rate: float, seconds: flo
                                            timeout_s=seconds * 4 + 300)
     t0, t1 = world.get("first_tick_wall_s"), world.get("last_tick_wall_s")
     cores = sampler.agent_cores(t0, t1) if t0 and t1 else float("nan")
-    tl = world.get("tick_lateness_ms") or {}
     return {"scheme": scheme, "agents": agents, "rate_hz": rate, "ticks": int(world.get("ticks", ticks)),
             "exit_code": code, "why": why, "load_before": load0, "load_after": os.getloadavg()[0], "loaded": loaded,
             "missed_pct": policy_runs.missed_pct(world, agents),
-            "tick_p99_ms": float(tl.get("p99", float("nan"))) if isinstance(tl, dict) else float("nan"),
+            "tick_p99_ms": bench_common.tick_p99_ms(world),
             "agent_cores": cores, "cpu_pct_per_uav": 100.0 * cores / agents}
 
 
@@ -94,11 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--schemes", default=f"{BASELINE},ppo", help="comma-separated: truav (the Q-learning agents) "
                     "or an agent name (default truav,ppo)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 4 UAVs, 5 s, 1 round")
-    ap.add_argument("--max-load", type=float, default=1.0, help="refuse to start at or above this 1-minute load "
-                    "average (default 1)")
-    ap.add_argument("--load-wait", type=float, default=120.0, metavar="S", help="before each run, wait at most "
-                    "this long for the load to fall below --max-load (default 120)")
-    ap.add_argument("--anyway", action="store_true", help="run above --max-load, every figure marked LOADED")
+    bench_common.add_load_options(ap)
     ap.add_argument("--json", type=Path, metavar="FILE", help="also write the rows as JSON")
     args = ap.parse_args(argv)
     if args.quick:
@@ -115,26 +109,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_policy_realtime: error: --agents: at most {policy_runs.MAX_PROCESSES} agent processes in "
               f"real time", file=sys.stderr)
         return 2
-    load = os.getloadavg()[0]
-    if load >= args.max_load and not args.anyway:
-        print(f"bench_policy_realtime: error: load average {load:.2f} >= --max-load {args.max_load:g}: other jobs "
-              f"would be measured too; run it on a quiet machine (or --anyway, marked LOADED)", file=sys.stderr)
+    if bench_common.refuse_loaded("bench_policy_realtime", args):
         return 2
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="truav-bench-realtime-") as tmp:
         scenario = policy_runs.write_scenario(Path(tmp) / "paper-sense1500.toml")
         for _ in range(args.repeat):
             for s in schemes:
-                load = os.getloadavg()[0]
-                if load >= args.max_load:
-                    deadline = time.monotonic() + args.load_wait
-                    while load >= args.max_load and time.monotonic() < deadline:
-                        time.sleep(5)
-                        load = os.getloadavg()[0]
-                loaded = load >= args.max_load
-                if loaded:
-                    print(f"WARNING: load average {load:.2f} >= {args.max_load:g}: this run is measured beside "
-                          f"other jobs (LOADED)", flush=True)
+                loaded = bench_common.wait_for_load(args)
                 try:
                     r = run_once(s, scenario, args.agents, args.rate, args.seconds, loaded)
                 except RuntimeError as exc:
@@ -143,8 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(r)
                 print(line(r), flush=True)
     print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+    bench_common.write_rows(args.json, rows)
     failed = sum(r["exit_code"] != 0 for r in rows)
     if failed:
         print(f"bench_policy_realtime: {failed} run(s) did not end ok (exit code above)", file=sys.stderr)

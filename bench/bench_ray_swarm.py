@@ -42,6 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_common  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("one-host", "ray")
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -160,14 +164,13 @@ def run_once(setting: str, address: str | None, args, k: int, loaded: bool) -> d
         raise RuntimeError(f"{setting}: the swarm wrote no world.json (exit {code}); its log ends:\n{tail}") from None
     shutil.rmtree(tmp, ignore_errors=True)
     n_ticks = int(world.get("ticks", ticks))
-    missed = sum(int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict))
-    tl = world.get("tick_lateness_ms") or {}
+    missed = bench_common.missed(world)
     swarm, machine = sampler.cores(float(world.get("first_tick_wall_s") or 0),
                                    float(world.get("last_tick_wall_s") or 0))
     return {"setting": setting, "agents": args.agents, "per_process": args.per_process, "rate_hz": args.rate,
             "ticks": n_ticks, "exit_code": code, "load_before": load0, "load_after": os.getloadavg()[0],
             "loaded": loaded, "missed": missed, "missed_pct": 100.0 * missed / max(args.agents * n_ticks, 1),
-            "tick_p99_ms": float(tl.get("p99", float("nan"))) if isinstance(tl, dict) else float("nan"),
+            "tick_p99_ms": bench_common.tick_p99_ms(world),
             "swarm_cores": swarm, "machine_cores": machine}
 
 
@@ -214,11 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=2, help="rounds of one-host then ray (default 2)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 6 UAVs, 2 per process, 3 s, 1 round, at any "
                     "load (figures marked LOADED when loaded)")
-    ap.add_argument("--max-load", type=float, default=1.0, help="refuse to start at or above this 1-minute load "
-                    "average (default 1)")
-    ap.add_argument("--load-wait", type=float, default=120.0, metavar="S", help="before each run, wait at most "
-                    "this long for the load to fall below --max-load (default 120)")
-    ap.add_argument("--anyway", action="store_true", help="run above --max-load, every figure marked LOADED")
+    bench_common.add_load_options(ap)
     ap.add_argument("--json", type=Path, metavar="FILE", help="also write the rows as JSON")
     args = ap.parse_args(argv)
     if args.quick:
@@ -234,10 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         print("bench_ray_swarm: error: Ray is not installed: pip install -e '.[ray]' -c constraints.txt",
               file=sys.stderr)
         return 2
-    load = os.getloadavg()[0]
-    if load >= args.max_load and not args.anyway:
-        print(f"bench_ray_swarm: error: load average {load:.2f} >= --max-load {args.max_load:g}: other jobs would be "
-              f"measured too; run it on a quiet machine (or --anyway, marked LOADED)", file=sys.stderr)
+    if bench_common.refuse_loaded("bench_ray_swarm", args):
         return 2
     cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={**NODE, "include_dashboard": False})
     rows: list[dict] = []
@@ -249,15 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"Ray cluster {cluster.address}: {NODES} nodes on this machine", flush=True)
         for _ in range(args.repeat):
             for s in SETTINGS:
-                load = os.getloadavg()[0]
-                deadline = time.monotonic() + args.load_wait
-                while load >= args.max_load and time.monotonic() < deadline:
-                    time.sleep(5)
-                    load = os.getloadavg()[0]
-                loaded = load >= args.max_load
-                if loaded:
-                    print(f"WARNING: load average {load:.2f} >= {args.max_load:g}: this run is measured beside "
-                          f"other jobs (LOADED)", flush=True)
+                loaded = bench_common.wait_for_load(args)
                 r = run_once(s, cluster.address, args, len(rows), loaded)
                 rows.append(r)
                 print(line(r), flush=True)
@@ -267,8 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         cluster.shutdown()  # only the raylets it started
     print(table(rows))
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+    bench_common.write_rows(args.json, rows)
     if interrupted:
         return 130
     return 0 if rows and all(r["exit_code"] == 0 for r in rows) else 1

@@ -1,0 +1,66 @@
+"""What the real-time benchmarks share: the load gate (refuse a loaded machine, wait for a quiet one, mark a run
+LOADED), the figures every run reads from its world.json, and the end (the table, the JSON rows).
+
+A figure measured beside other jobs is noise, not the cost measured: a benchmark with the gate refuses to start
+while the 1-minute load average is at or above ``--max-load``, unless ``--anyway``; before each run it waits up to
+``--load-wait`` seconds for the load to fall, and a run that still started loaded is marked LOADED.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def add_load_options(ap: argparse.ArgumentParser) -> None:
+    """--max-load, --load-wait and --anyway."""
+    ap.add_argument("--max-load", type=float, default=1.0, help="refuse to start at or above this 1-minute load "
+                    "average (default 1)")
+    ap.add_argument("--load-wait", type=float, default=120.0, metavar="S", help="before each run, wait at most "
+                    "this long for the load to fall below --max-load (default 120)")
+    ap.add_argument("--anyway", action="store_true", help="run above --max-load, every figure marked LOADED")
+
+
+def refuse_loaded(prog: str, args: argparse.Namespace) -> bool:
+    """Whether to refuse the start (the one line said) because the machine is loaded and not ``--anyway``."""
+    load = os.getloadavg()[0]
+    if load >= args.max_load and not args.anyway:
+        print(f"{prog}: error: load average {load:.2f} >= --max-load {args.max_load:g}: other jobs would be measured "
+              f"too; run it on a quiet machine (or --anyway, marked LOADED)", file=sys.stderr)
+        return True
+    return False
+
+
+def wait_for_load(args: argparse.Namespace) -> bool:
+    """Wait up to ``--load-wait`` for the load to fall below ``--max-load``; whether the run starts LOADED (said)."""
+    load = os.getloadavg()[0]
+    deadline = time.monotonic() + args.load_wait
+    while load >= args.max_load and time.monotonic() < deadline:
+        time.sleep(5)
+        load = os.getloadavg()[0]
+    loaded = load >= args.max_load
+    if loaded:
+        print(f"WARNING: load average {load:.2f} >= {args.max_load:g}: this run is measured beside other jobs "
+              f"(LOADED)", flush=True)
+    return loaded
+
+
+def missed(world: dict) -> int:
+    """Actions missed over the run: the UAVs' ``missed`` in world.json's per_uav, summed."""
+    return sum(int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict))
+
+
+def tick_p99_ms(world: dict) -> float:
+    """world.json's tick lateness p99 in ms (nan when absent)."""
+    tl = world.get("tick_lateness_ms") or {}
+    return float(tl.get("p99", float("nan"))) if isinstance(tl, dict) else float("nan")
+
+
+def write_rows(path: Path | None, rows: list[dict]) -> None:
+    """``--json FILE``: the rows as JSON (nothing without one)."""
+    if path:
+        path.write_text(json.dumps(rows, indent=1))

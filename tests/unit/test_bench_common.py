@@ -1,0 +1,42 @@
+"""bench/bench_common.py: the real-time benchmarks' load gate and world.json figures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+
+import bench_common  # noqa: E402
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser()
+    bench_common.add_load_options(ap)
+    return ap.parse_args(list(argv))
+
+
+def test_a_loaded_machine_is_refused_in_one_line_unless_anyway(capsys) -> None:
+    assert bench_common.refuse_loaded("bench_x", _args("--max-load", "0"))  # any load average is >= 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("bench_x: error: load average ") and "--max-load 0:" in err
+    assert not bench_common.refuse_loaded("bench_x", _args("--max-load", "0", "--anyway"))
+    assert not bench_common.refuse_loaded("bench_x", _args("--max-load", "1e9"))
+
+
+def test_a_run_still_loaded_after_the_wait_is_marked_loaded(capsys) -> None:
+    assert bench_common.wait_for_load(_args("--max-load", "0", "--load-wait", "0"))
+    assert "(LOADED)" in capsys.readouterr().out
+    assert not bench_common.wait_for_load(_args("--max-load", "1e9"))
+    assert capsys.readouterr().out == ""
+
+
+def test_the_world_figures_and_the_json_rows(tmp_path) -> None:
+    world = {"per_uav": [{"missed": 2}, {"missed": 3}, "junk", {}], "tick_lateness_ms": {"p99": 12.5}}
+    assert bench_common.missed(world) == 5 and bench_common.tick_p99_ms(world) == 12.5
+    assert bench_common.missed({}) == 0 and bench_common.tick_p99_ms({"tick_lateness_ms": 3}) != 0.0
+    bench_common.write_rows(None, [{"a": 1}])
+    bench_common.write_rows(tmp_path / "rows.json", [{"a": 1}])
+    assert json.loads((tmp_path / "rows.json").read_text()) == [{"a": 1}]
