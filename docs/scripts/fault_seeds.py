@@ -21,11 +21,12 @@ import json
 from pathlib import Path
 
 import numpy as np
+import paired
 
 from truav.config import Config
 from truav.presets import preset_overrides
 from truav.seeding import EVAL_SEED_OFFSET
-from truav.stats import effect_text, mean_ci, paired_effect
+from truav.stats import mean_ci
 from truav.swarm.fault_sweep import PointFailed
 from truav.swarm.scheme_faults import CompareSize, file_name, run_comparison
 
@@ -103,41 +104,30 @@ def missed(rows: list[dict], scheme: str, fault: str) -> float:
 def tables(rows: list[dict]) -> str:
     cov = table(rows)
     n = len(cov[SCHEMES[0][0], "none"])
-    lines = ["| scheme | " + " | ".join(label for _, _, label in FAULTS) + " |", "|---" * (len(FAULTS) + 1) + "|"]
+    lines = paired.head("scheme", [label for _, _, label in FAULTS])
     for s, label in SCHEMES:
-        cells = [f"{m:.1f} ± {h:.1f} ({missed(rows, s, f):.0f}%)" for f, _, _ in FAULTS
-                 for m, h in [mean_ci(cov[s, f])]]
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", "| scheme | " + " | ".join(f"{label} - no fault" for _, _, label in FAULTS[1:]) + " |",
-              "|---" * len(FAULTS) + "|"]
+        lines.append(paired.row(label, [f"{paired.ci(cov[s, f])} ({missed(rows, s, f):.0f}%)" for f, _, _ in FAULTS]))
+    lines += ["", *paired.head("scheme", [f"{label} - no fault" for _, _, label in FAULTS[1:]])]
     for s, label in SCHEMES:
-        lines.append(f"| {label} | " + " | ".join(
-            effect_text(paired_effect(cov[s, "none"], cov[s, f]), digits=1, noun="seeds") for f, _, _ in FAULTS[1:])
-            + " |")
+        lines.append(paired.row(label, [paired.diff(cov[s, "none"], cov[s, f]) for f, _, _ in FAULTS[1:]]))
     pairs = (("ppo", "truav"), ("ppo", "spread"), ("spread", "truav"))
-    lines += ["", "| change of ... minus change of ... | " + " | ".join(label for _, _, label in FAULTS[1:]) + " |",
-              "|---" * len(FAULTS) + "|"]
+    lines += ["", *paired.head("change of ... minus change of ...", [label for _, _, label in FAULTS[1:]])]
     for a, b in pairs:  # (a's fault - a's none) - (b's fault - b's none), paired per seed
-        lines.append(f"| {a} - {b} | " + " | ".join(
-            effect_text(paired_effect(cov[b, f] - cov[b, "none"], cov[a, f] - cov[a, "none"]), digits=1, noun="seeds")
-            for f, _, _ in FAULTS[1:]) + " |")
-    lines += ["", "| peer beacons heard (% of one a peer a tick) | " + " | ".join(label for _, _, label in FAULTS) + " |",
-              "|---" * (len(FAULTS) + 1) + "|"]
+        lines.append(paired.row(f"{a} - {b}", [paired.diff(cov[b, f] - cov[b, "none"], cov[a, f] - cov[a, "none"])
+                                               for f, _, _ in FAULTS[1:]]))
+    lines += ["", *paired.head("peer beacons heard (% of one a peer a tick)", [label for _, _, label in FAULTS])]
     for s, label in SCHEMES:
-        lines.append(f"| {label} | " + " | ".join(
+        lines.append(paired.row(label, [
             "{:.0f}".format(np.mean([r["beacons_heard_pct"] for r in rows if (r["scheme"], r["fault"]) == (s, f)]))
-            for f, _, _ in FAULTS) + " |")
+            for f, _, _ in FAULTS]))
     lines.append(f"\n({n} seeds; in brackets: UAV-ticks without an action in time, %, mean over seeds)")
     return "\n".join(lines)
 
 
 def figure(rows: list[dict], path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     cov = table(rows)
     n = len(cov[SCHEMES[0][0], "none"])
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    fig, ax = paired.pyplot().subplots(figsize=(8, 4.2))
     width = 0.8 / len(SCHEMES)
     for i, (s, label) in enumerate(SCHEMES):
         m, h = zip(*(mean_ci(cov[s, f] - cov[s, "none"]) for f, _, _ in FAULTS[1:]))
@@ -150,9 +140,7 @@ def figure(rows: list[dict], path: Path) -> None:
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title(f"Swarms on the bus, --preset paper 15 m/s, 60-step episodes: fault minus no fault, paired over {n} seeds, "
                  "95% intervals", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    paired.save(fig, path)
 
 
 def main() -> None:

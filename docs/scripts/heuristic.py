@@ -17,13 +17,13 @@ import csv
 from pathlib import Path
 
 import numpy as np
+import paired
 
 from agents.spread_agent import with_sensing
 from truav.analysis.trainer import run_chunk
 from truav.config import Config
 from truav.presets import preset_overrides
 from truav.seeding import EVAL_SEED_OFFSET
-from truav.stats import effect_text, mean_ci, paired_effect
 
 SCHEMES = (("agent:spread", "spread (heuristic)"), ("patrol", "patrol"), ("hover", "hover"), ("random", "random"))
 SPEEDS = (5.0, 10.0, 15.0, 20.0, 25.0)
@@ -46,45 +46,20 @@ def measure(seeds: list[int], episodes: int) -> dict[tuple[str, float], np.ndarr
 
 
 def tables(cov: dict[tuple[str, float], np.ndarray]) -> str:
-    head = "| speed (m/s) | " + " | ".join(label for _, label in SCHEMES) + " |"
-    lines = [head, "|---" * (len(SCHEMES) + 1) + "|"]
+    lines = paired.head("speed (m/s)", [label for _, label in SCHEMES])
     for speed in SPEEDS:
-        cells = []
-        for kind, _ in SCHEMES:
-            m, h = mean_ci(cov[kind, speed])
-            cells.append(f"{m:.1f} ± {h:.1f}")
-        lines.append(f"| {speed:g} | " + " | ".join(cells) + " |")
-    lines += ["", "| speed (m/s) | " + " | ".join(f"spread - {label}" for _, label in SCHEMES[1:]) + " |",
-              "|---" * len(SCHEMES) + "|"]
+        lines.append(paired.row(f"{speed:g}", [paired.ci(cov[kind, speed]) for kind, _ in SCHEMES]))
+    lines += ["", *paired.head("speed (m/s)", [f"spread - {label}" for _, label in SCHEMES[1:]])]
     for speed in SPEEDS:
-        lines.append(f"| {speed:g} | " + " | ".join(
-            effect_text(paired_effect(cov[kind, speed], cov["agent:spread", speed]), digits=1, noun="seeds")
-            for kind, _ in SCHEMES[1:]) + " |")
+        lines.append(paired.row(f"{speed:g}", [paired.diff(cov[kind, speed], cov["agent:spread", speed])
+                                               for kind, _ in SCHEMES[1:]]))
     return "\n".join(lines)
 
 
 def figure(cov: dict[tuple[str, float], np.ndarray], path: Path, n_seeds: int, episodes: int) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    x = np.array(SPEEDS)
-    for kind, label in SCHEMES:
-        colour, marker, ls = STYLE[kind]
-        m, h = (np.array(v) for v in zip(*(mean_ci(cov[kind, s]) for s in SPEEDS)))
-        ax.fill_between(x, m - h, m + h, color=colour, alpha=0.15, lw=0)
-        ax.plot(x, m, color=colour, marker=marker, ls=ls, label=label)
-    ax.set_xlabel("UAV speed (m/s)")
-    ax.set_ylabel("coverage (%)")
-    ax.set_xticks(x)
-    ax.set_ylim(0, max(60.0, float(np.ceil(max(v.max() for v in cov.values()) / 10) * 10)) + 10.0)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper center", ncol=len(SCHEMES), fontsize=8)
-    ax.set_title(f"Greedy on held-out traffic, --preset paper: mean of {n_seeds} seeds x {episodes} episodes, "
-                 "95% bands", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    paired.speed_figure(cov, list(SPEEDS), SCHEMES, STYLE, path,
+                        f"Greedy on held-out traffic, --preset paper: mean of {n_seeds} seeds x {episodes} episodes, "
+                        "95% bands", max(60.0, float(np.ceil(max(v.max() for v in cov.values()) / 10) * 10)) + 10.0)
 
 
 def main() -> None:

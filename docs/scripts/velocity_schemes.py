@@ -16,8 +16,8 @@ import csv
 from pathlib import Path
 
 import numpy as np
+import paired
 
-from truav.stats import effect_text, mean_ci, paired_effect
 
 SCHEMES = (("truav", "TRUAV (Q-learning)"), ("spread", "spread (heuristic)"), ("ppo", "ppo (learned)"),
            ("patrol", "patrol"))
@@ -44,43 +44,26 @@ def arrays(cov: dict[tuple[str, float], dict[int, float]]) -> tuple[list[float],
 
 def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
     speeds, a = arrays(cov)
-    lines = ["| speed (m/s) | " + " | ".join(label for _, label in SCHEMES) + " |", "|---" * (len(SCHEMES) + 1) + "|"]
+    lines = paired.head("speed (m/s)", [label for _, label in SCHEMES])
     for v in speeds:
-        lines.append(f"| {v:g} | " + " | ".join("{:.1f} ± {:.1f}".format(*mean_ci(a[k, v])) for k, _ in SCHEMES) + " |")
+        lines.append(paired.row(f"{v:g}", [paired.ci(a[k, v]) for k, _ in SCHEMES]))
     others = [(k, label) for k, label in SCHEMES if k != "ppo"]
-    lines += ["", "| speed (m/s) | " + " | ".join(f"ppo - {k}" for k, _ in others) + " | spread - truav |",
-              "|---" * (len(others) + 2) + "|"]
+    lines += ["", *paired.head("speed (m/s)", [*(f"ppo - {k}" for k, _ in others), "spread - truav"])]
     for v in speeds:
-        cells = [effect_text(paired_effect(a[k, v], a["ppo", v]), digits=1, noun="seeds") for k, _ in others]
-        cells.append(effect_text(paired_effect(a["truav", v], a["spread", v]), digits=1, noun="seeds"))
-        lines.append(f"| {v:g} | " + " | ".join(cells) + " |")
+        cells = [paired.diff(a[k, v], a["ppo", v]) for k, _ in others]
+        cells.append(paired.diff(a["truav", v], a["spread", v]))
+        lines.append(paired.row(f"{v:g}", cells))
     return "\n".join(lines)
 
 
-def figure(cov: dict[tuple[str, float], dict[int, float]], path: Path, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    speeds, a = arrays(cov)
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    x = np.array(speeds)
-    for k, label in SCHEMES:
-        colour, marker, ls = STYLE[k]
-        m, h = (np.array(t) for t in zip(*(mean_ci(a[k, v]) for v in speeds)))
-        ax.fill_between(x, m - h, m + h, color=colour, alpha=0.15, lw=0)
-        ax.plot(x, m, color=colour, marker=marker, ls=ls, label=label)
+def _trained_at_15(ax) -> None:
     ax.axvline(15, color="k", lw=0.6, alpha=0.4)
     ax.text(15.3, 2, "ppo trained at 15 m/s", fontsize=7, alpha=0.7)
-    ax.set_xlabel("UAV speed (m/s)")
-    ax.set_ylabel("coverage (%)")
-    ax.set_xticks(x)
-    ax.set_ylim(0, 70)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper center", ncol=len(SCHEMES), fontsize=8)
-    ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+
+
+def figure(cov: dict[tuple[str, float], dict[int, float]], path: Path, title: str) -> None:
+    speeds, a = arrays(cov)
+    paired.speed_figure(a, speeds, SCHEMES, STYLE, path, title, 70, mark=_trained_at_15)
 
 
 def main() -> None:
