@@ -44,7 +44,6 @@ import bench_common  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("none", "mavlink", "ros2")
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 START_WAIT_S = 120.0  # for the swarm's swarm.json (it writes it once the world runs)
 
 
@@ -52,15 +51,6 @@ def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (NaN once it is gone)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 class HeartbeatCounter:
@@ -87,16 +77,6 @@ class HeartbeatCounter:
         self._stop.set()
         self._thread.join(timeout=5)
         self.conn.close()
-
-
-def _stop(proc: subprocess.Popen, sig: int = signal.SIGTERM) -> int:
-    if proc.poll() is None:
-        os.killpg(proc.pid, sig)
-        try:
-            return proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-    return proc.wait()
 
 
 def run_once(setting: str, agents: int, rate: float, seconds: float, loaded: bool) -> dict:
@@ -131,14 +111,15 @@ def run_once(setting: str, agents: int, rate: float, seconds: float, loaded: boo
             started = time.monotonic()
         code = up.wait(timeout=seconds * 4 + START_WAIT_S + 120)
         if bridge is not None:
-            bridge_cpu, bridge_wall = _cpu_s(bridge.pid), time.monotonic() - started
+            cpu = bench_common.cpu_s(bridge.pid)
+            bridge_cpu, bridge_wall = (float("nan") if cpu is None else cpu), time.monotonic() - started
     finally:
         if bridge is not None:
-            _stop(bridge)
+            bench_common.stop_group(bridge, signal.SIGTERM, 15)
         if listener is not None:
             listener.close()
         if up.poll() is None:
-            _stop(up, signal.SIGINT)
+            bench_common.stop_group(up, signal.SIGINT, 15)
     try:
         world = json.loads((out / "world.json").read_text())
     except (OSError, ValueError):
@@ -191,8 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--agents", type=int, default=20, help="UAVs, each an agent process (default 20)")
-    ap.add_argument("--seconds", type=float, default=60.0, help="real-time seconds a run ticks (default 60)")
-    ap.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10, up's)")
+    bench_common.add_tick_options(ap)
     ap.add_argument("--repeat", type=int, default=2, help="rounds of none, mavlink, ros2 (default 2)")
     ap.add_argument("--settings", default=",".join(SETTINGS), help="which of none,mavlink,ros2 (default all three)")
     bench_common.add_load_options(ap)
@@ -203,8 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_bridges: error: --settings: choose among {','.join(SETTINGS)}, got {args.settings!r}",
               file=sys.stderr)
         return 2
-    if args.agents < 1 or args.seconds <= 0 or args.rate <= 0 or args.repeat < 1:
-        print("bench_bridges: error: --agents, --seconds, --rate and --repeat must be positive", file=sys.stderr)
+    if bench_common.refuse_nonpositive("bench_bridges", args, ("--agents", "--seconds", "--rate", "--repeat")):
         return 2
     for module in ("pymavlink", "rosbags"):
         needed = {"pymavlink": "mavlink", "rosbags": "ros2"}[module]

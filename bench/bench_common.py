@@ -1,5 +1,6 @@
 """What the real-time benchmarks share: the load gate (refuse a loaded machine, wait for a quiet one, mark a run
-LOADED), the figures every run reads from its world.json, and the end (the table, the JSON rows).
+LOADED), the tick options and their check, a process's CPU from /proc, stopping a run's process group, the
+figures every run reads from its world.json, and the JSON rows.
 
 A figure measured beside other jobs is noise, not the cost measured: a benchmark with the gate refuses to start
 while the 1-minute load average is at or above ``--max-load``, unless ``--anyway``; before each run it waits up to
@@ -11,9 +12,27 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def add_tick_options(ap: argparse.ArgumentParser) -> None:
+    """--seconds and --rate of a real-time run."""
+    ap.add_argument("--seconds", type=float, default=60.0, help="real-time seconds a run ticks (default 60)")
+    ap.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10, up's)")
+
+
+def refuse_nonpositive(prog: str, args: argparse.Namespace, flags: tuple[str, ...]) -> bool:
+    """Whether to refuse the start (the one line said) because one of ``flags`` is not positive."""
+    if all(getattr(args, f.lstrip("-").replace("-", "_")) > 0 for f in flags):
+        return False
+    print(f"{prog}: error: {', '.join(flags[:-1])} and {flags[-1]} must be positive", file=sys.stderr)
+    return True
 
 
 def add_load_options(ap: argparse.ArgumentParser) -> None:
@@ -47,6 +66,27 @@ def wait_for_load(args: argparse.Namespace) -> bool:
         print(f"WARNING: load average {load:.2f} >= {args.max_load:g}: this run is measured beside other jobs "
               f"(LOADED)", flush=True)
     return loaded
+
+
+def cpu_s(pid: int | str) -> float | None:
+    """User + system CPU seconds of process ``pid`` so far (None once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def stop_group(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 60.0) -> int:
+    """Stop the process group ``proc`` leads (started with start_new_session): ``sig``, then SIGKILL if it has not
+    ended within ``timeout_s``; its exit code."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, sig)
+        try:
+            return proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+    return proc.wait()
 
 
 def missed(world: dict) -> int:

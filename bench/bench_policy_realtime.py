@@ -86,8 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--agents", type=int, default=20, help="UAVs, each an agent process (default 20)")
-    ap.add_argument("--seconds", type=float, default=60.0, help="real-time seconds a run ticks (default 60)")
-    ap.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10, up's)")
+    bench_common.add_tick_options(ap)
     ap.add_argument("--repeat", type=int, default=3, help="rounds of the schemes, alternated (default 3)")
     ap.add_argument("--schemes", default=f"{BASELINE},ppo", help="comma-separated: truav (the Q-learning agents) "
                     "or an agent name (default truav,ppo)")
@@ -101,9 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     if not schemes:
         print("bench_policy_realtime: error: --schemes: name at least one", file=sys.stderr)
         return 2
-    if args.agents < 1 or args.seconds <= 0 or args.rate <= 0 or args.repeat < 1:
-        print("bench_policy_realtime: error: --agents, --seconds, --rate and --repeat must be positive",
-              file=sys.stderr)
+    if bench_common.refuse_nonpositive("bench_policy_realtime", args, ("--agents", "--seconds", "--rate", "--repeat")):
         return 2
     if args.agents > policy_runs.MAX_PROCESSES:
         print(f"bench_policy_realtime: error: --agents: at most {policy_runs.MAX_PROCESSES} agent processes in "

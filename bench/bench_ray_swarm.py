@@ -31,7 +31,6 @@ import argparse
 import json
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -48,7 +47,7 @@ import bench_common  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("one-host", "ray")
-CLK_TCK = os.sysconf("SC_CLK_TCK")
+CLK_TCK = bench_common.CLK_TCK
 SAMPLE_S = 0.5
 START_WAIT_S = 300.0
 """For the swarm's first tick (100 UAVs' processes, or Ray actors' workers, start slowly on 2 cores)."""
@@ -68,14 +67,6 @@ def _machine_busy_s() -> float:
     """Busy CPU seconds of the whole machine so far (/proc/stat: all but idle and iowait)."""
     fields = [int(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
     return (sum(fields) - fields[3] - fields[4]) / CLK_TCK
-
-
-def _cpu_s(pid: str) -> float | None:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 class Sampler:
@@ -104,7 +95,7 @@ class Sampler:
             for p in os.listdir("/proc"):
                 if p.isdigit() and p not in known and self._ours(p):
                     known.add(p)
-            cpu = {p: c for p in known if (c := _cpu_s(p)) is not None}
+            cpu = {p: c for p in known if (c := bench_common.cpu_s(p)) is not None}
             self.samples.append((time.time(), _machine_busy_s(), cpu))
             self._stop.wait(SAMPLE_S)
 
@@ -120,16 +111,6 @@ class Sampler:
         (w0, m0, c0), (w1, m1, c1) = inside[0], inside[-1]
         swarm = sum(c - c0.get(p, c) for p, c in c1.items())  # a process not yet seen at t0 counts from its start
         return swarm / (w1 - w0), (m1 - m0) / (w1 - w0)
-
-
-def _stop(proc: subprocess.Popen, sig: int = signal.SIGINT) -> int:
-    if proc.poll() is None:
-        os.killpg(proc.pid, sig)
-        try:
-            return proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-    return proc.wait()
 
 
 def run_once(setting: str, address: str | None, args, k: int, loaded: bool) -> dict:
@@ -151,11 +132,11 @@ def run_once(setting: str, address: str | None, args, k: int, loaded: bool) -> d
     try:
         code = up.wait(timeout=args.seconds * 4 + START_WAIT_S + 180)
     except subprocess.TimeoutExpired:
-        code = _stop(up)
+        code = bench_common.stop_group(up)
     finally:
         sampler.close()
         if up.poll() is None:
-            _stop(up)
+            bench_common.stop_group(up)
     try:
         world = json.loads((out / "world.json").read_text())
     except (OSError, ValueError):
@@ -212,8 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--agents", type=int, default=100, help="UAVs (default 100)")
     ap.add_argument("--per-process", type=int, default=10, metavar="K",
                     help="UAVs hosted per agent process, `up --agents-per-process` (default 10)")
-    ap.add_argument("--seconds", type=float, default=60.0, help="real-time seconds a run ticks (default 60)")
-    ap.add_argument("--rate", type=float, default=10.0, help="tick rate in Hz (default 10, up's)")
+    bench_common.add_tick_options(ap)
     ap.add_argument("--repeat", type=int, default=2, help="rounds of one-host then ray (default 2)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 6 UAVs, 2 per process, 3 s, 1 round, at any "
                     "load (figures marked LOADED when loaded)")
@@ -223,9 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.agents, args.per_process, args.seconds, args.repeat = 6, 2, 3.0, 1
         args.anyway, args.load_wait = True, 0.0
-    if min(args.agents, args.per_process, args.repeat) < 1 or args.seconds <= 0 or args.rate <= 0:
-        print("bench_ray_swarm: error: --agents, --per-process, --seconds, --rate and --repeat must be positive",
-              file=sys.stderr)
+    if bench_common.refuse_nonpositive("bench_ray_swarm", args,
+                                       ("--agents", "--per-process", "--seconds", "--rate", "--repeat")):
         return 2
     try:
         from ray import cluster_utils

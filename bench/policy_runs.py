@@ -13,7 +13,6 @@ pages only it maps: what stopping it would free), from ``/proc/<pid>/smaps_rollu
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -23,8 +22,9 @@ import threading
 import time
 from pathlib import Path
 
+import bench_common
+
 ROOT = Path(__file__).resolve().parents[1]
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 SENSE_RANGE_M = 1500  # the sensing the shipped `ppo` weights were trained with (docs/results/learned-policy.md)
 MAX_PROCESSES = 50  # up's limit without --force-agents
 MEMORY_KEYS = ("rss_kb", "hwm_kb", "pss_kb", "uss_kb")
@@ -64,15 +64,6 @@ def memory_kb(pid: int) -> dict[str, int] | None:
                 fields[parts[0][:-1]] = int(parts[1])
     return {"rss_kb": fields.get("Rss", 0), "hwm_kb": fields.get("VmHWM", 0), "pss_kb": fields.get("Pss", 0),
             "uss_kb": fields.get("Private_Clean", 0) + fields.get("Private_Dirty", 0)}
-
-
-def cpu_s(pid: int) -> float | None:
-    """User + system CPU seconds of process ``pid`` so far (None once it is gone)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (OSError, IndexError):
-        return None
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def uavs_of(name: str) -> int:
@@ -130,7 +121,7 @@ class AgentSampler:
             if n:
                 self.uavs[name] = n
                 total, read = total + mem["pss_kb"], read + 1
-                cpu = cpu_s(pid)
+                cpu = bench_common.cpu_s(pid)
                 if cpu is not None:
                     self._cpu_last[pid] = cpu
         self.totals.append((read, total))
@@ -147,16 +138,6 @@ class AgentSampler:
         if len(inside) < 2 or inside[-1][0] <= inside[0][0]:
             return float("nan")
         return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 def fly(scheme: str, scenario: Path, agents: int, ticks: int, *, per_process: int = 1, lockstep: bool = False,
@@ -183,7 +164,7 @@ def fly(scheme: str, scenario: Path, agents: int, ticks: int, *, per_process: in
         code = -1
     finally:
         sampler.stop()
-        _stop(up)
+        bench_common.stop_group(up, signal.SIGINT, 30)
     try:
         world = json.loads((out / "world.json").read_text())
         flown = json.loads((out / "summary.json").read_text()).get("scheme")
@@ -202,5 +183,4 @@ def fly(scheme: str, scenario: Path, agents: int, ticks: int, *, per_process: in
 
 def missed_pct(world: dict, agents: int) -> float:
     """The share of actions missed (UAVs x ticks with no action in time: per_uav's ``missed``), in %."""
-    missed = sum(int(u.get("missed", 0)) for u in world.get("per_uav") or [] if isinstance(u, dict))
-    return 100.0 * missed / max(agents * int(world.get("ticks", 0)), 1)
+    return 100.0 * bench_common.missed(world) / max(agents * int(world.get("ticks", 0)), 1)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -40,3 +43,28 @@ def test_the_world_figures_and_the_json_rows(tmp_path) -> None:
     bench_common.write_rows(None, [{"a": 1}])
     bench_common.write_rows(tmp_path / "rows.json", [{"a": 1}])
     assert json.loads((tmp_path / "rows.json").read_text()) == [{"a": 1}]
+
+
+def test_a_flag_not_positive_is_named_in_one_line(capsys) -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--agents", type=int, default=4)
+    ap.add_argument("--per-process", type=int, default=2)
+    bench_common.add_tick_options(ap)
+    flags = ("--agents", "--per-process", "--seconds", "--rate")
+    assert not bench_common.refuse_nonpositive("bench_x", ap.parse_args([]), flags)
+    assert bench_common.refuse_nonpositive("bench_x", ap.parse_args(["--per-process", "0"]), flags)
+    assert capsys.readouterr().err == ("bench_x: error: --agents, --per-process, --seconds and --rate must be "
+                                       "positive\n")
+
+
+def test_cpu_of_a_process_and_none_once_it_is_gone() -> None:
+    assert bench_common.cpu_s(os.getpid()) >= 0.0 and bench_common.cpu_s(str(os.getpid())) >= 0.0
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    assert bench_common.cpu_s(proc.pid) is None
+
+
+def test_a_process_group_is_stopped_with_the_signal_asked() -> None:
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+    assert bench_common.stop_group(proc, signal.SIGTERM, timeout_s=30) == -signal.SIGTERM
+    assert bench_common.stop_group(proc) == -signal.SIGTERM  # already ended: its code, nothing sent
