@@ -48,17 +48,20 @@ class ClimbParams:
         self.rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
 
 
-def climb_step(c: ClimbParams, active: np.ndarray, objective: np.ndarray, climb: np.ndarray, window: np.ndarray):
+def climb_step(c: ClimbParams, active: np.ndarray, objective: np.ndarray, climb: np.ndarray, window: np.ndarray,
+               info: dict | None = None):
     """One step of the climb of N UAVs: active (N,) bool, those not chasing with vehicles in range; objective
     (N,); climb (N, 2) unit headings; window (N, 3): the objective's sum over the current window, the steps in it
     and the mean of the window before (-1: none). Returns (actions (N,): the climb's, HOVER where not active),
-    climb, window)."""
+    climb, window); ``info`` (a dict) gets "fell" (N,) bool: the heading turned."""
     window = np.where(active[:, None], window, np.array([0.0, 0.0, -1.0]))  # a climb starts afresh
     total, n = window[:, 0] + np.where(active, objective, 0.0), window[:, 1] + active
     full = n >= c.window
     mean = total / np.maximum(n, 1.0)
     fell = full & (window[:, 2] >= 0.0) & (mean < window[:, 2])
     climb = np.where(fell[:, None], climb @ c.rot.T, climb)
+    if info is not None:
+        info["fell"] = fell
     window = np.where(full[:, None], np.stack([np.zeros_like(mean), np.zeros_like(mean), mean], -1),
                       np.stack([total, n, window[:, 2]], -1))
     sector = np.round(np.arctan2(climb[:, 1], climb[:, 0]) / (math.pi / 4)).astype(np.int64) % 8
@@ -77,17 +80,22 @@ def free_sector(p: Params, c: ClimbParams, pos, densest, peer_pos, heard):
 
 
 def decide_climb(p: Params, c: ClimbParams, uav, pos, in_range, exclusive, densest, heading, last, peer_id, peer_pos,
-                 peer_goal, heard, climb, window):
+                 peer_goal, heard, climb, window, info: dict | None = None):
     """spread's decide (same arguments), its hovers over vehicles in range replaced by the climb. Returns actions,
-    goals, headings, memories (as decide), climbs and windows (as climb_step)."""
+    goals, headings, memories (as decide), climbs and windows (as climb_step); ``info`` (a dict) gets the rule's
+    intermediate quantities (N,) bool: "fell" (climb_step), "left" (the sensed sector left to a peer), "active"
+    (the climb goes on) and "climbing" (spread's hover replaced by the climb), read by claim_features."""
+    sensed = densest
     if c.peer_sector_m > 0.0:
         densest = free_sector(p, c, pos, densest, peer_pos, heard)
     action, goal, heading, memory = decide(p, uav, pos, in_range, exclusive, densest, heading, last, peer_id,
                                            peer_pos, peer_goal, heard)
     active = (goal[:, 0] < 0.0) & (in_range > 0)  # not chasing, vehicles in range: the climb goes on
     objective = (exclusive if c.objective == "exclusive" else in_range).astype(np.float64)
-    climbed, climb, window = climb_step(c, active, objective, climb, window)
+    climbed, climb, window = climb_step(c, active, objective, climb, window, info)
     hovering = active & (action == HOVER)
+    if info is not None:
+        info.update(left=(np.asarray(sensed) > 0) & (np.asarray(densest) == 0), active=active, climbing=hovering)
     action = np.where(hovering, climbed, action)
     if c.lost_repel:
         lost = (goal[:, 0] < 0.0) & (in_range == 0) & ~hovering
@@ -101,7 +109,35 @@ def decide_climb(p: Params, c: ClimbParams, uav, pos, in_range, exclusive, dense
     # the memory says the move made (spread's climb reads it): the climb's heading where it flew
     memory = memory.copy()
     memory[:, 1:3] = np.where(hovering[:, None], climb, memory[:, 1:3])
+    if info is not None:
+        info["serving"] = memory[:, 3] > 0
     return action.astype(np.int64), goal, heading, memory, climb, window
+
+
+CLAIM_FEATURES = (
+    ("climb_x", "the climb's heading, east (unit)"), ("climb_y", "the climb's heading, north (unit)"),
+    ("heading_x", "the wandering heading, east (unit)"), ("heading_y", "the wandering heading, north (unit)"),
+    ("chasing", "1 if chasing a sensed sector's goal"),
+    ("goal_dx", "the chased goal's x minus own x over scenario.area_m (0 not chasing)"),
+    ("goal_dy", "the chased goal's y minus own y over scenario.area_m (0 not chasing)"),
+    ("serving", "1 if serving its cluster (its exclusive vehicles at least the threshold)"),
+    ("active", "1 if the climb goes on (not chasing, vehicles in range)"),
+    ("climbing", "1 if the climb replaced a hover at this step"),
+    ("fell", "1 if the exclusive vehicles fell since the last step (the climb's heading turned)"),
+    ("left", "1 if the densest sensed sector holds a heard peer nearer than peer_sector_m (left to it)"),
+)
+"""The climb's features (agents.view_features, ``claim``): name, meaning; each in [-1, 1]."""
+
+
+def claim_features(p: Params, pos: np.ndarray, goal: np.ndarray, heading: np.ndarray, climb: np.ndarray,
+                   info: dict) -> np.ndarray:
+    """(N, len(CLAIM_FEATURES)) float64: the quantities decide_climb computed for N UAVs at pos (N, 2) (its
+    goals, headings, climbs and ``info`` after the step); what the rule knows beyond the view."""
+    chasing = goal[:, 0] >= 0.0
+    rel = np.where(chasing[:, None], (goal - pos) / p.area, 0.0)
+    f = lambda k: np.asarray(info[k], np.float64)  # noqa: E731
+    return np.column_stack([climb, heading, chasing.astype(np.float64), rel, f("serving"), f("active"),
+                            f("climbing"), f("fell"), f("left")])
 
 
 class ClaimAgent(UavAgent):
@@ -119,6 +155,7 @@ class ClaimAgent(UavAgent):
         self.heading = np.array([first_heading(uav, cfg.scenario.n_uavs)], np.float64)
         self.climb = self.heading.copy()
         self.goal, self.last, self.window = np.full((1, 2), -1.0), np.zeros((1, 4)), np.array([[0.0, 0.0, -1.0]])
+        self.info: dict = {}
 
     def act(self, view: LocalView) -> int:
         P = len(view.beacons)
@@ -129,8 +166,13 @@ class ClaimAgent(UavAgent):
             np.array([view.vehicles_in_range]), np.array([view.exclusive]), np.array([view.densest_sector]),
             self.heading, self.last, np.array([[b.uav for b in view.beacons]]).reshape(1, P),
             np.array([b.pos for b in view.beacons], np.float64).reshape(1, P, 2), peer_goal, np.ones((1, P), np.bool_),
-            self.climb, self.window)
+            self.climb, self.window, self.info)
+        self.pos = np.array([view.pos], np.float64)
         return int(action[0])
+
+    def features(self) -> np.ndarray:
+        """(len(CLAIM_FEATURES),): claim_features of the last act."""
+        return claim_features(self.p, self.pos, self.goal, self.heading, self.climb, self.info)[0]
 
     def beacon_fields(self) -> dict[str, float]:
         return {"goal_x": float(self.goal[0, 0]), "goal_y": float(self.goal[0, 1])}
@@ -162,6 +204,7 @@ class ClaimBatched(BatchedAgents):
         self.window = np.tile(np.array([0.0, 0.0, -1.0]), (B * U, 1))
         self.uav = np.tile(np.arange(U), B)
         self.peer_id = np.tile(np.arange(U), (B * U, 1))
+        self.info: dict = {}
 
     def act(self, views: BatchedViews) -> np.ndarray:
         B, U = self.shape
@@ -171,8 +214,15 @@ class ClaimBatched(BatchedAgents):
         action, self.goal, self.heading, self.last, self.climb, self.window = decide_climb(
             self.p, self.c, self.uav, views.pos.reshape(B * U, 2), views.vehicles_in_range.reshape(-1),
             views.exclusive.reshape(-1), views.densest_sector.reshape(-1), self.heading, self.last, self.peer_id,
-            views.peer_pos.reshape(B * U, U, 2), peer_goal, views.heard.reshape(B * U, U), self.climb, self.window)
+            views.peer_pos.reshape(B * U, U, 2), peer_goal, views.heard.reshape(B * U, U), self.climb, self.window,
+            self.info)
+        self.pos = np.asarray(views.pos, np.float64).reshape(B * U, 2)
         return action.reshape(B, U)
+
+    def features(self) -> np.ndarray:
+        """(B, U, len(CLAIM_FEATURES)): claim_features of the last act."""
+        B, U = self.shape
+        return claim_features(self.p, self.pos, self.goal, self.heading, self.climb, self.info).reshape(B, U, -1)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         B, U = self.shape
@@ -188,4 +238,4 @@ class ClaimBatched(BatchedAgents):
 
 ClaimAgent.batched = ClaimBatched
 
-__all__ = ["ClaimAgent", "ClaimBatched", "ClimbParams", "climb_step", "decide_climb"]
+__all__ = ["CLAIM_FEATURES", "ClaimAgent", "ClaimBatched", "ClimbParams", "claim_features", "climb_step", "decide_climb"]

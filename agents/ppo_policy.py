@@ -4,7 +4,8 @@ A multilayer perceptron (tanh hidden layers, then the action logits) exported fr
 (truav/analysis/ppo_train.py, Stable-Baselines3's MlpPolicy: its policy branch and action head), stored as a
 small .npz: arrays ``w0, b0, w1, b1, ...`` (the last pair gives the logits) and the metadata it was trained
 with (``peers``: heard-peer slots of the observation; ``n_features``; ``sense_sectors``; ``speed_mps``;
-``memory``: 1 if the observation holds the memory features, agents.view_features; absent: 0).
+``memory``: 1 if the observation holds the memory features, agents.view_features; ``claim``: 1 if it holds the
+climbing heuristic's features; absent: 0).
 Greedy: the action with the largest logit (the first on ties); logit N_ACTIONS is HOVER. No torch at run
 time: numpy only. Pure computation: the file is read by the caller (agents.ppo_agent).
 """
@@ -36,6 +37,7 @@ class NumpyPolicy:
         self.peers = int(arrays["peers"]) if "peers" in arrays else None
         self.sense_sectors = int(arrays["sense_sectors"]) if "sense_sectors" in arrays else None
         self.memory = bool(int(arrays["memory"])) if "memory" in arrays else False
+        self.claim = bool(int(arrays["claim"])) if "claim" in arrays else False
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         """(N, N_ACTIONS + 1) logits of N observations (N, n_features)."""

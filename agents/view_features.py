@@ -15,7 +15,10 @@ meaning; docs/reference/pettingzoo-observation.md is generated from it):
   documented fill);
 - with ``memory`` on (off by default), last: what the UAV itself did at the previous step, which a view does
   not hold and the caller remembers (a `Memory`): its action one-hot (N_ACTIONS + 1 slots, the last HOVER;
-  all 0 at step 0), its velocity (that action's) and the change of its vehicles in range since then.
+  all 0 at step 0), its velocity (that action's) and the change of its vehicles in range since then;
+- with ``claim`` on (off by default), the climbing heuristic's own state (agents.claim_agent.CLAIM_FEATURES: its
+  climb heading, whether its exclusive vehicles fell, whether the sensed sector is left to a peer, ...), which the
+  caller computes from the UAV's own views by running that rule beside it (``ClaimAgent.features``).
 
 Open-ended values (relayed, energy) are capped at `CAP`; every value lies in the declared bounds.
 Beacon fields (`HeardBeacon.fields`) are not encoded: they are what an agent class chose to say.
@@ -30,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.api import BatchedViews, LocalView
+from agents.claim_agent import CLAIM_FEATURES
 from truav.actions import HOVER, N_ACTIONS
 from truav.config import Config
 
@@ -90,9 +94,10 @@ class Feature:
     """A padded peer slot's value (None for features that are never padding)."""
 
 
-def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False) -> tuple[Feature, ...]:
+def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False,
+                         claim: bool = False) -> tuple[Feature, ...]:
     """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots (and the memory
-    features with ``memory``), in order."""
+    features with ``memory``, the climbing heuristic's with ``claim``), in order."""
     sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
     share, U, area, speed = sc.n_vehicles / sc.n_uavs, float(sc.n_uavs), float(sc.area_m), float(sc.uav_speed_mps)
     fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
@@ -145,17 +150,20 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool =
                 for c, d in (("vx", "east"), ("vy", "north"))]
         out.append(Feature("in_range_change", "in_range_change", "1", share, fair, -U, U,
                            "vehicles in range now minus at the previous step (0 before it: now)"))
+    if claim:
+        out += [Feature(f"claim_{name}", f"claim_{name}", "1", 1.0, "1", -1.0, 1.0, meaning)
+                for name, meaning in CLAIM_FEATURES]
     return tuple(out)
 
 
 class ViewEncoder:
     """A LocalView -> its feature vector (float32, :func:`observation_features` order) for runs of ``cfg``."""
 
-    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False):
+    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False, claim: bool = False):
         if isinstance(peers, bool) or not isinstance(peers, int) or peers < 0:
             raise ValueError(f"peers must be an int >= 0 (the heard peers encoded), got {peers!r}")
-        self.cfg, self.peers, self.memory = cfg, peers, bool(memory)
-        self.features = observation_features(cfg, peers, self.memory)
+        self.cfg, self.peers, self.memory, self.claim = cfg, peers, bool(memory), bool(claim)
+        self.features = observation_features(cfg, peers, self.memory, self.claim)
         self.size = len(self.features)
         self.low = np.array([f.low for f in self.features], np.float32)
         self.high = np.array([f.high for f in self.features], np.float32)
@@ -178,7 +186,15 @@ class ViewEncoder:
         change = (np.asarray(in_range, np.float64) - np.asarray(last.in_range, np.float64)) / self._share
         return onehot + [vx, vy, change]
 
-    def __call__(self, view: LocalView, last: Memory | None = None) -> np.ndarray:
+    def _claim(self, claim) -> list:
+        if not self.claim:
+            return []
+        if claim is None:
+            raise ValueError("this encoder observes the claim features: give claim (ClaimAgent.features())")
+        return [claim]
+
+    def __call__(self, view: LocalView, last: Memory | None = None, claim: np.ndarray | None = None) -> np.ndarray:
+        """``claim``: the UAV's ClaimAgent.features() (with ``claim`` on)."""
         # Plain Python floats (float64) for a few dozen numbers: several times cheaper than numpy's calls.
         s = self._scale
         raw = (view.pos[0], view.pos[1], view.speed_max, view.vehicles_in_range, view.covered, view.exclusive,
@@ -201,14 +217,15 @@ class ViewEncoder:
         out += slots
         if self.memory:
             out += [float(v) for v in self._memory(last or Memory(), view.vehicles_in_range)]
+        out += [float(v) for c in self._claim(claim) for v in np.asarray(c, np.float64).reshape(-1)]
         vec = np.array(out, np.float32)
         # the caps (an RSU-less city's inf distance: the diagonal); np.clip's own checks cost twice this
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
-    def batch(self, views: BatchedViews, last: Memory | None = None) -> np.ndarray:
+    def batch(self, views: BatchedViews, last: Memory | None = None, claim: np.ndarray | None = None) -> np.ndarray:
         """Every UAV's vector at once, (B, U, size) float32: what __call__ gives each UAV's LocalView built from
         the same step (the heard peers, nearest first, ties by id; a vectorized environment's observations),
-        ``last`` holding (B, U) arrays."""
+        ``last`` holding (B, U) arrays, ``claim`` (B, U, len(CLAIM_FEATURES)) (ClaimBatched.features())."""
         pos = np.asarray(views.pos, np.float64)
         B, U = pos.shape[:2]
         raw = (pos[..., 0], pos[..., 1], np.full((B, U), float(views.speed_max)), views.vehicles_in_range,
@@ -239,7 +256,8 @@ class ViewEncoder:
         if self.memory:
             last = last or Memory(np.full((B, U), NO_ACTION), np.zeros((B, U)))
             mem = [np.broadcast_to(m, (B, U)) for m in self._memory(last, views.vehicles_in_range)]
-        vec = np.stack(own + onehot + slots + mem, axis=-1).astype(np.float32)
+        cl = [np.asarray(c, np.float64)[..., i] for c in self._claim(claim) for i in range(len(CLAIM_FEATURES))]
+        vec = np.stack(own + onehot + slots + mem + cl, axis=-1).astype(np.float32)
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
 

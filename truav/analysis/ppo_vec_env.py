@@ -7,7 +7,8 @@ is one slot of the vector, acting on its own observation only. Slot i is UAV i %
   (agents.view_features.ViewEncoder, here its batched form ``batch``), built by the in-process API driver
   (agents.api_controller.ApiController) from one World stepping all B environments at once: the same
   numbers as ``truav.analysis.pettingzoo_env`` for the same seed and step (tests/unit/test_ppo_vec_env.py),
-  with ``memory`` its memory features too (each UAV's previous action and vehicles in range).
+  with ``memory`` its memory features too (each UAV's previous action and vehicles in range), with ``claim`` the
+  climbing heuristic's state (agents.claim_agent.ClaimBatched run beside the UAVs on their views, once per step).
 - Actions: Discrete(17): the 16 of truav.actions, and 16 for HOVER (the heuristic hovers; a policy imitating
   it needs to).
 - Rewards: the paper's local reward (agents.reward), plus ``coverage_bonus`` x the share of all vehicles the
@@ -26,6 +27,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from agents.api import BatchedAgents, BatchedViews
 from agents.api_controller import ApiController
+from agents.claim_agent import ClaimBatched
 from agents.view_features import DEFAULT_PEERS, NO_ACTION, Memory, ViewEncoder
 from truav import seeding
 from truav.actions import HOVER, N_ACTIONS
@@ -69,10 +71,12 @@ class TruavVecEnv(VecEnv):
     """See the module's docstring."""
 
     def __init__(self, cfg: Config, seeds: list[int], peers: int = DEFAULT_PEERS, coverage_bonus: float = 0.0,
-                 memory: bool = False):
+                 memory: bool = False, claim: bool = False):
         self.cfg, self.seeds, self.coverage_bonus = cfg, list(seeds), float(coverage_bonus)
         self.B, self.U = len(seeds), cfg.scenario.n_uavs
-        self.encoder = ViewEncoder(cfg, peers, memory)
+        self.encoder = ViewEncoder(cfg, peers, memory, claim)
+        self.shadow = ClaimBatched(cfg, [[seeding.agent_rng(s, u) for u in range(self.U)] for s in self.seeds]) \
+            if claim else None
         self.last = Memory(np.full((self.B, self.U), NO_ACTION, np.int64), np.zeros((self.B, self.U)))
         self.render_mode = None
         box = spaces.Box(self.encoder.low, self.encoder.high, (self.encoder.size,), np.float32)
@@ -90,8 +94,15 @@ class TruavVecEnv(VecEnv):
         """The current step's views (B, U): what a batched agent (a teacher) would act on."""
         return self.driver.views
 
-    def _obs(self) -> np.ndarray:
-        return self.encoder.batch(self.driver.views, self.last).reshape(self.B * self.U, -1)
+    def _obs(self, advance: bool = True) -> np.ndarray:
+        """``advance``: the claim features' rule acts on this step's views (not on an episode's terminal
+        observation, on which no agent acts)."""
+        claim = None
+        if self.shadow is not None:
+            if advance:
+                self.shadow_actions = self.shadow.act(self.driver.views)
+            claim = self.shadow.features()
+        return self.encoder.batch(self.driver.views, self.last, claim).reshape(self.B * self.U, -1)
 
     def reset(self) -> np.ndarray:
         if self.episode < 0:
@@ -116,7 +127,7 @@ class TruavVecEnv(VecEnv):
             share = np.asarray(obs.covered, np.float64).sum(axis=1, keepdims=True) / self.cfg.scenario.n_vehicles
             reward = reward + self.coverage_bonus * share
         rewards = reward.reshape(-1).astype(np.float32)
-        observations = self._obs()
+        observations = self._obs(advance=not done)
         dones = np.full(self.num_envs, bool(done))
         infos: list[dict] = [{} for _ in range(self.num_envs)]
         if done:
