@@ -66,3 +66,21 @@ def test_the_batched_form_flies_the_per_uav_form_on_the_same_seed():
         assert np.array_equal(actions, runs[0][1])
         for k in ("coverage_pct", "pdr", "energy_j"):
             assert np.array_equal(got[k], runs[0][0][k], equal_nan=True), k
+
+
+def test_dagger_labels_come_from_the_rule_the_claim_features_come_from():
+    # Where the features say the climb replaced a hover, the label is the climb's heading at full speed; in every
+    # round (a second, fresh heuristic labelled later rounds from another climb heading than the features').
+    from agents.claim_agent import ClaimBatched
+    from truav.analysis.ppo_train import teacher_data
+    from truav.analysis.ppo_vec_env import HOVER_INDEX, TruavVecEnv
+
+    cfg = CFG.replace(scenario={"n_vehicles": 80, "steps_per_episode": 25}, roads={"warmup_steps": 10})
+    env = TruavVecEnv(cfg, [3, 4], claim=True)
+    first = env.encoder.index("claim_climb_x")
+    for flier in (None, lambda o: np.full(len(o), HOVER_INDEX)):
+        obs, labels, _ = teacher_data(env, 2, 0.9, flier, teacher_cls=ClaimBatched)
+        climbing = obs[:, env.encoder.index("claim_climbing")] == 1.0
+        sector = np.round(np.arctan2(obs[:, first + 1], obs[:, first]) / (np.pi / 4)).astype(np.int64) % 8
+        assert climbing.sum() > 10
+        assert np.array_equal(labels[climbing], sector[climbing] + 8)
