@@ -23,7 +23,6 @@ seconds for the load to fall below ``--max-load`` and records the load each run 
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -160,8 +159,7 @@ def table(rows: list[dict]) -> str:
     for s, m in med.items():
         runs = [r for r in rows if r["setting"] == s]
         hb = [r["heartbeat_systems"] for r in runs if r["heartbeat_systems"] is not None]
-        ratio = "-" if s == "none" or base is None else (f"x{m['missed_pct'] / base:.2f}" if base > 0 else
-                                                         ("x1.00" if m["missed_pct"] == 0 else "inf (none missed 0)"))
+        ratio = "-" if s == "none" or base is None else bench_common.ratio(m["missed_pct"], base, "inf (none missed 0)")
         systems = f"{min(hb)}/{runs[0]['agents']}" if hb else "-"
         out.append(f"| {s} | {len(runs)} | {m['load_before']:.2f} | {m['missed_pct']:.3f} | {ratio} | "
                    f"{m['tick_p99_ms']:.1f} | {'-' if s == 'none' else format(m['bridge_cores'], '.3f')} | {systems} |")
@@ -169,8 +167,7 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_common.parser(__doc__)
     ap.add_argument("--agents", type=int, default=20, help="UAVs, each an agent process (default 20)")
     bench_common.add_tick_options(ap)
     ap.add_argument("--repeat", type=int, default=2, help="rounds of none, mavlink, ros2 (default 2)")

@@ -35,6 +35,12 @@ def refuse_nonpositive(prog: str, args: argparse.Namespace, flags: tuple[str, ..
     return True
 
 
+def parser(doc: str) -> argparse.ArgumentParser:
+    """A benchmark's parser: its docstring's first paragraph as the description, the line breaks kept."""
+    return argparse.ArgumentParser(description=doc.split("\n\n")[0],
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
 def add_load_options(ap: argparse.ArgumentParser) -> None:
     """--max-load, --load-wait and --anyway."""
     ap.add_argument("--max-load", type=float, default=1.0, help="refuse to start at or above this 1-minute load "
@@ -87,6 +93,13 @@ def stop_group(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: floa
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
     return proc.wait()
+
+
+def ratio(value: float, base: float, over_zero: str) -> str:
+    """``value`` over ``base`` as ``x1.23``; over a base of 0: ``x1.00`` when ``value`` is 0 too, else ``over_zero``."""
+    if base > 0:
+        return f"x{value / base:.2f}"
+    return "x1.00" if value == 0 else over_zero
 
 
 def missed(world: dict) -> int:

@@ -19,7 +19,6 @@ the policies' memory.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -83,8 +82,7 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_common.parser(__doc__)
     ap.add_argument("--agents", type=int, default=100, help="UAVs in the swarm (default 100)")
     ap.add_argument("--ticks", type=int, default=100, help="ticks of the one episode (default 100)")
     ap.add_argument("--schemes", default="ppo,truav", help="comma-separated: truav (the Q-learning agents) or an "

@@ -22,7 +22,6 @@ seconds for the load to fall below ``--max-load`` and records the load each run 
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import tempfile
@@ -73,18 +72,15 @@ def table(rows: list[dict]) -> str:
     for s, m in med.items():
         if s == BASELINE or base is None:
             ratio = "-"
-        elif base > 0:
-            ratio = f"x{m['missed_pct'] / base:.2f}"
         else:
-            ratio = "x1.00" if m["missed_pct"] == 0 else f"more ({BASELINE} missed 0)"
+            ratio = bench_common.ratio(m["missed_pct"], base, f"more ({BASELINE} missed 0)")
         out.append(f"| {s} | {sum(r['scheme'] == s for r in rows)} | {m['load_before']:.2f} | {m['missed_pct']:.3f} | "
                    f"{ratio} | {m['tick_p99_ms']:.1f} | {m['agent_cores']:.3f} | {m['cpu_pct_per_uav']:.2f} |")
     return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_common.parser(__doc__)
     ap.add_argument("--agents", type=int, default=20, help="UAVs, each an agent process (default 20)")
     bench_common.add_tick_options(ap)
     ap.add_argument("--repeat", type=int, default=3, help="rounds of the schemes, alternated (default 3)")

@@ -27,7 +27,6 @@ line and the table LOADED. Before each run it waits up to ``--load-wait`` second
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -172,9 +171,7 @@ def table(rows: list[dict]) -> str:
     def ratio(s: str, k: str) -> str:
         if s == "one-host" or base is None:
             return "-"
-        if base[k] > 0:
-            return f"x{med[s][k] / base[k]:.2f}"
-        return "x1.00" if med[s][k] == 0 else "inf (one-host 0)"
+        return bench_common.ratio(med[s][k], base[k], "inf (one-host 0)")
 
     out = [("LOADED (measured beside other jobs: not the cluster's cost)\n" if any(r["loaded"] for r in rows) else "")
            + "| setting | runs | load | missed % | x missed | tick lateness p99 ms | swarm cores | x swarm cores | "
@@ -188,8 +185,7 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_common.parser(__doc__)
     ap.add_argument("--agents", type=int, default=100, help="UAVs (default 100)")
     ap.add_argument("--per-process", type=int, default=10, metavar="K",
                     help="UAVs hosted per agent process, `up --agents-per-process` (default 10)")

@@ -68,3 +68,13 @@ def test_a_process_group_is_stopped_with_the_signal_asked() -> None:
     proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
     assert bench_common.stop_group(proc, signal.SIGTERM, timeout_s=30) == -signal.SIGTERM
     assert bench_common.stop_group(proc) == -signal.SIGTERM  # already ended: its code, nothing sent
+
+
+def test_a_ratio_over_a_base_and_over_zero() -> None:
+    assert bench_common.ratio(3.0, 2.0, "more") == "x1.50"
+    assert bench_common.ratio(0.0, 0.0, "more") == "x1.00" and bench_common.ratio(1.0, 0.0, "more") == "more"
+
+
+def test_the_parser_describes_with_the_first_paragraph() -> None:
+    ap = bench_common.parser("What it measures,\n  on two lines.\n\nThe rest.")
+    assert ap.description == "What it measures,\n  on two lines." and "  on two lines." in ap.format_help()
