@@ -18,7 +18,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -77,7 +76,7 @@ def uavs_of(name: str) -> int:
     return 1 if name.startswith("agent") and name[len("agent"):].isdigit() else 0
 
 
-class AgentSampler:
+class AgentSampler(bench_common.Poller):
     """A thread sampling the run's agent processes (and its world) every ``period_s`` from /proc."""
 
     def __init__(self, out: Path, period_s: float) -> None:
@@ -88,13 +87,7 @@ class AgentSampler:
         self.totals: list[tuple[int, int]] = []  # per sample: (agent processes read, the sum of their PSS kB)
         self.cpu: list[tuple[float, float]] = []  # (wall s, the agent processes' cumulative CPU s)
         self._cpu_last: dict[int, float] = {}  # pid -> its last cumulative CPU s (kept after it exits)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join()
+        self._start_polling()
 
     def _loop(self) -> None:
         while not self._stop.is_set():

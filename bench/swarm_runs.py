@@ -21,11 +21,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
+
+import bench_common
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 SAMPLE_S = 0.25
@@ -118,7 +119,7 @@ def _role(cmdline: str) -> str:
     return "supervisor"
 
 
-class TreeSampler:
+class TreeSampler(bench_common.Poller):
     """Cumulative CPU seconds of every process under one pid, by role, sampled from /proc in a thread."""
 
     def __init__(self, root: int) -> None:
@@ -129,13 +130,7 @@ class TreeSampler:
         self.wake_timeline: list[tuple[float, dict[str, float]]] = []  # (wall s, agents' {thread class: wake-ups})
         self.world_alive: list[float] = []  # wall times the world process was seen
         self.agent_pids: set[int] = set()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join()
+        self._start_polling()
 
     def _children(self) -> list[int]:
         out, todo = [], [self.root]

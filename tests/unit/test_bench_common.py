@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
@@ -78,3 +79,20 @@ def test_a_ratio_over_a_base_and_over_zero() -> None:
 def test_the_parser_describes_with_the_first_paragraph() -> None:
     ap = bench_common.parser("What it measures,\n  on two lines.\n\nThe rest.")
     assert ap.description == "What it measures,\n  on two lines." and "  on two lines." in ap.format_help()
+
+
+def test_a_poller_samples_in_its_thread_until_stopped() -> None:
+    class Counter(bench_common.Poller):
+        def __init__(self) -> None:
+            self.sampled = threading.Event()
+            self._start_polling()
+
+        def _loop(self) -> None:
+            while not self._stop.is_set():
+                self.sampled.set()
+                self._stop.wait(0.01)
+
+    c = Counter()
+    assert c.sampled.wait(timeout=30)
+    c.stop()
+    assert not c._thread.is_alive()
