@@ -54,15 +54,17 @@ class SeenRecorder(Recorder):
         return actions
 
 
-def assert_swarm_flies_as_in_process(tmp: Path, name: str, agent_cls, cfg: Config, *, moves: bool = False) -> None:
+def assert_swarm_flies_as_in_process(tmp: Path, name: str, agent_cls, cfg: Config, *, moves: bool = False,
+                                     agent: str | None = None) -> None:
     """`up --lockstep --agent NAME --greedy` on ``cfg`` flies what the in-process greedy run of ``agent_cls`` flies:
     the same action at every step (no deadline missed), the same metrics and end positions; ``moves``: and the
-    in-process run gives more than one action (it flies, it does not hover)."""
+    in-process run gives more than one action (it flies, it does not hover); ``agent``: --agent's value if not
+    NAME (a class path; NAME then names the run)."""
     rec = SeenRecorder(ApiController(name, agent_cls, cfg, [SEED], train=False))
     expected = run_episodes(cfg, [SEED], rec, EPISODES)
     if moves:
         assert len(rec.seen) > 1, rec.seen
-    out = up(tmp, name, "--agent", name, "--greedy", cfg=cfg)
+    out = up(tmp, name, "--agent", agent or name, "--greedy", cfg=cfg)
     world = json.loads((out / "world.json").read_text())
     assert world["deadline_misses"] == 0  # (a heuristic's hovers are its own: HOVER answers, counted by the world)
     assert world["actions_digest"] == rec.digests  # every action of every step
