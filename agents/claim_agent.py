@@ -238,4 +238,5 @@ class ClaimBatched(BatchedAgents):
 
 ClaimAgent.batched = ClaimBatched
 
-__all__ = ["CLAIM_FEATURES", "ClaimAgent", "ClaimBatched", "ClimbParams", "claim_features", "climb_step", "decide_climb"]
+__all__ = ["CLAIM_FEATURES", "ClaimAgent", "ClaimBatched", "ClimbParams", "claim_features", "climb_step",
+           "decide_climb"]
