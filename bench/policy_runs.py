@@ -13,6 +13,7 @@ pages only it maps: what stopping it would free), from ``/proc/<pid>/smaps_rollu
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -27,6 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SENSE_RANGE_M = 1500  # the sensing the shipped `ppo` weights were trained with (docs/results/learned-policy.md)
 MAX_PROCESSES = 50  # up's limit without --force-agents
 MEMORY_KEYS = ("rss_kb", "hwm_kb", "pss_kb", "uss_kb")
+
+
+def run_name(scheme: str) -> str:
+    """The swarm's run name for ``scheme``: a class path (``pkg.mod:Class``) has characters a run name may not."""
+    return "bench-" + re.sub(r"[^A-Za-z0-9_-]", "-", scheme)[-58:]
 
 
 def scheme_args(scheme: str) -> list[str]:
@@ -142,7 +148,7 @@ def fly(scheme: str, scenario: Path, agents: int, ticks: int, *, per_process: in
     tmp = Path(tempfile.mkdtemp(prefix="truav-bench-policy-"))
     out = tmp / "run"
     processes = -(-agents // per_process)
-    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--run", f"bench-{scheme}", "--scenario", str(scenario),
+    cmd = [sys.executable, "-m", "truav.cli.swarm", "up", "--run", run_name(scheme), "--scenario", str(scenario),
            *scheme_args(scheme), "--agents", str(agents), "--episodes", "1", "--steps", str(ticks),
            "--out", str(out), "--quiet", "--no-plot", "--no-references", "--max-missed", "1",
            *(["--agents-per-process", str(per_process)] if per_process > 1 else []),
