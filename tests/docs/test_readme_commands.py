@@ -242,6 +242,8 @@ CHECKED: dict[str, str] = {
         "python bench/bench_trainer.py", "python bench/bench_trainer.py --full",
         "python bench/bench_trainer.py --agent truav", "python bench/bench_ppo_training.py",
         "python bench/bench_ppo_training.py --full", "python bench/bench_sumo.py",
+        "python bench/bench_policy_realtime.py --schemes truav,ppo,ppo-claim", "python bench/bench_policy_memory.py",
+        "python bench/bench_ray_swarm.py --rate 2",
         "python bench/bench_sac.py '[--compare' 'DIR]' '[--config' 'literal]'", "python bench/bench_recorder.py",
         "python bench/bench_recorder_bus.py", "python bench/bench_swarm.py --repeat 5", "python bench/bench_schema.py",
         "python bench/bench_inbox.py", "python bench/bench_beacon_burst.py",
