@@ -11,7 +11,7 @@ trained with the memory features (``memory`` in the file) have each instance rem
 vehicles in range (agents.view_features.Memory), reset at each episode's start. Weights trained with the claim
 features (``claim`` in the file) have each instance run the climbing heuristic (agents.claim_agent.ClaimAgent)
 beside it on its own views, for its state (the features) and its beacon's claimed goal; the network picks the
-action. PpoClaimAgent (by class path ``agents.ppo_agent:PpoClaimAgent``; not registered under a name) flies
+action. PpoClaimAgent (registered as ``ppo-claim``; by class path ``agents.ppo_agent:PpoClaimAgent``) flies
 CLAIM_WEIGHTS, cloned from that heuristic (docs/results/learned-policy.md, "Toward 60%"), with a batched form
 (PpoBatched: the same arithmetic on the batched views).
 """

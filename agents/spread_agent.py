@@ -36,9 +36,9 @@ SENSE_RANGE_M = 1500.0
 learner.sense_range_m on at this value where the run leaves sensing off (:func:`with_sensing`)."""
 NAMES = ("spread", "agents.spread_agent:SpreadAgent")
 """How a comparison names this scheme (its entry point and its class path)."""
-SENSING_NAMES = NAMES + ("claim", "agents.claim_agent:ClaimAgent")
-"""The heuristics designed around sensing at SENSE_RANGE_M: this one and ``claim`` (agents/claim_agent.py, which
-flies this one's decide with a climb)."""
+SENSING_NAMES = NAMES + ("claim", "agents.claim_agent:ClaimAgent", "ppo-claim", "agents.ppo_agent:PpoClaimAgent")
+"""The schemes designed around sensing at SENSE_RANGE_M: this one, ``claim`` (agents/claim_agent.py, which
+flies this one's decide with a climb) and ``ppo-claim`` (agents.ppo_agent.PpoClaimAgent, cloned from claim)."""
 
 
 def with_sensing(scheme: str, cfg: Config) -> Config:

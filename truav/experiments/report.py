@@ -53,7 +53,8 @@ SCHEME_STYLE = {"truav": ("TRUAV (distributed Q-learning)", "C0", "o"),
                 "federated": ("Federated TRUAV (learning, Q-sharing)", "C1", "D"),
                 "truav_online": ("TRUAV learning online, no sharing", "C4", "P"),
                 "spread": ("Decentralized heuristic (spread)", "C5", "X"),
-                "claim": ("Decentralized heuristic, climbing (claim)", "C6", "*")}
+                "claim": ("Decentralized heuristic, climbing (claim)", "C6", "*"),
+                "ppo-claim": ("Learned clone of the climbing heuristic (ppo-claim)", "C8", "p")}
 
 
 def _pyplot():

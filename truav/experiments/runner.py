@@ -24,7 +24,7 @@ from truav.experiments.ray_executor import run_cells_on_ray
 from truav.stopping import die_with_parent
 from truav.seeding import EVAL_SEED_OFFSET  # noqa: F401
 
-COST_ORDER = {"central": 0, "truav": 1, "patrol": 2, "patrol_ctrl": 3, "spread": 4, "claim": 5}
+COST_ORDER = {"central": 0, "truav": 1, "patrol": 2, "patrol_ctrl": 3, "spread": 4, "claim": 5, "ppo-claim": 6}
 """Expensive schemes start first, so the last cells running are the short ones."""
 
 

@@ -35,8 +35,8 @@ truav.analysis.trainer.run_chunk), +1.3 ± 1.2 points above the heuristic spread
 hover's 14.2%, where TRUAV's Q-learners learning from scratch cover what hover does; under --preset paper it is
 no better there (+0.9 ± 1.7), so the demo keeps the default scenario. ``--scheme truav`` learns from scratch."""
 DEMO_SCHEME = AGENT_KIND_PREFIX + DEMO_AGENT
-SENSING_AGENTS = ("spread", "claim", "ppo")
-"""Built-in agent classes designed (spread, claim) or trained (ppo) with sensing on: `up` flies them with
+SENSING_AGENTS = ("spread", "claim", "ppo", "ppo-claim")
+"""Built-in agent classes designed (spread, claim) or trained (ppo, ppo-claim) with sensing on: `up` flies them with
 learner.sense_range_m at agents.spread_agent.SENSE_RANGE_M where the scenario leaves sensing off."""
 
 STATUS_PERIOD_S = 1.0
