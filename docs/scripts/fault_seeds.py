@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,12 +31,17 @@ from truav.stats import mean_ci
 from truav.swarm.fault_sweep import PointFailed
 from truav.swarm.scheme_faults import CompareSize, file_name, run_comparison
 
+CLONE = "agents.ppo_agent:PpoClaimAgent"
 SCHEMES = (("truav", "TRUAV (Q-learning)"), ("spread", "spread (heuristic)"), ("ppo", "ppo (learned)"),
-           ("patrol", "patrol"))
+           ("patrol", "patrol"), ("claim", "claim (heuristic)"), (CLONE, "ppo-claim (learned clone of claim)"))
+SHORT = {CLONE: "ppo-claim"}
+"""A scheme's name in the tables' differences."""
 FAULTS = (("none", 0.0, "no fault"), ("loss", 0.5, "link loss 50%"), ("latency", 500.0, "latency 500 ms"),
           ("crash", 0.8, "UAV 0 crashed, never back"), ("partition", 0.8, "UAVs 0-1 cut off"))
 SIZE = CompareSize(loss=(0.0, 0.5), latency_ms=(0.0, 500.0), down_share=(0.0, 0.8), episodes=1, steps=60,
                    train_episodes={"truav": 1, "central": 1}, learn_episodes=1, partition_share=(0.0, 0.8))
+BEACON_FIRST = replace(SIZE, latency_ms=(0.0,), down_share=(0.0,))
+"""The beacon faults (loss, partition) of SIZE alone: every seed's run first, before the rest of SIZE."""
 SEEDS, RATE_HZ = 6, 10.0
 RETRIES = 3
 
@@ -45,24 +51,28 @@ def config() -> Config:
     return cfg.replace(learner={"grid_cells": 1, "sense_range_m": 1500.0})
 
 
-def measure(runs: Path, qtable: str, seeds: list[int], rate: float) -> list[dict]:
+def measure(runs: Path, qtable: str | None, seeds: list[int], rate: float, schemes: tuple[str, ...],
+            faults: tuple[str, ...]) -> list[dict]:
+    sizes = [BEACON_FIRST, SIZE] if {"latency", "crash"} & set(faults) else [BEACON_FIRST]
+    for size in sizes:  # the beacon faults at every seed first, then the rest (resuming the finished runs)
+        for k in seeds:
+            for attempt in range(RETRIES + 1):  # a run that could not start (a busy host) is run again
+                try:
+                    run_comparison(config(), size, runs / f"seed{k}", schemes, seed=EVAL_SEED_OFFSET + k,
+                                   qtable=qtable, rate_hz=rate)
+                    break
+                except PointFailed as e:
+                    if attempt == RETRIES:
+                        raise
+                    print(f"seed {k}: {e}; again", flush=True)
     rows = []
     for k in seeds:
         out = runs / f"seed{k}"
-        for attempt in range(RETRIES + 1):  # a run that could not start (a busy host) is run again; finished ones kept
-            try:
-                run_comparison(config(), SIZE, out, tuple(s for s, _ in SCHEMES), seed=EVAL_SEED_OFFSET + k,
-                               qtable=qtable, rate_hz=rate)
-                break
-            except PointFailed as e:
-                if attempt == RETRIES:
-                    raise
-                print(f"seed {k}: {e}; again", flush=True)
         with open(out / "comparison.csv", newline="") as f:
             for r in csv.DictReader(f):
                 level = float(r["level"])
                 fault = "none" if level == 0.0 else r["kind"]
-                if fault == "none" and r["kind"] != "loss":  # the baseline is repeated under every kind
+                if fault == "none" and r["kind"] != "loss" or fault not in faults:  # the baseline is under every kind
                     continue
                 run = out / f"{file_name(r['scheme'])}-{'none' if fault == 'none' else r['kind']}-{level:g}"
                 rows.append({"scheme": r["scheme"], "seed": k, "fault": fault,
@@ -92,13 +102,18 @@ def heard_pct(summary: Path) -> float:
 
 
 def table(rows: list[dict]) -> dict[tuple[str, str], np.ndarray]:
+    """Coverage per (scheme, fault), one value per seed (nan where that run is not in the rows)."""
     seeds = sorted({r["seed"] for r in rows})
-    return {(s, f): np.array([next(r["coverage_pct"] for r in rows if (r["scheme"], r["fault"], r["seed"]) == (s, f, k))
-                              for k in seeds]) for s, _ in SCHEMES for f, _, _ in FAULTS}
+    cov = {(r["scheme"], r["fault"], r["seed"]): r["coverage_pct"] for r in rows}
+    return {(s, f): np.array([cov.get((s, f, k), np.nan) for k in seeds]) for s, _ in SCHEMES for f, _, _ in FAULTS}
 
 
-def missed(rows: list[dict], scheme: str, fault: str) -> float:
-    return float(np.mean([r["missed_actions_pct"] for r in rows if (r["scheme"], r["fault"]) == (scheme, fault)]))
+def cell(values: np.ndarray, text) -> str:
+    return "not run" if np.isnan(values).any() else text()
+
+
+def missed(rows: list[dict], scheme: str, fault: str, key: str = "missed_actions_pct") -> float:
+    return float(np.mean([r[key] for r in rows if (r["scheme"], r["fault"]) == (scheme, fault)] or [np.nan]))
 
 
 def tables(rows: list[dict]) -> str:
@@ -106,20 +121,23 @@ def tables(rows: list[dict]) -> str:
     n = len(cov[SCHEMES[0][0], "none"])
     lines = paired.head("scheme", [label for _, _, label in FAULTS])
     for s, label in SCHEMES:
-        lines.append(paired.row(label, [f"{paired.ci(cov[s, f])} ({missed(rows, s, f):.0f}%)" for f, _, _ in FAULTS]))
+        lines.append(paired.row(label, [cell(cov[s, f], lambda: f"{paired.ci(cov[s, f])} ({missed(rows, s, f):.0f}%)")
+                                        for f, _, _ in FAULTS]))
     lines += ["", *paired.head("scheme", [f"{label} - no fault" for _, _, label in FAULTS[1:]])]
     for s, label in SCHEMES:
-        lines.append(paired.row(label, [paired.diff(cov[s, "none"], cov[s, f]) for f, _, _ in FAULTS[1:]]))
-    pairs = (("ppo", "truav"), ("ppo", "spread"), ("spread", "truav"))
+        lines.append(paired.row(label, [cell(cov[s, f], lambda: paired.diff(cov[s, "none"], cov[s, f]))
+                                        for f, _, _ in FAULTS[1:]]))
+    pairs = (("ppo", "truav"), ("ppo", "spread"), ("spread", "truav"), (CLONE, "truav"), (CLONE, "spread"),
+             (CLONE, "claim"), (CLONE, "ppo"), ("claim", "spread"))
     lines += ["", *paired.head("change of ... minus change of ...", [label for _, _, label in FAULTS[1:]])]
     for a, b in pairs:  # (a's fault - a's none) - (b's fault - b's none), paired per seed
-        lines.append(paired.row(f"{a} - {b}", [paired.diff(cov[b, f] - cov[b, "none"], cov[a, f] - cov[a, "none"])
-                                               for f, _, _ in FAULTS[1:]]))
+        lines.append(paired.row(f"{SHORT.get(a, a)} - {SHORT.get(b, b)}", [
+            cell(cov[a, f] + cov[b, f], lambda: paired.diff(cov[b, f] - cov[b, "none"], cov[a, f] - cov[a, "none"]))
+            for f, _, _ in FAULTS[1:]]))
     lines += ["", *paired.head("peer beacons heard (% of one a peer a tick)", [label for _, _, label in FAULTS])]
     for s, label in SCHEMES:
-        lines.append(paired.row(label, [
-            "{:.0f}".format(np.mean([r["beacons_heard_pct"] for r in rows if (r["scheme"], r["fault"]) == (s, f)]))
-            for f, _, _ in FAULTS]))
+        lines.append(paired.row(label, [cell(cov[s, f], lambda: f"{missed(rows, s, f, 'beacons_heard_pct'):.0f}")
+                                        for f, _, _ in FAULTS]))
     lines.append(f"\n({n} seeds; in brackets: UAV-ticks without an action in time, %, mean over seeds)")
     return "\n".join(lines)
 
@@ -127,20 +145,28 @@ def tables(rows: list[dict]) -> str:
 def figure(rows: list[dict], path: Path) -> None:
     cov = table(rows)
     n = len(cov[SCHEMES[0][0], "none"])
-    fig, ax = paired.pyplot().subplots(figsize=(8, 4.2))
+    fig, ax = paired.pyplot().subplots(figsize=(10, 5))
     width = 0.8 / len(SCHEMES)
     for i, (s, label) in enumerate(SCHEMES):
         m, h = zip(*(mean_ci(cov[s, f] - cov[s, "none"]) for f, _, _ in FAULTS[1:]))
         x = np.arange(len(FAULTS) - 1) + (i - (len(SCHEMES) - 1) / 2) * width
-        ax.bar(x, m, width, yerr=np.nan_to_num(h), capsize=3, color=f"C{i}", label=label)
+        ax.bar(x, m, width, yerr=np.nan_to_num(h), capsize=2, error_kw={"elinewidth": 1, "ecolor": "0.25"}, color=f"C{i}", label=label,
+               hatch="//" if "learned" in label else None, edgecolor="white" if "learned" in label else None)
     ax.axhline(0, color="k", lw=0.8)
     ax.set_xticks(np.arange(len(FAULTS) - 1), [label for _, _, label in FAULTS[1:]], fontsize=8)
     ax.set_ylabel("coverage change from no fault (points)")
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
     ax.set_title(f"Swarms on the bus, --preset paper 15 m/s, 60-step episodes: fault minus no fault, paired over {n} seeds, "
                  "95% intervals", fontsize=9)
     paired.save(fig, path)
+
+
+def read(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return [{**r, "seed": int(r["seed"]), **{k: float(r[k]) for k in
+                                                 ("coverage_pct", "pdr_pct", "missed_actions_pct", "beacons_heard_pct")}}
+                for r in csv.DictReader(f)]
 
 
 def main() -> None:
@@ -153,21 +179,25 @@ def main() -> None:
     ap.add_argument("--only", type=int, nargs="+", metavar="K",
                     help="run only these seeds and write nothing (two hosts or processes can share the seeds; "
                          "a final run without --only resumes them all and writes OUT)")
+    ap.add_argument("--schemes", nargs="+", default=[s for s, _ in SCHEMES], choices=[s for s, _ in SCHEMES],
+                    help="run only these schemes; OUT.csv keeps the other schemes' rows (default: all)")
+    ap.add_argument("--faults", nargs="+", default=[f for f, _, _ in FAULTS], choices=[f for f, _, _ in FAULTS],
+                    help="write only these faults' rows (the beacon faults loss and partition run first; default: all)")
     ap.add_argument("--replot", action="store_true", help="redraw OUT.png and the tables from OUT.csv")
     args = ap.parse_args()
     out = Path(args.out)
+    schemes, faults = tuple(args.schemes), tuple(dict.fromkeys(["none", *args.faults]))
     if args.replot:
-        with open(out.with_suffix(".csv"), newline="") as f:
-            rows = [{**r, "seed": int(r["seed"]), **{k: float(r[k]) for k in
-                                                     ("coverage_pct", "pdr_pct", "missed_actions_pct", "beacons_heard_pct")}}
-                    for r in csv.DictReader(f)]
+        rows = read(out.with_suffix(".csv"))
     else:
-        if not args.qtable:
-            ap.error("--qtable RUN is required (or --replot)")
+        if not args.qtable and "truav" in schemes:
+            ap.error("--qtable RUN is required to fly truav (or --replot)")
+        seeds = args.only or list(range(args.seeds))
+        new = measure(Path(args.runs), args.qtable, seeds, args.rate, schemes, faults)
         if args.only:
-            measure(Path(args.runs), args.qtable, args.only, args.rate)
             return
-        rows = measure(Path(args.runs), args.qtable, list(range(args.seeds)), args.rate)
+        old = read(out.with_suffix(".csv")) if out.with_suffix(".csv").is_file() else []
+        rows = [r for r in old if r["scheme"] not in schemes] + new
         with open(out.with_suffix(".csv"), "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
