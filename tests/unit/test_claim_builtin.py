@@ -1,8 +1,8 @@
 """Issue 56: the climbing heuristic (agents/claim_agent.py) is a built-in scheme as ``spread`` is: registered as
 ``claim`` (entry-point group truav.agents), flown with its sensing on wherever a run leaves sensing off, and taken
 by name by `truav evaluate --against`, `truav train --agent`, `truav experiment velocity|scale --schemes`,
-`truav experiment faults --schemes` and `truav-swarm up --agent`; the comparisons' defaults and the demo's agent
-are as they were."""
+`truav experiment faults --schemes` and `truav-swarm up --agent`; the comparisons' defaults are as they were, and
+the demo's summary puts its coverage beside this heuristic's (truav.swarm.references)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_the_command_lines_take_it_by_name(tmp_path) -> None:
         agent_loader.resolve("claim2")
 
 
-def test_defaults_are_as_they_were() -> None:
+def test_comparison_defaults_are_as_they_were_and_the_demo_references_claim() -> None:
     from truav.cli.main import build_parser
     from truav.experiments import scale, velocity
     from truav.swarm.references import REFERENCE_SCHEMES
@@ -58,8 +58,8 @@ def test_defaults_are_as_they_were() -> None:
     assert parser.parse_args(["experiment", "velocity"]).schemes == list(velocity.SCHEMES)
     assert velocity.SCHEMES == ("truav", "central", "patrol", "spread")
     assert scale.SCHEMES == ("truav", "central", "spread")
-    assert REFERENCE_SCHEMES == ("hover", "spread", "patrol")
-    assert DEMO_AGENT == "ppo"
+    assert REFERENCE_SCHEMES == ("hover", "claim", "patrol")
+    assert DEMO_AGENT == "ppo-claim"
 
 
 def test_reports_name_it() -> None:

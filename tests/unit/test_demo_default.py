@@ -1,6 +1,7 @@
 """Issue 56, "a first run that shows it": `truav-swarm up` (the README's command 1) flies the learned
-decentralized policy (ppo, with the sensing it was trained with) unless told otherwise, learning from scratch
-(`--scheme truav`) a flag away; its summary puts its coverage beside hover's and the heuristic's on one line."""
+decentralized policy (ppo-claim, the clone of the climbing heuristic, with the sensing it was trained with) unless
+told otherwise, learning from scratch (`--scheme truav`) a flag away; its summary puts its coverage beside hover's and
+the stronger heuristic's (claim) on one line."""
 
 from __future__ import annotations
 
@@ -19,10 +20,10 @@ def _options(*argv: str):
 
 
 def test_the_demo_flies_the_learned_policy_with_its_sensing_by_default(tmp_path) -> None:
-    assert DEMO_AGENT == "ppo" and DEMO_SCHEME == "agent:ppo"
+    assert DEMO_AGENT == "ppo-claim" and DEMO_SCHEME == "agent:ppo-claim"
     cfg, opts = _options("up", "--out", str(tmp_path / "a"))
     assert opts.scheme == DEMO_SCHEME
-    assert cfg.learner.sense_range_m == SENSE_RANGE_M  # ppo was trained with 1.5 km sensing
+    assert cfg.learner.sense_range_m == SENSE_RANGE_M  # ppo-claim was trained with 1.5 km sensing
     assert cfg.scenario == Config().scenario  # the scenario itself is the defaults'
 
 
@@ -46,18 +47,18 @@ def test_other_schemes_and_agents_are_chosen_as_before(tmp_path) -> None:
 def test_the_help_says_the_default_and_the_flag_that_learns_from_scratch() -> None:
     up = build_parser()._subparsers._group_actions[0].choices["up"]
     text = " ".join(up.format_help().split())
-    assert "default: agent:ppo" in text and "--scheme truav" in text and "from scratch" in text
+    assert "default: agent:ppo-claim" in text and "--scheme truav" in text and "from scratch" in text
 
 
 def test_the_summary_line_puts_the_swarm_beside_hover_and_the_heuristic() -> None:
     cfg = Config().replace(scenario={"n_vehicles": 40, "steps_per_episode": 40}, roads={"warmup_steps": 5})
     world = {"episodes": [{"coverage_pct": 30.0, "pdr": 0.5}, {"coverage_pct": 32.0, "pdr": 0.52}]}
     refs, why = references_for(cfg, DEMO_SCHEME, 0, world, True)
-    assert why is None and {"hover", "spread", "patrol"} <= set(refs)
+    assert why is None and {"hover", "claim", "patrol"} <= set(refs)
     first = references_line(DEMO_SCHEME, world, refs, None, faults=False).splitlines()[0]
-    assert first.startswith("coverage: this swarm (agent:ppo) 31.0%, hover ")
+    assert first.startswith("coverage: this swarm (agent:ppo-claim) 31.0%, hover ")
     assert f"hover {refs['hover']['coverage_pct']:.1f}%" in first
-    assert f"the heuristic spread {refs['spread']['coverage_pct']:.1f}%" in first
+    assert f"the heuristic claim {refs['claim']['coverage_pct']:.1f}%" in first
 
 
 def test_a_q_table_run_without_a_scheme_is_told_to_add_scheme_truav(tmp_path, capsys) -> None:

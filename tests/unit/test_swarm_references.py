@@ -1,4 +1,4 @@
-"""Issue 45: `truav-swarm up` ends with a scale for its numbers: hover, the heuristic spread (issue 56) and patrol
+"""Issue 45: `truav-swarm up` ends with a scale for its numbers: hover, the heuristic claim (issue 56) and patrol
 flown in process on the same scenario, seed and episode count (truav.swarm.references)."""
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ def test_references_are_the_in_process_runs_of_the_same_seed_and_episodes() -> N
     refs, why = references_for(CFG, "truav", 3, WORLD, True)
     assert why is None and refs["seed"] == 3 and refs["episodes"] == 2
     for name, kind, cfg in (("hover", "hover", CFG), ("patrol", "patrol", CFG),
-                            ("spread", "agent:spread", with_sensing("spread", CFG))):
+                            ("claim", "agent:claim", with_sensing("claim", CFG))):
         m = run_chunk(kind, cfg, [3], 2, train=False).metrics
         assert refs[name]["coverage_pct"] == float(np.nanmean(m["coverage_pct"]))
         assert refs[name]["pdr"] == float(np.nanmean(m["pdr"]))
     line = references_line("truav", WORLD, refs, None, faults=True)
     assert line.startswith("coverage: this swarm (truav) 10.0%, hover ")
     assert line.splitlines()[1].startswith("  references on the same scenario, seed 3, 2 episodes, without the faults")
-    assert f"hover {refs['hover']['coverage_pct']:.1f}%, the heuristic spread" in line
-    assert f"PDR: this swarm 0.120, hover {refs['hover']['pdr']:.3f}, spread" in line
+    assert f"hover {refs['hover']['coverage_pct']:.1f}%, the heuristic claim" in line
+    assert f"PDR: this swarm 0.120, hover {refs['hover']['pdr']:.3f}, claim" in line
     assert "oracle ceiling: docs/results/reproduction.md" in line
 
 

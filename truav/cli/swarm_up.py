@@ -38,6 +38,7 @@ from truav.swarm.outdir import OutDirError, check_swarm_dir
 from truav.swarm.supervisor import SwarmOptions
 from truav.swarm.swarm_options import DEMO_AGENT, DEMO_SCHEME, SENSING_AGENTS, with_agent_sensing
 from agents.spread_agent import SENSE_RANGE_M
+from truav.swarm.references import HEURISTIC
 from world.process.world_process import WorldOptions
 
 RAY_PORT = 7447
@@ -342,7 +343,7 @@ def add_up_args(up: argparse.ArgumentParser, default_scheme: str, default_help: 
                          f"{DEFAULT_RESTART_LIMIT})")
     up.add_argument("--no-plot", action="store_true", help="skip the summary picture")
     up.add_argument("--no-references", action="store_true",
-                    help="skip the references at the end (hover, the heuristic spread with its sensing, and patrol "
+                    help=f"skip the references at the end (hover, the heuristic {HEURISTIC} with its sensing, and patrol "
                          "flown in process on the same scenario, seed and episodes, beside the run's coverage and "
                          "PDR; about 3 s on a quiet 2-core machine)")
     up.add_argument("--quiet", action="store_true", help="no live status table")

@@ -1,6 +1,6 @@
 """A scale for a run's numbers: the same scenario, seed and episode count flown in process by the
-reference policies (hover: the UAVs stay where they start; spread: the decentralized heuristic,
-agents.spread_agent, with its sensing on, the bar a learner must clear; patrol: the hand-written baseline,
+reference policies (hover: the UAVs stay where they start; claim: the stronger decentralized heuristic,
+agents.claim_agent, with its sensing on, the bar a learner must clear; patrol: the hand-written baseline,
 agents.patrol, its fused kernel), printed beside the run's coverage and PDR, the coverages on one line.
 
 They take about 3 s at the demo's size on a quiet 2-core machine (1 s once a process has flown them), so
@@ -20,10 +20,12 @@ from truav import jsonio
 from truav.stats import shown
 from truav.config import Config
 
-REFERENCE_SCHEMES = ("hover", "spread", "patrol")
-KINDS = {"spread": "agent:spread"}
-"""The trainer's controller kind of a reference named otherwise (spread is an agents.api class)."""
-SAID = {"spread": "the heuristic spread"}
+HEURISTIC = "claim"
+"""The heuristic reference: the stronger of the built-in heuristics (agents/claim_agent.py)."""
+REFERENCE_SCHEMES = ("hover", HEURISTIC, "patrol")
+KINDS = {HEURISTIC: f"agent:{HEURISTIC}"}
+"""The trainer's controller kind of a reference named otherwise (the heuristic is an agents.api class)."""
+SAID = {HEURISTIC: f"the heuristic {HEURISTIC}"}
 """How the coverage line names a reference, where its name alone does not say what it is."""
 CEILING_DOC = "docs/results/reproduction.md, \"The ceiling of each scenario\""
 
