@@ -49,9 +49,10 @@ def save(fig, path: Path) -> None:
 
 
 def speed_figure(cov: dict[tuple[str, float], np.ndarray], speeds: list[float], schemes, style: dict, path: Path,
-                 title: str, top: float, mark=None) -> None:
+                 title: str, top: float, mark=None, legend_cols: int | None = None) -> None:
     """Coverage against speed, a line and its 95% band per scheme ``(key, label)`` in ``style[key]`` = (colour,
-    marker, line style); y from 0 to ``top``; ``mark(ax)`` adds to the axes."""
+    marker, line style); y from 0 to ``top``; ``mark(ax)`` adds to the axes; the legend in ``legend_cols``
+    columns (default: one row)."""
     fig, ax = pyplot().subplots(figsize=(7, 4.2))
     x = np.array(speeds)
     for k, label in schemes:
@@ -66,6 +67,6 @@ def speed_figure(cov: dict[tuple[str, float], np.ndarray], speeds: list[float], 
     ax.set_xticks(x)
     ax.set_ylim(0, top)
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper center", ncol=len(schemes), fontsize=8)
+    ax.legend(loc="upper center", ncol=legend_cols or len(schemes), fontsize=8)
     ax.set_title(title, fontsize=9)
     save(fig, path)

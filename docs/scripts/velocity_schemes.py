@@ -3,10 +3,14 @@
 
     python docs/scripts/velocity_schemes.py RUN --out docs/figures/velocity-schemes
 
+    python docs/scripts/velocity_schemes.py RUN2 --merge --out docs/figures/velocity-schemes
+
 RUN is a `truav experiment velocity --schemes truav ppo spread patrol` run (the page gives the command). Reads
 its finished cells' greedy evaluation (held-out traffic), writes OUT.csv (one row per scheme, speed and seed: the
 mean coverage over the evaluation episodes) and OUT.png (coverage against speed, 95% bands), and prints the
-page's tables: means with 95% intervals over seeds, then ppo's paired differences on the same seeds.
+page's tables: means with 95% intervals over seeds, then the paired differences on the same seeds.
+With --merge, RUN2's cells (e.g. `--schemes claim agents.ppo_agent:PpoClaimAgent`, same seeds and evaluation)
+are added to OUT.csv's rows; a scheme, speed and seed in both must agree (that checks the pairing).
 """
 
 from __future__ import annotations
@@ -20,8 +24,11 @@ import paired
 
 
 SCHEMES = (("truav", "TRUAV (Q-learning)"), ("spread", "spread (heuristic)"), ("ppo", "ppo (learned)"),
-           ("patrol", "patrol"))
-STYLE = {"truav": ("C0", "s", "-"), "spread": ("C1", "o", "--"), "ppo": ("C2", "D", "-"), "patrol": ("C3", "^", ":")}
+           ("patrol", "patrol"), ("claim", "claim (heuristic)"), ("ppo-claim", "ppo-claim (learned clone)"))
+STYLE = {"truav": ("C0", "s", "-"), "spread": ("C1", "o", "--"), "ppo": ("C2", "D", "-"), "patrol": ("C3", "^", ":"),
+         "claim": ("C4", "v", "--"), "ppo-claim": ("C5", "P", "-")}
+# a cell's file name spells a class-path scheme with "-" for ":"; the page calls it by its registered name
+ALIASES = {"agents.ppo_agent-PpoClaimAgent": "ppo-claim"}
 
 
 def per_seed(run: Path) -> dict[tuple[str, float], dict[int, float]]:
@@ -29,6 +36,7 @@ def per_seed(run: Path) -> dict[tuple[str, float], dict[int, float]]:
     out: dict[tuple[str, float], dict[int, float]] = {}
     for f in sorted((run / "cells").glob("*.npz")):
         scheme, rest = f.stem.split("_v", 1)
+        scheme = ALIASES.get(scheme, scheme)
         speed = float(rest.split("_", 1)[0])
         with np.load(f) as d:
             values = np.nanmean(d["eval/coverage_pct"], axis=0)
@@ -53,17 +61,43 @@ def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
         cells = [paired.diff(a[k, v], a["ppo", v]) for k, _ in others]
         cells.append(paired.diff(a["truav", v], a["spread", v]))
         lines.append(paired.row(f"{v:g}", cells))
+    if ("ppo-claim", speeds[0]) in a:
+        lines += ["", *paired.head("speed (m/s)", ["ppo-claim - spread", "ppo-claim - claim", "claim - spread"])]
+        for v in speeds:
+            lines.append(paired.row(f"{v:g}", [paired.diff(a["spread", v], a["ppo-claim", v]),
+                                               paired.diff(a["claim", v], a["ppo-claim", v]),
+                                               paired.diff(a["spread", v], a["claim", v])]))
     return "\n".join(lines)
+
+
+def read_csv(path: Path) -> dict[tuple[str, float], dict[int, float]]:
+    cov: dict[tuple[str, float], dict[int, float]] = {}
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            cov.setdefault((r["scheme"], float(r["speed_mps"])), {})[int(r["seed"])] = float(r["coverage_pct"])
+    return cov
+
+
+def merge(cov: dict[tuple[str, float], dict[int, float]], new: dict[tuple[str, float], dict[int, float]]) -> str:
+    """Adds ``new`` to ``cov``; returns the first (scheme, speed, seed) in both whose values differ, else ""."""
+    for k, values in new.items():
+        for s, c in values.items():
+            if s in cov.get(k, {}) and abs(cov[k][s] - c) > 1e-4:
+                return f"{k[0]} {k[1]:g} m/s seed {s}: {cov[k][s]:.4f} in the CSV, {c:.4f} in the run"
+        cov.setdefault(k, {}).update(values)
+    return ""
 
 
 def _trained_at_15(ax) -> None:
     ax.axvline(15, color="k", lw=0.6, alpha=0.4)
-    ax.text(15.3, 2, "ppo trained at 15 m/s", fontsize=7, alpha=0.7)
+    ax.text(15.3, 2, "ppo, ppo-claim trained at 15 m/s", fontsize=7, alpha=0.7)
 
 
 def figure(cov: dict[tuple[str, float], dict[int, float]], path: Path, title: str) -> None:
     speeds, a = arrays(cov)
-    paired.speed_figure(a, speeds, SCHEMES, STYLE, path, title, 70, mark=_trained_at_15)
+    schemes = [(k, label) for k, label in SCHEMES if (k, speeds[0]) in a]
+    paired.speed_figure(a, speeds, schemes, STYLE, path, title, 100 if len(schemes) > 4 else 70,
+                        mark=_trained_at_15, legend_cols=3)
 
 
 def main() -> None:
@@ -71,19 +105,23 @@ def main() -> None:
     ap.add_argument("run", nargs="?", help="the velocity run (omit with --replot)")
     ap.add_argument("--out", default="docs/figures/velocity-schemes", help="OUT.csv and OUT.png (default %(default)s)")
     ap.add_argument("--title", default="--preset paper, sensing 1500 m: greedy, 10 seeds x 20 held-out episodes, 95% "
-                                       "bands\nTRUAV trained 500 episodes per speed; ppo trained at 15 m/s only")
+                                       "bands\nTRUAV trained 500 episodes per speed; ppo and ppo-claim trained at 15 m/s only")
     ap.add_argument("--replot", action="store_true", help="redraw OUT.png and the tables from OUT.csv")
+    ap.add_argument("--merge", action="store_true", help="add RUN's cells to OUT.csv's rows (same seeds)")
     args = ap.parse_args()
     out = Path(args.out)
     if args.replot:
-        cov: dict[tuple[str, float], dict[int, float]] = {}
-        with open(out.with_suffix(".csv"), newline="") as f:
-            for r in csv.DictReader(f):
-                cov.setdefault((r["scheme"], float(r["speed_mps"])), {})[int(r["seed"])] = float(r["coverage_pct"])
+        cov = read_csv(out.with_suffix(".csv"))
     else:
         if not args.run:
             ap.error("RUN is required (or --replot)")
-        cov = per_seed(Path(args.run))
+        if args.merge:
+            cov = read_csv(out.with_suffix(".csv"))
+            clash = merge(cov, per_seed(Path(args.run)))
+            if clash:
+                ap.error(f"RUN is not paired with {out.with_suffix('.csv')}: {clash}")
+        else:
+            cov = per_seed(Path(args.run))
         with open(out.with_suffix(".csv"), "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(["scheme", "speed_mps", "seed", "coverage_pct"])
