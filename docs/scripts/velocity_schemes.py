@@ -55,7 +55,7 @@ def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
     lines = paired.head("speed (m/s)", [label for _, label in SCHEMES])
     for v in speeds:
         lines.append(paired.row(f"{v:g}", [paired.ci(a[k, v]) for k, _ in SCHEMES]))
-    others = [(k, label) for k, label in SCHEMES if k != "ppo"]
+    others = [(k, label) for k, label in SCHEMES if k in ("truav", "spread", "patrol")]
     lines += ["", *paired.head("speed (m/s)", [*(f"ppo - {k}" for k, _ in others), "spread - truav"])]
     for v in speeds:
         cells = [paired.diff(a[k, v], a["ppo", v]) for k, _ in others]
