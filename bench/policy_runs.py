@@ -67,7 +67,10 @@ def memory_kb(pid: int) -> dict[str, int] | None:
             parts = row.split()
             if len(parts) >= 2 and parts[0].endswith(":") and parts[1].isdigit():
                 fields[parts[0][:-1]] = int(parts[1])
-    return {"rss_kb": fields.get("Rss", 0), "hwm_kb": fields.get("VmHWM", 0), "pss_kb": fields.get("Pss", 0),
+    # VmHWM comes from the kernel's lazily synced per-thread counters, Rss from a walk of the page tables: the
+    # peak can read a few pages below the Rss of the same moment, and a peak is at least what is resident now
+    peak = max(fields.get("VmHWM", 0), fields.get("Rss", 0))
+    return {"rss_kb": fields.get("Rss", 0), "hwm_kb": peak, "pss_kb": fields.get("Pss", 0),
             "uss_kb": fields.get("Private_Clean", 0) + fields.get("Private_Dirty", 0)}
 
 
