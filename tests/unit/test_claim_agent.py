@@ -6,12 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from agents.api import HOVER, HeardBeacon, LocalView
-from agents.api_controller import ApiController
 from agents.claim_agent import ClaimAgent, ClimbParams, climb_step
 from agents.spread_agent import SENSE_RANGE_M, SpreadAgent
-from truav.analysis.driver import run_episodes
 from truav.config import Config
 from truav.seeding import agent_rng
+from tests.support.batched_forms import assert_batched_flies_per_uav
 from world.uavs import ACTION_UNIT_VELOCITY
 
 CFG = Config().replace(learner={"sense_range_m": SENSE_RANGE_M})
@@ -64,29 +63,9 @@ def test_it_leaves_a_sensed_sector_holding_a_peer_to_that_peer():
     assert heading_deg(b.act(view(in_range=2, densest=2, beacons=[peer]))) == 135.0  # another sector: chased
 
 
-class _Actions(ApiController):
-    """The controller, keeping every action it gives the world."""
-
-    def act(self, t):
-        a = super().act(t)
-        self.seen = getattr(self, "seen", []) + [np.array(a)]
-        return a
-
-
 def test_the_same_seed_flies_the_same_actions_and_the_batched_form_flies_the_per_uav_form():
     cfg = CFG.replace(scenario={"n_vehicles": 80, "steps_per_episode": 25}, roads={"warmup_steps": 10})
-
-    class PerUav(ClaimAgent):
-        batched = None
-    runs = []
-    for cls in (ClaimAgent, ClaimAgent, PerUav):
-        ctl = _Actions("claim", cls, cfg, [3, 4], train=False)
-        runs.append((run_episodes(cfg, [3, 4], ctl, 3), np.stack(ctl.seen)))
-    assert len(np.unique(runs[0][1])) > 3  # it flies, not one action
-    for got, actions in runs[1:]:
-        assert np.array_equal(actions, runs[0][1])
-        for k in ("coverage_pct", "pdr", "energy_j"):
-            assert np.array_equal(got[k], runs[0][0][k], equal_nan=True), k
+    assert_batched_flies_per_uav("claim", ClaimAgent, cfg)
 
 
 def test_its_state_round_trips():

@@ -9,13 +9,12 @@ import pytest
 
 pytest.importorskip("numba")
 
-from agents.api_controller import ApiController  # noqa: E402
 from agents.claim_agent import CLAIM_FEATURES  # noqa: E402
 from agents.ppo_agent import CLAIM_WEIGHTS, PpoClaimAgent, load_policy  # noqa: E402
 from agents.spread_agent import SENSE_RANGE_M  # noqa: E402
 from agents.view_features import ViewEncoder, observation_features  # noqa: E402
-from truav.analysis.driver import run_episodes  # noqa: E402
 from truav.config import Config  # noqa: E402
+from tests.support.batched_forms import assert_batched_flies_per_uav  # noqa: E402
 from truav.presets import preset_overrides  # noqa: E402
 
 CFG = Config().replace(**preset_overrides("paper")).replace(scenario={"uav_speed_mps": 15.0},
@@ -43,29 +42,9 @@ def test_the_shipped_claim_weights_observe_the_claim_features():
     assert policy.n_features == ViewEncoder(CFG, policy.peers, False, True).size
 
 
-class _Actions(ApiController):
-    """The controller, keeping every action it gives the world."""
-
-    def act(self, t):
-        a = super().act(t)
-        self.seen = getattr(self, "seen", []) + [np.array(a)]
-        return a
-
-
 def test_the_batched_form_flies_the_per_uav_form_on_the_same_seed():
     cfg = CFG.replace(scenario={"n_vehicles": 80, "steps_per_episode": 25}, roads={"warmup_steps": 10})
-
-    class PerUav(PpoClaimAgent):
-        batched = None
-    runs = []
-    for cls in (PpoClaimAgent, PpoClaimAgent, PerUav):
-        ctl = _Actions("ppo-claim", cls, cfg, [3, 4], train=False)
-        runs.append((run_episodes(cfg, [3, 4], ctl, 3), np.stack(ctl.seen)))
-    assert len(np.unique(runs[0][1])) > 3  # it flies, not one action
-    for got, actions in runs[1:]:
-        assert np.array_equal(actions, runs[0][1])
-        for k in ("coverage_pct", "pdr", "energy_j"):
-            assert np.array_equal(got[k], runs[0][0][k], equal_nan=True), k
+    assert_batched_flies_per_uav("ppo-claim", PpoClaimAgent, cfg)
 
 
 def test_dagger_labels_come_from_the_rule_the_claim_features_come_from():
