@@ -145,8 +145,8 @@ def test_a_lost_ray_node_s_agents_resume_elsewhere_and_the_run_completes(tmp_pat
     assert row.held, row.detail
     # Placed again on a surviving node, connected to its router: they acted after the loss, to the run's end.
     per_uav = {u["uav"]: u for u in summary["world"]["per_uav"]}
-    for agent in agents:
-        assert per_uav[int(agent[5:])]["missed"] < summary["world"]["ticks"] / 2, per_uav
+    for agent in agents:  # misses beyond the outage's are late answers a loaded host makes, not the loss's
+        assert per_uav[int(agent[5:])]["missed"] <= loss["missed_actions"] + summary["world"]["ticks"] / 4, per_uav
     check = invariants._log_check(str(record), invariants.node_outages(summary)
                                   + (summary.get("router_outages_wall_ns") or []))
     assert check.held, check.detail  # truav log check: nothing lost, or only inside the node's outage
