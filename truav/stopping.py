@@ -13,6 +13,24 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 runtimes) send SIGTERM, a closed terminal SIGHUP."""
 
 
+INTERRUPTS = (KeyboardInterrupt, SystemError)
+"""What a stop signal can surface as: KeyboardInterrupt, or a SystemError wrapping it when it arrived inside a C
+extension (numba loading a cached kernel on its first call). Catch these, then keep only :func:`is_interrupt`."""
+
+
+def is_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is Ctrl-C or a stop signal: a KeyboardInterrupt, or an exception raised because one
+    arrived inside an extension that wraps it (numba's kernel loader makes it a SystemError whose cause is the
+    interrupt); anything else is a bug and keeps its traceback."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def exit_code_for(signum: int) -> int:
     """The shell's exit code of a command stopped by ``signum``: 130 for Ctrl-C, 143 for SIGTERM, 129 for
     SIGHUP. The command still finished its files first."""

@@ -33,6 +33,7 @@ from truav.config import Config
 from truav.errors import UserError
 from truav.faults import load_plan
 from truav.lifecycle import EXIT_ROUTER_LOST, StopReasons, watch_router, watch_supervisor
+from truav.stopping import INTERRUPTS, is_interrupt
 from truav.wire import keys
 
 log = logging.getLogger("truav.swarm")  # the agent process's log lines keep the swarm's logger name
@@ -246,7 +247,9 @@ def host_agents(cfg: Config, run: str, ids: list[int], configs: dict, options_fo
                      else "greedy" if not opts.train else "learning")
             try:
                 node.run()
-            except KeyboardInterrupt:
+            except INTERRUPTS as exc:
+                if not is_interrupt(exc):
+                    raise
                 reasons.because("interrupted")
                 node.checkpoint()
             finally:

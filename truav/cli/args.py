@@ -26,7 +26,8 @@ from truav.checks import (  # noqa: F401  (re-exported: the command lines take t
 from truav import options
 from truav.atomic import no_space
 from truav.lifecycle import signals_handled
-from truav.stopping import exit_code_for, forget_stop_signal, note_stop_signal, signal_name, stopped_by
+from truav.stopping import (exit_code_for, forget_stop_signal, is_interrupt, note_stop_signal, signal_name,
+                            stopped_by)
 from truav.errors import EXIT_BROKEN_PIPE, EXIT_USAGE, UserError  # noqa: F401
 
 MAX_SEED = 2**63 - 1
@@ -93,7 +94,9 @@ def run_main(prog: str, body: Callable[[], int], say_interrupted: bool = True) -
         except UserError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_USAGE
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not is_interrupt(exc):
+                raise
             if say_interrupted:
                 print(f"{prog}: stopped by {signal_name(stopped_by() or signal.SIGINT)}", file=sys.stderr)
             return _signal_exit(130)

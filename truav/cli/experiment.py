@@ -26,6 +26,7 @@ from truav.analysis import runio
 from truav.cli.args import check_out_dir, make_dir, positive_float, positive_int, seed_int
 from truav.cli.config import UsageError, add_config_args, config_from
 from truav.config import LearnerConfig, MOBILITIES
+from truav.stopping import INTERRUPTS, is_interrupt
 from truav.experiments import runner, scale, velocity
 from truav.cli.experiment_executor import (  # noqa: F401  (re-exported)
     RAY_ADDRESS_RE, RAY_PROBE_TIMEOUT_S, add_executor_args, check_executor, check_ray_address)
@@ -187,7 +188,9 @@ def _run(args, cfg, out: Path, cells: list[runner.Cell], label: str) -> float | 
                              executor=args.executor, address=args.address)
         except RuntimeError as exc:
             raise UsageError(f"{exc} (finished cells are kept; re-run the same command to resume)") from None
-        except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: one line; run_main exits 128 + the signal
+        except INTERRUPTS as exc:  # Ctrl-C, SIGTERM, SIGHUP: one line; run_main exits 128 + the signal
+            if not is_interrupt(exc):
+                raise
             bar.close()  # its last refresh before the line below, not after it
             kept = len(cells) - len(runner.pending_cells(cfg, out, cells))  # cell files are written whole
             print(f"truav: interrupted with {kept} of {len(cells)} cells finished and kept in {out}; run the "

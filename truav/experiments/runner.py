@@ -21,7 +21,7 @@ from truav.config import Config
 from truav.experiments.cells import (  # noqa: F401  (re-exported: the cell is named from here too)
     CELLS_DIR, UNUSED_SECTIONS, Cell, CellResult, cell_path, load_cell, run_cell, save_cell, single_threaded)
 from truav.experiments.ray_executor import run_cells_on_ray
-from truav.stopping import die_with_parent
+from truav.stopping import die_with_parent, is_interrupt
 from truav.seeding import EVAL_SEED_OFFSET  # noqa: F401
 
 COST_ORDER = {"central": 0, "truav": 1, "patrol": 2, "patrol_ctrl": 3, "spread": 4, "claim": 5, "ppo-claim": 6}
@@ -42,9 +42,9 @@ def _worker(parent_pid: int, base: Config, out: Path, tasks, results) -> None:
             result = run_cell(base, cell, lambda n: results.put(("episode", n)))
             save_cell(cell_path(out, base, cell), result)
             results.put(("done", cell, result.wall_s))
-        except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the parent says it, once
-            return
         except BaseException as exc:  # report, then stop this worker
+            if is_interrupt(exc):  # Ctrl-C reaches the whole process group: the parent says it, once
+                return
             results.put(("error", cell, f"{type(exc).__name__}: {exc}"))
             return
 
