@@ -3,14 +3,18 @@ in a child forked from it, under its own address-space limit and time limit, wit
 stderr. What a command does is what `python -m truav.cli ...` does (the same ``main``, the same exit code,
 a traceback printed as Python prints it), minus the interpreter start and imports each would pay again.
 
-    python -m tests.support.forked_cli MEMORY_BYTES TIME_LIMIT_S PARALLEL < {"name": [argv...], ...}
+    python -m tests.support.forked_cli MEMORY_BYTES TIME_LIMIT_S PARALLEL [MODULE ...] < {"name": [argv...], ...}
 
-prints {"name": [exit code, stdout, stderr], ...} as JSON. The driver is single-threaded when it forks (no
-Zenoh session, no parallel kernel has run in it), so each child starts as a fresh process would.
+prints {"name": [exit code, stdout, stderr], ...} as JSON. Each MODULE (one the commands import anyway when
+they run: numba, zenoh, the recorder's readers) is imported once in the driver too, before any fork, so no
+child spends its time importing it again (0.5-1 s each, most of a small command's time). The driver is
+single-threaded when it forks (no Zenoh session, no parallel kernel has run in it), so each child starts as
+a fresh process would.
 """
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import resource
@@ -19,6 +23,7 @@ import sys
 import tempfile
 import time
 import traceback
+from typing import Sequence
 
 
 def _child(argv: list[str], out: int, err: int, memory: int) -> None:
@@ -45,8 +50,11 @@ def _child(argv: list[str], out: int, err: int, memory: int) -> None:
             os._exit(rc if isinstance(rc, int) and 0 <= rc < 256 else 1)
 
 
-def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parallel: int) -> dict[str, list]:
+def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parallel: int,
+        preload: Sequence[str] = ()) -> dict[str, list]:
     import truav.cli.main  # noqa: F401  (imported once, before any fork)
+    for module in preload:
+        importlib.import_module(module)
     sys.stdout.flush()
     sys.stderr.flush()
     pending = list(commands.items())
@@ -82,4 +90,4 @@ def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parall
 
 if __name__ == "__main__":
     memory_bytes, limit_s, parallel_n = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
-    print(json.dumps(run(json.load(sys.stdin), memory_bytes, limit_s, parallel_n)))
+    print(json.dumps(run(json.load(sys.stdin), memory_bytes, limit_s, parallel_n, sys.argv[4:])))
