@@ -14,13 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.ray_cluster import LOOPBACK_DRIVER, NODE
+from tests.support.ray_cluster import LOOPBACK_DRIVER, three_ray_nodes
 from tests.support.swarm_up import SMALL
 from truav.swarm import invariants
 from truav.swarm.children import free_loopback_endpoint
 from truav.swarm.swarm_options import SwarmOptions
 
-CLUSTER_ATTEMPTS = 3
 RATE_HZ = 5.0
 CHECKPOINT_EVERY = SwarmOptions.checkpoint_every
 """Steps between an agent's checkpoints (`up`'s)."""
@@ -32,23 +31,10 @@ the lost node, on a 2-core host that also runs three raylets)."""
 
 @pytest.fixture
 def three_nodes():
+    """A cluster of its own for each test: the test loses one of its nodes."""
     cluster_utils = pytest.importorskip("ray.cluster_utils", reason="ray is not installed (the ray extra)")
-    for attempt in range(CLUSTER_ATTEMPTS):  # a raylet has 30 s to register: a loaded host can miss that
-        cluster = cluster_utils.Cluster()
-        try:
-            cluster.add_node(**NODE, include_dashboard=False)
-            for _ in range(2):
-                cluster.add_node(**NODE)
-            cluster.wait_for_nodes()
-            break
-        except Exception:
-            cluster.shutdown()  # only the raylets this cluster started
-            if attempt == CLUSTER_ATTEMPTS - 1:
-                raise
-    try:
+    with three_ray_nodes(cluster_utils) as cluster:
         yield cluster
-    finally:
-        cluster.shutdown()
 
 
 def _wait(pred, proc, timeout: float, what: str, output) -> None:

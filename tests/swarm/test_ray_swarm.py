@@ -17,6 +17,7 @@ from tests.support.waits import wait_matched
 from truav.bus.acl import file_stem
 from truav.wire import keys
 
+from tests.support.ray_cluster import LOOPBACK_DRIVER, three_ray_nodes
 from tests.support.swarm_up import SMALL
 from truav.swarm.children import free_loopback_endpoint
 
@@ -27,10 +28,6 @@ RUN = ["--scheme", "truav", "--agents", "4", "--agents-per-process", "2", "--ste
 def test_the_local_up_does_not_load_ray():
     code = "import sys, truav.cli.swarm, truav.cli.swarm_up, truav.swarm.supervisor; assert 'ray' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
-
-
-LOOPBACK_DRIVER = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
-"""Ray resolves a loopback head address to the machine's address unless told the cluster is this machine's."""
 
 
 def _up(out: Path, *args: str) -> subprocess.CompletedProcess:
@@ -56,25 +53,26 @@ def test_ray_flags_are_checked_before_anything_starts(tmp_path):
     assert res.returncode == 2 and "--ray-port 9000: only with --ray" in res.stderr, res.stderr
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def three_nodes():
+    """One cluster for the module's tests: none of them loses a node (tests/swarm/test_ray_node_loss.py does)."""
     cluster_utils = pytest.importorskip("ray.cluster_utils", reason="ray is not installed (the ray extra)")
-    node = {"num_cpus": 1, "object_store_memory": 80 * 1024 ** 2, "node_ip_address": "127.0.0.1"}
-    cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={**node, "include_dashboard": False})
-    try:
-        for _ in range(2):
-            cluster.add_node(**node)
-        cluster.wait_for_nodes()
+    with three_ray_nodes(cluster_utils) as cluster:
         yield cluster
-    finally:
-        cluster.shutdown()  # only the raylets this cluster started
+
+
+@pytest.fixture(scope="module")
+def one_host(tmp_path_factory) -> Path:
+    """The one-host lock-step run both cluster runs are compared with (the same seed, flags and code)."""
+    out = tmp_path_factory.mktemp("one-host") / "local"
+    local = _up(out, "-l", free_loopback_endpoint())
+    assert local.returncode == 0, local.stdout + local.stderr
+    return out
 
 
 @pytest.mark.slow  # ~25 s: a three-node cluster's start, then two swarms
 @pytest.mark.parametrize("secure", [(), ("--secure",)], ids=["plain", "secure"])
-def test_a_swarm_across_three_ray_nodes_equals_the_one_host_run(tmp_path, three_nodes, secure):
-    local = _up(tmp_path / "local", "-l", free_loopback_endpoint())
-    assert local.returncode == 0, local.stdout + local.stderr
+def test_a_swarm_across_three_ray_nodes_equals_the_one_host_run(tmp_path, three_nodes, one_host, secure):
     port = int(free_loopback_endpoint().rsplit(":", 1)[1])
     res = _up(tmp_path / "ray", "--ray", three_nodes.address, "--ray-port", str(port), *secure)
     assert res.returncode == 0, res.stdout + res.stderr + "".join(
@@ -87,11 +85,11 @@ def test_a_swarm_across_three_ray_nodes_equals_the_one_host_run(tmp_path, three_
     logs = {p.name for p in (tmp_path / "ray" / "logs").glob("router*.log")}
     assert len(logs) == 3, logs  # one router per node
     for i in range(4):
-        a, b = np.load(tmp_path / "local" / f"agent{i}.npz"), np.load(tmp_path / "ray" / f"agent{i}.npz")
+        a, b = np.load(one_host / f"agent{i}.npz"), np.load(tmp_path / "ray" / f"agent{i}.npz")
         assert sorted(a.files) == sorted(b.files)
         for key in a.files:
             np.testing.assert_array_equal(a[key], b[key], err_msg=f"agent{i}.npz {key}")
-    digest = [json.loads((tmp_path / d / "world.json").read_text())["actions_digest"] for d in ("local", "ray")]
+    digest = [json.loads((d / "world.json").read_text())["actions_digest"] for d in (one_host, tmp_path / "ray")]
     assert digest[0] and digest[0] == digest[1]
 
 
