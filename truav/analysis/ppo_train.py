@@ -51,7 +51,9 @@ def teacher_data(env: TruavVecEnv, episodes: int, gamma: float,
     """(observations (N, F), the heuristic's slot actions (N,), discounted returns (N,)) of ``episodes``
     episodes of every slot, the heuristic flying, or ``flier`` (observations -> slot actions; DAgger: the
     heuristic labels the states the learner visits); appends each step's decision kinds to ``kinds``.
-    ``teacher_cls``: the heuristic's batched form (`spread`'s, or e.g. agents.claim_agent.ClaimBatched)."""
+    ``teacher_cls``: the heuristic's batched form (`spread`'s, or e.g. agents.claim_agent.ClaimBatched), or a
+    privileged teacher (a class attribute ``privileged``: shown the world's vehicles, ``see(vehicle_xy)``, before
+    each act; truav.analysis.privileged_teacher)."""
     B, U = env.B, env.U
     # with the claim features, the rule the environment runs beside the UAVs is the teacher (its state is the
     # features': a second instance, fresh at each call, would label from another climb heading)
@@ -65,6 +67,8 @@ def teacher_data(env: TruavVecEnv, episodes: int, gamma: float,
         teacher.begin_episode(e, False)
         ep_obs, ep_act, ep_rew = [], [], []
         while True:
+            if getattr(teacher, "privileged", False):  # a privileged teacher sees the whole world's vehicles
+                teacher.see(env.world.vehicle_xy(), getattr(env, "shadow_actions", None))
             a = to_slot_actions(env.shadow_actions if shared else teacher.act(env.views)).reshape(-1)
             if kinds is not None:
                 kinds.append(decision_kind(teacher, env.views))

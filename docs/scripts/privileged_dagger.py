@@ -1,0 +1,102 @@
+"""A learner taught by a privileged teacher ("learning by cheating"; docs/results/learned-policy.md, "A privileged
+teacher").
+
+    python docs/scripts/privileged_dagger.py --speed 5 --first-seed 20 --seeds 4 --episodes 5     # a screen
+    python docs/scripts/privileged_dagger.py --speed 5 --weights W.npz --out docs/figures/NAME    # confirmation
+    python docs/scripts/privileged_dagger.py --speed 10 --load --weights W.npz --out ...          # fly W at 10 m/s
+
+The pipeline of docs/scripts/toward60_claim.py (Stable-Baselines3's network, 16 training environments, seeds 0-15,
+cloning episodes, DAgger rounds, the claim features in the observation) with the DAgger labels of a teacher that
+sees the whole world at each step (truav.analysis.privileged_teacher.OracleTeacher: the greedy max-coverage discs,
+the UAVs matched to them, each flying toward its own); the student observes its local features only, as it flies.
+``--teacher claim`` labels with the climbing heuristic instead (toward60_claim.py's learner, at --speed). Then flies
+the exported network greedy through the agent API (agents.ppo_agent.PpoBatched), `spread` and `claim` on the same
+held-out seeds (world seed + EVAL_SEED_OFFSET) with sensing 1500 m; prints each with its 95% interval and the
+paired differences, writes the weights (--weights) and OUT.csv (one row per design and seed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from agents.api_controller import ApiController
+from agents.claim_agent import ClaimAgent, ClaimBatched
+from agents.ppo_agent import PpoAgent, PpoBatched, load_policy
+from agents.spread_agent import SENSE_RANGE_M, SpreadAgent
+from truav.analysis.driver import run_episodes
+from truav.analysis.ppo_train import export, train
+from truav.analysis.privileged_teacher import LocalOracleTeacher, OracleTeacher
+from truav.config import Config
+from truav.presets import preset_overrides
+from truav.seeding import EVAL_SEED_OFFSET
+from truav.stats import effect_text, mean_ci, paired_effect
+
+TEACHERS = {"oracle": OracleTeacher, "local-oracle": LocalOracleTeacher, "claim": ClaimBatched}
+
+
+def learner(weights: Path) -> type:
+    """PpoAgent flying ``weights``, with its batched form."""
+    batched = type("LearnerBatched", (PpoBatched,), {"weights": weights})
+    return type("Learner", (PpoAgent,), {"weights": weights, "batched": batched})
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--speed", type=float, default=5.0, help="UAV speed, m/s (default %(default)s)")
+    ap.add_argument("--teacher", choices=sorted(TEACHERS), default="oracle")
+    ap.add_argument("--reach", type=float, help="local-oracle: discs farther than REACH m left to claim "
+                    "(default: LocalOracleTeacher's)")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--first-seed", type=int, default=0, help="held-out seeds FIRST_SEED.. (default %(default)s)")
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--bc-episodes", type=int, default=10)
+    ap.add_argument("--dagger", type=int, default=3)
+    ap.add_argument("--epochs", type=int, default=10, help="cloning epochs (default %(default)s)")
+    ap.add_argument("--net", default="64,64", help="hidden widths (default %(default)s)")
+    ap.add_argument("--no-claim", action="store_true", help="observe without the claim features")
+    ap.add_argument("--ppo-steps", type=int, default=0, help="PPO fine-tuning slot-steps after the cloning")
+    ap.add_argument("--train-seed", type=int, default=0, help="the training's seed (default %(default)s)")
+    ap.add_argument("--weights", default="/tmp/privileged.npz", help="where the weights go (default %(default)s)")
+    ap.add_argument("--load", action="store_true", help="fly --weights, no training")
+    ap.add_argument("--out", help="OUT.csv: per-seed coverage")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    cfg = Config().replace(**preset_overrides("paper")).replace(scenario={"uav_speed_mps": args.speed},
+                                                                learner={"sense_range_m": SENSE_RANGE_M})
+    weights, claim = Path(args.weights), not args.no_claim
+    teacher = TEACHERS[args.teacher]
+    if args.reach is not None:
+        teacher = type("Teacher", (teacher,), {"reach_m": args.reach})
+    if not args.load:
+        model, times = train(cfg, list(range(16)), bc_episodes=args.bc_episodes, bc_epochs=args.epochs,
+                             dagger_rounds=args.dagger, ppo_steps=args.ppo_steps, coverage_bonus=5.0,
+                             seed=args.train_seed, teacher=teacher, claim=claim, say=lambda s: None,
+                             net=[int(w) for w in args.net.split(",")])
+        print(f"cloning accuracy {times['accuracy']:.3f} ({times['total_s']:.0f} s)", flush=True)
+        np.savez(weights, **export(model, cfg, 4, False, claim))
+        load_policy.cache_clear()
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    held_out = [s + EVAL_SEED_OFFSET for s in seeds]
+    cov = {}
+    for key, cls in (("learner", learner(weights)), ("claim", ClaimAgent), ("spread", SpreadAgent)):
+        got = run_episodes(cfg, held_out, ApiController(key, cls, cfg, held_out, train=False), args.episodes)
+        cov[key] = np.nanmean(got["coverage_pct"], axis=0)
+        m, h = mean_ci(cov[key])
+        print(f"  {key}: {m:.1f} ± {h:.1f}%", flush=True)
+    for a, b in (("spread", "learner"), ("claim", "learner")):
+        print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
+    if args.out:
+        with open(Path(args.out).with_suffix(".csv"), "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["design", "seed", "coverage_pct"])
+            for key, v in cov.items():
+                w.writerows([key, seed, f"{x:.4f}"] for seed, x in zip(seeds, v))
+
+
+if __name__ == "__main__":
+    main()
