@@ -3,11 +3,14 @@ in a child forked from it, under its own address-space limit and time limit, wit
 stderr. What a command does is what `python -m truav.cli ...` does (the same ``main``, the same exit code,
 a traceback printed as Python prints it), minus the interpreter start and imports each would pay again.
 
-    python -m tests.support.forked_cli MEMORY_BYTES TIME_LIMIT_S PARALLEL [MODULE ...] < {"name": [argv...], ...}
+    python -m tests.support.forked_cli MEMORY_BYTES TIME_LIMIT_S PARALLEL [MODULE ...]
 
-prints {"name": [exit code, stdout, stderr], ...} as JSON. Each MODULE (one the commands import anyway when
-they run: numba, zenoh, the recorder's readers) is imported once in the driver too, before any fork, so no
-child spends its time importing it again (0.5-1 s each, most of a small command's time). The driver is
+reads batches of commands, one JSON line each ({"name": [argv...], ...}), and answers each with one JSON line
+{"name": [exit code, stdout, stderr], ...}, until its stdin ends (``Driver`` below starts one and keeps it for
+a module's tests: the interpreter and its imports are paid once per module, not once per batch). Each MODULE
+(one the commands import anyway when they run: numba, zenoh, the recorder's readers) is imported once in the
+driver too, before any fork, so no child spends its time importing it again (0.5-1 s each, most of a small
+command's time). The driver is
 single-threaded when it forks (no Zenoh session, no parallel kernel has run in it), so each child starts as
 a fresh process would.
 """
@@ -17,10 +20,13 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import queue
 import resource
 import signal
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 import traceback
 from typing import Sequence
@@ -50,11 +56,7 @@ def _child(argv: list[str], out: int, err: int, memory: int) -> None:
             os._exit(rc if isinstance(rc, int) and 0 <= rc < 256 else 1)
 
 
-def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parallel: int,
-        preload: Sequence[str] = ()) -> dict[str, list]:
-    import truav.cli.main  # noqa: F401  (imported once, before any fork)
-    for module in preload:
-        importlib.import_module(module)
+def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parallel: int) -> dict[str, list]:
     sys.stdout.flush()
     sys.stderr.flush()
     pending = list(commands.items())
@@ -88,6 +90,57 @@ def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parall
     return results
 
 
+class Driver:
+    """A driver process kept for many batches (the test's side): ``run`` sends one batch, returns its results."""
+
+    def __init__(self, cwd, memory: int, time_limit_s: float, parallel: int, preload: Sequence[str] = ()) -> None:
+        self._time_limit_s = time_limit_s
+        self._stderr = tempfile.TemporaryFile()
+        self._proc = subprocess.Popen([sys.executable, "-m", "tests.support.forked_cli", str(memory),
+                                       str(time_limit_s), str(parallel), *preload], cwd=cwd, stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=self._stderr, text=True)
+        self._answers: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self._proc.stdout:
+            self._answers.put(line)
+        self._answers.put(None)  # the driver ended
+
+    def _stderr_text(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read().decode(errors="replace")[-2000:]
+
+    def run(self, commands: dict[str, list[str]]) -> dict[str, subprocess.CompletedProcess]:
+        self._proc.stdin.write(json.dumps(commands) + "\n")
+        self._proc.stdin.flush()
+        try:  # each command is killed after time_limit_s: the batch cannot take longer than all of them in turn
+            line = self._answers.get(timeout=self._time_limit_s * len(commands) + 60)
+        except queue.Empty:
+            raise AssertionError(f"the forking driver did not answer: {self._stderr_text()}") from None
+        assert line is not None, f"the forking driver ended: {self._stderr_text()}"
+        results = json.loads(line)
+        return {name: subprocess.CompletedProcess(commands[name], rc, out, err)
+                for name, (rc, out, err) in results.items()}
+
+    def close(self) -> None:
+        self._proc.stdin.close()  # its stdin ends: it exits
+        try:
+            self._proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        self._stderr.close()
+
+
+def serve(memory: int, time_limit_s: float, parallel: int, preload: Sequence[str]) -> None:
+    import truav.cli.main  # noqa: F401  (imported once, before any fork)
+    for module in preload:
+        importlib.import_module(module)
+    for line in sys.stdin:
+        if line.strip():
+            print(json.dumps(run(json.loads(line), memory, time_limit_s, parallel)), flush=True)
+
+
 if __name__ == "__main__":
-    memory_bytes, limit_s, parallel_n = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
-    print(json.dumps(run(json.load(sys.stdin), memory_bytes, limit_s, parallel_n, sys.argv[4:])))
+    serve(int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), sys.argv[4:])

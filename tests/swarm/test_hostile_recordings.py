@@ -5,8 +5,9 @@ them): chunks declaring 64 GiB, compression bombs, a 1 GiB message in a small fi
 flipped bits, a channel naming schema 999, a message on an undeclared channel, a 100 kB topic, a log
 time in the year 2262, metrics values that are not numbers, metadata from elsewhere. Every tool runs
 on every family in its own process held to 1 GiB of address space and 120 s (forked from one interpreter
-that imported truav.cli once: tests/support/forked_cli.py), and must give no traceback
-and the exit code docs/reference/untrusted-recordings.md documents (1 damaged, 2 user mistake / not usable for the tool).
+that imported truav.cli and what the tools import once for the module: tests/support/forked_cli.py), and
+must give no traceback and the exit code docs/reference/untrusted-recordings.md documents (1 damaged, 2 user
+mistake / not usable for the tool).
 `play` is given an endpoint nothing listens on (127.0.0.1 port 1), so a file it accepts ends in a
 one-line connect failure (exit 1) without a router; a file it refuses is refused before that.
 """
@@ -14,11 +15,8 @@ one-line connect failure (exit 1) without a router; a file it refuses is refused
 from __future__ import annotations
 
 import io
-import json
-import resource
 import struct
 import subprocess
-import sys
 import tempfile
 import zlib
 from pathlib import Path
@@ -33,6 +31,7 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
 
 from recorder.mcap_log import McapLog
 from recorder.metadata import CONFIG_METADATA, RECORDING_METADATA, RUN_METADATA, config_metadata, run_info_metadata
+from tests.support.forked_cli import Driver
 from truav.config import Config, to_toml
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -300,26 +299,22 @@ def _expected(family: str, tool: str, damaged: bool) -> set[int]:
     return {0}
 
 
-def _limits() -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+@pytest.fixture(scope="module")
+def cli():
+    """Runs `truav log` tools, each in its own process held to MEMORY_LIMIT and TIME_LIMIT_S, 4 at a time: forked
+    from one interpreter that imported truav.cli and PRELOAD once for the module (tests/support/forked_cli.py),
+    as `python -m truav.cli log` runs them."""
+    driver = Driver(ROOT, MEMORY_LIMIT, TIME_LIMIT_S, 4, PRELOAD)
+    yield driver
+    driver.close()
 
 
-def run_tool(args: list[str]) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "truav.cli", "log", *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=TIME_LIMIT_S, preexec_fn=_limits, stdin=subprocess.DEVNULL)
+def run_tools(cli: Driver, tools: dict[str, list[str]]) -> dict[str, subprocess.CompletedProcess]:
+    return cli.run({name: ["log", *argv] for name, argv in tools.items()})
 
 
-def run_tools(tools: dict[str, list[str]]) -> dict[str, subprocess.CompletedProcess]:
-    """Every tool, each in its own process held to MEMORY_LIMIT and TIME_LIMIT_S, 4 at a time: forked from one
-    interpreter that imported truav.cli and PRELOAD once (tests/support/forked_cli.py), as `python -m truav.cli log`
-    runs."""
-    done = subprocess.run([sys.executable, "-m", "tests.support.forked_cli", str(MEMORY_LIMIT), str(TIME_LIMIT_S), "4",
-                           *PRELOAD],
-                          cwd=ROOT, input=json.dumps({name: ["log", *argv] for name, argv in tools.items()}),
-                          capture_output=True, text=True, timeout=TIME_LIMIT_S * len(tools))
-    assert done.returncode == 0, done.stderr[-2000:]
-    results = json.loads(done.stdout.strip().splitlines()[-1])
-    return {name: subprocess.CompletedProcess(tools[name], rc, out, err) for name, (rc, out, err) in results.items()}
+def run_tool(cli: Driver, args: list[str]) -> subprocess.CompletedProcess:
+    return run_tools(cli, {"tool": args})["tool"]
 
 
 def test_every_file_reading_log_action_is_tried() -> None:
@@ -335,13 +330,13 @@ def test_every_file_reading_log_action_is_tried() -> None:
 
 
 @pytest.mark.parametrize("family", sorted(FAMILIES))
-def test_hostile_file(family: str, tmp_path: Path) -> None:
+def test_hostile_file(family: str, tmp_path: Path, cli: Driver) -> None:
     build, damaged_for = FAMILIES[family]
     path = tmp_path / f"{family}.mcap"
     path.write_bytes(build())
     assert path.stat().st_size < 1 << 20  # small files, whatever they claim
     tools = _tools(path, tmp_path)
-    results = run_tools(tools)
+    results = run_tools(cli, tools)
     bad = []
     for tool, proc in results.items():
         damaged = tool in damaged_for
@@ -356,24 +351,24 @@ def test_hostile_file(family: str, tmp_path: Path) -> None:
                 bad.append(f"{tool}: a damaged file not called damaged: {proc.stderr[-300:]}")
     for tool, written in (("cut", "cut.mcap"), ("merge", "merged.mcap"), ("recover", "recovered.mcap")):
         if tool in damaged_for and (tmp_path / written).exists():  # what a tool wrote from damage is not clean
-            proc = run_tool(["check", str(tmp_path / written)])
+            proc = run_tool(cli, ["check", str(tmp_path / written)])
             if proc.returncode != 1 or "damaged" not in proc.stderr:
                 bad.append(f"check of {written} from a damaged input: exit {proc.returncode}: {proc.stderr[-300:]}")
     assert not bad, "\n".join(bad)
 
 
-def test_cut_and_merge_of_a_corrupt_chunk_exit_1_and_their_output_is_not_clean(tmp_path: Path) -> None:
+def test_cut_and_merge_of_a_corrupt_chunk_exit_1_and_their_output_is_not_clean(tmp_path: Path, cli: Driver) -> None:
     """The issue's case: one flipped bit; the outputs keep every sound message, say what was left out,
     and `check` of them names the damage instead of calling them clean."""
     path = tmp_path / "in.mcap"
     path.write_bytes(flipped())
-    assert run_tool(["check", str(path)]).returncode == 1
+    assert run_tool(cli, ["check", str(path)]).returncode == 1
     for args, out in ((["cut", str(path), str(tmp_path / "cut.mcap")], tmp_path / "cut.mcap"),
                       (["merge", str(tmp_path / "merged.mcap"), str(path)], tmp_path / "merged.mcap"),
                       (["recover", str(path), str(tmp_path / "rec.mcap")], tmp_path / "rec.mcap")):
-        proc = run_tool(args)
+        proc = run_tool(cli, args)
         assert proc.returncode == 1 and "corrupt chunk" in proc.stderr, (args, proc.stderr)
-        check = run_tool(["check", str(out)])
+        check = run_tool(cli, ["check", str(out)])
         assert check.returncode == 1 and "written from a damaged recording" in check.stderr, check.stderr
         from recorder.reader import iter_messages
         energies = {msgpack.unpackb(m.payload)["energy_j"] for m in iter_messages(out)}
@@ -425,17 +420,17 @@ def test_merge_ignores_a_part_number_of_10_to_the_30(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("own_keys", [False, True], ids=["one-key", "own-keys"])
-def test_report_of_thousands_of_claimed_uav_ids_is_bounded(tmp_path: Path, own_keys: bool) -> None:
+def test_report_of_thousands_of_claimed_uav_ids_is_bounded(tmp_path: Path, own_keys: bool, cli: Driver) -> None:
     """The held-out probe: a few hundred KB of beacons claiming 3,000 UAV ids took 71 s and 1.26 GB. A beacon
     whose claimed UAV disagrees with its key, or whose id is past the schema's MAX_UAVS, is left out and
-    counted; the rest is drawn within MEMORY_LIMIT and TIME_LIMIT_S (run_tool's child limits)."""
+    counted; the rest is drawn within MEMORY_LIMIT and TIME_LIMIT_S (the cli fixture's limits)."""
     from tests.support.recordings import make_claimed_ids_recording
     from truav.wire.keys import MAX_UAVS
 
     path = tmp_path / "claimed.mcap"
     written = make_claimed_ids_recording(path, claimed=3000, per_id=3, own_keys=own_keys)
     assert path.stat().st_size < 1 << 20
-    proc = run_tool(["report", str(path), "--out", str(tmp_path / "rep")])
+    proc = run_tool(cli, ["report", str(path), "--out", str(tmp_path / "rep")])
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     drawn = MAX_UAVS if own_keys else 1
     left_out = written - 3 * drawn
