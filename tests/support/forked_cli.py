@@ -5,14 +5,13 @@ a traceback printed as Python prints it), minus the interpreter start and import
 
     python -m tests.support.forked_cli MEMORY_BYTES TIME_LIMIT_S PARALLEL [MODULE ...]
 
-reads batches of commands, one JSON line each ({"name": [argv...], ...}), and answers each with one JSON line
-{"name": [exit code, stdout, stderr], ...}, until its stdin ends (``Driver`` below starts one and keeps it for
-a module's tests: the interpreter and its imports are paid once per module, not once per batch). Each MODULE
-(one the commands import anyway when they run: numba, zenoh, the recorder's readers) is imported once in the
-driver too, before any fork, so no child spends its time importing it again (0.5-1 s each, most of a small
-command's time). The driver is
-single-threaded when it forks (no Zenoh session, no parallel kernel has run in it), so each child starts as
-a fresh process would.
+reads batches of commands, one JSON line each ({"batch": n, "commands": {"name": [argv...], ...}}), and
+answers each with one JSON line ({"batch": n, "results": {"name": [exit code, stdout, stderr], ...}}) until
+its stdin ends (``Driver`` below starts one and keeps it for a module's tests: the interpreter and its imports
+are paid once per module, not once per batch). Each MODULE (one the commands import anyway when they run:
+numba, zenoh, the recorder's readers) is imported once in the driver too, before any fork, so no child spends
+its time importing it again (0.5-1 s each, most of a small command's time). The driver is single-threaded when
+it forks (no Zenoh session, no parallel kernel has run in it), so each child starts as a fresh process would.
 """
 
 from __future__ import annotations
@@ -91,40 +90,60 @@ def run(commands: dict[str, list[str]], memory: int, time_limit_s: float, parall
 
 
 class Driver:
-    """A driver process kept for many batches (the test's side): ``run`` sends one batch, returns its results."""
+    """A driver process kept for many batches (the test's side): ``run`` sends one batch, returns its results.
+    Each batch is numbered and its answer matched by number, so an answer left over from a test stopped while
+    waiting (its timeout) is never read as the next test's; a driver that stopped answering is replaced."""
 
     def __init__(self, cwd, memory: int, time_limit_s: float, parallel: int, preload: Sequence[str] = ()) -> None:
-        self._time_limit_s = time_limit_s
-        self._stderr = tempfile.TemporaryFile()
-        self._proc = subprocess.Popen([sys.executable, "-m", "tests.support.forked_cli", str(memory),
-                                       str(time_limit_s), str(parallel), *preload], cwd=cwd, stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=self._stderr, text=True)
-        self._answers: queue.Queue = queue.Queue()
-        threading.Thread(target=self._read, daemon=True).start()
+        self._argv = [sys.executable, "-m", "tests.support.forked_cli", str(memory), str(time_limit_s), str(parallel),
+                      *preload]
+        self._cwd, self._time_limit_s, self._batch = cwd, time_limit_s, 0
+        self._start()
 
-    def _read(self) -> None:
-        for line in self._proc.stdout:
-            self._answers.put(line)
-        self._answers.put(None)  # the driver ended
+    def _start(self) -> None:
+        self._stderr = tempfile.TemporaryFile()
+        self._proc = subprocess.Popen(self._argv, cwd=self._cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      stderr=self._stderr, text=True)
+        self._answers: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, args=(self._proc, self._answers), daemon=True).start()
+
+    @staticmethod
+    def _read(proc: subprocess.Popen, answers: queue.Queue) -> None:
+        for line in proc.stdout:
+            answers.put(json.loads(line))
+        answers.put(None)  # the driver ended
 
     def _stderr_text(self) -> str:
         self._stderr.seek(0)
         return self._stderr.read().decode(errors="replace")[-2000:]
 
     def run(self, commands: dict[str, list[str]]) -> dict[str, subprocess.CompletedProcess]:
-        self._proc.stdin.write(json.dumps(commands) + "\n")
+        if self._proc.poll() is not None:
+            self.close()
+            self._start()
+        self._batch += 1
+        self._proc.stdin.write(json.dumps({"batch": self._batch, "commands": commands}) + "\n")
         self._proc.stdin.flush()
-        try:  # each command is killed after time_limit_s: the batch cannot take longer than all of them in turn
-            line = self._answers.get(timeout=self._time_limit_s * len(commands) + 60)
-        except queue.Empty:
-            raise AssertionError(f"the forking driver did not answer: {self._stderr_text()}") from None
-        assert line is not None, f"the forking driver ended: {self._stderr_text()}"
-        results = json.loads(line)
-        return {name: subprocess.CompletedProcess(commands[name], rc, out, err)
-                for name, (rc, out, err) in results.items()}
+        # each command is killed after time_limit_s: the batch cannot take longer than all of them in turn
+        deadline = time.monotonic() + self._time_limit_s * len(commands) + 60
+        while True:
+            try:
+                answer = self._answers.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                why = f"the forking driver did not answer: {self._stderr_text()}"
+                self.close()
+                self._start()
+                raise AssertionError(why) from None
+            assert answer is not None, f"the forking driver ended: {self._stderr_text()}"
+            if answer["batch"] == self._batch:  # not one left over from a batch whose test stopped waiting
+                return {name: subprocess.CompletedProcess(commands[name], rc, out, err)
+                        for name, (rc, out, err) in answer["results"].items()}
 
     def close(self) -> None:
-        self._proc.stdin.close()  # its stdin ends: it exits
+        try:
+            self._proc.stdin.close()  # its stdin ends: it exits
+        except BrokenPipeError:  # it had ended
+            pass
         try:
             self._proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
@@ -139,7 +158,9 @@ def serve(memory: int, time_limit_s: float, parallel: int, preload: Sequence[str
         importlib.import_module(module)
     for line in sys.stdin:
         if line.strip():
-            print(json.dumps(run(json.loads(line), memory, time_limit_s, parallel)), flush=True)
+            batch = json.loads(line)
+            results = run(batch["commands"], memory, time_limit_s, parallel)
+            print(json.dumps({"batch": batch["batch"], "results": results}), flush=True)
 
 
 if __name__ == "__main__":
