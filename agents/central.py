@@ -30,6 +30,7 @@ the same objective and differ in learner and control plane.
 from __future__ import annotations
 
 import numpy as np
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit
 
 from agents.reward import Reward

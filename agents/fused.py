@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 import numba
 import numpy as np
 from numba import njit, prange

@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit
 
 from truav.config import Config

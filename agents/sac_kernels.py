@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit, types
 from numba.extending import intrinsic
 

@@ -6,7 +6,8 @@ kernel that calls another file's kernel (the world step calls mobility and
 relay; the fused trainer calls the world and the learners) would keep stale
 machine code after an edit of the callee, and silently compute the old
 numbers. Keyed by all kernel sources, any edit recompiles every kernel once.
-Imported by the `world` and `agents` packages before any kernel is defined;
+Imported by each module of `world` and `agents` that has kernels, before it imports numba (not by the
+packages: a module without kernels, and a process without any, imports no numba, ~0.4 CPU-s at each start);
 NUMBA_CACHE_DIR, if set, wins.
 
 Shared by every checkout on the machine: numba files a kernel under a hash of its source directory's
@@ -20,6 +21,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 import numba
@@ -122,3 +124,33 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 if SharedKernelLocator not in CacheImpl._locator_classes:  # numba's list of locators, tried in order
     CacheImpl._locator_classes.insert(0, SharedKernelLocator)
+
+
+NO_BLAS_FUNCTIONS = ("np.correlate", "np.convolve")
+"""The only numba functions whose compiled code depends on numba's start-up BLAS probe (below): no kernel calls
+them (tests/swarm/test_part_imports.py reads the kernel sources)."""
+
+
+def _skip_blas_probe() -> None:
+    """numba's numba.np.arraymath, which every process loads with its first kernel, probes for BLAS at import by
+    importing scipy.linalg (~0.3 CPU-s, on every start of the world and of each agent) only to pick the inner
+    product of np.correlate and np.convolve (NO_BLAS_FUNCTIONS). The probe is answered "no" while that module
+    loads; numba's np.dot and np.linalg still import scipy when a kernel using them compiles."""
+    if "numba.np.arraymath" in sys.modules:
+        return
+    from numba.np import linalg
+    probe = getattr(linalg, "ensure_blas", None)
+    if probe is None:  # another numba: its probe is left alone
+        return
+
+    def no_blas() -> None:
+        raise ImportError("TRUAV's kernels call no BLAS-backed np.correlate or np.convolve")
+
+    linalg.ensure_blas = no_blas
+    try:
+        import numba.np.arraymath  # noqa: F401
+    finally:
+        linalg.ensure_blas = probe
+
+
+_skip_blas_probe()

@@ -1,2 +1,2 @@
-# numba kernels cache by a hash of every kernel source (see truav.kernel_cache).
-from truav import kernel_cache  # noqa: F401
+"""The numeric world: roads, vehicles, channel, network, step, env (its kernels set numba's cache up themselves:
+truav.kernel_cache, imported by each module with kernels, so a module without any imports no numba)."""

@@ -34,6 +34,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit
 
 from world.channel_models import fspl_db

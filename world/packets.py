@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from truav import kernel_cache  # noqa: F401, I001 - numba's cache set up before numba loads a kernel
 from numba import njit
 
 from truav.config import VEHICLE_SLOT_M, Config, n_grid_roads

@@ -29,12 +29,12 @@ import gc
 import logging
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from agents.process.agent_process_lockstep import Inexact
+from agents.process.controller_options import ControllerOptions
 from truav import jsonio
 from truav.analysis import runio
 from truav.analysis.trainer import make_controller  # the in-process driver's controller (with central.geofence too)
@@ -44,40 +44,12 @@ from truav.bus.transport import Bus
 from truav.config import Config
 from truav.faults import load_plan
 from truav.lograte import Every
-from truav.options import opt
 from truav.wire import guard, keys, schema
-from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
 from world.env import LocalObs
 
 log = logging.getLogger("truav.controller")
 
 CONTROL_SHUTDOWN = "shutdown"
-
-
-@dataclass
-class ControllerOptions:
-    """How the controller process runs (the scenario lives in Config)."""
-
-    run: str = "demo"
-    seed: int = 0
-    """Seed of the run: the SAC draws from seeding.baseline_rng(seed, 1), as the in-process driver's."""
-    lockstep: bool = False
-    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
-    """Lock-step: a live UAV silent this long is decided without (counted: the run is then not exact)."""
-    policy: str | None = opt(None, flag="--policy", metavar="RUN",
-                             help="--scheme central: fly this trained controller (`truav train --scheme central` "
-                                  "output); default: learn online")
-    """A `truav train --scheme central` run (or its policy.npz) whose actor is flown greedily; None: learn online."""
-    policy_index: int = opt(0, flag="--policy-index", type="non_negative_int",
-                            help="which seed's policy of that run (default 0)")
-    tick_period_s: float = 0.1
-    collect_frac: float = 0.3
-    """Real time: decide a tick this fraction of the period after its first upload, if some are still missing."""
-    stats_out: str | None = opt(None, flag="--stats-out", metavar="FILE",
-                                help="write the controller's statistics as JSON at exit")
-    fault_plan: str | None = None
-    """Fault plan (TOML) whose link faults apply to what the controller receives (its uplink)."""
-    accept_replay: bool = False
 
 
 def warm_up_learning(cfg: Config) -> None:

@@ -26,17 +26,19 @@ import sys
 from truav.cli.args import OneLineParser, UserError, run_main
 
 PARTS = ("world", "agent", "controller")
-"""The swarm's processes: started several times per run, each parses a parser of the parts alone (not
-every command's: their imports cost a part ~0.2 CPU-s at start). The router has a parser of its own."""
+"""The swarm's processes: started several times per run, each parses a parser of its own part alone (not
+every command's, nor the other parts': their imports cost a part CPU at every start). The router has a parser of
+its own."""
 
 
-def build_parser(parts_only: bool = False) -> argparse.ArgumentParser:
-    """The whole command line; with ``parts_only`` the process parts' subcommands alone (PARTS)."""
+def build_parser(parts_only: bool = False, part: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with ``parts_only`` the process parts' subcommands alone (PARTS), with ``part``
+    too that part's alone."""
     from truav.cli.swarm_processes import add_process_commands
     ap = OneLineParser(prog="truav-swarm", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
     if parts_only:
-        add_process_commands(sub)
+        add_process_commands(sub, only=part)
         return ap
     from truav.cli.swarm_mavlink import add_mavlink_command
     from truav.cli.swarm_ops import add_ops_commands
@@ -68,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["router"]:
         from truav.cli.swarm_router import main as router_main
         return router_main(argv[1:])
-    args = build_parser(parts_only=bool(argv) and argv[0] in PARTS).parse_args(argv)
+    part = argv[0] if argv and argv[0] in PARTS else None
+    args = build_parser(parts_only=part is not None, part=part).parse_args(argv)
 
     def run() -> int:
         import zenoh

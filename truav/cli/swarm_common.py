@@ -126,12 +126,12 @@ def resolve_scheme(args, default: str) -> None:
 
 
 def add_command_hold_arg(p: argparse.ArgumentParser) -> None:
-    from agents.process.agent_process import AgentOptions
+    from agents.process.agent_options import AgentOptions
     add_options(p, AgentOptions, ["command_hold_s"])
 
 
 def add_policy_args(p: argparse.ArgumentParser) -> None:
-    from agents.process.central_process import ControllerOptions
+    from agents.process.controller_options import ControllerOptions
     add_options(p, ControllerOptions, ["policy", "policy_index"])
 
 

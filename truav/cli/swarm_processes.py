@@ -4,33 +4,28 @@ truav.cli.swarm_router).
 Each command checks its flags and files (one line, exit 2, before anything starts), builds its
 process's options and runs it: the runtime lives with the process (world.process.world_process,
 agents.process.agent_host, agents.process.central_process), the stop on SIGTERM / lost supervisor / lost router
-in truav.lifecycle.
+in truav.lifecycle. Building a part's parser imports its options (light modules beside each process) and no
+runtime: each command imports its process's modules when it runs.
 """
 
 from __future__ import annotations
 
 import os
 
-from agents.process.agent_host import ID_PLACEHOLDER, host_agents, path_of
-from agents.process.agent_process import AgentOptions, DELAY_ENV, debug_delay_s
-from agents.process.central_process import ControllerOptions
-from agents.process.controller_host import host_controller
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.checks import check_out_file
 from truav.cli.args import add_options, non_negative_int, options_from, positive_float
 from truav.cli.config import UsageError
 from truav.wire import keys
-from truav.swarm.checks import (check_beacon_cell, check_central_sizes, check_checkpoint, check_creds_fit, check_plan,
-                                check_agent_start, check_policy, check_qtable, check_scheme_flags)
-from truav.cli.swarm_router import HELP as ROUTER_HELP, add_router_args
 from truav.cli.swarm_common import (add_command_hold_arg, add_lockstep_args, add_policy_args, add_scenario_args,
                                     add_scheme_arg, add_swarm_process_args, check_agent_scheme,
                                     config_from_args, lockstep_wait, part_creds, scenario_from, setup_logging)
-from world.process.world_host import host_world
-from world.process.world_process import WorldOptions
 
 
 def cmd_world(args) -> int:
+    from truav.swarm.checks import check_creds_fit, check_plan
+    from world.process.world_host import host_world
+    from world.process.world_options import WorldOptions
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     check_creds_fit(args, cfg)
@@ -48,6 +43,10 @@ def cmd_world(args) -> int:
 def cmd_agent(args) -> int:
     """One agent, or several (``--id`` repeated) hosted in this process: each with its own Zenoh session,
     identity, credentials, checkpoint and statistics, on its own thread (fewer processes for a large swarm)."""
+    from agents.process.agent_host import ID_PLACEHOLDER, host_agents, path_of
+    from agents.process.agent_options import AgentOptions, DELAY_ENV, debug_delay_s
+    from truav.swarm.checks import (check_agent_start, check_beacon_cell, check_checkpoint, check_creds_fit, check_plan,
+                                    check_qtable, check_scheme_flags)
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     check_creds_fit(args, cfg)
@@ -104,6 +103,9 @@ def cmd_agent(args) -> int:
 
 
 def cmd_controller(args) -> int:
+    from agents.process.controller_host import host_controller
+    from agents.process.controller_options import ControllerOptions
+    from truav.swarm.checks import check_central_sizes, check_plan, check_policy
     setup_logging(args.verbose)
     cfg = scenario_from(args)
     if args.fault_plan:
@@ -120,10 +122,22 @@ def cmd_controller(args) -> int:
     return host_controller(cfg, opts, config_from_args(args), args.router_timeout)
 
 
-def add_process_commands(sub) -> None:
-    """The `router`, `world`, `agent` and `controller` subcommands (in that order: `--help` lists them so)."""
-    add_router_args(sub.add_parser("router", help=ROUTER_HELP, description=ROUTER_HELP))
+def add_process_commands(sub, only: str | None = None) -> None:
+    """The `router`, `world`, `agent` and `controller` subcommands (in that order: `--help` lists them so); with
+    ``only``, that part's alone (a part's process imports no other part's modules: each costs CPU at every start)."""
+    if only is None:
+        from truav.cli.swarm_router import HELP as ROUTER_HELP, add_router_args
+        add_router_args(sub.add_parser("router", help=ROUTER_HELP, description=ROUTER_HELP))
+    if only in (None, "world"):
+        _add_world(sub)
+    if only in (None, "agent"):
+        _add_agent(sub)
+    if only in (None, "controller"):
+        _add_controller(sub)
 
+
+def _add_world(sub) -> None:
+    from world.process.world_options import WorldOptions
     wo = sub.add_parser("world", help="run the world process")
     add_scenario_args(wo)
     add_options(wo, WorldOptions, ["episodes"])
@@ -133,6 +147,9 @@ def add_process_commands(sub) -> None:
     add_swarm_process_args(wo, "the world")
     wo.set_defaults(func=cmd_world)
 
+
+def _add_agent(sub) -> None:
+    from agents.process.agent_options import AgentOptions
     ag = sub.add_parser("agent", help="run one UAV agent process")
     add_scenario_args(ag)
     ag.add_argument("--id", type=non_negative_int, required=True, action="append",
@@ -155,6 +172,9 @@ def add_process_commands(sub) -> None:
     add_swarm_process_args(ag, "the agent")
     ag.set_defaults(func=cmd_agent)
 
+
+def _add_controller(sub) -> None:
+    from agents.process.controller_options import ControllerOptions
     co = sub.add_parser("controller", help="run the central scheme's controller process")
     add_scenario_args(co)
     add_lockstep_args(co)

@@ -10,7 +10,7 @@ import argparse
 import math
 import re
 
-from agents.process.agent_process import AgentOptions
+from agents.process.agent_options import AgentOptions
 from truav.analysis import policy_scenario
 from truav.bus.transport import DEFAULT_ENDPOINT
 from truav.checks import check_endpoint, check_federated, check_out_dir, check_out_file
@@ -39,7 +39,7 @@ from truav.swarm.supervisor import SwarmOptions
 from truav.swarm.swarm_options import DEMO_AGENT, DEMO_SCHEME, SENSING_AGENTS, with_agent_sensing
 from agents.spread_agent import SENSE_RANGE_M
 from truav.swarm.references import HEURISTIC
-from world.process.world_process import WorldOptions
+from world.process.world_options import WorldOptions
 
 RAY_PORT = 7447
 """--ray-port's default: each node's router on the port a lone router uses."""

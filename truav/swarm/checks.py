@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.process.agent_process import AgentOptions
+from agents.process.agent_options import AgentOptions
 from agents.state import StateEncoder
 from truav.analysis import policy_scenario, runio
 from truav.analysis.policy_scenario import Fit

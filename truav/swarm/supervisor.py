@@ -44,8 +44,8 @@ import sys
 import time
 from pathlib import Path
 
-from agents.process.agent_process import AgentOptions
-from agents.process.central_process import ControllerOptions
+from agents.process.agent_options import AgentOptions
+from agents.process.controller_options import ControllerOptions
 from recorder.process.recorder import recorder_argv
 from truav import kernel_cache
 from truav.analysis.warmup import ensure_compiled
@@ -71,7 +71,7 @@ from truav.swarm.swarm_options import (  # noqa: F401 - re-exported: `down`, ben
     AGENT_STOP_TIMEOUT_S, DOWN_IDENTITY, RECORDER_STOP_TIMEOUT_S, ROUTER_START_TIMEOUT_S, Outcome, SwarmOptions,
     agent_groups, default_out_dir, group_name, process_of)
 from truav.swarm.swarm_watch import SwarmWatch
-from world.process.world_process import WorldOptions
+from world.process.world_options import WorldOptions
 
 __all__ = ["SwarmOptions", "run_swarm", "free_loopback_endpoint", "wait_for_port", "stop_recorded_pids",
            "DOWN_IDENTITY", "PID_FILE", "SCENARIO_FILE"]

@@ -7,8 +7,8 @@ import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from agents.process.agent_process import AgentOptions
-from agents.process.central_process import ControllerOptions
+from agents.process.agent_options import AgentOptions
+from agents.process.controller_options import ControllerOptions
 from recorder.record_modes import RecordModes
 from truav.analysis.agent_loader import AGENT_KIND_PREFIX
 from truav.config import Config
@@ -20,7 +20,7 @@ from truav.swarm.external import DEFAULT_EXTERNAL_WAIT_S
 from truav.swarm.healing import DEFAULT_RESTART_LIMIT, DEFAULT_RESTART_POLICY
 from truav.wire import keys
 from truav.wire.schema import DEFAULT_LOCKSTEP_WAIT_S
-from world.process.world_process import WorldOptions
+from world.process.world_options import WorldOptions
 
 DOWN_IDENTITY = "supervisor"
 """The sender of `truav-swarm down`'s shutdown request."""
