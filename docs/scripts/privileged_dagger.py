@@ -4,6 +4,7 @@ teacher").
     python docs/scripts/privileged_dagger.py --speed 5 --first-seed 20 --seeds 4 --episodes 5     # a screen
     python docs/scripts/privileged_dagger.py --speed 5 --weights W.npz --out docs/figures/NAME    # confirmation
     python docs/scripts/privileged_dagger.py --speed 10 --load --weights W.npz --out ...          # fly W at 10 m/s
+    python docs/scripts/privileged_dagger.py --speed 5 --teacher-only                             # the teacher
 
 The pipeline of docs/scripts/toward60_claim.py (Stable-Baselines3's network, 16 training environments, seeds 0-15,
 cloning episodes, DAgger rounds, the claim features in the observation) with the DAgger labels of a teacher that
@@ -12,7 +13,9 @@ the UAVs matched to them, each flying toward its own); the student observes its 
 ``--teacher claim`` labels with the climbing heuristic instead (toward60_claim.py's learner, at --speed). Then flies
 the exported network greedy through the agent API (agents.ppo_agent.PpoBatched), `spread` and `claim` on the same
 held-out seeds (world seed + EVAL_SEED_OFFSET) with sensing 1500 m; prints each with its 95% interval and the
-paired differences, writes the weights (--weights) and OUT.csv (one row per design and seed).
+paired differences, writes the weights (--weights) and OUT.csv (one row per design and seed). ``--teacher-only``
+flies the teacher itself and `claim` in the vector environment (truav.analysis.ppo_vec_env) on the same held-out
+seeds instead: the teacher needs the world, which the agent API does not give.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from agents.ppo_agent import PpoAgent, PpoBatched, load_policy
 from agents.spread_agent import SENSE_RANGE_M, SpreadAgent
 from truav.analysis.driver import run_episodes
 from truav.analysis.ppo_train import export, train
+from truav.analysis.ppo_vec_env import TruavVecEnv, to_slot_actions
 from truav.analysis.privileged_teacher import LocalOracleTeacher, OracleTeacher
 from truav.config import Config
 from truav.presets import preset_overrides
@@ -43,6 +47,37 @@ def learner(weights: Path) -> type:
     """PpoAgent flying ``weights``, with its batched form."""
     batched = type("LearnerBatched", (PpoBatched,), {"weights": weights})
     return type("Learner", (PpoAgent,), {"weights": weights, "batched": batched})
+
+
+def fly_teacher(cfg: Config, seeds: list[int], episodes: int, teacher_cls: type) -> dict[str, np.ndarray]:
+    """Each seed's mean coverage (%) over ``episodes`` episodes of the teacher and of `claim` (the features' rule,
+    the fallback), each flying its own vector environment of ``seeds``."""
+    out = {}
+    for key in ("teacher", "claim"):
+        env = TruavVecEnv(cfg, seeds, claim=True)
+        teacher = teacher_cls(cfg, [[None] * env.U for _ in seeds])
+        env.reset()
+        cov = []
+        for _ in range(episodes):
+            while True:
+                if key == "teacher":
+                    teacher.see(env.world.vehicle_xy(), env.shadow_actions)
+                a = teacher.act(env.views) if key == "teacher" else env.shadow_actions
+                _, _, done, infos = env.step(to_slot_actions(a).reshape(-1))
+                if done[0]:
+                    cov.append([infos[b * env.U]["episode_coverage"] for b in range(env.B)])
+                    break
+        out[key] = np.mean(cov, axis=0)
+    return out
+
+
+def write_csv(out: Path, seeds: list[int], cov: dict[str, np.ndarray]) -> None:
+    """OUT.csv: one row per design and seed."""
+    with open(out.with_suffix(".csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["design", "seed", "coverage_pct"])
+        for key, v in cov.items():
+            w.writerows([key, seed, f"{x:.4f}"] for seed, x in zip(seeds, v))
 
 
 def main() -> None:
@@ -63,6 +98,7 @@ def main() -> None:
     ap.add_argument("--train-seed", type=int, default=0, help="the training's seed (default %(default)s)")
     ap.add_argument("--weights", default="/tmp/privileged.npz", help="where the weights go (default %(default)s)")
     ap.add_argument("--load", action="store_true", help="fly --weights, no training")
+    ap.add_argument("--teacher-only", action="store_true", help="fly the teacher and claim, no training")
     ap.add_argument("--out", help="OUT.csv: per-seed coverage")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -72,6 +108,17 @@ def main() -> None:
     teacher = TEACHERS[args.teacher]
     if args.reach is not None:
         teacher = type("Teacher", (teacher,), {"reach_m": args.reach})
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    held_out = [s + EVAL_SEED_OFFSET for s in seeds]
+    if args.teacher_only:
+        cov = fly_teacher(cfg, held_out, args.episodes, teacher)
+        for key, v in cov.items():
+            print(f"  {key}: {mean_ci(v)[0]:.1f} ± {mean_ci(v)[1]:.1f}%")
+        gain = paired_effect(cov["claim"], cov["teacher"])
+        print(f"  teacher minus claim: {effect_text(gain, digits=1, noun='seeds')}")
+        if args.out:
+            write_csv(Path(args.out), seeds, cov)
+        return
     if not args.load:
         model, times = train(cfg, list(range(16)), bc_episodes=args.bc_episodes, bc_epochs=args.epochs,
                              dagger_rounds=args.dagger, ppo_steps=args.ppo_steps, coverage_bonus=5.0,
@@ -80,8 +127,6 @@ def main() -> None:
         print(f"cloning accuracy {times['accuracy']:.3f} ({times['total_s']:.0f} s)", flush=True)
         np.savez(weights, **export(model, cfg, 4, False, claim))
         load_policy.cache_clear()
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    held_out = [s + EVAL_SEED_OFFSET for s in seeds]
     cov = {}
     for key, cls in (("learner", learner(weights)), ("claim", ClaimAgent), ("spread", SpreadAgent)):
         got = run_episodes(cfg, held_out, ApiController(key, cls, cfg, held_out, train=False), args.episodes)
@@ -91,11 +136,7 @@ def main() -> None:
     for a, b in (("spread", "learner"), ("claim", "learner")):
         print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
     if args.out:
-        with open(Path(args.out).with_suffix(".csv"), "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["design", "seed", "coverage_pct"])
-            for key, v in cov.items():
-                w.writerows([key, seed, f"{x:.4f}"] for seed, x in zip(seeds, v))
+        write_csv(Path(args.out), seeds, cov)
 
 
 if __name__ == "__main__":
