@@ -149,4 +149,5 @@ class LocalOracleTeacher(OracleTeacher):
     reach_m = 2000.0
 
 
-__all__ = ["LocalOracleTeacher", "OracleTeacher", "SENSED_DISC_FEATURES", "sensed_disc", "greedy_discs", "match", "oracle_actions", "toward"]
+__all__ = ["LocalOracleTeacher", "OracleTeacher", "SENSED_DISC_FEATURES", "greedy_discs", "match", "oracle_actions",
+           "sensed_disc", "toward"]
