@@ -5,6 +5,7 @@ teacher").
     python docs/scripts/privileged_dagger.py --speed 5 --weights W.npz --out docs/figures/NAME    # confirmation
     python docs/scripts/privileged_dagger.py --speed 10 --load --weights W.npz --out ...          # fly W at 10 m/s
     python docs/scripts/privileged_dagger.py --speed 5 --teacher-only                             # the teacher
+    python docs/scripts/privileged_dagger.py --speed 5 --sectors 16 --weights W.npz --out ...      # finer sensing
 
 The pipeline of docs/scripts/toward60_claim.py (Stable-Baselines3's network, 16 training environments, seeds 0-15,
 cloning episodes, DAgger rounds, the claim features in the observation) with the DAgger labels of a teacher that
@@ -13,7 +14,9 @@ the UAVs matched to them, each flying toward its own); the student observes its 
 ``--teacher claim`` labels with the climbing heuristic instead (toward60_claim.py's learner, at --speed). Then flies
 the exported network greedy through the agent API (agents.ppo_agent.PpoBatched), `spread` and `claim` on the same
 held-out seeds (world seed + EVAL_SEED_OFFSET) with sensing 1500 m; prints each with its 95% interval and the
-paired differences, writes the weights (--weights) and OUT.csv (one row per design and seed). ``--teacher-only``
+paired differences (``--compare``: also with another CSV's `spread` and `claim`, as at another sensing), writes
+the weights (--weights) and OUT.csv (one row per design and seed). ``--sectors``: the view's sensing sectors
+(learner.sense_sectors) for all three. ``--teacher-only``
 flies the teacher itself and `claim` in the vector environment (truav.analysis.ppo_vec_env) on the same held-out
 seeds instead: the teacher needs the world, which the agent API does not give.
 """
@@ -71,6 +74,12 @@ def fly_teacher(cfg: Config, seeds: list[int], episodes: int, teacher_cls: type)
     return out
 
 
+def make_config(speed: float, sectors: int = 4) -> Config:
+    """The paper preset at ``speed`` m/s, sensing SENSE_RANGE_M over ``sectors`` direction sectors."""
+    return Config().replace(**preset_overrides("paper")).replace(
+        scenario={"uav_speed_mps": speed}, learner={"sense_range_m": SENSE_RANGE_M, "sense_sectors": sectors})
+
+
 def write_csv(out: Path, seeds: list[int], cov: dict[str, np.ndarray]) -> None:
     """OUT.csv: one row per design and seed."""
     with open(out.with_suffix(".csv"), "w", newline="") as f:
@@ -86,6 +95,9 @@ def main() -> None:
     ap.add_argument("--teacher", choices=sorted(TEACHERS), default="oracle")
     ap.add_argument("--reach", type=float, help="local-oracle: discs farther than REACH m left to claim "
                     "(default: LocalOracleTeacher's)")
+    ap.add_argument("--sectors", type=int, default=4, choices=range(1, 17), metavar="1..16",
+                    help="learner.sense_sectors, the view's direction sectors of sensing, for the student, spread "
+                    "and claim alike (default %(default)s)")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=0, help="held-out seeds FIRST_SEED.. (default %(default)s)")
     ap.add_argument("--episodes", type=int, default=20)
@@ -100,10 +112,12 @@ def main() -> None:
     ap.add_argument("--load", action="store_true", help="fly --weights, no training")
     ap.add_argument("--teacher-only", action="store_true", help="fly the teacher and claim, no training")
     ap.add_argument("--out", help="OUT.csv: per-seed coverage")
+    ap.add_argument("--compare", help="also pair the learner with this CSV's spread and claim rows of --variant "
+                    "(docs/figures/privileged-teacher.csv: the same held-out seeds, another sensing)")
+    ap.add_argument("--variant", help="the --compare CSV's variant")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    cfg = Config().replace(**preset_overrides("paper")).replace(scenario={"uav_speed_mps": args.speed},
-                                                                learner={"sense_range_m": SENSE_RANGE_M})
+    cfg = make_config(args.speed, args.sectors)
     weights, claim = Path(args.weights), not args.no_claim
     teacher = TEACHERS[args.teacher]
     if args.reach is not None:
@@ -135,6 +149,13 @@ def main() -> None:
         print(f"  {key}: {m:.1f} ± {h:.1f}%", flush=True)
     for a, b in (("spread", "learner"), ("claim", "learner")):
         print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
+    if args.compare:
+        rows = [r for r in csv.DictReader(open(args.compare)) if r["variant"] == args.variant]
+        for a in ("spread", "claim"):
+            got = {int(r["seed"]): float(r["coverage_pct"]) for r in rows if r["design"] == a}
+            bar = np.array([got.get(s, np.nan) for s in seeds])
+            print(f"  learner minus {a} of {args.variant} ({mean_ci(bar)[0]:.1f} ± {mean_ci(bar)[1]:.1f}%): "
+                  f"{effect_text(paired_effect(bar, cov['learner']), digits=1, noun='seeds')}")
     if args.out:
         write_csv(Path(args.out), seeds, cov)
 
