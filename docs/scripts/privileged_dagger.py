@@ -30,11 +30,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from agents.api_controller import ApiController
-from agents.claim_agent import ClaimAgent, ClaimBatched
-from agents.ppo_agent import PpoAgent, PpoBatched, load_policy
-from agents.spread_agent import SENSE_RANGE_M, SpreadAgent
-from truav.analysis.driver import run_episodes
+from agents.claim_agent import ClaimBatched
+from agents.ppo_agent import load_policy
+from agents.spread_agent import SENSE_RANGE_M
 from truav.analysis.ppo_train import export, train
 from truav.analysis.ppo_vec_env import TruavVecEnv, to_slot_actions
 from truav.analysis.privileged_teacher import LocalOracleTeacher, OracleTeacher
@@ -43,13 +41,9 @@ from truav.presets import preset_overrides
 from truav.seeding import EVAL_SEED_OFFSET
 from truav.stats import effect_text, mean_ci, paired_effect
 
+from toward60_claim import add_cloning_args, fly_against_heuristics  # a sibling script (docs/scripts is on the path when run)
+
 TEACHERS = {"oracle": OracleTeacher, "local-oracle": LocalOracleTeacher, "claim": ClaimBatched}
-
-
-def learner(weights: Path) -> type:
-    """PpoAgent flying ``weights``, with its batched form."""
-    batched = type("LearnerBatched", (PpoBatched,), {"weights": weights})
-    return type("Learner", (PpoAgent,), {"weights": weights, "batched": batched})
 
 
 def fly_teacher(cfg: Config, seeds: list[int], episodes: int, teacher_cls: type) -> dict[str, np.ndarray]:
@@ -98,15 +92,8 @@ def main() -> None:
     ap.add_argument("--sectors", type=int, default=4, choices=range(1, 17), metavar="1..16",
                     help="learner.sense_sectors, the view's direction sectors of sensing, for the student, spread "
                     "and claim alike (default %(default)s)")
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--first-seed", type=int, default=0, help="held-out seeds FIRST_SEED.. (default %(default)s)")
-    ap.add_argument("--episodes", type=int, default=20)
-    ap.add_argument("--bc-episodes", type=int, default=10)
-    ap.add_argument("--dagger", type=int, default=3)
-    ap.add_argument("--epochs", type=int, default=10, help="cloning epochs (default %(default)s)")
-    ap.add_argument("--net", default="64,64", help="hidden widths (default %(default)s)")
+    add_cloning_args(ap)
     ap.add_argument("--no-claim", action="store_true", help="observe without the claim features")
-    ap.add_argument("--ppo-steps", type=int, default=0, help="PPO fine-tuning slot-steps after the cloning")
     ap.add_argument("--train-seed", type=int, default=0, help="the training's seed (default %(default)s)")
     ap.add_argument("--weights", default="/tmp/privileged.npz", help="where the weights go (default %(default)s)")
     ap.add_argument("--load", action="store_true", help="fly --weights, no training")
@@ -141,14 +128,7 @@ def main() -> None:
         print(f"cloning accuracy {times['accuracy']:.3f} ({times['total_s']:.0f} s)", flush=True)
         np.savez(weights, **export(model, cfg, 4, False, claim))
         load_policy.cache_clear()
-    cov = {}
-    for key, cls in (("learner", learner(weights)), ("claim", ClaimAgent), ("spread", SpreadAgent)):
-        got = run_episodes(cfg, held_out, ApiController(key, cls, cfg, held_out, train=False), args.episodes)
-        cov[key] = np.nanmean(got["coverage_pct"], axis=0)
-        m, h = mean_ci(cov[key])
-        print(f"  {key}: {m:.1f} ± {h:.1f}%", flush=True)
-    for a, b in (("spread", "learner"), ("claim", "learner")):
-        print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
+    cov = fly_against_heuristics(cfg, held_out, weights, args.episodes)
     if args.compare:
         rows = [r for r in csv.DictReader(open(args.compare)) if r["variant"] == args.variant]
         for a in ("spread", "claim"):

@@ -43,8 +43,22 @@ def learner(weights: Path) -> type:
     return type("Learner", (PpoAgent,), {"weights": weights, "batched": batched})
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def fly_against_heuristics(cfg: Config, held_out: list[int], weights: Path, episodes: int) -> dict[str, np.ndarray]:
+    """The learner of ``weights``, `claim` and `spread` flown greedy through the agent API on ``held_out`` world
+    seeds: each one's coverage per seed (%), printed with the learner's paired differences."""
+    cov = {}
+    for key, cls in (("learner", learner(weights)), ("claim", ClaimAgent), ("spread", SpreadAgent)):
+        got = run_episodes(cfg, held_out, ApiController(key, cls, cfg, held_out, train=False), episodes)
+        cov[key] = np.nanmean(got["coverage_pct"], axis=0)
+        m, h = mean_ci(cov[key])
+        print(f"  {key}: {m:.1f} ± {h:.1f}%", flush=True)
+    for a, b in (("spread", "learner"), ("claim", "learner")):
+        print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
+    return cov
+
+
+def add_cloning_args(ap: argparse.ArgumentParser) -> None:
+    """The evaluation's seeds and the cloning's budget, shared by the scripts that clone a teacher."""
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=0, help="held-out seeds FIRST_SEED.. (default %(default)s)")
     ap.add_argument("--episodes", type=int, default=20)
@@ -53,6 +67,11 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=10, help="cloning epochs (default %(default)s)")
     ap.add_argument("--net", default="64,64", help="hidden widths (default %(default)s)")
     ap.add_argument("--ppo-steps", type=int, default=0, help="PPO fine-tuning slot-steps after the cloning")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_cloning_args(ap)
     ap.add_argument("--weights", default="/tmp/ppo_claim.npz", help="where the weights go (default %(default)s)")
     ap.add_argument("--load", action="store_true", help="fly --weights, no training")
     ap.add_argument("--out", help="OUT.csv: per-seed coverage")
@@ -71,14 +90,7 @@ def main() -> None:
         load_policy.cache_clear()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     held_out = [s + EVAL_SEED_OFFSET for s in seeds]
-    cov = {}
-    for key, cls in (("learner", learner(weights)), ("claim", ClaimAgent), ("spread", SpreadAgent)):
-        got = run_episodes(cfg, held_out, ApiController(key, cls, cfg, held_out, train=False), args.episodes)
-        cov[key] = np.nanmean(got["coverage_pct"], axis=0)
-        m, h = mean_ci(cov[key])
-        print(f"  {key}: {m:.1f} ± {h:.1f}%", flush=True)
-    for a, b in (("spread", "learner"), ("claim", "learner")):
-        print(f"  {b} minus {a}: {effect_text(paired_effect(cov[a], cov[b]), digits=1, noun='seeds')}")
+    cov = fly_against_heuristics(cfg, held_out, weights, args.episodes)
     if args.out:
         with open(Path(args.out).with_suffix(".csv"), "w", newline="") as f:
             w = csv.writer(f)
