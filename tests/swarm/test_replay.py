@@ -205,11 +205,14 @@ def test_pause_step_resume_and_quit(tmp_path: Path) -> None:
         time.sleep(0.1)
         assert sink.count() == 4  # stepping leaves it paused
         resumed = time.monotonic_ns()
-        replayer.command(CMD_RESUME)
-        assert wait_until(lambda: sink.count() >= 8)
-        # after a resume the recorded gap to the next message is kept
+        with BusyCores() as busy:
+            replayer.command(CMD_RESUME)
+            assert wait_until(lambda: sink.count() >= 8)
+        # after a resume the recorded gap to the next message is kept: never early; within 5 ms unless other work
+        # shared the CPU (then the scheduler's, as in report_timing)
         first_after = sink.items[4][2] - resumed
-        assert abs(first_after - (written[4][2] - written[3][2])) < 5 * MS
+        assert first_after >= (written[4][2] - written[3][2]) - 1 * MS
+        assert abs(first_after - (written[4][2] - written[3][2])) < 5 * MS or busy.loaded, (first_after, busy.cores)
         replayer.command("pause")
         time.sleep(0.05)
         paused_at = sink.count()
