@@ -13,7 +13,8 @@ invariant below is checked from what the run left (summary.json, the logs,
   (:func:`node_outages`), are reported, not violations;
 * every agent restarted (by the plan or the supervisor) resumed from its last
   checkpoint (its log: the step it resumed at is the step of the last
-  checkpoint it wrote before it died);
+  checkpoint it wrote before it died: the last logged, or the next one due by the
+  run's cadence, summary.json's ``checkpoints``, whose log line the kill cut off);
 * no more actions were missed in the last :func:`quiet_window_s` seconds, all
   after the plan's last fault ended, than a busy host misses without faults
   (:data:`HOST_LOAD_MISSED_SHARE` of the UAV-ticks; none when the number of UAVs is unknown);
@@ -38,6 +39,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from agents.process.agent_process import checkpoint_due
 from recorder.reader import iter_messages
 from recorder.schemas import decode_envelope
 from truav.faults import FaultPlan
@@ -110,7 +112,7 @@ def check_run(out: Path, rc: int, plan: FaultPlan, rate_hz: float, record: str |
                       f"exit code {rc}, result {outcome.get('result')}"
                       + (f": {'; '.join(outcome.get('failures') or [])}" if outcome.get("failures") else ""))]
     rows.append(_log_check(record, (summary.get("router_outages_wall_ns") or []) + node_outages(summary)))
-    rows.append(_resumed(out, procs))
+    rows.append(_resumed(out, procs, summary))
     rows.append(_quiet_tail(summary, plan, rate_hz))
     rows.append(_left_behind(procs))
     rows.append(_memory(procs))
@@ -214,12 +216,32 @@ _CHECKPOINT = re.compile(r"uav (\d+): checkpoint at step (\d+)")
 _JOINED = re.compile(r"uav (\d+) joined run")
 
 
-def _resumed(out: Path, procs: list[dict]) -> Invariant:
+def _next_checkpoint(step: int | None, uav: int, cadence: tuple[int, int] | None, prev: int | None) -> int | None:
+    """The checkpoint UAV ``uav`` writes next after the one of ``step`` (None: none yet, step 0): with the run's
+    ``cadence`` (steps between checkpoints, UAVs: :func:`checkpoint_due`'s), exactly; without it (an older run's
+    summary), one cadence on, the distance of the last two logged (``prev``, ``step``); None if unknown."""
+    if cadence is not None:
+        every, n_uavs = cadence
+        base = step or 0
+        return next(s for s in range(base + 1, base + every + 1) if checkpoint_due(s, uav, n_uavs, every))
+    return step + (step - prev) if step is not None and prev is not None else None
+
+
+def _cadence(summary: dict) -> tuple[int, int] | None:
+    ck = summary.get("checkpoints") or {}
+    every, uavs = ck.get("every_steps"), ck.get("uavs")
+    return (every, uavs) if isinstance(every, int) and isinstance(uavs, int) and every > 0 and uavs > 0 else None
+
+
+def _resumed(out: Path, procs: list[dict], summary: dict | None = None) -> Invariant:
     """From each restarted agent's log (its processes append to one file): every "resumed from checkpoint
-    at step N" names the last checkpoint written before it (the last logged one, or the one after it whose
-    log line the kill cut off), and every later join that had a checkpoint to resume from did.  (A process
+    at step N" names the checkpoint in force when it died (the last logged one or the last resumed from, or the
+    next one due, whose log line the kill cut off: the line follows the file's atomic replace), and every later
+    join that had a checkpoint to resume from did.  Each UAV of the log is judged from its own lines; which
+    checkpoint is due next comes from summary.json's ``checkpoints`` (read from ``out`` unless given).  (A process
     killed while still starting may leave only its resume line.)"""
     name = "every restarted agent resumed from its checkpoint"
+    cadence = _cadence(summary if summary is not None else _json(out / "summary.json") or {})
     restarted = sorted({p["name"] for p in procs if p["name"].startswith("agent")
                         and sum(q["name"] == p["name"] for q in procs) > 1})
     bad, steps = [], []
@@ -229,26 +251,29 @@ def _resumed(out: Path, procs: list[dict]) -> Invariant:
         except OSError:
             bad.append(f"{agent}: no log")
             continue
-        last_ck, prev_ck, resumed, joins = None, None, False, 0
+        last_ck, prev_ck, resumed, joins = {}, {}, {}, {}  # per UAV: the checkpoint in force, the one before it
         for line in text.splitlines():
             if m := _CHECKPOINT.search(line):
-                prev_ck, last_ck = last_ck, int(m.group(2))
+                uav = int(m.group(1))
+                prev_ck[uav], last_ck[uav] = last_ck.get(uav), int(m.group(2))
             elif m := _RESUMED.search(line):
-                step = int(m.group(2))
-                # The log line follows the file's atomic replace: a kill between the two leaves the next
-                # checkpoint (one cadence on) written but not logged, and that is the one to resume from.
-                unlogged = last_ck + (last_ck - prev_ck) if last_ck is not None and prev_ck is not None else None
-                if step not in (last_ck, unlogged):
+                uav, step = int(m.group(1)), int(m.group(2))
+                last = last_ck.get(uav)
+                if step not in (last, _next_checkpoint(last, uav, cadence, prev_ck.get(uav))):
                     bad.append(f"{agent}: resumed at step {step}, its last checkpoint was "
-                               f"{'none' if last_ck is None else f'at step {last_ck}'}")
+                               f"{'none' if last is None else f'at step {last}'}")
+                if step != last:  # the checkpoint it loaded is the one in force from now on
+                    prev_ck[uav], last_ck[uav] = last, step
                 steps.append(step)
-                resumed = True
-            elif _JOINED.search(line):
-                if joins and not resumed and last_ck is not None:
-                    bad.append(f"{agent} restart {joins}: started fresh, its checkpoint at step {last_ck} unused")
-                elif joins and not resumed:
+                resumed[uav] = True
+            elif m := _JOINED.search(line):
+                uav = int(m.group(1))
+                n = joins.get(uav, 0)
+                if n and not resumed.get(uav) and last_ck.get(uav) is not None:
+                    bad.append(f"{agent} restart {n}: started fresh, its checkpoint at step {last_ck[uav]} unused")
+                elif n and not resumed.get(uav):
                     steps.append(None)
-                joins, resumed = joins + 1, False
+                joins[uav], resumed[uav] = n + 1, False
     if bad:
         return Invariant(name, False, "; ".join(bad[:3]))
     if not restarted:

@@ -253,7 +253,9 @@ class SwarmEnd:
             "controller_incarnations": self.children.starts.get("controller", 0) if self.central else None,
             "processes": self.children.incarnation_stats(self.t0), "t0_wall_ns": self.t0_wall_ns,
             "router_outages_wall_ns": self.router_outages, "policy_scenario": opts.policy_fit,
-            "restart_costs": costs, "node_losses": losses, "references": refs}, indent=1).encode()
+            "restart_costs": costs, "node_losses": losses, "references": refs,
+            # the agents' checkpoint steps (agents.process.agent_process.checkpoint_due): the chaos checker's
+            "checkpoints": {"every_steps": opts.checkpoint_every, "uavs": cfg.scenario.n_uavs}}, indent=1).encode()
         write_kept(out / SUMMARY_FILE, lambda f: f.write(summary), o.fail)  # said with the result below
         if o.ticked:
             _print_results(cfg, opts, world, agents, cp, events, elapsed, o, sent)
