@@ -114,6 +114,14 @@ class LocalView:
     sense_sectors: int = _LEARNER.sense_sectors
     """The number of direction sectors of densest_sector (learner.sense_sectors, 1..16; 4: sector 1 is
     east to north, 2 north to west, 3 west to south, 4 south to east)."""
+    disc_offset: tuple[float, float] = (0.0, 0.0)
+    """Where the densest disc it senses is, with sensing on and learner.sense_disc (off by default): among the
+    vehicles within sense_range_m (comm range included), the one with the most vehicles within
+    scenario.comm_range_m of it (the first on ties): its position minus own position (dx, dy) in m, so within
+    sense_range_m; (0, 0) when none is sensed or it is off (then disc_vehicles is 0)."""
+    disc_vehicles: int = 0
+    """The vehicles within scenario.comm_range_m of that centre (itself counted), 0..scenario.n_vehicles; 0 when
+    none is sensed or learner.sense_disc is off."""
 
 
 class UavAgent:
@@ -230,6 +238,10 @@ class BatchedViews:
     """As LocalView.sense_range_m (0: sensing off)."""
     sense_sectors: int = _LEARNER.sense_sectors
     """As LocalView.sense_sectors."""
+    disc_offset: np.ndarray | None = None
+    """(B, U, 2) as LocalView.disc_offset; None: all (0, 0)."""
+    disc_vehicles: np.ndarray | None = None
+    """As LocalView.disc_vehicles; None: all 0."""
 
 
 def sensing(cfg: Config) -> tuple[float, int]:

@@ -253,23 +253,29 @@ class ApiController:
                                 np.asarray(obs.queued).copy(), np.asarray(obs.relayed).copy(),
                                 np.asarray(obs.covered).copy(), np.asarray(obs.energy_j, np.float64).copy(),
                                 float(sc.uav_speed_mps), np.asarray(densest).copy(), np.asarray(exclusive).copy(),
-                                rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard, *sense)
+                                rsu_m, peers, np.repeat(vel[:, None], self.shape[1], axis=1), heard, *sense,
+                                None if obs.disc_offset is None else np.asarray(obs.disc_offset, np.float64).copy(),
+                                None if obs.disc_vehicles is None else np.asarray(obs.disc_vehicles).copy())
         # Each column converted once to Python numbers (lists of rows), each view built without the frozen
         # dataclass's per-field __setattr__ (_frozen_maker): what a view costs per UAV and step stays small.
         P, V = pos.tolist(), vel.tolist()
         n_in, queued, relayed, covered, densest, exclusive = (
             _python(x, int) for x in (obs.vehicles_in_range, obs.queued, obs.relayed, obs.covered, densest, exclusive))
         energy, rsu_m = _python(obs.energy_j, float), _python(rsu_m, float)
+        no_disc = obs.disc_offset is None
+        disc = [[(0.0, 0.0)] * self.shape[1]] * self.shape[0] if no_disc else [
+            list(map(tuple, row)) for row in np.asarray(obs.disc_offset, np.float64).tolist()]
+        disc_n = _python(np.zeros(self.shape, np.int64) if no_disc else obs.disc_vehicles, int)
         speed, episode, t, U = float(sc.uav_speed_mps), self.episode, self.t, self.shape[1]
         others = _others(U)
         views = []
         for b, fields in enumerate(self.fields):
             own = list(map(tuple, P[b]))
             heard = list(map(_make_beacon, range(U), own, map(tuple, V[b]), fields))
-            views.append([_make_view(u, episode, t, p, n, q, r, c, e, speed, d, x, m, peers_of(heard), *sense)
-                          for u, peers_of, p, n, q, r, c, e, d, x, m in zip(range(U), others, own, n_in[b], queued[b],
-                                                                             relayed[b], covered[b], energy[b],
-                                                                             densest[b], exclusive[b], rsu_m[b])])
+            views.append([_make_view(u, episode, t, p, n, q, r, c, e, speed, d, x, m, peers_of(heard), *sense, o, k)
+                          for u, peers_of, p, n, q, r, c, e, d, x, m, o, k in zip(
+                              range(U), others, own, n_in[b], queued[b], relayed[b], covered[b], energy[b],
+                              densest[b], exclusive[b], rsu_m[b], disc[b], disc_n[b])])
         return views
 
     def state_arrays(self) -> dict[str, np.ndarray]:

@@ -78,7 +78,7 @@ class ApiDecision:
         self.view = LocalView(self.uav, obs.episode, self.t, tuple(obs.pos), obs.vehicles_in_range,
                               obs.queued_packets, obs.relayed, obs.covered, float(obs.energy_j), float(obs.speed_max),
                               obs.densest_sector, obs.exclusive, float(nearest_rsu_m(pos, self.rsu)[0, 0]), heard,
-                              *sensing(self.cfg))
+                              *sensing(self.cfg), tuple(obs.disc_offset), obs.disc_vehicles)
         r = None
         if new:
             call_limited(self.limit_s, self.agent.begin_episode, obs.episode, self.train)

@@ -13,7 +13,8 @@ features (``claim`` in the file) have each instance run the climbing heuristic (
 beside it on its own views, for its state (the features) and its beacon's claimed goal; the network picks the
 action. PpoClaimAgent (registered as ``ppo-claim``; by class path ``agents.ppo_agent:PpoClaimAgent``) flies
 CLAIM_WEIGHTS, cloned from that heuristic (docs/results/learned-policy.md, "Toward 60%"), with a batched form
-(PpoBatched: the same arithmetic on the batched views).
+(PpoBatched: the same arithmetic on the batched views). PpoDiscAgent (``ppo-disc``) picks its weights by the run's
+speed: DISC_WEIGHTS (observing the densest sensed disc, learner.sense_disc) below DISC_BELOW_MPS, else CLAIM_WEIGHTS.
 """
 
 from __future__ import annotations
@@ -33,6 +34,12 @@ WEIGHTS = Path(__file__).with_name("weights") / "ppo_paper_15mps.npz"
 """The shipped weights (the command that made them: docs/results/learned-policy.md)."""
 CLAIM_WEIGHTS = WEIGHTS.with_name("ppo_claim_paper_15mps.npz")
 """The network cloned from the climbing heuristic with the claim features (docs/scripts/toward60_claim.py)."""
+DISC_WEIGHTS = WEIGHTS.with_name("ppo_disc_paper_5mps.npz")
+"""The network taught by the privileged teacher at 5 m/s, observing the densest sensed disc
+(docs/scripts/privileged_sensing.py; docs/results/learned-policy.md, "A learner that senses the densest disc")."""
+DISC_BELOW_MPS = 10.0
+"""PpoDiscAgent flies DISC_WEIGHTS below this speed and CLAIM_WEIGHTS from it on: where each was measured
+above the heuristics (docs/results/velocity.md)."""
 
 
 @functools.lru_cache(maxsize=4)
@@ -49,12 +56,16 @@ class PpoAgent(UavAgent):
 
     def __init__(self, cfg: Config, uav: int, rng: np.random.Generator):
         super().__init__(cfg, uav, rng)
+        self.weights = self.weights_for(cfg)
         self.policy = load_policy(str(self.weights))
-        self.encoder = ViewEncoder(cfg, self.policy.peers if self.policy.peers is not None else 4, self.policy.memory,
-                                   self.policy.claim)
+        self.encoder = encoder_for(self.weights, self.policy, cfg)
         self.last = Memory()
         self.shadow = ClaimAgent(cfg, uav, rng) if self.policy.claim else None
-        check_size(self.weights, self.policy, self.encoder, cfg)
+
+    @classmethod
+    def weights_for(cls, cfg: Config) -> Path:
+        """The weights this class flies in a run of ``cfg``: ``weights`` (a subclass may choose by the run)."""
+        return cls.weights
 
     def begin_episode(self, episode: int, train: bool) -> None:
         self.last = Memory()
@@ -74,6 +85,17 @@ class PpoAgent(UavAgent):
         return self.shadow.beacon_fields() if self.shadow is not None else {}
 
 
+def encoder_for(weights: Path, policy: NumpyPolicy, cfg: Config) -> ViewEncoder:
+    """The observation ``policy`` was trained on, for a run of ``cfg``; ValueError when the run cannot give it."""
+    if policy.disc and not (cfg.learner.sense_disc and cfg.learner.sense_range_m > 0.0):
+        raise ValueError(f"{weights.name} observes the densest sensed disc: fly it with sensing on and "
+                         f"learner.sense_disc true (--set learner.sense_disc=true)")
+    encoder = ViewEncoder(cfg, policy.peers if policy.peers is not None else 4, policy.memory, policy.claim,
+                          policy.disc)
+    check_size(weights, policy, encoder, cfg)
+    return encoder
+
+
 def check_size(weights: Path, policy: NumpyPolicy, encoder: ViewEncoder, cfg: Config) -> None:
     if encoder.size != policy.n_features:
         raise ValueError(f"{weights.name} expects {policy.n_features} features, this run's view has "
@@ -88,13 +110,17 @@ class PpoBatched(BatchedAgents):
 
     def __init__(self, cfg: Config, rngs):
         super().__init__(cfg, rngs)
+        self.weights = self.weights_for(cfg)
         self.policy = load_policy(str(self.weights))
         B, U = len(rngs), len(rngs[0])
-        self.encoder = ViewEncoder(cfg, self.policy.peers if self.policy.peers is not None else 4, self.policy.memory,
-                                   self.policy.claim)
+        self.encoder = encoder_for(self.weights, self.policy, cfg)
         self.shadow = ClaimBatched(cfg, rngs) if self.policy.claim else None
         self.last = Memory(np.full((B, U), NO_ACTION, np.int64), np.zeros((B, U)))
-        check_size(self.weights, self.policy, self.encoder, cfg)
+
+    @classmethod
+    def weights_for(cls, cfg: Config) -> Path:
+        """As PpoAgent.weights_for."""
+        return cls.weights
 
     def act(self, views: BatchedViews) -> np.ndarray:
         B, U = self.last.action.shape
@@ -121,5 +147,29 @@ class PpoClaimAgent(PpoAgent):
     batched = PpoClaimBatched
 
 
-__all__ = ["CLAIM_WEIGHTS", "PpoAgent", "PpoBatched", "PpoClaimAgent", "PpoClaimBatched", "WEIGHTS", "check_size",
-           "load_policy"]
+def disc_weights_for(cfg: Config) -> Path:
+    """DISC_WEIGHTS below DISC_BELOW_MPS, CLAIM_WEIGHTS from it on."""
+    return DISC_WEIGHTS if cfg.scenario.uav_speed_mps < DISC_BELOW_MPS else CLAIM_WEIGHTS
+
+
+class PpoDiscBatched(PpoBatched):
+    @classmethod
+    def weights_for(cls, cfg: Config) -> Path:
+        return disc_weights_for(cfg)
+
+
+class PpoDiscAgent(PpoAgent):
+    """The best learned policy at every speed (registered as ``ppo-disc``): below DISC_BELOW_MPS the network
+    observing the densest sensed disc (DISC_WEIGHTS; fly it with learner.sense_disc on, as the comparisons and
+    `truav-swarm up` do), from it on ppo-claim's (CLAIM_WEIGHTS)."""
+
+    batched = PpoDiscBatched
+
+    @classmethod
+    def weights_for(cls, cfg: Config) -> Path:
+        return disc_weights_for(cfg)
+
+
+__all__ = ["CLAIM_WEIGHTS", "DISC_BELOW_MPS", "DISC_WEIGHTS", "PpoAgent", "PpoBatched", "PpoClaimAgent",
+           "PpoClaimBatched", "PpoDiscAgent", "PpoDiscBatched", "WEIGHTS", "check_size", "disc_weights_for",
+           "encoder_for", "load_policy"]

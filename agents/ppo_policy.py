@@ -5,7 +5,8 @@ A multilayer perceptron (tanh hidden layers, then the action logits) exported fr
 small .npz: arrays ``w0, b0, w1, b1, ...`` (the last pair gives the logits) and the metadata it was trained
 with (``peers``: heard-peer slots of the observation; ``n_features``; ``sense_sectors``; ``speed_mps``;
 ``memory``: 1 if the observation holds the memory features, agents.view_features; ``claim``: 1 if it holds the
-climbing heuristic's features; absent: 0).
+climbing heuristic's features; ``disc``: 1 if it holds the densest sensed disc's (flown with learner.sense_disc
+on); absent: 0).
 Greedy: the action with the largest logit (the first on ties); logit N_ACTIONS is HOVER. No torch at run
 time: numpy only. Pure computation: the file is read by the caller (agents.ppo_agent).
 """
@@ -38,6 +39,8 @@ class NumpyPolicy:
         self.sense_sectors = int(arrays["sense_sectors"]) if "sense_sectors" in arrays else None
         self.memory = bool(int(arrays["memory"])) if "memory" in arrays else False
         self.claim = bool(int(arrays["claim"])) if "claim" in arrays else False
+        self.disc = bool(int(arrays["disc"])) if "disc" in arrays else False
+        self.speed_mps = float(arrays["speed_mps"]) if "speed_mps" in arrays else None
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         """(N, N_ACTIONS + 1) logits of N observations (N, n_features)."""

@@ -36,16 +36,23 @@ SENSE_RANGE_M = 1500.0
 learner.sense_range_m on at this value where the run leaves sensing off (:func:`with_sensing`)."""
 NAMES = ("spread", "agents.spread_agent:SpreadAgent")
 """How a comparison names this scheme (its entry point and its class path)."""
-SENSING_NAMES = NAMES + ("claim", "agents.claim_agent:ClaimAgent", "ppo-claim", "agents.ppo_agent:PpoClaimAgent")
+DISC_NAMES = ("ppo-disc", "agents.ppo_agent:PpoDiscAgent")
+"""The schemes that also observe the densest sensed disc (learner.sense_disc): agents.ppo_agent.PpoDiscAgent."""
+SENSING_NAMES = NAMES + ("claim", "agents.claim_agent:ClaimAgent", "ppo-claim", "agents.ppo_agent:PpoClaimAgent") \
+    + DISC_NAMES
 """The schemes designed around sensing at SENSE_RANGE_M: this one, ``claim`` (agents/claim_agent.py, which
-flies this one's decide with a climb) and ``ppo-claim`` (agents.ppo_agent.PpoClaimAgent, cloned from claim)."""
+flies this one's decide with a climb), ``ppo-claim`` (agents.ppo_agent.PpoClaimAgent, cloned from claim) and
+DISC_NAMES."""
 
 
 def with_sensing(scheme: str, cfg: Config) -> Config:
     """The config a comparison flies ``scheme`` with: for these heuristics (SENSING_NAMES), sensing on
-    (SENSE_RANGE_M) unless the run already sets learner.sense_range_m; every other scheme's as it is."""
+    (SENSE_RANGE_M) unless the run already sets learner.sense_range_m, and learner.sense_disc on for DISC_NAMES;
+    every other scheme's as it is."""
     if scheme in SENSING_NAMES and cfg.learner.sense_range_m == 0.0:
-        return cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
+        cfg = cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
+    if scheme in DISC_NAMES and not cfg.learner.sense_disc:
+        cfg = cfg.replace(learner={"sense_disc": True})
     return cfg
 
 
@@ -183,4 +190,5 @@ class SpreadBatched(BatchedAgents):
 
 SpreadAgent.batched = SpreadBatched
 
-__all__ = ["SpreadAgent", "SpreadBatched", "Params", "decide", "with_sensing", "SENSE_RANGE_M", "SENSING_NAMES"]
+__all__ = ["DISC_NAMES", "SpreadAgent", "SpreadBatched", "Params", "decide", "with_sensing", "SENSE_RANGE_M",
+           "SENSING_NAMES"]

@@ -16,6 +16,8 @@ meaning; docs/reference/pettingzoo-observation.md is generated from it):
 - with ``memory`` on (off by default), last: what the UAV itself did at the previous step, which a view does
   not hold and the caller remembers (a `Memory`): its action one-hot (N_ACTIONS + 1 slots, the last HOVER;
   all 0 at step 0), its velocity (that action's) and the change of its vehicles in range since then;
+- with ``disc`` on (off by default), the densest sensed disc (LocalView.disc_offset over the sensing range,
+  disc_vehicles over the fair share; all 0 unless learner.sense_disc is on);
 - with ``claim`` on (off by default), the climbing heuristic's own state (agents.claim_agent.CLAIM_FEATURES: its
   climb heading, whether its exclusive vehicles fell, whether the sensed sector is left to a peer, ...), which the
   caller computes from the UAV's own views by running that rule beside it (``ClaimAgent.features``).
@@ -95,9 +97,10 @@ class Feature:
 
 
 def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False,
-                         claim: bool = False) -> tuple[Feature, ...]:
+                         claim: bool = False, disc: bool = False) -> tuple[Feature, ...]:
     """Every feature of the vector for a run of ``cfg`` with ``peers`` heard-peer slots (and the memory
-    features with ``memory``, the climbing heuristic's with ``claim``), in order."""
+    features with ``memory``, the densest sensed disc's with ``disc``, the climbing heuristic's with ``claim``),
+    in order."""
     sc, e, tr = cfg.scenario, cfg.energy, cfg.traffic
     share, U, area, speed = sc.n_vehicles / sc.n_uavs, float(sc.n_uavs), float(sc.area_m), float(sc.uav_speed_mps)
     fair = "scenario.n_vehicles / scenario.n_uavs (the fair share)"
@@ -150,6 +153,15 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool =
                 for c, d in (("vx", "east"), ("vy", "north"))]
         out.append(Feature("in_range_change", "in_range_change", "1", share, fair, -U, U,
                            "vehicles in range now minus at the previous step (0 before it: now)"))
+    if disc:
+        sense = max(float(cfg.learner.sense_range_m), 1.0)
+        out += [Feature("disc_dx", "disc_dx", "m", sense, "learner.sense_range_m", -1.0, 1.0,
+                        "the densest sensed disc's centre, east of own position (LocalView.disc_offset; 0 none "
+                        "sensed or learner.sense_disc off)"),
+                Feature("disc_dy", "disc_dy", "m", sense, "learner.sense_range_m", -1.0, 1.0,
+                        "the densest sensed disc's centre, north of own position"),
+                Feature("disc_vehicles", "disc_vehicles", "1", share, fair, 0.0, U,
+                        "the vehicles within comm range of that centre (LocalView.disc_vehicles)")]
     if claim:
         out += [Feature(f"claim_{name}", f"claim_{name}", "1", 1.0, "1", -1.0, 1.0, meaning)
                 for name, meaning in CLAIM_FEATURES]
@@ -159,11 +171,13 @@ def observation_features(cfg: Config, peers: int = DEFAULT_PEERS, memory: bool =
 class ViewEncoder:
     """A LocalView -> its feature vector (float32, :func:`observation_features` order) for runs of ``cfg``."""
 
-    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False, claim: bool = False):
+    def __init__(self, cfg: Config, peers: int = DEFAULT_PEERS, memory: bool = False, claim: bool = False,
+                 disc: bool = False):
         if isinstance(peers, bool) or not isinstance(peers, int) or peers < 0:
             raise ValueError(f"peers must be an int >= 0 (the heard peers encoded), got {peers!r}")
-        self.cfg, self.peers, self.memory, self.claim = cfg, peers, bool(memory), bool(claim)
-        self.features = observation_features(cfg, peers, self.memory, self.claim)
+        self.cfg, self.peers, self.memory, self.claim, self.disc = cfg, peers, bool(memory), bool(claim), bool(disc)
+        self.features = observation_features(cfg, peers, self.memory, self.claim, self.disc)
+        self._sense = max(float(cfg.learner.sense_range_m), 1.0)
         self.size = len(self.features)
         self.low = np.array([f.low for f in self.features], np.float32)
         self.high = np.array([f.high for f in self.features], np.float32)
@@ -217,6 +231,9 @@ class ViewEncoder:
         out += slots
         if self.memory:
             out += [float(v) for v in self._memory(last or Memory(), view.vehicles_in_range)]
+        if self.disc:
+            out += [view.disc_offset[0] / self._sense, view.disc_offset[1] / self._sense,
+                    view.disc_vehicles / self._share]
         out += [float(v) for c in self._claim(claim) for v in np.asarray(c, np.float64).reshape(-1)]
         vec = np.array(out, np.float32)
         # the caps (an RSU-less city's inf distance: the diagonal); np.clip's own checks cost twice this
@@ -256,8 +273,13 @@ class ViewEncoder:
         if self.memory:
             last = last or Memory(np.full((B, U), NO_ACTION), np.zeros((B, U)))
             mem = [np.broadcast_to(m, (B, U)) for m in self._memory(last, views.vehicles_in_range)]
+        disc = []
+        if self.disc:
+            off = np.zeros((B, U, 2)) if views.disc_offset is None else np.asarray(views.disc_offset, np.float64)
+            n = np.zeros((B, U)) if views.disc_vehicles is None else np.asarray(views.disc_vehicles, np.float64)
+            disc = [off[..., 0] / self._sense, off[..., 1] / self._sense, n / self._share]
         cl = [np.asarray(c, np.float64)[..., i] for c in self._claim(claim) for i in range(len(CLAIM_FEATURES))]
-        vec = np.stack(own + onehot + slots + mem + cl, axis=-1).astype(np.float32)
+        vec = np.stack(own + onehot + slots + mem + disc + cl, axis=-1).astype(np.float32)
         return np.minimum(np.maximum(vec, self.low, out=vec), self.high, out=vec)
 
 

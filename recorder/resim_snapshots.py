@@ -85,8 +85,10 @@ def differing_arrays(snap: Snapshot, world: dict[str, np.ndarray], agents: list[
                      run: str) -> list[tuple[str, str]]:
     """(key, array name) of every array of ``snap`` not bit for bit the state given (a re-simulation's), the
     world's first, then each agent's; an array missing on either side counts."""
+    from world.world_state import upgraded  # a snapshot from an older version, as this one captures it
+
     out = []
-    pairs = [(keys.world_snapshot(run), snap.world, world)] + \
+    pairs = [(keys.world_snapshot(run), upgraded(snap.world), world)] + \
         [(keys.uav_snapshot(run, i), rec, mine) for i, (rec, mine) in enumerate(zip(snap.agents, agents))]
     for key, recorded, simulated in pairs:
         for name in sorted(set(recorded) | set(simulated)):

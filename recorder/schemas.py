@@ -106,7 +106,7 @@ _BODY_PROPS: dict[str, dict[str, Any]] = {
         "tick": _INT, "episode": _INT, "uav": _INT, "pos": _XY, "vehicles_in_range": _INT,
         "queued_packets": _INT, "relayed": _INT, "covered": _INT, "energy_j": _NUM,
         "speed_max": _NUM, "done": {"type": "boolean"}, "densest_sector": _INT,
-        "exclusive": _INT,
+        "exclusive": _INT, "disc_offset": _XY, "disc_vehicles": _INT,
     },
     "beacon": {"uav": _INT, "tick": _INT, "pos": _XY, "vel": {**_XY, "description": "[vx, vy] m/s"},
                "fields": {"type": "object", "description": "an API agent's beacon_fields(), present only if any "

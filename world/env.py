@@ -26,9 +26,9 @@ from truav.config import Config
 from world import network, uavs
 from world.draws import (POISSON_MULT_MAX_LAM, pcg64_state, poisson_into, rng_words, set_pcg64_state,
                          uniform_into)
-from world.network import (COVERED, DENSEST, E_COVERED, EXCLUSIVE, E_DELAY_S, E_DELIVERED, E_EXPIRED, E_GENERATED,
-                           E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, IN_RANGE, QUEUED, RELAYED,
-                           UAV_COLUMNS)
+from world.network import (COVERED, DENSEST, DISC_DX, DISC_DY, DISC_VEHICLES, E_COVERED, E_DELAY_S, E_DELIVERED,
+                           E_EXPIRED, E_GENERATED, E_OVERFLOW, E_WAIT_STEPS, ENV_COLUMNS, EXCLUSIVE, IN_RANGE, QUEUED,
+                           RELAYED, UAV_COLUMNS)
 from world.packets import Queues
 from world.roads import RoadGrid, Vehicles
 from world.step import TOTAL_COLUMNS, grid_xy, uav_params, world_step
@@ -61,6 +61,11 @@ class LocalObs:
     """Vehicles within this UAV's comm range and no other UAV's (int): what the
     swarm's coverage would lose without it (world.network.EXCLUSIVE; the
     difference reward, learner.w_difference). None as densest_sector."""
+    disc_offset: np.ndarray | None = None
+    """(B, U, 2) the densest sensed disc's centre minus own position (m), 0 where none is sensed or
+    learner.sense_disc is off (world.network.DISC_DX). None as densest_sector."""
+    disc_vehicles: np.ndarray | None = None
+    """The vehicles within comm range of that centre (int), 0 as above. None as densest_sector."""
 
 
 @dataclass
@@ -365,7 +370,8 @@ class World:
         o = self._out_uav
         return LocalObs(self.uav_pos.copy(), o[:, :, IN_RANGE].astype(np.int64), o[:, :, QUEUED].astype(np.int64),
                         o[:, :, RELAYED].astype(np.int64), o[:, :, COVERED].astype(np.int64), energy,
-                        o[:, :, DENSEST].astype(np.int64), o[:, :, EXCLUSIVE].astype(np.int64))
+                        o[:, :, DENSEST].astype(np.int64), o[:, :, EXCLUSIVE].astype(np.int64),
+                        o[:, :, DISC_DX:DISC_DY + 1].copy(), o[:, :, DISC_VEHICLES].astype(np.int64))
 
     # -- episode summary -------------------------------------------------------
     def episode_summary(self) -> dict[str, np.ndarray]:

@@ -33,8 +33,10 @@ from world import channel_models
 from world.channel import SPEED_OF_LIGHT, ChannelParams, RateTables, a2g_rate, backhaul_rate, relay_rate
 
 # Columns of the per-UAV output (B, U, UAV_COLUMNS).
-IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST, EXCLUSIVE = range(7)
-UAV_COLUMNS = 7
+IN_RANGE, COVERED, QUEUED, RELAYED, TX_TIME, DENSEST, EXCLUSIVE, DISC_DX, DISC_DY, DISC_VEHICLES = range(10)
+UAV_COLUMNS = 10
+OLD_UAV_COLUMNS = 7
+"""The per-UAV columns before the disc columns: a snapshot recorded then is restored with them 0."""
 """DENSEST: with sensing on (learner.sense_range_m > 0), 1 + the direction
 sector (counter-clockwise from east, learner.sense_sectors of them) holding
 the most vehicles beyond comm range and within the sensing radius, the first
@@ -43,7 +45,12 @@ EXCLUSIVE: vehicles within this UAV's comm range and no other UAV's: the
 coverage the swarm would lose without it (the difference reward's term,
 agents/reward.py). A UAV can count it itself from the position beacons (CAMs)
 of the vehicles in its range and its neighbours' beacon positions; the world
-counts it in the loop that counts the vehicles in range."""
+counts it in the loop that counts the vehicles in range.
+DISC_DX, DISC_DY, DISC_VEHICLES: with sensing on and learner.sense_disc, the
+densest disc a UAV senses: among the vehicles within the sensing radius
+(comm range included), the one with the most vehicles within comm range of
+it (itself counted; the first by vehicle index on ties): its position minus
+the UAV's (m) and that count; 0, 0, 0 when none is sensed or it is off."""
 # Columns of the per-env output (B, ENV_COLUMNS).
 E_COVERED, E_GENERATED, E_OVERFLOW, E_DELIVERED, E_EXPIRED, E_DELAY_S, E_WAIT_STEPS = range(7)
 ENV_COLUMNS = 7
@@ -65,6 +72,7 @@ class RelayParams(NamedTuple):
     nearest_rsu_only: bool  # the UAV-RSU hop time grows with distance: see `routes`
     sense_range: float  # learner.sense_range_m: 0 = no sensing beyond comm range (DENSEST stays 0)
     sense_sectors: int
+    sense_disc: bool  # learner.sense_disc: the DISC_* columns (with sensing on)
 
 
 def rsu_positions(cfg: Config) -> np.ndarray:
@@ -91,7 +99,8 @@ def relay_params(cfg: Config) -> tuple[ChannelParams | RateTables, RelayParams]:
         nearest_only = bool(np.all(np.diff(cp.backhaul) <= 0.0))
     return cp, RelayParams(sc.comm_range_m, sc.step_s, cfg.traffic.packet_bytes * 8.0, cfg.traffic.queue_limit,
                        cfg.roads.block_m, height, ch.uav_tx_w, rsu_positions(cfg), table, nearest_only,
-                       float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors))
+                       float(cfg.learner.sense_range_m), int(cfg.learner.sense_sectors),
+                       bool(cfg.learner.sense_disc))
 
 
 def _model_tables(cfg: Config, uplink_m: np.ndarray) -> tuple[np.ndarray, RateTables]:
@@ -282,6 +291,44 @@ def _relay_env(xy, uav_pos, slots, total, arrivals, t, serve_packets, p, ch, bus
                 if sensed[u, k] > top:
                     top = sensed[u, k]
                     out_uav[u, DENSEST] = k + 1.0
+        if p.sense_disc:
+            _densest_discs(xy, uav_pos, r2, sense2, out_uav)
+
+
+@njit(cache=True)
+def _densest_discs(xy, uav_pos, r2, sense2, out_uav):
+    """The DISC_* columns of one env (see UAV_COLUMNS): each vehicle's neighbours within comm range (itself
+    included), each pair once, swept in x order (a pair further apart in x than the range is never measured:
+    about a fifth of the pairs under the paper's area and range); then each UAV's best sensed centre."""
+    n = xy.shape[0]
+    count = np.zeros(n)
+    order = np.argsort(xy[:, 0])  # NaN (off the road) last: neither a centre nor counted
+    r = np.sqrt(r2)
+    for a in range(n):
+        i = order[a]
+        xi, yi = xy[i, 0], xy[i, 1]
+        if xi != xi or yi != yi:
+            break
+        count[i] += 1.0
+        for c in range(a + 1, n):
+            j = order[c]
+            dx = xy[j, 0] - xi
+            if not dx <= r:  # past the range in x (or NaN): so is every later one
+                break
+            if dx * dx + (xy[j, 1] - yi) ** 2 <= r2:
+                count[i] += 1.0
+                count[j] += 1.0
+    for u in range(uav_pos.shape[0]):
+        best, at = 0.0, -1
+        for i in range(n):
+            if count[i] > best:
+                dx, dy = xy[i, 0] - uav_pos[u, 0], xy[i, 1] - uav_pos[u, 1]
+                if dx * dx + dy * dy <= sense2:
+                    best, at = count[i], i
+        if at >= 0:
+            out_uav[u, DISC_DX] = xy[at, 0] - uav_pos[u, 0]
+            out_uav[u, DISC_DY] = xy[at, 1] - uav_pos[u, 1]
+            out_uav[u, DISC_VEHICLES] = best
 
 
 @njit(cache=True)

@@ -19,7 +19,7 @@ import numpy as np
 from truav.config import Config
 from world.draws import RNG_WORDS, rng_from_words, rng_words
 from world.env import LocalObs, World, _EpisodeDraws
-from world.network import ENV_COLUMNS, UAV_COLUMNS
+from world.network import ENV_COLUMNS, OLD_UAV_COLUMNS, UAV_COLUMNS
 from world.roads import Vehicles
 from world.step import TOTAL_COLUMNS
 
@@ -80,10 +80,21 @@ def check_state(state: dict[str, np.ndarray], spec: dict[str, tuple[np.dtype, tu
             raise ValueError(f"state array {name}: {a.dtype}{list(a.shape)}, expected {dtype}{list(shape)}")
 
 
+def upgraded(state: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``state`` as this version captures it: a snapshot from before the disc columns (world.network.
+    OLD_UAV_COLUMNS per UAV, recorded before learner.sense_disc existed, so they were 0) gets them as 0."""
+    out_uav = state.get("out_uav")
+    if isinstance(out_uav, np.ndarray) and out_uav.ndim == 3 and out_uav.shape[-1] == OLD_UAV_COLUMNS:
+        pad = np.zeros((*out_uav.shape[:2], UAV_COLUMNS - OLD_UAV_COLUMNS), out_uav.dtype)
+        return {**state, "out_uav": np.concatenate([out_uav, pad], axis=-1)}
+    return state
+
+
 def restore_world(cfg: Config, state: dict[str, np.ndarray], batch: int = 1) -> tuple[World, LocalObs]:
     """A World in the captured ``state`` and the observation it would publish next; ValueError when the
     state is not one of a World of ``cfg`` (shapes, dtypes, or generators that do not replay the
     episode's draws)."""
+    state = upgraded(state)
     check_state(state, world_state_spec(cfg, batch))
     world = World(cfg, batch)
     sc = cfg.scenario
@@ -117,4 +128,4 @@ def restore_world(cfg: Config, state: dict[str, np.ndarray], batch: int = 1) -> 
     return world, world._observe(state["obs_energy"].copy())
 
 
-__all__ = ["check_state", "restore_world", "world_state", "world_state_spec"]
+__all__ = ["check_state", "restore_world", "upgraded", "world_state", "world_state_spec"]

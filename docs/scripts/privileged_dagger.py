@@ -68,10 +68,12 @@ def fly_teacher(cfg: Config, seeds: list[int], episodes: int, teacher_cls: type)
     return out
 
 
-def make_config(speed: float, sectors: int = 4) -> Config:
-    """The paper preset at ``speed`` m/s, sensing SENSE_RANGE_M over ``sectors`` direction sectors."""
+def make_config(speed: float, sectors: int = 4, disc: bool = False) -> Config:
+    """The paper preset at ``speed`` m/s, sensing SENSE_RANGE_M over ``sectors`` direction sectors (and the densest
+    sensed disc with ``disc``)."""
     return Config().replace(**preset_overrides("paper")).replace(
-        scenario={"uav_speed_mps": speed}, learner={"sense_range_m": SENSE_RANGE_M, "sense_sectors": sectors})
+        scenario={"uav_speed_mps": speed},
+        learner={"sense_range_m": SENSE_RANGE_M, "sense_sectors": sectors, "sense_disc": disc})
 
 
 def write_csv(out: Path, seeds: list[int], cov: dict[str, np.ndarray]) -> None:
@@ -94,6 +96,7 @@ def main() -> None:
                     "and claim alike (default %(default)s)")
     add_cloning_args(ap)
     ap.add_argument("--no-claim", action="store_true", help="observe without the claim features")
+    ap.add_argument("--disc", action="store_true", help="observe the densest sensed disc too (learner.sense_disc)")
     ap.add_argument("--train-seed", type=int, default=0, help="the training's seed (default %(default)s)")
     ap.add_argument("--weights", default="/tmp/privileged.npz", help="where the weights go (default %(default)s)")
     ap.add_argument("--load", action="store_true", help="fly --weights, no training")
@@ -104,7 +107,7 @@ def main() -> None:
     ap.add_argument("--variant", help="the --compare CSV's variant")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    cfg = make_config(args.speed, args.sectors)
+    cfg = make_config(args.speed, args.sectors, args.disc)
     weights, claim = Path(args.weights), not args.no_claim
     teacher = TEACHERS[args.teacher]
     if args.reach is not None:
@@ -123,10 +126,10 @@ def main() -> None:
     if not args.load:
         model, times = train(cfg, list(range(16)), bc_episodes=args.bc_episodes, bc_epochs=args.epochs,
                              dagger_rounds=args.dagger, ppo_steps=args.ppo_steps, coverage_bonus=5.0,
-                             seed=args.train_seed, teacher=teacher, claim=claim, say=lambda s: None,
+                             seed=args.train_seed, teacher=teacher, claim=claim, disc=args.disc, say=lambda s: None,
                              net=[int(w) for w in args.net.split(",")])
         print(f"cloning accuracy {times['accuracy']:.3f} ({times['total_s']:.0f} s)", flush=True)
-        np.savez(weights, **export(model, cfg, 4, False, claim))
+        np.savez(weights, **export(model, cfg, 4, False, claim, args.disc))
         load_policy.cache_clear()
     cov = fly_against_heuristics(cfg, held_out, weights, args.episodes)
     if args.compare:

@@ -24,11 +24,12 @@ import paired
 
 
 SCHEMES = (("truav", "TRUAV (Q-learning)"), ("spread", "spread (heuristic)"), ("ppo", "ppo (learned)"),
-           ("patrol", "patrol"), ("claim", "claim (heuristic)"), ("ppo-claim", "ppo-claim (learned clone)"))
+           ("patrol", "patrol"), ("claim", "claim (heuristic)"), ("ppo-claim", "ppo-claim (learned clone)"),
+           ("ppo-disc", "ppo-disc (learned, senses the disc)"))
 STYLE = {"truav": ("C0", "s", "-"), "spread": ("C1", "o", "--"), "ppo": ("C2", "D", "-"), "patrol": ("C3", "^", ":"),
-         "claim": ("C4", "v", "--"), "ppo-claim": ("C5", "P", "-")}
+         "claim": ("C4", "v", "--"), "ppo-claim": ("C5", "P", "-"), "ppo-disc": ("C6", "X", "-")}
 # a cell's file name spells a class-path scheme with "-" for ":"; the page calls it by its registered name
-ALIASES = {"agents.ppo_agent-PpoClaimAgent": "ppo-claim"}
+ALIASES = {"agents.ppo_agent-PpoClaimAgent": "ppo-claim", "agents.ppo_agent-PpoDiscAgent": "ppo-disc"}
 
 
 def per_seed(run: Path) -> dict[tuple[str, float], dict[int, float]]:
@@ -52,9 +53,10 @@ def arrays(cov: dict[tuple[str, float], dict[int, float]]) -> tuple[list[float],
 
 def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
     speeds, a = arrays(cov)
-    lines = paired.head("speed (m/s)", [label for _, label in SCHEMES])
+    shown = [(k, label) for k, label in SCHEMES if (k, speeds[0]) in a]
+    lines = paired.head("speed (m/s)", [label for _, label in shown])
     for v in speeds:
-        lines.append(paired.row(f"{v:g}", [paired.ci(a[k, v]) for k, _ in SCHEMES]))
+        lines.append(paired.row(f"{v:g}", [paired.ci(a[k, v]) for k, _ in shown]))
     others = [(k, label) for k, label in SCHEMES if k in ("truav", "spread", "patrol")]
     lines += ["", *paired.head("speed (m/s)", [*(f"ppo - {k}" for k, _ in others), "spread - truav"])]
     for v in speeds:
@@ -67,6 +69,12 @@ def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
             lines.append(paired.row(f"{v:g}", [paired.diff(a["spread", v], a["ppo-claim", v]),
                                                paired.diff(a["claim", v], a["ppo-claim", v]),
                                                paired.diff(a["spread", v], a["claim", v])]))
+    if ("ppo-disc", speeds[0]) in a:
+        lines += ["", *paired.head("speed (m/s)", ["ppo-disc - spread", "ppo-disc - claim", "ppo-disc - ppo-claim"])]
+        for v in speeds:
+            lines.append(paired.row(f"{v:g}", [paired.diff(a["spread", v], a["ppo-disc", v]),
+                                               paired.diff(a["claim", v], a["ppo-disc", v]),
+                                               paired.diff(a["ppo-claim", v], a["ppo-disc", v])]))
     return "\n".join(lines)
 
 
@@ -91,6 +99,8 @@ def merge(cov: dict[tuple[str, float], dict[int, float]], new: dict[tuple[str, f
 def _trained_at_15(ax) -> None:
     ax.axvline(15, color="k", lw=0.6, alpha=0.4)
     ax.text(15.3, 2, "ppo, ppo-claim trained at 15 m/s", fontsize=7, alpha=0.7)
+    ax.axvline(5, color="k", lw=0.6, alpha=0.4)
+    ax.text(5.3, 6, "ppo-disc's own network trained at 5 m/s\n(ppo-claim's from 10 m/s)", fontsize=7, alpha=0.7)
 
 
 def figure(cov: dict[tuple[str, float], dict[int, float]], path: Path, title: str) -> None:

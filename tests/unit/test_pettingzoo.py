@@ -159,3 +159,15 @@ def test_the_observation_is_the_view_an_agent_process_builds_from_its_messages(p
         world_obs, _, done = world.step(actions)
         env_obs, env_rewards, *_ = env.step({f"uav_{u}": int(actions[0, u]) for u in range(U)})
     assert done and not env.agents
+
+
+def test_with_the_disc_the_api_and_seed_tests_pass_and_the_disc_is_observed(pz_cfg):
+    """The observation with the densest sensed disc (disc=True: learner.sense_disc on), the one ppo-disc learns."""
+    parallel_api_test(parallel_env(pz_cfg, sense_range_m=SENSE_M, disc=True), num_cycles=30)
+    parallel_seed_test(lambda: parallel_env(pz_cfg, sense_range_m=SENSE_M, disc=True), num_cycles=30)
+    env = parallel_env(pz_cfg, sense_range_m=SENSE_M, disc=True)
+    assert env.cfg.learner.sense_disc and env.metadata["name"] == "truav_disc_v1"
+    names = [f.name for f in env.observation_features()]
+    assert names[-3:] == ["disc_dx", "disc_dy", "disc_vehicles"]
+    obs, _ = env.reset(seed=2)
+    assert all(o[-1] > 0 for o in obs.values())  # 40 vehicles within 1500 m of some start: a disc is sensed

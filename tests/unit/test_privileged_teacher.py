@@ -92,17 +92,3 @@ def test_teacher_data_shows_a_privileged_teacher_the_world():
     for xy, pos, out in seen:
         np.testing.assert_array_equal(out, oracle_actions(xy, pos, sc.comm_range_m, sc.uav_speed_mps * sc.step_s))
     np.testing.assert_array_equal(labels, np.concatenate([to_slot_actions(o).reshape(-1) for _, _, o in seen]))
-
-
-def test_the_sensed_disc_is_the_densest_vehicle_within_the_sensing_range():
-    from truav.analysis.privileged_teacher import sensed_disc
-
-    cluster = np.array([[1000.0, 0.0]] * 4 + [[1200.0, 0.0]] * 2)
-    far = np.array([[4000.0, 4000.0]] * 30)  # denser, but beyond the sensing range
-    lone = np.array([[0.0, 600.0]])
-    xy = np.concatenate([lone, cluster, far, [[np.nan, np.nan]]])[None]
-    pos = np.array([[[0.0, 0.0], [2500.0, 2500.0]]])
-    got = sensed_disc(xy, pos, 1500.0, 500.0)
-    # UAV 0: the cluster's vehicle at 1000 m covers all 6 of it (the one at 1200 m too); UAV 1 senses nothing
-    np.testing.assert_allclose(got[0, 0], [1000.0 / 1500.0, 0.0, 6 / 50.0])
-    np.testing.assert_array_equal(got[0, 1], [0.0, 0.0, 0.0])

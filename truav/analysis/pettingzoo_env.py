@@ -23,7 +23,9 @@ libraries can train on it, observing what an agent process sees.
   ``env.observation_features()`` names each with its unit and scale; docs/reference/pettingzoo-observation.md
   is generated from it. With ``memory=True`` (env name truav_memory_v1) each observation also holds what
   the UAV did at the previous step: its action one-hot, its velocity, the change of its vehicles in range
-  (agents.view_features.Memory; an agent process remembers it itself, agents/ppo_agent.py).
+  (agents.view_features.Memory; an agent process remembers it itself, agents/ppo_agent.py). With
+  ``disc=True`` (learner.sense_disc on; env name truav_disc_v1, or truav_memory_disc_v1) each also ends with
+  the densest sensed disc: its offset and vehicles (LocalView.disc_offset, disc_vehicles).
 - One algorithm, two drivers: the views are built by the in-process API driver
   (agents.api_controller.ApiController, whose API agent here acts what ``step`` is given), so an
   observation is the encoding of exactly the view an API agent receives in process at the same seed and
@@ -80,17 +82,21 @@ class TruavParallelEnv(ParallelEnv):
     metadata = {"name": "truav_v1", "render_modes": [], "is_parallelizable": True}
 
     def __init__(self, cfg: Config | None = None, render_mode: str | None = None, *, preset: str | None = None,
-                 sense_range_m: float | None = None, peers: int = DEFAULT_PEERS, memory: bool = False):
+                 sense_range_m: float | None = None, peers: int = DEFAULT_PEERS, memory: bool = False,
+                 disc: bool = False):
         cfg = cfg or Config()
         if preset is not None:
             cfg = cfg.replace(**preset_overrides(preset))
         if sense_range_m is not None:
             cfg = cfg.replace(learner={"sense_range_m": float(sense_range_m)})
+        if disc:
+            cfg = cfg.replace(learner={"sense_disc": True})
         self.cfg = cfg
         self.render_mode = render_mode
-        self.encoder = ViewEncoder(cfg, peers, memory)
-        if memory:
-            self.metadata = {**self.metadata, "name": "truav_memory_v1"}
+        self.encoder = ViewEncoder(cfg, peers, memory, disc=disc)
+        if memory or disc:
+            name = "truav" + ("_memory" if memory else "") + ("_disc" if disc else "") + "_v1"
+            self.metadata = {**self.metadata, "name": name}
         self._last = Memory(np.full(cfg.scenario.n_uavs, NO_ACTION, np.int64), np.zeros(cfg.scenario.n_uavs))
         self.possible_agents = [f"uav_{i}" for i in range(cfg.scenario.n_uavs)]
         self.agents: list[str] = []
@@ -173,5 +179,6 @@ class TruavParallelEnv(ParallelEnv):
 
 
 def parallel_env(cfg: Config | None = None, **kwargs) -> TruavParallelEnv:
-    """PettingZoo-style constructor: parallel_env(cfg, preset=..., sense_range_m=..., peers=..., memory=...)."""
+    """PettingZoo-style constructor: parallel_env(cfg, preset=..., sense_range_m=..., peers=..., memory=...,
+    disc=...)."""
     return TruavParallelEnv(cfg, **kwargs)

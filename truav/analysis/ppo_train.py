@@ -118,7 +118,7 @@ def agreement(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int], epis
     """The share of the states the exported greedy policy visits where its action is the heuristic's: over
     all ("all") and per decision kind of the heuristic (KINDS; with each kind's share of the states)."""
     policy = NumpyPolicy(arrays)
-    env = TruavVecEnv(cfg, seeds, policy.peers or 4, memory=policy.memory, claim=policy.claim)
+    env = TruavVecEnv(cfg, seeds, policy.peers or 4, memory=policy.memory, claim=policy.claim, disc=policy.disc)
     kinds: list = []
     obs, labels, _ = teacher_data(env, episodes, 0.0, lambda o: to_slot_actions(policy.greedy(o)), kinds)
     same = to_slot_actions(policy.greedy(obs)) == labels
@@ -130,7 +130,8 @@ def agreement(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int], epis
     return out
 
 
-def export(model: PPO, cfg: Config, peers: int, memory: bool = False, claim: bool = False) -> dict[str, np.ndarray]:
+def export(model: PPO, cfg: Config, peers: int, memory: bool = False, claim: bool = False,
+           disc: bool = False) -> dict[str, np.ndarray]:
     """The policy branch and action head of SB3's MlpPolicy as agents.ppo_policy's arrays."""
     linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
     linears.append(model.policy.action_net)
@@ -140,7 +141,7 @@ def export(model: PPO, cfg: Config, peers: int, memory: bool = False, claim: boo
         out[f"b{i}"] = lin.bias.detach().numpy().astype(np.float32).copy()
     out.update(peers=np.array(peers), n_features=np.array(out["w0"].shape[0]),
                sense_sectors=np.array(cfg.learner.sense_sectors), speed_mps=np.array(cfg.scenario.uav_speed_mps),
-               memory=np.array(int(memory)), claim=np.array(int(claim)))
+               memory=np.array(int(memory)), claim=np.array(int(claim)), disc=np.array(int(disc)))
     return out
 
 
@@ -148,7 +149,7 @@ def greedy_coverage(arrays: dict[str, np.ndarray], cfg: Config, seeds: list[int]
                     peers: int) -> np.ndarray:
     """Each seed's mean coverage (%) over ``episodes`` greedy episodes of the exported policy, in a vector."""
     policy = NumpyPolicy(arrays)
-    env = TruavVecEnv(cfg, seeds, peers, memory=policy.memory, claim=policy.claim)
+    env = TruavVecEnv(cfg, seeds, peers, memory=policy.memory, claim=policy.claim, disc=policy.disc)
     obs, cov = env.reset(), []
     for _ in range(episodes):
         while True:
@@ -175,12 +176,13 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
           ppo_steps: int = 0, lr: float = 1e-4, n_steps: int = 100, ent_coef: float = 0.0,
           coverage_bonus: float = 0.0, dagger_rounds: int = 0, seed: int = 0, memory: bool = False,
           net: list[int] | None = None, say: Callable[[str], None] = print,
-          teacher: type = SpreadBatched, claim: bool = False) -> tuple[PPO, dict]:
+          teacher: type = SpreadBatched, claim: bool = False, disc: bool = False) -> tuple[PPO, dict]:
     """Clone the heuristic (``teacher``, its batched form), then PPO for ``ppo_steps`` slot-steps; returns the
     model and timings. ``net``: the hidden layers' widths of the policy and the value network (None: MlpPolicy's,
-    two of 64). ``claim``: observe the climbing heuristic's features (agents.view_features)."""
+    two of 64). ``claim``: observe the climbing heuristic's features, ``disc`` the densest sensed disc's
+    (agents.view_features; learner.sense_disc on in ``cfg``)."""
     torch.manual_seed(seed)
-    env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory, claim)
+    env = TruavVecEnv(cfg, seeds, peers, coverage_bonus, memory, claim, disc)
     model = make_ppo(env, lr=lr, n_steps=n_steps, ent_coef=ent_coef, seed=seed, net=net)
     times = {}
     t0 = time.perf_counter()
@@ -190,7 +192,7 @@ def train(cfg: Config, seeds: list[int], *, peers: int = 4, bc_episodes: int = 2
         say(f"  teacher: {len(obs)} samples in {times['teacher_s']:.0f} s")
         times["accuracy"] = clone(model, obs, act, ret, bc_epochs, seed, say=say)
         for r in range(dagger_rounds):  # the learner flies, the heuristic labels; trained on everything so far
-            flier = NumpyPolicy(export(model, cfg, peers, memory, claim)).greedy
+            flier = NumpyPolicy(export(model, cfg, peers, memory, claim, disc)).greedy
             more = teacher_data(env, bc_episodes, model.gamma, lambda o: to_slot_actions(flier(o)),
                                 teacher_cls=teacher)
             obs, act, ret = (np.concatenate([x, y]) for x, y in zip((obs, act, ret), more))

@@ -8,7 +8,8 @@ is one slot of the vector, acting on its own observation only. Slot i is UAV i %
   (agents.api_controller.ApiController) from one World stepping all B environments at once: the same
   numbers as ``truav.analysis.pettingzoo_env`` for the same seed and step (tests/unit/test_ppo_vec_env.py),
   with ``memory`` its memory features too (each UAV's previous action and vehicles in range), with ``claim`` the
-  climbing heuristic's state (agents.claim_agent.ClaimBatched run beside the UAVs on their views, once per step).
+  climbing heuristic's state (agents.claim_agent.ClaimBatched run beside the UAVs on their views, once per step),
+  with ``disc`` the densest sensed disc (learner.sense_disc on in ``cfg`` for it to hold anything).
 - Actions: Discrete(17): the 16 of truav.actions, and 16 for HOVER (the heuristic hovers; a policy imitating
   it needs to).
 - Rewards: the paper's local reward (agents.reward), plus ``coverage_bonus`` x the share of all vehicles the
@@ -71,10 +72,10 @@ class TruavVecEnv(VecEnv):
     """See the module's docstring."""
 
     def __init__(self, cfg: Config, seeds: list[int], peers: int = DEFAULT_PEERS, coverage_bonus: float = 0.0,
-                 memory: bool = False, claim: bool = False):
+                 memory: bool = False, claim: bool = False, disc: bool = False):
         self.cfg, self.seeds, self.coverage_bonus = cfg, list(seeds), float(coverage_bonus)
         self.B, self.U = len(seeds), cfg.scenario.n_uavs
-        self.encoder = ViewEncoder(cfg, peers, memory, claim)
+        self.encoder = ViewEncoder(cfg, peers, memory, claim, disc)
         self.shadow = ClaimBatched(cfg, [[seeding.agent_rng(s, u) for u in range(self.U)] for s in self.seeds]) \
             if claim else None
         self.last = Memory(np.full((self.B, self.U), NO_ACTION, np.int64), np.zeros((self.B, self.U)))

@@ -77,34 +77,6 @@ def oracle_actions(vehicle_xy: np.ndarray, uav_pos: np.ndarray, r: float, step_m
     return out
 
 
-SENSED_DISC_FEATURES = (("disc_dx", "the densest sensed disc's centre, x minus own x over the sensing range"),
-                        ("disc_dy", "its y minus own y over the sensing range"),
-                        ("disc_count", "the vehicles within comm_range of it, over 50 (capped at 1)"))
-"""The features of ``sensed_disc`` (0, 0, 0: no vehicle sensed)."""
-
-
-def sensed_disc(vehicle_xy: np.ndarray, uav_pos: np.ndarray, sense_m: float, r: float) -> np.ndarray:
-    """(B, U, 3) SENSED_DISC_FEATURES: for each UAV, among the vehicles within ``sense_m`` of it, the one with
-    the most vehicles within ``r`` (a disc centre): its offset and that count. What a UAV sensing the vehicles'
-    positions within its sensing range could compute (a finer LocalView than its densest sector)."""
-    B, U = uav_pos.shape[:2]
-    out = np.zeros((B, U, 3))
-    for b in range(B):
-        xy = vehicle_xy[b][~np.isnan(vehicle_xy[b]).any(axis=1)]
-        if len(xy) == 0:
-            continue
-        count = (((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=-1) <= r * r).sum(axis=1)
-        gap = xy[None, :, :] - uav_pos[b][:, None, :]  # (U, N, 2)
-        near = (gap ** 2).sum(axis=-1) <= sense_m * sense_m
-        score = np.where(near, count[None, :], -1)
-        best = np.argmax(score, axis=1)
-        seen = near.any(axis=1)
-        rows = np.arange(U)
-        out[b] = np.where(seen[:, None], np.column_stack([gap[rows, best] / sense_m,
-                                                          np.minimum(count[best] / 50.0, 1.0)]), 0.0)
-    return out
-
-
 class OracleTeacher(BatchedAgents):
     """oracle_actions as a batched teacher: ``see(vehicle_xy)`` before each ``act(views)``."""
 
@@ -149,5 +121,4 @@ class LocalOracleTeacher(OracleTeacher):
     reach_m = 2000.0
 
 
-__all__ = ["LocalOracleTeacher", "OracleTeacher", "SENSED_DISC_FEATURES", "greedy_discs", "match", "oracle_actions",
-           "sensed_disc", "toward"]
+__all__ = ["LocalOracleTeacher", "OracleTeacher", "greedy_discs", "match", "oracle_actions", "toward"]

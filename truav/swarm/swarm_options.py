@@ -36,9 +36,10 @@ greedy, in process by truav.analysis.trainer.run_chunk) it covered 31.1%, +3.2 Â
 heuristic spread's 26.6% and twice hover's 14.2%, where TRUAV's Q-learners learning from scratch cover what hover
 does. ``--scheme truav`` learns from scratch."""
 DEMO_SCHEME = AGENT_KIND_PREFIX + DEMO_AGENT
-SENSING_AGENTS = ("spread", "claim", "ppo", "ppo-claim")
+SENSING_AGENTS = ("spread", "claim", "ppo", "ppo-claim", "ppo-disc")
 """Built-in agent classes designed (spread, claim) or trained (ppo, ppo-claim) with sensing on: `up` flies them with
-learner.sense_range_m at agents.spread_agent.SENSE_RANGE_M where the scenario leaves sensing off."""
+learner.sense_range_m at agents.spread_agent.SENSE_RANGE_M where the scenario leaves sensing off (and ppo-disc with
+learner.sense_disc on: agents.spread_agent.with_sensing)."""
 
 STATUS_PERIOD_S = 1.0
 ROUTER_START_TIMEOUT_S = 15.0
@@ -156,11 +157,11 @@ class SwarmOptions:
 
 def with_agent_sensing(scheme: str, cfg: Config) -> Config:
     """The config a swarm of ``scheme`` flies: sensing on for SENSING_AGENTS where ``cfg`` leaves it off."""
-    from agents.spread_agent import SENSE_RANGE_M
+    from agents.spread_agent import SENSE_RANGE_M, with_sensing
     named = scheme[len(AGENT_KIND_PREFIX):] if scheme.startswith(AGENT_KIND_PREFIX) else None
     if named in SENSING_AGENTS and cfg.learner.sense_range_m == 0.0:
-        return cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
-    return cfg
+        cfg = cfg.replace(learner={"sense_range_m": SENSE_RANGE_M})
+    return with_sensing(named, cfg) if named else cfg
 
 
 def agent_groups(n: int, per_process: int, external: tuple[int, ...] = ()) -> list[list[int]]:

@@ -227,9 +227,11 @@ class Guard:
         if isinstance(msg, schema.Obs):
             if not b.in_area(msg.pos):
                 return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
-            if max(msg.vehicles_in_range, msg.covered, msg.exclusive) > b.max_count \
+            if max(msg.vehicles_in_range, msg.covered, msg.exclusive, msg.disc_vehicles) > b.max_count \
                     or max(msg.queued_packets, msg.relayed) > b.max_packets:
                 return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
+            if max(abs(msg.disc_offset[0]), abs(msg.disc_offset[1])) > b.area_m:
+                return R_IMPLAUSIBLE, f"disc offset {msg.disc_offset} beyond the area"
             if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:
                 return R_IMPLAUSIBLE, f"energy {msg.energy_j} J or speed {msg.speed_max} m/s"
             self._advance(msg.tick)
@@ -362,9 +364,11 @@ class Guard:
             return R_TICK, f"tick {tick}, current {self._tick}"
         if not b.in_area(msg.pos):
             return R_IMPLAUSIBLE, f"pos {msg.pos} outside the area"
-        if max(msg.vehicles_in_range, msg.covered, msg.exclusive) > b.max_count \
+        if max(msg.vehicles_in_range, msg.covered, msg.exclusive, msg.disc_vehicles) > b.max_count \
                 or max(msg.queued_packets, msg.relayed) > b.max_packets:
             return R_IMPLAUSIBLE, "counts above the scenario's vehicles and queues"
+        if max(abs(msg.disc_offset[0]), abs(msg.disc_offset[1])) > b.area_m:
+            return R_IMPLAUSIBLE, f"disc offset {msg.disc_offset} beyond the area"
         if msg.energy_j > b.max_energy_j or msg.speed_max > b.max_speed * SPEED_MARGIN:
             return R_IMPLAUSIBLE, f"energy {msg.energy_j} J or speed {msg.speed_max} m/s"
         self._advance(msg.tick)

@@ -98,8 +98,11 @@ class Obs(Envelope):
             "done": _bool,
             "densest_sector": _sector,
             "exclusive": _uint63,
+            "disc_offset": _vec2,
+            "disc_vehicles": _uint63,
         }
     )
+    ADDED: ClassVar[tuple[str, ...]] = ("disc_offset", "disc_vehicles")
     tick: int
     episode: int
     uav: int
@@ -115,6 +118,10 @@ class Obs(Envelope):
     """Sensing of denser areas (learner.sense_range_m): 1 + the densest direction sector, 0 none / off."""
     exclusive: int = 0
     """Vehicles in this UAV's range and no other UAV's (world.network.EXCLUSIVE; the difference reward)."""
+    disc_offset: tuple[float, float] = (0.0, 0.0)
+    """With learner.sense_disc: the densest sensed disc's centre minus own position, m (world.network.DISC_DX)."""
+    disc_vehicles: int = 0
+    """With learner.sense_disc: the vehicles within comm range of that centre; 0 none sensed / off."""
 
 
 @dataclass(frozen=True)
@@ -613,8 +620,8 @@ _SIZE_LIMIT: Mapping[str, int] = MappingProxyType(
 
 # msgpack limits per kind, applied while parsing: the longest map, array, str of any valid message
 # of that kind (the envelope's src and kind strings included); no bin or ext type is ever valid.
-# (max_map_len 19: an obs, 6 envelope keys + 13 fields.)
-_SMALL_LIMITS = {"max_map_len": 19, "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
+# (max_map_len: an obs's, the longest small kind, 6 envelope keys + 15 fields.)
+_SMALL_LIMITS = {"max_map_len": len(_WIRE_KEYS[KIND_OBS]), "max_array_len": 2, "max_str_len": MAX_SRC_LEN, "max_bin_len": 0,
                  "max_ext_len": 0}
 _UNPACK_LIMITS: Mapping[str, Mapping[str, int]] = MappingProxyType({
     KIND_TICK: _SMALL_LIMITS, KIND_OBS: _SMALL_LIMITS, KIND_BEACON: _SMALL_LIMITS, KIND_ACTION: _SMALL_LIMITS,

@@ -123,6 +123,11 @@ FIELD_NOTES: Mapping[str, Mapping[str, tuple[str, str]]] = {
                                "densest_sector); 0: none sensed, or sensing off"),
         "exclusive": ("vehicles", "vehicles within this UAV's comm range and no other UAV's: the coverage the "
                               f"swarm would lose without it (the difference reward, learner.w_difference); {_COUNT}"),
+        "disc_offset": ("m", "with sensing on and learner.sense_disc: among the vehicles within the sensing radius, "
+                             "the one with the most vehicles within comm range of it, its position minus the UAV's "
+                             "[dx, dy]; [0, 0]: none sensed, or off (absent from older senders: [0, 0])"),
+        "disc_vehicles": ("vehicles", "the vehicles within comm range of that centre, itself counted; 0: none sensed, "
+                                      f"or off (absent from older senders: 0); {_COUNT}"),
     },
     "beacon": {
         "uav": ("", _UAV_NOTE),

@@ -18,11 +18,14 @@ def observation_messages(cfg: Config, tick: int, episode: int, obs, done: bool) 
     pos, in_range, queued = obs.pos[0].tolist(), obs.vehicles_in_range[0].tolist(), obs.queued[0].tolist()
     relayed, covered, energy = obs.relayed[0].tolist(), obs.covered[0].tolist(), obs.energy_j[0].tolist()
     densest, exclusive = obs.densest_sector[0].tolist(), obs.exclusive[0].tolist()
+    disc = obs.disc_offset[0].tolist() if obs.disc_offset is not None else [[0.0, 0.0]] * sc.n_uavs
+    disc_n = obs.disc_vehicles[0].tolist() if obs.disc_vehicles is not None else [0] * sc.n_uavs
     return [schema.Obs(
         tick=tick, episode=episode, uav=i, pos=(float(pos[i][0]), float(pos[i][1])),
         vehicles_in_range=int(in_range[i]), queued_packets=int(queued[i]), relayed=int(relayed[i]),
         covered=int(covered[i]), energy_j=float(energy[i]), speed_max=sc.uav_speed_mps, done=done,
-        densest_sector=int(densest[i]), exclusive=int(exclusive[i])) for i in range(sc.n_uavs)]
+        densest_sector=int(densest[i]), exclusive=int(exclusive[i]), disc_offset=(float(disc[i][0]), float(disc[i][1])),
+        disc_vehicles=int(disc_n[i])) for i in range(sc.n_uavs)]
 
 
 __all__ = ["observation_messages"]
