@@ -100,7 +100,7 @@ def _trained_at_15(ax) -> None:
     ax.axvline(15, color="k", lw=0.6, alpha=0.4)
     ax.text(15.3, 2, "ppo, ppo-claim trained at 15 m/s", fontsize=7, alpha=0.7)
     ax.axvline(5, color="k", lw=0.6, alpha=0.4)
-    ax.text(5.3, 6, "ppo-disc's own network trained at 5 m/s\n(ppo-claim's from 10 m/s)", fontsize=7, alpha=0.7)
+    ax.text(5.3, 6, "ppo-disc's own network trained at 5 m/s\n(from 10 m/s it flies ppo-claim's)", fontsize=7, alpha=0.7)
 
 
 def figure(cov: dict[tuple[str, float], dict[int, float]], path: Path, title: str) -> None:
@@ -115,7 +115,7 @@ def main() -> None:
     ap.add_argument("run", nargs="?", help="the velocity run (omit with --replot)")
     ap.add_argument("--out", default="docs/figures/velocity-schemes", help="OUT.csv and OUT.png (default %(default)s)")
     ap.add_argument("--title", default="--preset paper, sensing 1500 m: greedy, 10 seeds x 20 held-out episodes, 95% "
-                                       "bands\nTRUAV trained 500 episodes per speed; ppo and ppo-claim trained at 15 m/s only")
+                                       "bands\nTRUAV trained 500 episodes per speed; ppo, ppo-claim at 15 m/s only; ppo-disc (below)")
     ap.add_argument("--replot", action="store_true", help="redraw OUT.png and the tables from OUT.csv")
     ap.add_argument("--merge", action="store_true", help="add RUN's cells to OUT.csv's rows (same seeds)")
     args = ap.parse_args()

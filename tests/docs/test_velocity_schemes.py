@@ -35,3 +35,13 @@ def test_the_tables_pair_the_clone_with_spread_and_claim() -> None:
     keys = ("truav", "spread", "ppo", "patrol", "claim", "ppo-claim")
     cov = {(k, 15.0): {s: 40.0 + i * 3 + s for s in range(4)} for i, k in enumerate(keys)}
     assert "| speed (m/s) | ppo-claim - spread | ppo-claim - claim | claim - spread |" in vs.tables(cov)
+
+
+def test_the_tables_pair_ppo_disc_with_the_heuristics_and_ppo_claim() -> None:
+    keys = ("truav", "spread", "ppo", "patrol", "claim", "ppo-claim", "ppo-disc")
+    cov = {(k, 5.0): {s: 40.0 + i * 3 + s for s in range(4)} for i, k in enumerate(keys)}
+    out = vs.tables(cov)
+    assert "| speed (m/s) | ppo-disc - spread | ppo-disc - claim | ppo-disc - ppo-claim |" in out
+    assert "ppo-disc (learned, senses the disc)" in out.splitlines()[0]
+    without = vs.tables({k: v for k, v in cov.items() if k[0] != "ppo-disc"})  # an older CSV: no such column
+    assert "ppo-disc" not in without
