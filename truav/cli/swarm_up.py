@@ -280,7 +280,8 @@ def add_up_args(up: argparse.ArgumentParser, default_scheme: str, default_help: 
                     help="fly your own agent class (pkg.module:Class or a name registered in the entry-point group "
                          "truav.agents; docs/how-to/your-own-agent.md), one per UAV agent process; "
                          f"{', '.join(SENSING_AGENTS[:-1])} and {SENSING_AGENTS[-1]} fly with their sensing on (learner.sense_range_m "
-                         f"{SENSE_RANGE_M:g}) unless --set gives another")
+                         f"{SENSE_RANGE_M:g}) unless --set gives another, ppo-disc with learner.sense_disc on too "
+                         "(it observes the densest sensed disc)")
     add_policy_args(up)
     add_command_hold_arg(up)
     up.add_argument("--agents", type=positive_int,
