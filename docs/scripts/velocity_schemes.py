@@ -51,6 +51,15 @@ def arrays(cov: dict[tuple[str, float], dict[int, float]]) -> tuple[list[float],
     return speeds, {k: np.array([v[s] for s in seeds]) for k, v in cov.items()}
 
 
+def _differences(a: dict[tuple[str, float], np.ndarray], speeds: list[float],
+                 pairs: tuple[tuple[str, str], ...]) -> list[str]:
+    """A table of "x - y" per speed for each (x, y) of ``pairs``, paired on the seeds."""
+    lines = paired.head("speed (m/s)", [f"{x} - {y}" for x, y in pairs])
+    for v in speeds:
+        lines.append(paired.row(f"{v:g}", [paired.diff(a[y, v], a[x, v]) for x, y in pairs]))
+    return lines
+
+
 def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
     speeds, a = arrays(cov)
     shown = [(k, label) for k, label in SCHEMES if (k, speeds[0]) in a]
@@ -63,18 +72,10 @@ def tables(cov: dict[tuple[str, float], dict[int, float]]) -> str:
         cells = [paired.diff(a[k, v], a["ppo", v]) for k, _ in others]
         cells.append(paired.diff(a["truav", v], a["spread", v]))
         lines.append(paired.row(f"{v:g}", cells))
-    if ("ppo-claim", speeds[0]) in a:
-        lines += ["", *paired.head("speed (m/s)", ["ppo-claim - spread", "ppo-claim - claim", "claim - spread"])]
-        for v in speeds:
-            lines.append(paired.row(f"{v:g}", [paired.diff(a["spread", v], a["ppo-claim", v]),
-                                               paired.diff(a["claim", v], a["ppo-claim", v]),
-                                               paired.diff(a["spread", v], a["claim", v])]))
-    if ("ppo-disc", speeds[0]) in a:
-        lines += ["", *paired.head("speed (m/s)", ["ppo-disc - spread", "ppo-disc - claim", "ppo-disc - ppo-claim"])]
-        for v in speeds:
-            lines.append(paired.row(f"{v:g}", [paired.diff(a["spread", v], a["ppo-disc", v]),
-                                               paired.diff(a["claim", v], a["ppo-disc", v]),
-                                               paired.diff(a["ppo-claim", v], a["ppo-disc", v])]))
+    for pairs in ((("ppo-claim", "spread"), ("ppo-claim", "claim"), ("claim", "spread")),
+                  (("ppo-disc", "spread"), ("ppo-disc", "claim"), ("ppo-disc", "ppo-claim"))):
+        if all((k, speeds[0]) in a for pair in pairs for k in pair):
+            lines += ["", *_differences(a, speeds, pairs)]
     return "\n".join(lines)
 
 
