@@ -92,9 +92,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="real time at --rate instead of lock-step")
     ap.add_argument("--rate", type=float, default=10.0, help="--realtime: tick rate in Hz (default 10)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 10 UAVs, 10 ticks, 1 and 5 per process")
+    policy_runs.add_speed_option(ap)
     ap.add_argument("--json", type=Path, metavar="FILE", help="also write the rows as JSON (each "
                     "process's figures under 'processes')")
     args = ap.parse_args(argv)
+    if args.speed is not None and not 0.1 <= args.speed <= 100:
+        print(f"bench_policy_memory: error: --speed: a UAV speed in [0.1, 100] m/s, got {args.speed:g}", file=sys.stderr)
+        return 2
     if args.quick:
         args.agents, args.ticks = 10, 10
         if args.per_process == ap.get_default("per_process"):
@@ -114,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rows = []
     with tempfile.TemporaryDirectory(prefix="truav-bench-memory-") as tmp:
-        scenario = policy_runs.write_scenario(Path(tmp) / "paper-sense1500.toml")
+        scenario = policy_runs.write_scenario(Path(tmp) / "paper-sense1500.toml", args.speed)
         for k in ks:
             for scheme in schemes:
                 try:

@@ -4,6 +4,7 @@ runs alternated, missed actions and the agents' CPU per scheme.
     python bench/bench_policy_realtime.py                 # 20 UAVs, 10 Hz, 60 s a run, 3 rounds of truav, ppo
     python bench/bench_policy_realtime.py --repeat 5      # more rounds: the run-to-run spread
     python bench/bench_policy_realtime.py --quick --anyway    # a smoke run (4 UAVs, 5 s, 1 round) on a busy machine
+    python bench/bench_policy_realtime.py --schemes truav,ppo-disc --speed 5   # ppo-disc flies its own network below 10 m/s
 
 Each run is ``truav-swarm up`` of this checkout under ``--preset paper`` with ``learner.sense_range_m=1500``
 (the sensing the shipped ``ppo`` weights were trained with): one episode of ``--seconds x --rate`` ticks at
@@ -87,9 +88,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--schemes", default=f"{BASELINE},ppo", help="comma-separated: truav (the Q-learning agents) "
                     "or an agent name (default truav,ppo)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: 4 UAVs, 5 s, 1 round")
+    policy_runs.add_speed_option(ap)
     bench_common.add_load_options(ap)
     ap.add_argument("--json", type=Path, metavar="FILE", help="also write the rows as JSON")
     args = ap.parse_args(argv)
+    if args.speed is not None and not 0.1 <= args.speed <= 100:
+        print(f"bench_policy_realtime: error: --speed: a UAV speed in [0.1, 100] m/s, got {args.speed:g}", file=sys.stderr)
+        return 2
     if args.quick:
         args.agents, args.seconds, args.repeat = 4, 5.0, 1
     schemes = [s for s in args.schemes.split(",") if s]
@@ -106,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="truav-bench-realtime-") as tmp:
-        scenario = policy_runs.write_scenario(Path(tmp) / "paper-sense1500.toml")
+        scenario = policy_runs.write_scenario(Path(tmp) / "paper-sense1500.toml", args.speed)
         for _ in range(args.repeat):
             for s in schemes:
                 loaded = bench_common.wait_for_load(args)

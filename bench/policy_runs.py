@@ -45,10 +45,16 @@ def flown_as(scheme: str) -> str:
     return "truav" if scheme == "truav" else f"agent:{scheme}"
 
 
-def write_scenario(path: Path) -> Path:
-    """``truav config show --preset paper --set learner.sense_range_m=1500`` into ``path``."""
-    text = subprocess.run([sys.executable, "-m", "truav.cli", "config", "show", "--preset", "paper", "--set",
-                           f"learner.sense_range_m={SENSE_RANGE_M}"], cwd=ROOT, capture_output=True, text=True,
+def add_speed_option(ap) -> None:
+    """--speed, the scenario's UAV speed (ppo-disc flies its own network below 10 m/s, ppo-claim's from it)."""
+    ap.add_argument("--speed", type=float, metavar="M/S", help="UAV speed, m/s (default: the paper preset's)")
+
+
+def write_scenario(path: Path, speed: float | None = None) -> Path:
+    """``truav config show --preset paper --set learner.sense_range_m=1500`` (and the UAV ``speed``) into ``path``."""
+    sets = [f"learner.sense_range_m={SENSE_RANGE_M}", *([f"scenario.uav_speed_mps={speed:g}"] if speed else [])]
+    text = subprocess.run([sys.executable, "-m", "truav.cli", "config", "show", "--preset", "paper",
+                           *(a for s in sets for a in ("--set", s))], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout
     path.write_text(text)
     return path

@@ -23,7 +23,9 @@ def test_mistakes_are_one_line_and_exit_2() -> None:
     for name, args, says in (("bench_policy_memory.py", ["--per-process", "0"], "--per-process"),
                              ("bench_policy_memory.py", ["--per-process", "x"], "--per-process"),
                              ("bench_policy_realtime.py", ["--max-load", "0"], "--max-load 0"),
-                             ("bench_policy_realtime.py", ["--agents", "51", "--anyway"], "--agents")):
+                             ("bench_policy_realtime.py", ["--agents", "51", "--anyway"], "--agents"),
+                             ("bench_policy_realtime.py", ["--speed", "0", "--anyway"], "--speed"),
+                             ("bench_policy_memory.py", ["--speed", "-5"], "--speed")):
         r = _bench(name, *args, timeout=60)
         assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1, (name, args, r)
         assert says in r.stderr, r.stderr
@@ -54,3 +56,17 @@ def test_a_tiny_realtime_run_of_each_scheme_prints_the_runs_and_the_table(tmp_pa
     assert [g["scheme"] for g in got] == ["truav", "ppo"] and all(g["ticks"] >= 30 for g in got), got
     assert all(0.0 <= g["missed_pct"] <= 100.0 and g["exit_code"] == 0 for g in got), got
     assert "| truav | 1 |" in r.stdout and "| ppo | 1 |" in r.stdout, r.stdout
+
+
+def test_speed_sets_the_scenario_the_policy_flies_in(tmp_path) -> None:
+    """--speed 5 flies ppo-disc's own network (it picks by speed): the scenario file says 5 m/s."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        import policy_runs
+    finally:
+        sys.path.remove(str(BENCH))
+    from truav.config import load_config
+    cfg = load_config(policy_runs.write_scenario(tmp_path / "s.toml", 5.0))
+    assert cfg.scenario.uav_speed_mps == 5.0 and cfg.learner.sense_range_m == 1500.0
+    assert load_config(policy_runs.write_scenario(tmp_path / "d.toml")).scenario.uav_speed_mps == 15.0
+
