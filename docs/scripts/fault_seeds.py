@@ -33,7 +33,8 @@ from truav.swarm.scheme_faults import CompareSize, file_name, run_comparison
 
 CLONE = "agents.ppo_agent:PpoClaimAgent"
 SCHEMES = (("truav", "TRUAV (Q-learning)"), ("spread", "spread (heuristic)"), ("ppo", "ppo (learned)"),
-           ("patrol", "patrol"), ("claim", "claim (heuristic)"), (CLONE, "ppo-claim (learned clone of claim)"))
+           ("patrol", "patrol"), ("claim", "claim (heuristic)"), (CLONE, "ppo-claim (learned clone of claim)"),
+           ("ppo-disc", "ppo-disc (learned, senses the disc)"))
 SHORT = {CLONE: "ppo-claim"}
 """A scheme's name in the tables' differences."""
 FAULTS = (("none", 0.0, "no fault"), ("loss", 0.5, "link loss 50%"), ("latency", 500.0, "latency 500 ms"),
@@ -42,23 +43,26 @@ SIZE = CompareSize(loss=(0.0, 0.5), latency_ms=(0.0, 500.0), down_share=(0.0, 0.
                    train_episodes={"truav": 1, "central": 1}, learn_episodes=1, partition_share=(0.0, 0.8))
 BEACON_FIRST = replace(SIZE, latency_ms=(0.0,), down_share=(0.0,))
 """The beacon faults (loss, partition) of SIZE alone: every seed's run first, before the rest of SIZE."""
-SEEDS, RATE_HZ = 6, 10.0
+SEEDS, RATE_HZ, SPEED_MPS = 6, 10.0, 15.0
+"""SPEED_MPS: the page's UAV speed (--preset paper's); ppo-disc flies its own network only below
+agents.ppo_agent.DISC_BELOW_MPS (--speed 5), ppo-claim's from it on."""
 RETRIES = 3
 
 
-def config() -> Config:
+def config(speed: float = SPEED_MPS) -> Config:
+    """Every scheme's config (truav.swarm.scheme_faults adds learner.sense_disc for ppo-disc: with_sensing)."""
     cfg = Config().replace(**preset_overrides("paper"))
-    return cfg.replace(learner={"grid_cells": 1, "sense_range_m": 1500.0})
+    return cfg.replace(learner={"grid_cells": 1, "sense_range_m": 1500.0}, scenario={"uav_speed_mps": speed})
 
 
 def measure(runs: Path, qtable: str | None, seeds: list[int], rate: float, schemes: tuple[str, ...],
-            faults: tuple[str, ...]) -> list[dict]:
+            faults: tuple[str, ...], speed: float = SPEED_MPS) -> list[dict]:
     sizes = [BEACON_FIRST, SIZE] if {"latency", "crash"} & set(faults) else [BEACON_FIRST]
     for size in sizes:  # the beacon faults at every seed first, then the rest (resuming the finished runs)
         for k in seeds:
             for attempt in range(RETRIES + 1):  # a run that could not start (a busy host) is run again
                 try:
-                    run_comparison(config(), size, runs / f"seed{k}", schemes, seed=EVAL_SEED_OFFSET + k,
+                    run_comparison(config(speed), size, runs / f"seed{k}", schemes, seed=EVAL_SEED_OFFSET + k,
                                    qtable=qtable, rate_hz=rate)
                     break
                 except PointFailed as e:
@@ -128,7 +132,7 @@ def tables(rows: list[dict]) -> str:
         lines.append(paired.row(label, [cell(cov[s, f], lambda: paired.diff(cov[s, "none"], cov[s, f]))
                                         for f, _, _ in FAULTS[1:]]))
     pairs = (("ppo", "truav"), ("ppo", "spread"), ("spread", "truav"), (CLONE, "truav"), (CLONE, "spread"),
-             (CLONE, "claim"), (CLONE, "ppo"), ("claim", "spread"))
+             (CLONE, "claim"), (CLONE, "ppo"), ("claim", "spread"), ("ppo-disc", "spread"), ("ppo-disc", "claim"))
     lines += ["", *paired.head("change of ... minus change of ...", [label for _, _, label in FAULTS[1:]])]
     for a, b in pairs:  # (a's fault - a's none) - (b's fault - b's none), paired per seed
         lines.append(paired.row(f"{SHORT.get(a, a)} - {SHORT.get(b, b)}", [
@@ -142,14 +146,22 @@ def tables(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def figure(rows: list[dict], path: Path) -> None:
+def title(n: int, speed: float) -> str:
+    return (f"Swarms on the bus, --preset paper {speed:g} m/s, 60-step episodes: fault minus no fault, paired over {n} "
+            "seeds, 95% intervals")
+
+
+def figure(rows: list[dict], path: Path, speed: float = SPEED_MPS) -> list[str]:
+    """OUT.png, a bar per scheme in the rows (each in its colour of SCHEMES); the schemes drawn."""
     cov = table(rows)
     n = len(cov[SCHEMES[0][0], "none"])
     fig, ax = paired.pyplot().subplots(figsize=(10, 5))
-    width = 0.8 / len(SCHEMES)
-    for i, (s, label) in enumerate(SCHEMES):
+    present = {r["scheme"] for r in rows}
+    drawn = [(i, s, label) for i, (s, label) in enumerate(SCHEMES) if s in present]
+    width = 0.8 / len(drawn)
+    for j, (i, s, label) in enumerate(drawn):
         m, h = zip(*(mean_ci(cov[s, f] - cov[s, "none"]) for f, _, _ in FAULTS[1:]))
-        x = np.arange(len(FAULTS) - 1) + (i - (len(SCHEMES) - 1) / 2) * width
+        x = np.arange(len(FAULTS) - 1) + (j - (len(drawn) - 1) / 2) * width
         ax.bar(x, m, width, yerr=np.nan_to_num(h), capsize=2, error_kw={"elinewidth": 1, "ecolor": "0.25"}, color=f"C{i}", label=label,
                hatch="//" if "learned" in label else None, edgecolor="white" if "learned" in label else None)
     ax.axhline(0, color="k", lw=0.8)
@@ -157,9 +169,9 @@ def figure(rows: list[dict], path: Path) -> None:
     ax.set_ylabel("coverage change from no fault (points)")
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=8, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
-    ax.set_title(f"Swarms on the bus, --preset paper 15 m/s, 60-step episodes: fault minus no fault, paired over {n} seeds, "
-                 "95% intervals", fontsize=9)
+    ax.set_title(title(n, speed), fontsize=9)
     paired.save(fig, path)
+    return [s for _, s, _ in drawn]
 
 
 def read(path: Path) -> list[dict]:
@@ -175,6 +187,8 @@ def main() -> None:
     ap.add_argument("--runs", default="runs/fault-seeds", help="the swarm runs, one directory per seed")
     ap.add_argument("--out", default="docs/figures/fault-seeds", help="OUT.csv and OUT.png (default %(default)s)")
     ap.add_argument("--seeds", type=int, default=SEEDS)
+    ap.add_argument("--speed", type=float, default=SPEED_MPS,
+                    help="UAV speed in m/s, scenario.uav_speed_mps (default %(default)g, the page's)")
     ap.add_argument("--rate", type=float, default=RATE_HZ, help="tick rate in Hz (default %(default)s)")
     ap.add_argument("--only", type=int, nargs="+", metavar="K",
                     help="run only these seeds and write nothing (two hosts or processes can share the seeds; "
@@ -193,7 +207,7 @@ def main() -> None:
         if not args.qtable and "truav" in schemes:
             ap.error("--qtable RUN is required to fly truav (or --replot)")
         seeds = args.only or list(range(args.seeds))
-        new = measure(Path(args.runs), args.qtable, seeds, args.rate, schemes, faults)
+        new = measure(Path(args.runs), args.qtable, seeds, args.rate, schemes, faults, args.speed)
         if args.only:
             return
         old = read(out.with_suffix(".csv")) if out.with_suffix(".csv").is_file() else []
@@ -203,7 +217,7 @@ def main() -> None:
             w.writeheader()
             w.writerows({**r, **{k: f"{r[k]:.4f}" for k in ("coverage_pct", "pdr_pct", "missed_actions_pct", "beacons_heard_pct")}}
                         for r in rows)
-    figure(rows, out.with_suffix(".png"))
+    figure(rows, out.with_suffix(".png"), args.speed)
     print(tables(rows))
 
 

@@ -30,3 +30,21 @@ def test_a_fault_not_run_for_a_scheme_reads_not_run_and_the_others_are_paired() 
 def test_the_figure_is_drawn_with_schemes_missing(tmp_path) -> None:
     fault_seeds.figure(rows("truav", [f for f, _, _ in fault_seeds.FAULTS]), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_speed_sets_the_runs_config_and_the_figure_title_and_ppo_disc_flies_the_disc() -> None:
+    from agents.spread_agent import with_sensing
+    assert fault_seeds.config().scenario.uav_speed_mps == 15.0  # the page's default
+    cfg = fault_seeds.config(5.0)
+    assert cfg.scenario.uav_speed_mps == 5.0
+    assert "5 m/s" in fault_seeds.title(8, 5.0) and "15 m/s" not in fault_seeds.title(8, 5.0)
+    assert "15 m/s" in fault_seeds.title(8, 15.0)
+    assert "ppo-disc" in dict(fault_seeds.SCHEMES)
+    flown = with_sensing("ppo-disc", cfg)  # as truav.swarm.scheme_faults.run_point flies each scheme
+    assert flown.learner.sense_disc and flown.learner.sense_range_m > 0.0
+
+
+def test_the_figure_draws_only_the_schemes_in_the_rows(tmp_path) -> None:
+    faults = [f for f, _, _ in fault_seeds.FAULTS]
+    drawn = fault_seeds.figure(rows("ppo-disc", faults) + rows("spread", faults), tmp_path / "f.png", speed=5.0)
+    assert drawn == ["spread", "ppo-disc"]  # in SCHEMES order
