@@ -81,6 +81,13 @@ def test_fault_sweep_resumes_exactly_the_unfinished_points(tmp_path):
 
 
 CELLS = """import sys
+import time
+from truav.experiments import runner
+_save = runner.save_cell
+def _paced(*args, **kwargs):  # cells this small take milliseconds: paced, a signal lands mid-sweep
+    _save(*args, **kwargs)
+    time.sleep(0.5)
+runner.save_cell = _paced  # (the forked workers inherit it)
 from truav.cli.main import main
 sys.exit(main(sys.argv[1:]))
 """
