@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -38,11 +39,17 @@ def alive(pid: int) -> bool:
         return False
 
 
+def _as_at_a_terminal() -> None:
+    # A suite started in the background (`cmd &` without job control, as a CI script may) ignores SIGINT, and
+    # its children inherit that: the command stopped here is one a user runs at a terminal, where Ctrl-C counts.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(code: str, args: list[str], cwd: Path) -> subprocess.Popen:
-    """``python -c code args...`` in ``cwd``, its output in pipes (text)."""
+    """``python -c code args...`` in ``cwd``, its output in pipes (text), SIGINT as at a terminal."""
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     return subprocess.Popen([sys.executable, "-c", code, *args], cwd=cwd, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_as_at_a_terminal)
 
 
 def stop_when(proc: subprocess.Popen, ready: Callable[[], bool], signum: int, timeout_s: float,
