@@ -36,7 +36,7 @@ CLAIM_WEIGHTS = WEIGHTS.with_name("ppo_claim_paper_15mps.npz")
 """The network cloned from the climbing heuristic with the claim features (docs/scripts/toward60_claim.py)."""
 DISC_WEIGHTS = WEIGHTS.with_name("ppo_disc_paper_5mps.npz")
 """The network taught by the privileged teacher at 5 m/s, observing the densest sensed disc
-(docs/scripts/privileged_sensing.py; docs/results/learned-policy.md, "A learner that senses the densest disc")."""
+(docs/scripts/privileged_dagger.py --disc; docs/results/learned-policy.md, "A learner that flies the sensed disc")."""
 DISC_BELOW_MPS = 10.0
 """PpoDiscAgent flies DISC_WEIGHTS below this speed and CLAIM_WEIGHTS from it on: where each was measured
 above the heuristics (docs/results/velocity.md)."""
